@@ -1,0 +1,24 @@
+"""sgloc: multi-robot global localization on semantic graphs.
+
+from sgloc import SemanticGraph, localize
+res = localize(query_graph, target_graph, descriptor="histogram", rejection="neighbor")
+res.transform  # T_target_query (4x4) or None when not localized
+"""
+
+from sgloc.config import LocalizerConfig
+from sgloc.errors import SglocError
+from sgloc.graph import SemanticGraph
+from sgloc.localizer import LocalizationResult, Localizer, NotLocalizedError, localize
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "LocalizationResult",
+    "Localizer",
+    "LocalizerConfig",
+    "NotLocalizedError",
+    "SemanticGraph",
+    "SglocError",
+    "__version__",
+    "localize",
+]

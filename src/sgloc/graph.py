@@ -1,0 +1,159 @@
+"""SemanticGraph: objects (3D centre + semantic class) joined by edges within a radius."""
+
+from __future__ import annotations
+
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+from scipy import sparse
+from scipy.spatial.distance import cdist
+
+from sgloc.errors import InvalidGraphError
+
+DEFAULT_EDGE_RADIUS = 20.0
+
+
+class SemanticGraph:
+    """A robot's object map as a weighted graph.
+
+    Args:
+        positions: (n,3) object centres in metres, in the robot's map frame.
+        labels: (n,) non-negative integer class ids.
+        edge_radius: two vertices are neighbours when closer than this (metres, Guo: 20 m).
+        name: optional name used in messages.
+
+    The full distance matrix is kept (the paper's weighted graph); the adjacency is derived
+    from it. Both are computed lazily and cached; the graph is immutable.
+    """
+
+    def __init__(
+        self,
+        positions: np.ndarray,
+        labels: np.ndarray,
+        edge_radius: float = DEFAULT_EDGE_RADIUS,
+        name: str | None = None,
+    ) -> None:
+        self.name = name or "graph"
+        pos = np.asarray(positions, dtype=np.float64)
+        lab = np.asarray(labels)
+        if pos.ndim == 1 and pos.size == 0:
+            pos = pos.reshape(0, 3)
+        if pos.ndim != 2 or pos.shape[1] != 3:
+            raise InvalidGraphError(
+                f"{self.name}: positions must have shape (n, 3), got {pos.shape}; "
+                "pass one x, y, z row per object."
+            )
+        if lab.ndim != 1 or lab.shape[0] != pos.shape[0]:
+            raise InvalidGraphError(
+                f"{self.name}: labels must have shape ({pos.shape[0]},) to match the positions, "
+                f"got {lab.shape}."
+            )
+        if lab.size and not np.issubdtype(lab.dtype, np.integer):
+            if not np.all(np.isfinite(lab)) or np.any(lab != np.round(lab)):
+                raise InvalidGraphError(f"{self.name}: labels must be integer class ids.")
+        lab = lab.astype(np.int64)
+        if not np.all(np.isfinite(pos)):
+            bad = np.flatnonzero(~np.all(np.isfinite(pos), axis=1))
+            raise InvalidGraphError(
+                f"{self.name}: {bad.size} position(s) are NaN or infinite (first at row {bad[0]}); "
+                "drop those objects before building the graph."
+            )
+        if lab.size and lab.min() < 0:
+            raise InvalidGraphError(
+                f"{self.name}: labels must be >= 0 (found {lab.min()}); "
+                "unknown classes must be removed or mapped to an id."
+            )
+        if not (np.isfinite(edge_radius) and edge_radius > 0):
+            raise InvalidGraphError(f"{self.name}: edge_radius must be > 0 m, got {edge_radius}.")
+        pos.flags.writeable = False
+        lab.flags.writeable = False
+        self.positions = pos
+        self.labels = lab
+        self.edge_radius = float(edge_radius)
+
+    # -- basic properties -------------------------------------------------------------------
+    def __len__(self) -> int:
+        return self.positions.shape[0]
+
+    @property
+    def n_vertices(self) -> int:
+        return len(self)
+
+    @property
+    def n_classes(self) -> int:
+        """One more than the largest class id (0 for an empty graph)."""
+        return int(self.labels.max()) + 1 if len(self) else 0
+
+    def __repr__(self) -> str:
+        return (
+            f"SemanticGraph(name={self.name!r}, n={len(self)}, edges={self.n_edges}, "
+            f"classes={len(np.unique(self.labels))}, edge_radius={self.edge_radius})"
+        )
+
+    @cached_property
+    def distances(self) -> np.ndarray:
+        """(n,n) Euclidean distances between all vertices, metres."""
+        d = cdist(self.positions, self.positions)
+        d.flags.writeable = False
+        return d
+
+    @cached_property
+    def adjacency(self) -> sparse.csr_array:
+        """(n,n) symmetric 0/1 adjacency (float64 CSR): distance < edge_radius, no self loops."""
+        from scipy.spatial import cKDTree
+
+        tree = cKDTree(self.positions)
+        pairs = tree.query_pairs(self.edge_radius, output_type="ndarray", p=2.0)
+        # query_pairs uses <=; the paper's rule is strict <.
+        if pairs.size:
+            d = np.linalg.norm(self.positions[pairs[:, 0]] - self.positions[pairs[:, 1]], axis=1)
+            pairs = pairs[d < self.edge_radius]
+        n = len(self)
+        rows = np.concatenate([pairs[:, 0], pairs[:, 1]]) if pairs.size else np.zeros(0, int)
+        cols = np.concatenate([pairs[:, 1], pairs[:, 0]]) if pairs.size else np.zeros(0, int)
+        a = sparse.csr_array((np.ones(rows.size), (rows, cols)), shape=(n, n))
+        a.sort_indices()
+        return a
+
+    @property
+    def n_edges(self) -> int:
+        return int(self.adjacency.nnz // 2)
+
+    @cached_property
+    def degrees(self) -> np.ndarray:
+        """(n,) number of neighbours of each vertex."""
+        return np.diff(self.adjacency.indptr)
+
+    # -- derived graphs ---------------------------------------------------------------------
+    def transformed(self, T: np.ndarray, name: str | None = None) -> SemanticGraph:
+        """The same graph with positions mapped by the 4x4 rigid transform T (p' = R p + t)."""
+        T = np.asarray(T, dtype=np.float64)
+        pos = self.positions @ T[:3, :3].T + T[:3, 3]
+        return SemanticGraph(pos, self.labels, self.edge_radius, name or self.name)
+
+    def subgraph(self, index: np.ndarray, name: str | None = None) -> SemanticGraph:
+        """The graph on the vertices selected by `index` (boolean mask or integer indices)."""
+        idx = np.asarray(index)
+        return SemanticGraph(
+            self.positions[idx], self.labels[idx], self.edge_radius, name or self.name
+        )
+
+    def with_edge_radius(self, edge_radius: float) -> SemanticGraph:
+        """A copy with another edge radius (metres)."""
+        return SemanticGraph(self.positions, self.labels, edge_radius, self.name)
+
+    # -- files ------------------------------------------------------------------------------
+    @classmethod
+    def load(cls, path: str | Path, edge_radius: float = DEFAULT_EDGE_RADIUS) -> SemanticGraph:
+        """Read a graph from `.pcd` (Guo's packed-rgb Airsim classes), `.json` or `.npz`."""
+        from sgloc.io.graph_files import read_graph
+
+        positions, labels = read_graph(path)
+        return cls(positions, labels, edge_radius, name=Path(path).name)
+
+    def save(self, path: str | Path) -> Path:
+        """Write the graph as `.pcd`, `.json` or `.npz` (chosen by the suffix)."""
+        from sgloc.io.graph_files import write_graph
+
+        return write_graph(path, self.positions, self.labels, edge_radius=self.edge_radius)

@@ -1,0 +1,201 @@
+"""Localizer / localize(): run the stages graph pair -> transform, timing each one."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from sgloc.config import LocalizerConfig
+from sgloc.descriptors import make_descriptor
+from sgloc.errors import DegenerateGeometryError, InvalidGraphError, SglocError
+from sgloc.estimation import icp_refine, ransac, weighted_kabsch
+from sgloc.graph import SemanticGraph
+from sgloc.matching import match_descriptors
+from sgloc.rejection import make_rejector
+
+MIN_VERTICES = 3
+
+
+class NotLocalizedError(SglocError):
+    """Raised by `LocalizationResult.raise_if_failed` when no transform was accepted."""
+
+
+@dataclass
+class LocalizationResult:
+    """What `localize` found.
+
+    success: False when the evidence is not enough; then `transform` is None and `reason` says why.
+    transform: (4,4) T_target_query, mapping points of the query graph's frame into the target's.
+    matches: (k,2) int (query index, target index), the final (RANSAC inlier) matches.
+    candidates: (m,2) the descriptor matches before rejection; `scores` their similarities.
+    survivors: (s,2) the matches that passed rejection (the input of RANSAC).
+    timings: seconds per stage: descriptors, matching, rejection, ransac, estimation, total.
+    confidence: in [0, 1], how far the result is to be trusted (None when not assessed).
+    """
+
+    success: bool
+    transform: np.ndarray | None
+    matches: np.ndarray
+    candidates: np.ndarray
+    survivors: np.ndarray
+    scores: np.ndarray
+    timings: dict[str, float]
+    reason: str = ""
+    confidence: float | None = None
+    config: dict[str, Any] = field(default_factory=dict)
+
+    def raise_if_failed(self) -> LocalizationResult:
+        if not self.success:
+            raise NotLocalizedError(f"not localized: {self.reason}")
+        return self
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready summary."""
+        return {
+            "success": self.success,
+            "reason": self.reason,
+            "confidence": self.confidence,
+            "transform": None if self.transform is None else self.transform.tolist(),
+            "n_candidates": int(len(self.candidates)),
+            "n_survivors": int(len(self.survivors)),
+            "n_matches": int(len(self.matches)),
+            "matches": self.matches.tolist(),
+            "timings": self.timings,
+            "config": self.config,
+        }
+
+
+def _check_graph(graph: SemanticGraph, role: str) -> None:
+    if not isinstance(graph, SemanticGraph):
+        raise InvalidGraphError(f"{role} must be a SemanticGraph, got {type(graph).__name__}.")
+    if len(graph) < MIN_VERTICES:
+        raise InvalidGraphError(
+            f"{role} graph {graph.name!r} has {len(graph)} vertices; localization needs at least "
+            f"{MIN_VERTICES} objects (map a larger area)."
+        )
+
+
+class Localizer:
+    """The pipeline with a fixed configuration; call it on (query, target) graphs."""
+
+    def __init__(self, config: LocalizerConfig | None = None) -> None:
+        self.config = config or LocalizerConfig()
+        self.descriptor = make_descriptor(self.config.descriptor, **self.config.descriptor_params)
+        self.rejector = make_rejector(self.config.rejection, **self.config.rejection_params)
+
+    def __call__(
+        self,
+        query: SemanticGraph,
+        target: SemanticGraph,
+        rng: np.random.Generator | int | None = 0,
+    ) -> LocalizationResult:
+        _check_graph(query, "query")
+        _check_graph(target, "target")
+        rng = np.random.default_rng(rng)
+        cfg = self.config
+        timings: dict[str, float] = {}
+        t0 = time.perf_counter()
+
+        n_classes = max(query.n_classes, target.n_classes)
+        dq = self.descriptor(query, n_classes, rng)
+        dt = self.descriptor(target, n_classes, rng)
+        t1 = time.perf_counter()
+        timings["descriptors"] = t1 - t0
+
+        candidates, scores = match_descriptors(dq, dt, query.labels, target.labels, cfg.matching)
+        t2 = time.perf_counter()
+        timings["matching"] = t2 - t1
+
+        src = query.positions[candidates[:, 0]]
+        dst = target.positions[candidates[:, 1]]
+        kept = self.rejector(src, dst, scores)
+        survivors = candidates[kept]
+        t3 = time.perf_counter()
+        timings["rejection"] = t3 - t2
+
+        weights = None
+        if cfg.class_weights:
+            w = np.ones(n_classes)
+            for c, v in cfg.class_weights.items():
+                if 0 <= int(c) < n_classes:
+                    w[int(c)] = v
+            weights = w[query.labels[survivors[:, 0]]]
+        rs = ransac(src[kept], dst[kept], cfg.ransac, rng, weights)
+        t4 = time.perf_counter()
+        timings["ransac"] = t4 - t3
+
+        transform, reason = None, rs.reason
+        final = survivors[rs.inliers] if rs.inliers.size else np.zeros((0, 2), np.int64)
+        if rs.transform is not None:
+            try:
+                transform = weighted_kabsch(
+                    query.positions[final[:, 0]],
+                    target.positions[final[:, 1]],
+                    None if weights is None else weights[rs.inliers],
+                )
+            except DegenerateGeometryError as e:
+                reason = str(e)
+            if transform is not None and cfg.icp:
+                transform = icp_refine(
+                    query.positions,
+                    query.labels,
+                    target.positions,
+                    target.labels,
+                    transform,
+                    cfg.icp_max_distance,
+                )
+        t5 = time.perf_counter()
+        timings["estimation"] = t5 - t4
+        timings["total"] = t5 - t0
+        if transform is None and not reason:
+            reason = "no model accepted"
+        if len(candidates) < 3 and transform is None:
+            reason = (
+                f"only {len(candidates)} candidate match(es) between the graphs (fewer than "
+                "3); the maps may not overlap, or lower min_similarity"
+            )
+        return LocalizationResult(
+            success=transform is not None,
+            transform=transform,
+            matches=final if transform is not None else np.zeros((0, 2), np.int64),
+            candidates=candidates,
+            survivors=survivors,
+            scores=scores,
+            timings=timings,
+            reason="" if transform is not None else reason,
+            config=cfg.to_dict(),
+        )
+
+
+def localize(
+    query: SemanticGraph,
+    target: SemanticGraph,
+    descriptor: str | None = None,
+    rejection: str | None = None,
+    ransac_threshold: float | None = None,
+    seed: int | None = 0,
+    *,
+    config: LocalizerConfig | None = None,
+    rng: np.random.Generator | None = None,
+    **settings: Any,
+) -> LocalizationResult:
+    """Find T_target_query, the rigid transform from `query`'s frame into `target`'s.
+
+    Args:
+        query, target: the two robots' semantic graphs (positions in metres).
+        descriptor: "histogram" (default) | "random_walk" | "fast".
+        rejection: "neighbor" (default; the paper's Alg. 1) | "none" (RANSAC alone) | others
+            registered in `sgloc.rejection.REJECTORS`.
+        ransac_threshold: RANSAC inlier distance T_error, metres (default 5).
+        seed: seed of the random generator (RANSAC, random walks); ignored when `rng` is given.
+        config: a full LocalizerConfig to start from; arguments given here override it.
+        **settings: any stage setting by name, e.g. tau=3.0, eta=0.5, min_similarity=0.6,
+            top_k=2, mutual=True, iterations=2000, n_walks=300, class_weights={3: 11.0}, icp=True.
+    """
+    named = {"descriptor": descriptor, "rejection": rejection, "ransac_threshold": ransac_threshold}
+    overrides = {k: v for k, v in named.items() if v is not None} | settings
+    cfg = (config or LocalizerConfig()).with_overrides(**overrides)
+    return Localizer(cfg)(query, target, rng if rng is not None else seed)

@@ -1,0 +1,35 @@
+"""Outlier rejectors by name: `neighbor` (the paper), `none` (the baseline)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from sgloc.errors import UnknownNameError
+from sgloc.rejection.base import NoRejection, Rejector
+from sgloc.rejection.neighbor import NeighborRejector, consistency_matrix, prune_by_support
+
+REJECTORS: dict[str, type[Rejector]] = {
+    "none": NoRejection,
+    "neighbor": NeighborRejector,
+}
+
+
+def make_rejector(name: str | Rejector, **params: Any) -> Rejector:
+    """A rejector by name with optional parameters."""
+    if isinstance(name, Rejector):
+        return name
+    key = name.lower()
+    if key not in REJECTORS:
+        raise UnknownNameError(f"unknown rejection {name!r}; choose one of {', '.join(REJECTORS)}.")
+    return REJECTORS[key](**params)
+
+
+__all__ = [
+    "REJECTORS",
+    "NeighborRejector",
+    "NoRejection",
+    "Rejector",
+    "consistency_matrix",
+    "make_rejector",
+    "prune_by_support",
+]
