@@ -1,0 +1,55 @@
+"""Dataset loaders, one per file, and a factory by name (as KISS-ICP does).
+
+ds = make_dataset("kitti_objects", "$SGLOC_DATA/kitti00", scans="0-800", start_frame=True)
+for frame in ds:  # frames are read lazily
+    ...
+"""
+
+from __future__ import annotations
+
+import inspect
+from pathlib import Path
+from typing import Any
+
+from sgloc.datasets.airsim import AirsimDataset
+from sgloc.datasets.base import Dataset, Frame
+from sgloc.datasets.kitti import KittiDataset
+from sgloc.datasets.kitti_objects import KittiObjectsDataset
+from sgloc.datasets.synthia import SynthiaDataset
+from sgloc.errors import DatasetError, UnknownNameError
+
+#: Loader classes by name.
+DATASETS: dict[str, type[Dataset]] = {
+    "airsim": AirsimDataset,
+    "synthia": SynthiaDataset,
+    "kitti": KittiDataset,
+    "kitti_objects": KittiObjectsDataset,
+}
+
+
+def make_dataset(name: str, path: str | Path, **options: Any) -> Dataset:
+    """The loader `name` (see DATASETS) on `path`, with its own options (e.g. robot=, scans=)."""
+    key = name.strip().lower().replace("-", "_")
+    if key not in DATASETS:
+        raise UnknownNameError(f"unknown dataset {name!r}; choose one of {sorted(DATASETS)}.")
+    cls = DATASETS[key]
+    try:
+        inspect.signature(cls).bind(path, **options)
+    except TypeError as e:
+        raise DatasetError(
+            f"dataset {key!r}: bad option ({e}); see help({cls.__name__})."
+        ) from None
+    return cls(path, **options)
+
+
+__all__ = [
+    "DATASETS",
+    "AirsimDataset",
+    "Dataset",
+    "DatasetError",
+    "Frame",
+    "KittiDataset",
+    "KittiObjectsDataset",
+    "SynthiaDataset",
+    "make_dataset",
+]

@@ -1,0 +1,85 @@
+"""ExtractionConfig: every setting of graph extraction, with the paper's (Guo's) defaults."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from sgloc.errors import SglocError
+
+#: Image size at which Guo's `min_pixels` = 5000 holds (width, height).
+REFERENCE_RESOLUTION = (1024, 576)
+
+
+@dataclass
+class ExtractionConfig:
+    """Settings of `build_graph`.
+
+    Segmentation (images):
+        max_depth: pixels deeper than this (metres) are ignored (Guo 30 m, X-View 50 m).
+        depth_jump: a neighbour pixel joins a region only if its depth differs by less than
+            this (metres; Guo 1 m).
+        min_pixels: regions smaller than this are dropped, at `REFERENCE_RESOLUTION`
+            (Guo 5000 px at 1024x576); scaled by the image's pixel count (see `min_pixels_for`).
+        position: "mean" = mean of the region's back-projected 3D points (Guo); "centre" =
+            the region's 2D pixel centroid back-projected at the region's median depth (X-View).
+        ignore_classes: class ids never turned into vertices (e.g. road, sky).
+    Detections (LiDAR objects):
+        max_range: detections farther than this from the sensor (metres) are ignored; None = all.
+    Association (both):
+        merge_distance: an observation within this distance (metres) of an existing vertex of
+            the same class is that vertex (Guo 5 m); the vertex keeps the running mean.
+        min_observations: vertices seen fewer times are dropped at the end (1 keeps all).
+        edge_radius: graph edges join vertices closer than this (metres; Guo 20 m).
+    """
+
+    max_depth: float = 30.0
+    depth_jump: float = 1.0
+    min_pixels: int = 5000
+    position: Literal["mean", "centre"] = "mean"
+    ignore_classes: tuple[int, ...] = ()
+    max_range: float | None = None
+    merge_distance: float = 5.0
+    min_observations: int = 1
+    edge_radius: float = 20.0
+
+    def __post_init__(self) -> None:
+        self.ignore_classes = tuple(int(c) for c in self.ignore_classes)
+        checks = {
+            "max_depth": self.max_depth > 0,
+            "depth_jump": self.depth_jump > 0,
+            "min_pixels": self.min_pixels >= 1,
+            "merge_distance": self.merge_distance >= 0,
+            "min_observations": self.min_observations >= 1,
+            "edge_radius": self.edge_radius > 0,
+            "max_range": self.max_range is None or self.max_range > 0,
+        }
+        for name, ok in checks.items():
+            if not ok:
+                raise SglocError(
+                    f"ExtractionConfig.{name} = {getattr(self, name)!r} is out of range "
+                    "(distances and counts must be positive)."
+                )
+        if self.position not in ("mean", "centre"):
+            raise SglocError(
+                f"ExtractionConfig.position = {self.position!r}; use 'mean' or 'centre'."
+            )
+
+    def min_pixels_for(self, height: int, width: int) -> int:
+        """`min_pixels` scaled from 1024x576 to an image of height x width (at least 1)."""
+        ref = REFERENCE_RESOLUTION[0] * REFERENCE_RESOLUTION[1]
+        return max(1, int(round(self.min_pixels * (height * width) / ref)))
+
+    def with_overrides(self, **overrides: Any) -> ExtractionConfig:
+        """A copy with some settings changed (unknown names raise SglocError)."""
+        names = {f.name for f in dataclasses.fields(self)}
+        unknown = set(overrides) - names
+        if unknown:
+            raise SglocError(
+                f"unknown extraction setting(s) {sorted(unknown)}; known: {sorted(names)}."
+            )
+        return dataclasses.replace(self, **overrides)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
