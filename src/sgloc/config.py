@@ -9,6 +9,7 @@ from typing import Any
 
 import yaml
 
+from sgloc.acceptance import AcceptanceConfig
 from sgloc.descriptors import DESCRIPTORS, make_descriptor
 from sgloc.errors import SglocError, UnknownNameError
 from sgloc.estimation import RansacConfig
@@ -23,8 +24,10 @@ class LocalizerConfig:
     descriptor / descriptor_params: name in DESCRIPTORS and its parameters.
     rejection / rejection_params: name in REJECTORS and its parameters.
     class_weights: {class id: weight} for the final weighted fit (others weigh 1).
-    icp: refine the final transform by ICP on the two graphs' objects.
+    icp: refine the final transform by mutual-nearest-neighbour ICP on all objects of the two
+        graphs (not in the paper's pipeline; see docs/core_benchmark.md for its effect).
     icp_max_distance: ICP pairing radius (metres).
+    acceptance: the test behind `success` (sgloc.acceptance; strictness = min_confidence).
     """
 
     descriptor: str = "histogram"
@@ -35,7 +38,8 @@ class LocalizerConfig:
     ransac: RansacConfig = field(default_factory=RansacConfig)
     class_weights: dict[int, float] | None = None
     icp: bool = False
-    icp_max_distance: float = 2.0
+    icp_max_distance: float = 5.0
+    acceptance: AcceptanceConfig = field(default_factory=AcceptanceConfig)
 
     def __post_init__(self) -> None:
         # Fail early on unknown names or parameters.
@@ -50,6 +54,7 @@ class LocalizerConfig:
             rejection_params=dict(self.rejection_params),
             matching=dataclasses.replace(self.matching),
             ransac=dataclasses.replace(self.ransac),
+            acceptance=dataclasses.replace(self.acceptance),
         )
         if "descriptor" in overrides:
             cfg.descriptor = overrides.pop("descriptor")
@@ -70,6 +75,10 @@ class LocalizerConfig:
                 cfg.descriptor_params[key] = value
             elif key in rej_fields:
                 cfg.rejection_params[key] = value
+            elif key in _fields(AcceptanceConfig) and key not in {"enabled", "radius"}:
+                setattr(cfg.acceptance, key, value)
+            elif key == "acceptance":
+                cfg.acceptance = _acceptance(value)
             elif key in {"class_weights", "icp", "icp_max_distance"}:
                 setattr(cfg, key, value)
             else:
@@ -89,6 +98,7 @@ class LocalizerConfig:
         try:
             data["matching"] = MatchingConfig(**data.get("matching", {}))
             data["ransac"] = RansacConfig(**data.get("ransac", {}))
+            data["acceptance"] = _acceptance(data.get("acceptance", {}))
             return cls(**data)
         except TypeError as e:
             raise SglocError(f"malformed localizer config: {e}") from e
@@ -102,6 +112,15 @@ class LocalizerConfig:
         if not p.exists():
             raise SglocError(f"{p}: no such config file.")
         return cls.from_dict(yaml.safe_load(p.read_text()) or {})
+
+
+def _acceptance(value: Any) -> AcceptanceConfig:
+    """An AcceptanceConfig from itself, a dict, or a bool (False switches the test off)."""
+    if isinstance(value, AcceptanceConfig):
+        return value
+    if isinstance(value, bool):
+        return AcceptanceConfig(enabled=value)
+    return AcceptanceConfig(**(value or {}))
 
 
 def _fields(klass: type | None) -> set[str]:

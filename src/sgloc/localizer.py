@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from sgloc.acceptance import assess
 from sgloc.config import LocalizerConfig
 from sgloc.descriptors import make_descriptor
 from sgloc.errors import DegenerateGeometryError, InvalidGraphError, SglocError
@@ -152,6 +153,15 @@ class Localizer:
         timings["total"] = t5 - t0
         if transform is None and not reason:
             reason = "no model accepted"
+        confidence = None
+        if transform is not None and cfg.acceptance.enabled:
+            verdict = assess(
+                query, target, candidates, transform, cfg.ransac.threshold, cfg.acceptance, rng
+            )
+            confidence, reason = verdict.confidence, verdict.reason
+            transform = transform if verdict.accepted else None
+            timings["acceptance"] = time.perf_counter() - t5
+            timings["total"] += timings["acceptance"]
         if len(candidates) < 3 and transform is None:
             reason = (
                 f"only {len(candidates)} candidate match(es) between the graphs (fewer than "
@@ -166,6 +176,7 @@ class Localizer:
             scores=scores,
             timings=timings,
             reason="" if transform is not None else reason,
+            confidence=confidence,
             config=cfg.to_dict(),
         )
 

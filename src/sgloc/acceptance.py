@@ -1,0 +1,266 @@
+"""Acceptance test: is an estimated alignment backed by evidence, or could chance explain it?
+
+Guo's rule (>= 5 inliers and >= 1 % of the matches) accepts pairs of maps that do not overlap:
+repeated city objects always offer a few consistent-looking matches, and outlier rejection
+concentrates exactly those. This module scores an estimated transform T_target_query with an
+*a-contrario* test (as AC-RANSAC does) on the descriptor candidates, not on the survivors of
+rejection, which were selected for being consistent.
+
+Null model H0: the descriptor matches carry no information about *which* object of the same
+class is the partner: the target of candidate i is a uniformly random target object of its class.
+For a fixed transform T, candidate i is then an inlier (||T q_i - t_i|| < radius) with probability
+p_i = N_c(T q_i) / n_c (N_c: class-c target objects within `radius` of T q_i, n_c: all class-c
+target objects), so the number of inliers is Poisson-binomial with mean lambda = sum_i p_i.
+RANSAC searches over the transforms fixed by triples of candidates, so the number of false
+alarms is bounded by NFA = C(m, 3) * P(Poisson(lambda) >= k - 3) (k inliers among m candidates;
+Poisson has a heavier tail than the binomial of the same mean, so this is conservative in p).
+
+    confidence = exp(-NFA_best) * (1 - exp(-NFA_runner_up))
+
+exp(-NFA) is the probability, under H0 with false alarms arriving as a Poisson process, that no
+hypothesis explains the candidates this well by chance. The second factor is the probability
+that the best *distinct* alternative (a transform more than `distinct_translation` metres or
+`distinct_rotation` degrees away, found by consistency-guided sampling of the candidates) is
+chance: two significant, different alignments mean the map is ambiguous. The confidence is 0
+when the inliers are nearly collinear (minor-axis spread under `min_spread` metres), since the
+rotation about their line is then not determined by the evidence. A result is accepted when
+confidence >= `min_confidence` (the one strictness setting; 0 gives Guo's rule back).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.distance import cdist
+from scipy.special import gammaln
+from scipy.stats import poisson
+
+from sgloc.estimation import kabsch_batch
+from sgloc.graph import SemanticGraph
+
+_LN10 = np.log(10.0)
+
+
+@dataclass
+class AcceptanceConfig:
+    """Settings of the acceptance test (see the module docstring for the model).
+
+    enabled: run the test (False: Guo's rule alone decides; confidence is left None).
+    min_confidence: accept when confidence >= this (the strictness; in [0, 1]).
+    radius: inlier radius in metres for the test; None uses the RANSAC threshold.
+    min_spread: metres; inliers whose standard deviation along their second principal axis is
+        below this are (nearly) collinear and give confidence 0.
+    distinct_translation, distinct_rotation: metres / degrees; an alternative hypothesis is
+        distinct when its transform differs from the best by more than either.
+    runner_up_samples: hypotheses drawn when searching for the best distinct alternative.
+    """
+
+    enabled: bool = True
+    min_confidence: float = 0.99
+    radius: float | None = None
+    min_spread: float = 2.0
+    distinct_translation: float = 10.0
+    distinct_rotation: float = 10.0
+    runner_up_samples: int = 128
+
+    def get_params(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class Assessment:
+    """Outcome of `assess`: `accepted`, `confidence` in [0, 1], `reason` (empty if accepted),
+    and `details` (inliers, lambda, log10 NFA of best and runner-up, spread in metres)."""
+
+    accepted: bool
+    confidence: float
+    reason: str = ""
+    details: dict = field(default_factory=dict)
+
+
+def _log_comb3(m: int) -> float:
+    """ln C(m, 3)."""
+    if m < 3:
+        return 0.0
+    return float(gammaln(m + 1) - gammaln(4) - gammaln(m - 2))
+
+
+class _ChanceModel:
+    """Per-candidate chance of agreeing with a transform under H0 (same-class density)."""
+
+    def __init__(self, target: SemanticGraph, radius: float) -> None:
+        pos, lab = target.positions, target.labels
+        span = np.abs(pos).max() if len(pos) else 1.0
+        # Separate the classes by a 4th coordinate so one KD-tree serves them all.
+        self.offset = 4.0 * (span + radius) + 1.0
+        self.tree = cKDTree(np.column_stack([pos, lab * self.offset]))
+        self.class_count = np.bincount(lab).astype(np.float64)
+        self.radius = radius
+
+    def expected_inliers(self, moved: np.ndarray, target_labels: np.ndarray) -> float:
+        """lambda = sum_i N_c(moved_i) / n_c for candidates with image `moved` (m,3)."""
+        if len(moved) == 0:
+            return 0.0
+        pts = np.column_stack([moved, target_labels * self.offset])
+        near = self.tree.query_ball_point(pts, self.radius, return_length=True)
+        return float(np.sum(near / self.class_count[target_labels]))
+
+
+def log10_nfa(k: int, m: int, lam: float) -> float:
+    """log10 of the number of false alarms C(m,3) * P(Poisson(lam) >= k - 3)."""
+    excess = k - 3
+    if excess <= 0:
+        return _log_comb3(m) / _LN10
+    tail = poisson.logsf(excess - 1, max(lam, 1e-12))
+    return float((_log_comb3(m) + tail) / _LN10)
+
+
+def _confidence_from_log10_nfa(lg: float) -> float:
+    """exp(-NFA) for NFA = 10**lg, without overflow."""
+    return float(np.exp(-(10.0 ** min(lg, 6.0))))
+
+
+def _runner_up(
+    src: np.ndarray,
+    dst: np.ndarray,
+    T: np.ndarray,
+    exclude: np.ndarray,
+    radius: float,
+    cfg: AcceptanceConfig,
+    rng: np.random.Generator,
+) -> tuple[int, np.ndarray | None]:
+    """Best distinct alternative to T: (its inlier count among the candidates, its 4x4 transform).
+
+    The alternative must stand on its own evidence: it is drawn from, and scored on, only the
+    candidates outside `exclude` (those T explains within twice the radius), so a slight tilt of
+    T that keeps most of T's matches is not counted as a rival. Hypotheses come from triples of
+    pairwise-consistent candidates (|D(q_i,q_j) - D(t_i,t_j)| <
+    radius), drawn at random and fitted in one batch; those within the distinctness bounds of T
+    are discarded.
+    """
+    pool = np.flatnonzero(~exclude)
+    if pool.size < 3 or cfg.runner_up_samples <= 0:
+        return 0, None
+    ps, pd = src[pool], dst[pool]
+    M = np.abs(cdist(ps, ps) - cdist(pd, pd)) < radius
+    np.fill_diagonal(M, False)
+    ii, jj = np.nonzero(np.triu(M))
+    if ii.size == 0:
+        return 0, None
+    pick = rng.integers(0, ii.size, cfg.runner_up_samples)
+    i, j = ii[pick], jj[pick]
+    common = M[i] & M[j]
+    has = common.any(axis=1)
+    if not has.any():
+        return 0, None
+    keys = np.where(common, rng.random(common.shape, dtype=np.float32), -1.0)
+    k3 = np.argmax(keys, axis=1)
+    trip = pool[np.column_stack([i, j, k3])[has]]
+    S, D = src[trip], dst[trip]
+    e1, e2 = S[:, 1] - S[:, 0], S[:, 2] - S[:, 0]
+    area2 = np.linalg.norm(np.cross(e1, e2), axis=1)
+    longest = np.maximum(np.einsum("ij,ij->i", e1, e1), np.einsum("ij,ij->i", e2, e2))
+    ok = area2 > 1e-2 * np.maximum(longest, 1e-12)
+    if not ok.any():
+        return 0, None
+    R, t = kabsch_batch(S[ok], D[ok])
+    # Distinctness, measured where it matters: at the centroid of T's support (query frame).
+    c = src[exclude].mean(axis=0) if exclude.any() else src.mean(axis=0)
+    dtrans = np.linalg.norm(R @ c + t - (T[:3, :3] @ c + T[:3, 3]), axis=1)
+    cosang = (np.einsum("bij,ij->b", R, T[:3, :3]) - 1.0) / 2.0
+    drot = np.degrees(np.arccos(np.clip(cosang, -1.0, 1.0)))
+    distinct = (dtrans > cfg.distinct_translation) | (drot > cfg.distinct_rotation)
+    if not distinct.any():
+        return 0, None
+    R, t = R[distinct], t[distinct]
+    res = np.matmul(ps[None], np.swapaxes(R, 1, 2)) + (t[:, None, :] - pd[None])
+    counts = (np.einsum("bmi,bmi->bm", res, res) < radius**2).sum(axis=1)
+    h = int(np.argmax(counts))
+    T2 = np.eye(4)
+    T2[:3, :3], T2[:3, 3] = R[h], t[h]
+    return int(counts[h]), T2
+
+
+def inlier_spread(points: np.ndarray) -> float:
+    """Standard deviation (metres) of `points` (k,3) along their second principal axis."""
+    if len(points) < 3:
+        return 0.0
+    s = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
+    return float(s[1] / np.sqrt(len(points)))
+
+
+def assess(
+    query: SemanticGraph,
+    target: SemanticGraph,
+    candidates: np.ndarray,
+    transform: np.ndarray | None,
+    radius: float,
+    config: AcceptanceConfig | None = None,
+    rng: np.random.Generator | None = None,
+) -> Assessment:
+    """Score an estimated T_target_query against chance (module docstring).
+
+    Args:
+        query, target: the two graphs (positions in metres, each in its own frame).
+        candidates: (m,2) descriptor matches (query index, target index), before rejection.
+        transform: the estimate T_target_query (4x4), or None when estimation failed.
+        radius: inlier radius in metres (the RANSAC threshold unless config.radius is set).
+    """
+    cfg = config or AcceptanceConfig()
+    rng = rng if rng is not None else np.random.default_rng(0)
+    if transform is None:
+        return Assessment(False, 0.0, "no transform to assess")
+    r = float(cfg.radius or radius)
+    cand = np.asarray(candidates, dtype=np.int64).reshape(-1, 2)
+    m = len(cand)
+    src = query.positions[cand[:, 0]]
+    dst = target.positions[cand[:, 1]]
+    tlab = target.labels[cand[:, 1]]
+    moved = src @ transform[:3, :3].T + transform[:3, 3]
+    res2 = np.sum((moved - dst) ** 2, axis=1)
+    inl = res2 < r**2
+    k = int(inl.sum())
+    chance = _ChanceModel(target, r)
+    lam = chance.expected_inliers(moved, tlab)
+    lg_best = log10_nfa(k, m, lam)
+    spread = inlier_spread(dst[inl])
+    k2, T2 = _runner_up(src, dst, transform, res2 < (2 * r) ** 2, r, cfg, rng)
+    if T2 is not None:
+        lam2 = chance.expected_inliers(src @ T2[:3, :3].T + T2[:3, 3], tlab)
+        lg_second = log10_nfa(k2, m, lam2)
+    else:
+        lam2, lg_second = 0.0, np.inf
+    details = {
+        "inliers": k,
+        "candidates": m,
+        "expected_chance_inliers": lam,
+        "log10_nfa": lg_best,
+        "runner_up_inliers": k2,
+        "runner_up_log10_nfa": float(lg_second),
+        "spread_m": spread,
+    }
+    p_best = _confidence_from_log10_nfa(lg_best)
+    p_alt = 1.0 if not np.isfinite(lg_second) else 1.0 - _confidence_from_log10_nfa(lg_second)
+    confidence = float(np.clip(p_best * p_alt, 0.0, 1.0))
+    reason = ""
+    if spread < cfg.min_spread:
+        confidence = 0.0
+        reason = (
+            f"the {k} inliers are nearly collinear (spread {spread:.1f} m < min_spread "
+            f"{cfg.min_spread} m); the rotation about their line is not determined"
+        )
+    elif confidence < cfg.min_confidence:
+        if p_alt < 0.5:
+            reason = (
+                f"ambiguous: a distinct alignment explains {k2} matches against the best's {k} "
+                f"(confidence {confidence:.3g} < min_confidence {cfg.min_confidence})"
+            )
+        else:
+            reason = (
+                f"{k} inliers of {m} candidate matches could be chance ({lam:.1f} expected from "
+                f"repeated objects; log10 NFA {lg_best:.1f}); confidence {confidence:.3g} < "
+                f"min_confidence {cfg.min_confidence}; the maps may not overlap"
+            )
+    return Assessment(not reason, confidence, reason, details)
