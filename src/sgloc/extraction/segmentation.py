@@ -74,6 +74,7 @@ def segment(
     valid = (sem >= 0) & np.isfinite(dep) & (dep > 0) & (dep <= max_depth)
     if ignore_classes:
         valid &= ~np.isin(sem, np.asarray(ignore_classes))
+    dep = np.where(valid, dep, 0.0)  # no inf - inf below
     idx = np.arange(H * W).reshape(H, W)
 
     def joined(a: tuple, b: tuple) -> tuple[np.ndarray, np.ndarray]:
