@@ -1,0 +1,216 @@
+"""Labelled map pairs for the acceptance test: positives (the maps overlap) and negatives (they
+do not), from Guo's Airsim maps, KITTI 00 scan ranges, and the code-generated object world.
+
+Every builder is a pure function of its arguments and seed. Negatives are made non-overlapping by
+a *cut*: every query object within `cut` metres (ground truth) of any target object is removed,
+so no true correspondence can exist.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from sgloc.geometry import apply, invert, random_rigid_transform
+from sgloc.graph import SemanticGraph
+
+#: Metres: a negative's query keeps only objects farther than this from every target object.
+NEGATIVE_CUT = 25.0
+
+
+@dataclass
+class LabeledPair:
+    """query/target graphs, ground truth T_target_query, `positive` (do the maps overlap)."""
+
+    query: SemanticGraph
+    target: SemanticGraph
+    T_target_query: np.ndarray
+    positive: bool
+    source: str
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+def cut_shared_area(
+    query: SemanticGraph, target: SemanticGraph, T_target_query: np.ndarray, cut: float
+) -> SemanticGraph:
+    """`query` without the objects lying within `cut` metres of any target object (ground
+    truth T_target_query), i.e. with the shared area cut out."""
+    d, _ = cKDTree(target.positions).query(apply(T_target_query, query.positions))
+    return query.subgraph(np.flatnonzero(d > cut), name=f"{query.name}-cut{cut:g}")
+
+
+def _dropout(g: SemanticGraph, keep: float, rng: np.random.Generator) -> SemanticGraph:
+    return g.subgraph(np.flatnonzero(rng.random(len(g)) < keep), name=g.name)
+
+
+def _moved(pair_q, pair_t, T0, rng, positive, source, info) -> LabeledPair:
+    """Move the target by a random rigid transform (any yaw, roll/pitch <= 5 deg, <= 200 m)."""
+    T = random_rigid_transform(rng, 200.0, 5.0)
+    return LabeledPair(pair_q, pair_t.transformed(T), T @ T0, positive, source, info)
+
+
+# -- Airsim (Guo's maps; ground truth identity) ---------------------------------------------
+@functools.lru_cache(maxsize=2)
+def _airsim() -> tuple[SemanticGraph, SemanticGraph]:
+    from sgloc.data import data_path
+
+    d = data_path("airsim_guo")
+    return SemanticGraph.load(d / "cloud1.pcd"), SemanticGraph.load(d / "cloud2.pcd")
+
+
+def airsim_pairs(
+    n: int, positive: bool, seed: int = 0, keep: float = 1.0, cut: float = NEGATIVE_CUT
+) -> list[LabeledPair]:
+    """Airsim trials: cloud1 (query) against cloud2 moved by a random rigid transform.
+
+    Negatives alternate the direction (cloud1 with cloud2's area cut out, against cloud2; and
+    cloud2 with cloud1's area cut out, against cloud1). `keep` < 1 drops each object with
+    probability 1 - keep (a different detection run), so the n pairs differ."""
+    c1, c2 = _airsim()
+    out = []
+    for i in range(n):
+        rng = np.random.default_rng([seed, i, 6])
+        q, t = (c1, c2) if (positive or i % 2 == 0) else (c2, c1)
+        if not positive:
+            q = cut_shared_area(q, t, np.eye(4), cut)
+        if keep < 1.0:
+            q, t = _dropout(q, keep, rng), _dropout(t, keep, rng)
+        info = {"query": q.name, "keep": keep, "cut": None if positive else cut}
+        out.append(_moved(q, t, np.eye(4), rng, positive, "airsim", info))
+    return out
+
+
+# -- Object world (sgloc.sim.object_world) ---------------------------------------------------
+def world_pairs(
+    n: int,
+    positive: bool,
+    seed: int = 0,
+    overlaps: tuple[float, ...] = (0.2, 0.3, 0.5, 0.7),
+    cut: float = NEGATIVE_CUT,
+) -> list[LabeledPair]:
+    """Two robots in the code-generated city. Positives: overlap cycling through `overlaps`.
+    Negatives: overlap 0 with the shared fringe cut out (even pairs), or robot B of one world
+    against robot A of another world of the same kind (odd pairs)."""
+    from sgloc.sim.object_world import make_two_robot_scene
+
+    out = []
+    for i in range(n):
+        s = seed * 100_000 + i
+        if positive:
+            ov = overlaps[i % len(overlaps)]
+            sc = make_two_robot_scene(s, ov)
+            out.append(
+                LabeledPair(sc.query, sc.target, sc.T_target_query, True, "world", {"overlap": ov})
+            )
+        elif i % 2 == 0:
+            sc = make_two_robot_scene(s, 0.0)
+            q = cut_shared_area(sc.query, sc.target, sc.T_target_query, cut)
+            out.append(
+                LabeledPair(q, sc.target, sc.T_target_query, False, "world", {"overlap": 0.0})
+            )
+        else:
+            a = make_two_robot_scene(s, 0.5)
+            b = make_two_robot_scene(s + 50_000, 0.5)
+            out.append(
+                LabeledPair(b.query, a.target, np.eye(4), False, "world", {"other_world": True})
+            )
+    return out
+
+
+# -- KITTI 00 scan ranges --------------------------------------------------------------------
+@functools.lru_cache(maxsize=1)
+def _kitti_poses() -> np.ndarray:
+    from sgloc.data import data_path
+    from sgloc.datasets import make_dataset
+
+    return make_dataset("kitti_objects", data_path("kitti00")).poses
+
+
+@functools.lru_cache(maxsize=256)
+def kitti_graph(first: int, last: int) -> SemanticGraph:
+    """Robot graph of KITTI 00 scans first..last (inclusive) in its own start frame."""
+    from sgloc.data import data_path
+    from sgloc.datasets import make_dataset
+    from sgloc.extraction import build_graph
+
+    ds = make_dataset("kitti_objects", data_path("kitti00"), scans=(first, last), start_frame=True)
+    return build_graph(ds, name=f"kitti00[{first}-{last}]")
+
+
+def kitti_ground_truth(a: tuple[int, int], b: tuple[int, int]) -> np.ndarray:
+    """T_A_B between the start frames (LiDAR) of scan ranges a and b."""
+    P = _kitti_poses()
+    return invert(P[a[0]]) @ P[b[0]]
+
+
+def trajectory_overlap(a: tuple[int, int], b: tuple[int, int], radius: float = 10.0) -> float:
+    """Fraction of range b's scan positions within `radius` m of range a's trajectory."""
+    xyz = _kitti_poses()[:, :3, 3]
+    pa, pb = xyz[a[0] : a[1] + 1], xyz[b[0] : b[1] + 1]
+    d, _ = cKDTree(pa).query(pb)
+    return float(np.mean(d < radius))
+
+
+def _trajectory_gap(a: tuple[int, int], b: tuple[int, int]) -> float:
+    xyz = _kitti_poses()[:, :3, 3]
+    d, _ = cKDTree(xyz[a[0] : a[1] + 1]).query(xyz[b[0] : b[1] + 1])
+    return float(d.min())
+
+
+def kitti_pairs(
+    n: int,
+    positive: bool,
+    seed: int = 0,
+    length: tuple[int, int] = (400, 800),
+    min_overlap: float = 0.2,
+    cut: float = NEGATIVE_CUT,
+    max_draws: int = 20_000,
+) -> list[LabeledPair]:
+    """Two robots = two KITTI 00 scan ranges (lengths drawn in `length`), each in its own start
+    frame. Positives: trajectory overlap (`trajectory_overlap`, 10 m) >= `min_overlap`, from
+    revisits or from ranges sharing scans. Negatives: trajectories at least 2 * cut apart,
+    and the query cut as for every negative."""
+    n_scans = len(_kitti_poses())
+    rng = np.random.default_rng([seed, 600 + int(positive)])
+    out, seen = [], set()
+    for _ in range(max_draws):
+        if len(out) >= n:
+            break
+        la, lb = rng.integers(length[0], length[1] + 1, 2)
+        a0 = int(rng.integers(0, n_scans - la))
+        b0 = int(rng.integers(0, n_scans - lb))
+        a, b = (a0 // 50 * 50, a0 // 50 * 50 + int(la)), (b0 // 50 * 50, b0 // 50 * 50 + int(lb))
+        if (a, b) in seen:
+            continue
+        ov = trajectory_overlap(a, b)
+        if positive and ov < min_overlap:
+            continue
+        if not positive and _trajectory_gap(a, b) < 2 * cut:
+            continue
+        seen.add((a, b))
+        T = kitti_ground_truth(a, b)
+        q, t = kitti_graph(*b), kitti_graph(*a)
+        if not positive:
+            q = cut_shared_area(q, t, T, cut)
+        shared = max(a[0], b[0]) <= min(a[1], b[1])
+        info = {"target_scans": a, "query_scans": b, "overlap": ov, "shares_scans": shared}
+        out.append(LabeledPair(q, t, T, positive, "kitti00", info))
+    return out
+
+
+def default_pair_sets(seed: int = 0, scale: int = 1) -> list[LabeledPair]:
+    """The benchmark's sets: per source `scale` x (positives, negatives) =
+    airsim (40, 40), object world (40, 40), KITTI 00 (40, 40)."""
+    n = 40 * scale
+    return (
+        airsim_pairs(n, True, seed, keep=0.9)
+        + airsim_pairs(n, False, seed, keep=0.9)
+        + world_pairs(n, True, seed)
+        + world_pairs(n, False, seed)
+        + kitti_pairs(n, True, seed)
+        + kitti_pairs(n, False, seed)
+    )

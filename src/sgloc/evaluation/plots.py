@@ -1,0 +1,199 @@
+"""Figures of the paper's experiments (matplotlib, Agg backend; small PNGs).
+
+Each function takes trial rows (flat dicts as `run_task` returns them) or one trial's data and
+writes one PNG, returning its path.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.collections import LineCollection  # noqa: E402
+
+from sgloc.evaluation.metrics import correct_matches  # noqa: E402
+from sgloc.evaluation.report import column, group_rows, setting_label, summarize  # noqa: E402
+from sgloc.geometry import apply  # noqa: E402
+
+DPI = 110
+COLORS = {"histogram": "tab:blue", "fast": "tab:orange", "random_walk": "tab:green"}
+
+
+def _style(descriptor: str, rejection: str) -> dict[str, Any]:
+    return {
+        "color": COLORS.get(descriptor, "tab:gray"),
+        "linestyle": "-" if rejection != "none" else "--",
+        "marker": "o" if rejection != "none" else "s",
+        "markersize": 3,
+    }
+
+
+def _save(fig: plt.Figure, path: str | Path, top: float = 1.0) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout(rect=(0, 0, 1, top))
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+    return path
+
+
+def error_vs_threshold(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
+    """Fig. 4: mean +- std translation error (localized trials) against the RANSAC threshold,
+    one line per descriptor x rejection; the failure rate below."""
+    fig, (ax, ax2) = plt.subplots(
+        2, 1, figsize=(6.4, 5.6), sharex=True, gridspec_kw={"height_ratios": [3, 1.3]}
+    )
+    for (d, r), g in group_rows(rows, ["descriptor", "rejection"]).items():
+        s = summarize(g, ["ransac_threshold"])
+        x = np.array([c["ransac_threshold"] for c in s])
+        m = np.array([c["te_mean"] for c in s])
+        sd = np.array([c["te_std"] for c in s])
+        st = _style(d, r)
+        ax.plot(x, m, label=setting_label(d, r), **st)
+        ax.fill_between(x, m - sd, m + sd, color=st["color"], alpha=0.08)
+        ax2.plot(x, [100 * c["failures"] / c["trials"] for c in s], **st)
+    ax.set_ylabel("translation error (m)")
+    ax.set_ylim(bottom=0)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    ax.set_title("Translation error vs RANSAC threshold (mean +- std)")
+    ax2.set_xlabel("RANSAC threshold T_error (m)")
+    ax2.set_ylabel("failures %")
+    ax2.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def error_distribution(
+    rows: Sequence[dict[str, Any]], path: str | Path, threshold: float = 5.0
+) -> Path:
+    """Distribution of translation and rotation error at one RANSAC threshold, per setting
+    (box plots; failed or unlocalized trials counted in the labels)."""
+    sel = [r for r in rows if abs(float(r["ransac_threshold"]) - threshold) < 1e-9]
+    groups = group_rows(sel, ["descriptor", "rejection"])
+    labels, te, re = [], [], []
+    for (d, r), g in groups.items():
+        fails = sum(bool(x["failed"]) for x in g)
+        labels.append(f"{setting_label(d, r)}\n({fails} fail)")
+        te.append(column(g, "translation_error_m")[np.isfinite(column(g, "translation_error_m"))])
+        re.append(column(g, "rotation_error_deg")[np.isfinite(column(g, "rotation_error_deg"))])
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.8))
+    for ax, data, name in ((axes[0], te, "translation error (m)"), (axes[1], re, "rotation (deg)")):
+        ax.boxplot([x if x.size else np.array([np.nan]) for x in data], showfliers=True)
+        ax.set_xticks(range(1, len(labels) + 1), labels, rotation=35, ha="right", fontsize=7)
+        ax.set_yscale("log")
+        ax.set_ylabel(name)
+        ax.grid(alpha=0.3, axis="y")
+    fig.suptitle(f"Error distribution at T_error = {threshold:g} m")
+    return _save(fig, path, top=0.93)
+
+
+def pr_curves(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
+    """Fig. 5: mean precision against mean recall of the final matches, sweeping the RANSAC
+    threshold; one curve per descriptor x rejection, thresholds annotated at the ends."""
+    fig, ax = plt.subplots(figsize=(5.6, 4.6))
+    for (d, r), g in group_rows(rows, ["descriptor", "rejection"]).items():
+        s = summarize(g, ["ransac_threshold"])
+        rec = np.array([100 * c["recall"] for c in s])
+        pre = np.array([100 * c["precision"] for c in s])
+        ax.plot(rec, pre, label=setting_label(d, r), **_style(d, r))
+        for c, x, y in ((s[0], rec[0], pre[0]), (s[-1], rec[-1], pre[-1])):
+            ax.annotate(f"{c['ransac_threshold']:g}", (x, y), fontsize=6, alpha=0.7)
+    ax.set_xlabel("recall %")
+    ax.set_ylabel("precision %")
+    ax.set_title("Precision-recall over the RANSAC threshold")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    return _save(fig, path)
+
+
+def overlap_boxplots(
+    rows: Sequence[dict[str, Any]], path: str | Path, title: str = "", failure_m: float = 20.0
+) -> Path:
+    """Fig. 6: box plots of translation error per overlap rate, baseline beside +neighbor;
+    unlocalized trials drawn at the top of the axis, failure rates in the lower panel."""
+    rejections = list(dict.fromkeys(r["rejection"] for r in rows))
+    overlaps = sorted({float(r["overlap"]) for r in rows})
+    fig, (ax, ax2) = plt.subplots(
+        2, 1, figsize=(7.5, 5.4), sharex=True, gridspec_kw={"height_ratios": [3, 1.2]}
+    )
+    width = 0.8 / max(len(rejections), 1)
+    cap = 1e3
+    for k, rej in enumerate(rejections):
+        data, fails = [], []
+        for o in overlaps:
+            g = [r for r in rows if r["rejection"] == rej and float(r["overlap"]) == o]
+            te = column(g, "translation_error_m")
+            data.append(np.where(np.isfinite(te), np.minimum(te, cap), cap))
+            fails.append(100 * np.mean([bool(r["failed"]) for r in g]) if g else np.nan)
+        pos = np.arange(len(overlaps)) + (k - (len(rejections) - 1) / 2) * width
+        color = "tab:red" if rej == "none" else "tab:blue"
+        label = "baseline (RANSAC)" if rej == "none" else f"+{rej}"
+        bp = ax.boxplot(
+            data, positions=pos, widths=width * 0.9, patch_artist=True, showfliers=True,
+            flierprops={"markersize": 2, "markeredgecolor": color},
+        )  # fmt: skip
+        for b in bp["boxes"]:
+            b.set(facecolor=color, alpha=0.35)
+        ax.plot([], [], color=color, lw=6, alpha=0.35, label=label)
+        ax2.bar(pos, fails, width=width * 0.9, color=color, alpha=0.6)
+    ax.axhline(failure_m, color="k", lw=0.8, ls=":", label=f"failure ({failure_m:g} m)")
+    ax.set_yscale("log")
+    ax.set_ylabel("translation error (m)")
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3, axis="y")
+    ax.set_title(title or "Translation error vs overlap")
+    ax2.set_xticks(range(len(overlaps)), [f"{o:g}" for o in overlaps])
+    ax2.set_xlabel("overlap rate")
+    ax2.set_ylabel("failures %")
+    ax2.grid(alpha=0.3, axis="y")
+    return _save(fig, path)
+
+
+def matches_picture(
+    query_positions: np.ndarray,
+    target_positions: np.ndarray,
+    T_target_query: np.ndarray,
+    stages: dict[str, np.ndarray],
+    path: str | Path,
+    tol: float = 10.0,
+    title: str = "",
+) -> Path:
+    """Fig. 7: both maps (target, and query placed by the ground truth and shifted aside) with
+    the matches of each stage (e.g. original, after rejection, final) as lines, correct ones
+    (within `tol` m under the ground truth) green and wrong ones red; one panel per stage."""
+    q = apply(T_target_query, query_positions)[:, :2]
+    t = np.asarray(target_positions)[:, :2]
+    both = np.concatenate([q, t])
+    ext = np.maximum(np.ptp(both, axis=0), 1.0)
+    axis = int(np.argmin(ext))  # shift the query map aside along the maps' narrow axis
+    shift = np.zeros(2)
+    shift[axis] = 1.15 * ext[axis] + (t[:, axis].max() - q[:, axis].min()) - ext[axis]
+    shift[axis] = max(shift[axis], 0.15 * ext[axis] + t[:, axis].max() - q[:, axis].min())
+    qs = q + shift
+    w, h = np.ptp(np.concatenate([qs, t]), axis=0) + 1.0
+    panel_w = float(np.clip(4.0 * w / h, 2.5, 6.0))
+    fig, axes = plt.subplots(1, len(stages), figsize=(panel_w * len(stages), 4.4), squeeze=False)
+    for ax, (name, m) in zip(axes[0], stages.items(), strict=True):
+        m = np.asarray(m, dtype=np.int64).reshape(-1, 2)
+        ok = correct_matches(query_positions, target_positions, m, T_target_query, tol)
+        ax.scatter(t[:, 0], t[:, 1], s=3, c="0.35", label="target map", zorder=3)
+        ax.scatter(
+            qs[:, 0], qs[:, 1], s=3, c="tab:purple", label="query map (GT, shifted)", zorder=3
+        )
+        segs = np.stack([qs[m[:, 0]], t[m[:, 1]]], axis=1) if len(m) else np.zeros((0, 2, 2))
+        ax.add_collection(LineCollection(segs[~ok], colors="tab:red", lw=0.4, alpha=0.5))
+        ax.add_collection(LineCollection(segs[ok], colors="tab:green", lw=0.5, alpha=0.7))
+        ax.set_title(f"{name}\n{len(m)} matches, {int(ok.sum())} correct", fontsize=8)
+        ax.set_aspect("equal")
+        ax.set_xticks([])
+        ax.set_yticks([])
+    axes[0][0].legend(fontsize=6, loc="lower left")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    return _save(fig, path, top=0.93 if title else 1.0)

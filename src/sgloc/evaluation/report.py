@@ -1,0 +1,313 @@
+"""Results on disk: CSV (one row per trial), summaries as Markdown tables, config as YAML.
+
+Summaries follow the paper's Table 1: mean +- std over trials of final matches and pose errors,
+mean recall and precision, and per-stage times. Times are medians (robust on a shared machine);
+"total" is rejection + RANSAC (incl. the final fit) as in the paper, "pipeline" adds
+descriptors and matching. Pose errors and precision average over the localized trials; failures
+(not localized or translation error > 20 m) are counted in their own column.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import platform
+import subprocess
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from sgloc import __version__
+from sgloc.data import PROJECT_ROOT
+
+#: The paper's Table 1 (Airsim, T_error = 5 m; i7-9700, C++): descriptor, rejection -> values.
+PAPER_TABLE1: dict[tuple[str, str], dict[str, str]] = {
+    ("histogram", "none"): dict(
+        final="67.84+-1.55",
+        recall="85.2",
+        precision="77.3",
+        rejection="-",
+        ransac="19.2",
+        total="19.2",
+        te="3.02+-0.91",
+        re="0.41+-0.32",
+    ),
+    ("histogram", "neighbor"): dict(
+        final="72.67+-0.78",
+        recall="91.4",
+        precision="87.9",
+        rejection="1.2",
+        ransac="7.9",
+        total="9.1",
+        te="2.69+-0.43",
+        re="0.40+-0.22",
+    ),
+    ("fast", "none"): dict(
+        final="24.84+-3.47",
+        recall="65.4",
+        precision="73.3",
+        rejection="-",
+        ransac="18.4",
+        total="18.4",
+        te="5.72+-6.53",
+        re="3.88+-5.71",
+    ),
+    ("fast", "neighbor"): dict(
+        final="36.69+-1.34",
+        recall="85.0",
+        precision="65.7",
+        rejection="1.0",
+        ransac="6.0",
+        total="7.0",
+        te="4.33+-1.31",
+        re="0.85+-0.28",
+    ),
+    ("random_walk", "none"): dict(
+        final="62.90+-1.91",
+        recall="66.3",
+        precision="83.0",
+        rejection="-",
+        ransac="18.3",
+        total="18.3",
+        te="2.76+-0.94",
+        re="0.61+-0.33",
+    ),
+    ("random_walk", "neighbor"): dict(
+        final="68.13+-0.61",
+        recall="71.3",
+        precision="91.2",
+        rejection="0.7",
+        ransac="11.7",
+        total="12.4",
+        te="2.44+-0.49",
+        re="0.61+-0.15",
+    ),
+}
+
+
+# -- CSV --------------------------------------------------------------------------------------
+def write_csv(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
+    """Write trial rows (flat dicts with the same keys) as CSV, one row per trial."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    keys: list[str] = []
+    for r in rows:
+        keys += [k for k in r if k not in keys]
+    with path.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=keys)
+        w.writeheader()
+        w.writerows(rows)
+    return path
+
+
+def read_csv(path: str | Path) -> list[dict[str, Any]]:
+    """Read rows written by `write_csv`, turning numbers and booleans back into values."""
+
+    def parse(v: str) -> Any:
+        if v in ("True", "False"):
+            return v == "True"
+        try:
+            f = float(v)
+        except ValueError:
+            return v
+        return int(f) if f.is_integer() and "." not in v and "e" not in v.lower() else f
+
+    with Path(path).open(newline="") as f:
+        return [{k: parse(v) for k, v in r.items()} for r in csv.DictReader(f)]
+
+
+# -- summaries --------------------------------------------------------------------------------
+def group_rows(
+    rows: Iterable[dict[str, Any]], by: Sequence[str]
+) -> dict[tuple, list[dict[str, Any]]]:
+    """Rows grouped by the values of the `by` columns, groups in first-seen order."""
+    groups: dict[tuple, list[dict[str, Any]]] = {}
+    for r in rows:
+        groups.setdefault(tuple(r[k] for k in by), []).append(r)
+    return groups
+
+
+def column(rows: Sequence[dict[str, Any]], key: str) -> np.ndarray:
+    """A column as float array (NaN where missing)."""
+    return np.array([float(r.get(key, math.nan)) for r in rows], dtype=np.float64)
+
+
+def _mean_std(x: np.ndarray) -> tuple[float, float]:
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return math.nan, math.nan
+    return float(x.mean()), float(x.std())
+
+
+def summarize(rows: Sequence[dict[str, Any]], by: Sequence[str]) -> list[dict[str, Any]]:
+    """One summary per group of `by` values: counts, means, stds and median times."""
+    out = []
+    for key, g in group_rows(rows, by).items():
+        loc = [r for r in g if r["localized"]]
+        te_m, te_s = _mean_std(column(loc, "translation_error_m"))
+        re_m, re_s = _mean_std(column(loc, "rotation_error_deg"))
+        fin_m, fin_s = _mean_std(column(g, "n_final"))
+        rej = column(g, "t_rejection_ms")
+        rs = column(g, "t_ransac_ms") + column(g, "t_estimation_ms")
+        te_all = column(g, "translation_error_m")
+        out.append(
+            {
+                **dict(zip(by, key, strict=True)),
+                "trials": len(g),
+                "localized": len(loc),
+                "failures": int(sum(bool(r["failed"]) for r in g)),
+                "final_mean": fin_m,
+                "final_std": fin_s,
+                "candidates_mean": float(np.nanmean(column(g, "n_candidates"))),
+                "survivors_mean": float(np.nanmean(column(g, "n_survivors"))),
+                "recall": _mean_std(column(g, "recall"))[0],
+                "precision": _mean_std(column(loc, "precision"))[0],
+                "rejection_ms": float(np.nanmedian(rej)),
+                "ransac_ms": float(np.nanmedian(rs)),
+                "total_ms": float(np.nanmedian(rej + rs)),
+                "pipeline_ms": float(np.nanmedian(column(g, "t_total_ms"))),
+                "te_mean": te_m,
+                "te_std": te_s,
+                "te_median": float(np.nanmedian(te_all)) if np.isfinite(te_all).any() else math.nan,
+                "re_mean": re_m,
+                "re_std": re_s,
+            }
+        )
+    return out
+
+
+def fmt(x: float, digits: int = 2) -> str:
+    return "-" if x is None or not np.isfinite(x) else f"{x:.{digits}f}"
+
+
+def pm(mean: float, std: float, digits: int = 2) -> str:
+    """'mean +- std' for a Markdown cell."""
+    return "-" if not np.isfinite(mean) else f"{mean:.{digits}f} +- {std:.{digits}f}"
+
+
+def markdown_table(header: Sequence[str], body: Sequence[Sequence[Any]]) -> str:
+    """A GitHub Markdown table."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in body]
+    return "\n".join(lines) + "\n"
+
+
+SETTING_LABEL = {"histogram": "Histogram", "fast": "Fast", "random_walk": "Random Walk"}
+
+
+def setting_label(descriptor: str, rejection: str) -> str:
+    """'Histogram' / 'Histogram + neighbor' style row names."""
+    base = SETTING_LABEL.get(descriptor, descriptor)
+    return base if rejection == "none" else f"{base} + {rejection}"
+
+
+def table1_markdown(summary: Sequence[dict[str, Any]], with_paper: bool = True) -> str:
+    """Table 1 layout for a descriptor x rejection summary; the paper's row under each of ours
+    (when `with_paper` and the paper has that setting)."""
+    header = [
+        "setting", "trials", "failures", "final matches", "recall %", "precision %",
+        "rejection ms", "RANSAC ms", "total ms", "pipeline ms", "trans. err m", "rot. err deg",
+    ]  # fmt: skip
+    body = []
+    for s in summary:
+        body.append(
+            [
+                f"**{setting_label(s['descriptor'], s['rejection'])}** (ours)",
+                s["trials"],
+                s["failures"],
+                pm(s["final_mean"], s["final_std"]),
+                fmt(100 * s["recall"], 1),
+                fmt(100 * s["precision"], 1),
+                fmt(s["rejection_ms"]) if s["rejection"] != "none" else "-",
+                fmt(s["ransac_ms"]),
+                fmt(s["total_ms"]),
+                fmt(s["pipeline_ms"]),
+                pm(s["te_mean"], s["te_std"]),
+                pm(s["re_mean"], s["re_std"]),
+            ]
+        )
+        p = PAPER_TABLE1.get((s["descriptor"], s["rejection"]))
+        if with_paper and p:
+            body.append(
+                [
+                    f"{setting_label(s['descriptor'], s['rejection'])} (paper)",
+                    100,
+                    "-",
+                    p["final"],
+                    p["recall"],
+                    p["precision"],
+                    p["rejection"],
+                    p["ransac"],
+                    p["total"],
+                    "-",
+                    p["te"],
+                    p["re"],
+                ]  # fmt: skip
+            )
+    return markdown_table(header, body)
+
+
+def sweep_markdown(summary: Sequence[dict[str, Any]], by: Sequence[str]) -> str:
+    """A compact table for sweeps: one row per cell."""
+    header = [*by, "trials", "failures", "final", "recall %", "precision %", "total ms",
+              "trans. err m", "median trans. err m", "rot. err deg"]  # fmt: skip
+    body = [
+        [
+            *(s[k] for k in by),
+            s["trials"],
+            s["failures"],
+            fmt(s["final_mean"], 1),
+            fmt(100 * s["recall"], 1),
+            fmt(100 * s["precision"], 1),
+            fmt(s["total_ms"]),
+            pm(s["te_mean"], s["te_std"]),
+            fmt(s["te_median"]),
+            pm(s["re_mean"], s["re_std"]),
+        ]
+        for s in summary
+    ]
+    return markdown_table(header, body)
+
+
+# -- config -----------------------------------------------------------------------------------
+def _git_commit() -> str:
+    try:
+        out = subprocess.run(
+            ["git", "-C", str(PROJECT_ROOT), "rev-parse", "HEAD"],
+            capture_output=True, text=True, timeout=5, check=False,
+        )  # fmt: skip
+        return out.stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def write_config_yaml(path: str | Path, experiment: dict[str, Any], configs: dict) -> Path:
+    """Write what ran: the experiment (sweep) description, every localizer config by cell, and
+    the software version; enough to re-run it exactly."""
+    doc = {
+        "experiment": experiment,
+        "localizer_configs": configs,
+        "software": {
+            "sgloc": __version__,
+            "git_commit": _git_commit(),
+            "python": platform.python_version(),
+            "numpy": np.__version__,
+        },
+    }
+    path = Path(path)
+    path.write_text(yaml.safe_dump(_plain(doc), sort_keys=False))
+    return path
+
+
+def _plain(x: Any) -> Any:
+    """YAML-safe: tuples -> lists, numpy scalars -> Python, dict keys -> str."""
+    if isinstance(x, dict):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if isinstance(x, np.generic):
+        return x.item()
+    return x

@@ -1,0 +1,144 @@
+"""Sweeps: grids of trials over localizer settings and pair-source parameters.
+
+Trial i of every grid cell uses seed `first_seed + i`, so cells are compared on the same pairs
+and initial transforms (paired comparisons), and any cell can be re-run alone.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from sgloc.config import LocalizerConfig
+from sgloc.evaluation.metrics import FAILURE_M, T_P
+from sgloc.evaluation.trials import TrialTask
+
+DESCRIPTOR_NAMES = ("histogram", "fast", "random_walk")
+REJECTION_NAMES = ("none", "neighbor")
+#: RANSAC thresholds T_error of Fig. 4-5 (metres).
+THRESHOLDS = tuple(float(x) for x in range(1, 21))
+OVERLAPS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
+
+
+@dataclass
+class Sweep:
+    """A grid of trials.
+
+    dataset / dataset_params: the pair source and its fixed parameters.
+    settings: fixed localizer settings (flat names, as `localize(**settings)` takes them).
+    axes: localizer settings to sweep, name -> values (e.g. {"ransac_threshold": [1, 2]}).
+    dataset_axes: pair-source parameters to sweep (e.g. {"overlap": [0.1, 0.3]}).
+    trials: trials per grid cell; first_seed: seed of trial 0.
+    """
+
+    dataset: str
+    dataset_params: dict[str, Any] = field(default_factory=dict)
+    settings: dict[str, Any] = field(default_factory=dict)
+    axes: dict[str, Sequence[Any]] = field(default_factory=dict)
+    dataset_axes: dict[str, Sequence[Any]] = field(default_factory=dict)
+    trials: int = 100
+    first_seed: int = 0
+    T_p: float = T_P
+    failure_m: float = FAILURE_M
+
+    def cells(self) -> list[tuple[dict[str, Any], dict[str, Any]]]:
+        """Every (localizer settings, dataset parameters) of the grid, in a fixed order."""
+        names = list(self.dataset_axes) + list(self.axes)
+        values = [list(self.dataset_axes[n]) for n in self.dataset_axes] + [
+            list(self.axes[n]) for n in self.axes
+        ]
+        out = []
+        for combo in itertools.product(*values):
+            point = dict(zip(names, combo, strict=True))
+            settings = {**self.settings, **{k: point[k] for k in self.axes}}
+            params = {**self.dataset_params, **{k: point[k] for k in self.dataset_axes}}
+            out.append((settings, params))
+        return out
+
+    def tasks(self) -> list[TrialTask]:
+        """The trials of the whole grid: cell-major, seed-minor."""
+        tasks = []
+        for settings, params in self.cells():
+            cfg = LocalizerConfig().with_overrides(**settings).to_dict()
+            tags = {k: params[k] for k in self.dataset_axes}
+            for i in range(self.trials):
+                tasks.append(
+                    TrialTask(
+                        dataset=self.dataset,
+                        config=cfg,
+                        seed=self.first_seed + i,
+                        dataset_params=params,
+                        tags=tags,
+                        T_p=self.T_p,
+                        failure_m=self.failure_m,
+                    )
+                )
+        return tasks
+
+    def to_dict(self) -> dict[str, Any]:
+        """The sweep as plain data (for the experiment's config YAML)."""
+        return {
+            "dataset": self.dataset,
+            "dataset_params": dict(self.dataset_params),
+            "settings": dict(self.settings),
+            "axes": {k: list(v) for k, v in self.axes.items()},
+            "dataset_axes": {k: list(v) for k, v in self.dataset_axes.items()},
+            "trials": self.trials,
+            "first_seed": self.first_seed,
+            "T_p": self.T_p,
+            "failure_m": self.failure_m,
+        }
+
+
+def descriptor_rejection_sweep(
+    dataset: str,
+    trials: int = 100,
+    threshold: float = 5.0,
+    descriptors: Sequence[str] = DESCRIPTOR_NAMES,
+    rejections: Sequence[str] = REJECTION_NAMES,
+    **kw: Any,
+) -> Sweep:
+    """Table 1: every descriptor x rejection at one RANSAC threshold."""
+    settings = {"ransac_threshold": threshold, **kw.pop("settings", {})}
+    axes = {"descriptor": list(descriptors), "rejection": list(rejections)}
+    return Sweep(dataset, settings=settings, axes=axes, trials=trials, **kw)
+
+
+def threshold_sweep(
+    dataset: str,
+    trials: int = 100,
+    thresholds: Sequence[float] = THRESHOLDS,
+    descriptors: Sequence[str] = DESCRIPTOR_NAMES,
+    rejections: Sequence[str] = REJECTION_NAMES,
+    **kw: Any,
+) -> Sweep:
+    """Fig. 4-5: every descriptor x rejection over RANSAC thresholds T_error (metres)."""
+    axes = {
+        "descriptor": list(descriptors),
+        "rejection": list(rejections),
+        "ransac_threshold": [float(t) for t in thresholds],
+    }
+    return Sweep(dataset, settings=kw.pop("settings", {}), axes=axes, trials=trials, **kw)
+
+
+def overlap_sweep(
+    dataset: str,
+    trials: int = 100,
+    overlaps: Sequence[float] = OVERLAPS,
+    descriptor: str = "histogram",
+    rejections: Sequence[str] = REJECTION_NAMES,
+    threshold: float = 5.0,
+    **kw: Any,
+) -> Sweep:
+    """Fig. 6: baseline vs neighbor rejection over the pair source's `overlap` parameter."""
+    settings = {"descriptor": descriptor, "ransac_threshold": threshold, **kw.pop("settings", {})}
+    return Sweep(
+        dataset,
+        settings=settings,
+        axes={"rejection": list(rejections)},
+        dataset_axes={"overlap": [float(o) for o in overlaps]},
+        trials=trials,
+        **kw,
+    )

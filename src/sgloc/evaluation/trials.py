@@ -1,0 +1,194 @@
+"""The trial runner: one trial = one pair from a pair source + one `localize` run, scored.
+
+A trial is a pure function of its `TrialTask` (dataset name and parameters, localizer config,
+seed): the pair's randomness and the localizer's come from two streams of the seed, so the same
+task gives the same row (timings aside) in this process, in a process pool, or on a Dask worker.
+Trials run serially, on local processes (`workers`), or on a Dask cluster (`scheduler`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from sgloc.config import LocalizerConfig
+from sgloc.evaluation.metrics import FAILURE_M, T_P, is_failure, match_stats, pose_errors
+from sgloc.evaluation.pairs import make_pair_source
+from sgloc.localizer import Localizer
+
+#: Stream index of the localizer's random numbers (RANSAC, random walks) within a trial seed.
+LOCALIZER_STREAM = 1
+
+#: Columns holding wall-clock times: they differ between runs; everything else is reproducible.
+TIMING_PREFIX = "t_"
+
+
+@dataclass
+class TrialTask:
+    """Everything one trial depends on (small and picklable).
+
+    dataset / dataset_params: a pair source name (or folder) and its parameters.
+    config: a `LocalizerConfig.to_dict()`.
+    seed: the trial seed (pair and localizer randomness).
+    tags: sweep coordinates copied into the row (e.g. {"overlap": 0.3}).
+    """
+
+    dataset: str
+    config: dict[str, Any]
+    seed: int
+    dataset_params: dict[str, Any] = field(default_factory=dict)
+    tags: dict[str, Any] = field(default_factory=dict)
+    T_p: float = T_P
+    failure_m: float = FAILURE_M
+
+
+@dataclass
+class TrialRow:
+    """One trial's outcome: pose errors, match counts, recall/precision, stage times (ms)."""
+
+    dataset: str
+    descriptor: str
+    rejection: str
+    ransac_threshold: float
+    seed: int
+    localized: bool
+    failed: bool
+    translation_error_m: float
+    rotation_error_deg: float
+    n_candidates: int
+    n_correct_candidates: int
+    n_survivors: int
+    n_correct_survivors: int
+    n_final: int
+    n_correct_final: int
+    recall: float
+    precision: float
+    t_descriptors_ms: float
+    t_matching_ms: float
+    t_rejection_ms: float
+    t_ransac_ms: float
+    t_estimation_ms: float
+    t_total_ms: float
+    reason: str = ""
+
+    def to_dict(self, tags: dict[str, Any] | None = None) -> dict[str, Any]:
+        """Flat dict: the tags first, then the fields."""
+        return {**(tags or {}), **dataclasses.asdict(self)}
+
+
+_SOURCES: dict[tuple, Any] = {}
+
+
+def _source(dataset: str, params: dict[str, Any]):
+    """The pair source, built once per process (sources cache their loaded graphs)."""
+    key = (dataset, tuple(sorted((k, repr(v)) for k, v in params.items())))
+    if key not in _SOURCES:
+        _SOURCES[key] = make_pair_source(dataset, **params)
+    return _SOURCES[key]
+
+
+def run_task(task: TrialTask) -> dict[str, Any]:
+    """Run one trial and return its row as a flat dict (tags first)."""
+    pair = _source(task.dataset, task.dataset_params)(task.seed)
+    cfg = LocalizerConfig.from_dict(task.config)
+    rng = np.random.default_rng([int(task.seed), LOCALIZER_STREAM])
+    res = Localizer(cfg)(pair.query, pair.target, rng)
+    te, re = pose_errors(res.transform, pair.T_target_query)
+    st = match_stats(
+        pair.query.positions,
+        pair.target.positions,
+        res.candidates,
+        res.survivors,
+        res.matches,
+        pair.T_target_query,
+        task.T_p,
+    )
+    ms = {k: 1e3 * v for k, v in res.timings.items()}
+    row = TrialRow(
+        dataset=task.dataset,
+        descriptor=cfg.descriptor,
+        rejection=cfg.rejection,
+        ransac_threshold=float(cfg.ransac.threshold),
+        seed=int(task.seed),
+        localized=bool(res.success),
+        failed=is_failure(te, task.failure_m),
+        translation_error_m=te,
+        rotation_error_deg=re,
+        recall=st.recall,
+        precision=st.precision,
+        **{k: v for k, v in dataclasses.asdict(st).items()},
+        t_descriptors_ms=ms.get("descriptors", float("nan")),
+        t_matching_ms=ms.get("matching", float("nan")),
+        t_rejection_ms=ms.get("rejection", float("nan")),
+        t_ransac_ms=ms.get("ransac", float("nan")),
+        t_estimation_ms=ms.get("estimation", float("nan")),
+        t_total_ms=ms.get("total", float("nan")),
+        reason=res.reason,
+    )
+    return row.to_dict(task.tags)
+
+
+Progress = Callable[[int], None]
+
+
+def run_tasks(
+    tasks: Sequence[TrialTask],
+    workers: int | None = None,
+    scheduler: Any = None,
+    progress: Progress | None = None,
+) -> list[dict[str, Any]]:
+    """Run trials and return their rows in the order of `tasks`.
+
+    workers: local processes (default: the number of CPUs; 1 runs in this process).
+    scheduler: a Dask scheduler address ("tcp://host:8786") or a `distributed.Client`; when
+        given, the trials run on that cluster instead (its workers must see the same data paths).
+    progress: called with the number of trials just finished (for a progress bar).
+    """
+    tasks = list(tasks)
+    tick = progress or (lambda n: None)
+    if scheduler is not None:
+        return _run_dask(tasks, scheduler, tick)
+    workers = workers or os.cpu_count() or 1
+    if workers <= 1 or len(tasks) <= 1:
+        rows = []
+        for t in tasks:
+            rows.append(run_task(t))
+            tick(1)
+        return rows
+    rows: list[dict[str, Any] | None] = [None] * len(tasks)
+    with ProcessPoolExecutor(max_workers=min(workers, len(tasks))) as pool:
+        futures = {pool.submit(run_task, t): i for i, t in enumerate(tasks)}
+        for fut in as_completed(futures):
+            rows[futures[fut]] = fut.result()
+            tick(1)
+    return rows  # type: ignore[return-value]
+
+
+def _run_dask(tasks: list[TrialTask], scheduler: Any, tick: Progress) -> list[dict[str, Any]]:
+    from dask.distributed import Client
+    from dask.distributed import as_completed as dask_completed
+
+    own = not isinstance(scheduler, Client)
+    client = Client(scheduler) if own else scheduler
+    try:
+        futures = client.map(run_task, tasks, pure=False)
+        index = {f.key: i for i, f in enumerate(futures)}
+        rows: list[dict[str, Any] | None] = [None] * len(tasks)
+        for fut in dask_completed(futures):
+            rows[index[fut.key]] = fut.result()
+            tick(1)
+        return rows  # type: ignore[return-value]
+    finally:
+        if own:
+            client.close()
+
+
+def reproducible_part(row: dict[str, Any]) -> dict[str, Any]:
+    """A row without its timing columns: what must be identical for the same task."""
+    return {k: v for k, v in row.items() if not k.startswith(TIMING_PREFIX)}

@@ -1,0 +1,132 @@
+"""Trial runner: pairs carry the right ground truth, trials are pure functions of their seed,
+and serial, process-pool and Dask runs give identical rows."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sgloc.errors import UnknownNameError
+from sgloc.evaluation import (
+    descriptor_rejection_sweep,
+    make_pair_source,
+    overlap_sweep,
+    reproducible_part,
+    run_task,
+    run_tasks,
+    threshold_sweep,
+)
+from sgloc.evaluation.metrics import correct_matches
+from sgloc.geometry import apply
+
+
+def _same(rows_a, rows_b):
+    a = [reproducible_part(r) for r in rows_a]
+    b = [reproducible_part(r) for r in rows_b]
+    # NaN != NaN: compare through repr
+    assert [repr(sorted(x.items())) for x in a] == [repr(sorted(x.items())) for x in b]
+
+
+def test_airsim_pair_ground_truth_aligns_the_two_maps(data_dir):
+    src = make_pair_source("airsim-guo")
+    p0, p1 = src(0), src(1)
+    assert not np.allclose(p0.T_target_query, p1.T_target_query)  # each seed its own pose
+    for p in (p0, p1):
+        # Under the GT, about 120 cloud1 vertices have a same-class cloud2 vertex within 5 m.
+        q = apply(p.T_target_query, p.query.positions)
+        d = np.linalg.norm(q[:, None] - p.target.positions[None], axis=2)
+        d[p.query.labels[:, None] != p.target.labels[None]] = np.inf
+        assert 100 <= (d.min(axis=1) < 5).sum() <= 140
+        # ... and under a wrong transform almost none do.
+        q_bad = p.query.positions
+        d_bad = np.linalg.norm(q_bad[:, None] - p.target.positions[None], axis=2)
+        assert (d_bad.min(axis=1) < 5).sum() < 40
+    assert np.array_equal(src(0).T_target_query, p0.T_target_query)
+
+
+def test_object_world_pair_ground_truth(rng):
+    p = make_pair_source("object-world", overlap=0.5)(3)
+    idx = np.arange(len(p.query))
+    # correct_matches of every query vertex with its nearest target under the GT: most correct
+    q = apply(p.T_target_query, p.query.positions)
+    nn = np.argmin(np.linalg.norm(q[:, None] - p.target.positions[None], axis=2), axis=1)
+    ok = correct_matches(p.query.positions, p.target.positions, np.c_[idx, nn], p.T_target_query)
+    assert ok.mean() > 0.4
+
+
+def test_unknown_dataset_and_parameter_are_named():
+    with pytest.raises(UnknownNameError, match="nope"):
+        make_pair_source("nope")
+    with pytest.raises(UnknownNameError, match="overlap"):
+        make_pair_source("airsim-guo", overlap=0.3)
+
+
+def test_graph_folder_pair_source(tmp_path, airsim_graphs):
+    q, t = airsim_graphs
+    q.save(tmp_path / "query.npz")
+    t.save(tmp_path / "target.npz")
+    src = make_pair_source(str(tmp_path))
+    a = make_pair_source("airsim-guo")(5)
+    b = src(5)
+    assert np.allclose(a.T_target_query, b.T_target_query)
+    assert np.allclose(a.target.positions, b.target.positions)
+
+
+def test_sweeps_build_the_grid_with_shared_seeds():
+    tasks = descriptor_rejection_sweep("airsim-guo", trials=3, threshold=4.0).tasks()
+    assert len(tasks) == 3 * 2 * 3
+    assert sorted({t.seed for t in tasks}) == [0, 1, 2]
+    cells = {(t.config["descriptor"], t.config["rejection"]) for t in tasks}
+    assert len(cells) == 6
+    assert all(t.config["ransac"]["threshold"] == 4.0 for t in tasks)
+    th = threshold_sweep("airsim-guo", trials=2, thresholds=[1, 5, 9], descriptors=["fast"])
+    assert sorted({t.config["ransac"]["threshold"] for t in th.tasks()}) == [1.0, 5.0, 9.0]
+    ov = overlap_sweep("object-world", trials=2, overlaps=[0.2, 0.6]).tasks()
+    assert {t.dataset_params["overlap"] for t in ov} == {0.2, 0.6}
+    assert {t.tags["overlap"] for t in ov} == {0.2, 0.6}
+
+
+def test_trial_row_is_scored_and_timed():
+    task = descriptor_rejection_sweep("airsim-guo", trials=1, descriptors=["histogram"]).tasks()
+    row = run_task(task[1])  # histogram + neighbor, seed 0
+    assert row["rejection"] == "neighbor" and row["seed"] == 0
+    assert row["localized"] and not row["failed"]
+    assert row["translation_error_m"] < 10
+    assert 0 < row["n_final"] <= row["n_survivors"] <= row["n_candidates"]
+    assert row["n_correct_final"] <= row["n_correct_survivors"] <= row["n_correct_candidates"]
+    assert row["recall"] == pytest.approx(row["n_correct_final"] / row["n_correct_candidates"])
+    assert row["precision"] == pytest.approx(row["n_correct_final"] / row["n_final"])
+    for stage in ("descriptors", "matching", "rejection", "ransac", "estimation", "total"):
+        assert row[f"t_{stage}_ms"] >= 0
+    assert row["t_total_ms"] >= row["t_ransac_ms"]
+
+
+def test_same_seed_same_row_and_different_seed_different_pose():
+    tasks = descriptor_rejection_sweep(
+        "airsim-guo", trials=3, descriptors=["random_walk"], rejections=["neighbor"]
+    ).tasks()
+    a = [run_task(t) for t in tasks]
+    b = [run_task(t) for t in tasks]
+    _same(a, b)
+    errs = {round(r["translation_error_m"], 9) for r in a}
+    assert len(errs) == 3  # three seeds, three different pairs
+
+
+def test_process_pool_equals_serial():
+    tasks = descriptor_rejection_sweep(
+        "object-world", trials=3, descriptors=["histogram"], dataset_params={"overlap": 0.4}
+    ).tasks()
+    _same(run_tasks(tasks, workers=1), run_tasks(tasks, workers=2))
+
+
+def test_dask_cluster_equals_local():
+    distributed = pytest.importorskip("distributed")
+    tasks = descriptor_rejection_sweep("airsim-guo", trials=3, descriptors=["histogram"]).tasks()
+    local = run_tasks(tasks, workers=1)
+    done = []
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None
+    ) as cluster:
+        on_dask = run_tasks(tasks, scheduler=cluster.scheduler_address, progress=done.append)
+    assert sum(done) == len(tasks)
+    _same(local, on_dask)
