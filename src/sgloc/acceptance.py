@@ -15,16 +15,19 @@ RANSAC searches over the transforms fixed by triples of candidates, so the numbe
 alarms is bounded by NFA = C(m, 3) * P(Poisson(lambda) >= k - 3) (k inliers among m candidates;
 Poisson has a heavier tail than the binomial of the same mean, so this is conservative in p).
 
-    confidence = exp(-NFA_best) * (1 - exp(-NFA_runner_up))
+    confidence = 1 / (1 + NFA_best + NFA_best / NFA_runner_up)
 
-exp(-NFA) is the probability, under H0 with false alarms arriving as a Poisson process, that no
-hypothesis explains the candidates this well by chance. The second factor is the probability
-that the best *distinct* alternative (a transform more than `distinct_translation` metres or
-`distinct_rotation` degrees away, found by consistency-guided sampling of the candidates) is
-chance: two significant, different alignments mean the map is ambiguous. The confidence is 0
-when the inliers are nearly collinear (minor-axis spread under `min_spread` metres), since the
-rotation about their line is then not determined by the evidence. A result is accepted when
-confidence >= `min_confidence` (the one strictness setting; 0 gives Guo's rule back).
+This is the weight of the best hypothesis when it, the best *distinct* alternative (a transform
+more than `distinct_translation` metres or `distinct_rotation` degrees away, supported by
+candidates the best does not explain, found by consistency-guided sampling) and "chance" are
+weighed by their a-contrario evidence 1/NFA (chance weighing 1). So it is near 1 only when the
+best alignment is far beyond chance *and* far better supported than any different alignment
+(two comparably supported alignments give about 0.5: the map is ambiguous). Under H0, NFA has
+P(NFA <= e) <= e, so a non-overlapping pair reaches confidence >= c with probability at most
+about (1 - c) / c. The confidence is 0 when the inliers are nearly collinear (standard deviation
+along their second principal axis under `min_spread` metres): the evidence then does not fix
+the rotation about their line. A result is accepted when confidence >= `min_confidence` (the
+one strictness setting; 0 gives back Guo's rule alone).
 """
 
 from __future__ import annotations
@@ -60,7 +63,7 @@ class AcceptanceConfig:
     enabled: bool = True
     min_confidence: float = 0.99
     radius: float | None = None
-    min_spread: float = 2.0
+    min_spread: float = 5.0
     distinct_translation: float = 10.0
     distinct_rotation: float = 10.0
     runner_up_samples: int = 128
@@ -115,11 +118,6 @@ def log10_nfa(k: int, m: int, lam: float) -> float:
         return _log_comb3(m) / _LN10
     tail = poisson.logsf(excess - 1, max(lam, 1e-12))
     return float((_log_comb3(m) + tail) / _LN10)
-
-
-def _confidence_from_log10_nfa(lg: float) -> float:
-    """exp(-NFA) for NFA = 10**lg, without overflow."""
-    return float(np.exp(-(10.0 ** min(lg, 6.0))))
 
 
 def _runner_up(
@@ -241,18 +239,18 @@ def assess(
         "runner_up_log10_nfa": float(lg_second),
         "spread_m": spread,
     }
-    p_best = _confidence_from_log10_nfa(lg_best)
-    p_alt = 1.0 if not np.isfinite(lg_second) else 1.0 - _confidence_from_log10_nfa(lg_second)
-    confidence = float(np.clip(p_best * p_alt, 0.0, 1.0))
+    nfa1 = 10.0 ** min(lg_best, 300.0)
+    ratio = 0.0 if not np.isfinite(lg_second) else 10.0 ** min(lg_best - lg_second, 300.0)
+    confidence = float(np.clip(1.0 / (1.0 + nfa1 + ratio), 0.0, 1.0))
     reason = ""
     if spread < cfg.min_spread:
         confidence = 0.0
         reason = (
-            f"the {k} inliers are nearly collinear (spread {spread:.1f} m < min_spread "
-            f"{cfg.min_spread} m); the rotation about their line is not determined"
+            f"the {k} inliers lie in a narrow strip (spread {spread:.1f} m < min_spread "
+            f"{cfg.min_spread} m); the rotation about its line is not determined"
         )
     elif confidence < cfg.min_confidence:
-        if p_alt < 0.5:
+        if ratio > nfa1:
             reason = (
                 f"ambiguous: a distinct alignment explains {k2} matches against the best's {k} "
                 f"(confidence {confidence:.3g} < min_confidence {cfg.min_confidence})"
