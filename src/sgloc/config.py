@@ -24,6 +24,8 @@ class LocalizerConfig:
     descriptor / descriptor_params: name in DESCRIPTORS and its parameters.
     rejection / rejection_params: name in REJECTORS and its parameters.
     class_weights: {class id: weight} for the final weighted fit (others weigh 1).
+    robust_refit: refine the final fit over RANSAC's inliers by an M-estimator (Tukey biweight
+        IRLS, `sgloc.estimation.irls_refine`); False: the plain weighted least squares of Eq. 4.
     icp: refine the final transform by mutual-nearest-neighbour ICP on all objects of the two
         graphs (not in the paper's pipeline; see docs/core_benchmark.md for its effect).
     icp_max_distance: ICP pairing radius (metres).
@@ -37,6 +39,7 @@ class LocalizerConfig:
     rejection_params: dict[str, Any] = field(default_factory=dict)
     ransac: RansacConfig = field(default_factory=RansacConfig)
     class_weights: dict[int, float] | None = None
+    robust_refit: bool = True
     icp: bool = False
     icp_max_distance: float = 5.0
     acceptance: AcceptanceConfig = field(default_factory=AcceptanceConfig)
@@ -79,7 +82,7 @@ class LocalizerConfig:
                 setattr(cfg.acceptance, key, value)
             elif key == "acceptance":
                 cfg.acceptance = _acceptance(value)
-            elif key in {"class_weights", "icp", "icp_max_distance"}:
+            elif key in {"class_weights", "robust_refit", "icp", "icp_max_distance"}:
                 setattr(cfg, key, value)
             else:
                 raise UnknownNameError(

@@ -286,6 +286,43 @@ def _inliers(T: np.ndarray, src: np.ndarray, dst: np.ndarray, thr2: float) -> np
     return np.flatnonzero(r2 < thr2)
 
 
+def irls_refine(
+    src: np.ndarray,
+    dst: np.ndarray,
+    T: np.ndarray,
+    weights: np.ndarray | None = None,
+    iterations: int = 30,
+) -> np.ndarray:
+    """Refine T_dst_src on matched points (metres) by an M-estimator: iteratively reweighted
+    least squares with Tukey's biweight, c = 4.685 * sigma, sigma re-estimated each round as
+    1.4826 * the median residual (times the prior `weights`).
+
+    A least-squares fit over RANSAC's inliers is pulled by wrong matches that fall inside the
+    threshold (repeated objects); the biweight gives them zero weight once they stand out from
+    the residual spread, so exact correspondences give the exact transform back, while on
+    uniformly noisy matches (all residuals alike) it stays close to least squares.
+    """
+    prior = np.ones(len(src)) if weights is None else np.asarray(weights, dtype=np.float64)
+    for _ in range(iterations):
+        r = np.linalg.norm(src @ T[:3, :3].T + T[:3, 3] - dst, axis=1)
+        sigma = 1.4826 * np.median(r)
+        if sigma <= 1e-12:
+            break
+        u = r / (4.685 * sigma)
+        w = prior * np.where(u < 1.0, (1.0 - u**2) ** 2, 0.0)
+        if np.count_nonzero(w) < 3:
+            break
+        try:
+            T_new = weighted_kabsch(src[w > 0], dst[w > 0], w[w > 0])
+        except DegenerateGeometryError:
+            break
+        done = np.allclose(T_new, T, atol=1e-9, rtol=0.0)
+        T = T_new
+        if done:
+            break
+    return T
+
+
 def icp_refine(
     src: np.ndarray,
     src_labels: np.ndarray,

@@ -43,8 +43,10 @@ def random_rigid_transform(
 
 def rotation_angle_deg(R: np.ndarray) -> float:
     """Angle of a rotation matrix, degrees in [0, 180]."""
-    c = (np.trace(R) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+    # atan2(sin, cos) keeps full precision near 0 and 180 degrees, unlike arccos of the trace.
+    s = 0.5 * np.linalg.norm([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    c = 0.5 * (np.trace(R) - 1.0)
+    return float(np.degrees(np.arctan2(s, c)))
 
 
 def transform_error(T_est: np.ndarray, T_gt: np.ndarray) -> tuple[float, float]:

@@ -12,7 +12,7 @@ from sgloc.acceptance import assess
 from sgloc.config import LocalizerConfig
 from sgloc.descriptors import make_descriptor
 from sgloc.errors import DegenerateGeometryError, InvalidGraphError, SglocError
-from sgloc.estimation import icp_refine, ransac, weighted_kabsch
+from sgloc.estimation import icp_refine, irls_refine, ransac, weighted_kabsch
 from sgloc.graph import SemanticGraph
 from sgloc.matching import match_descriptors
 from sgloc.rejection import make_rejector
@@ -139,6 +139,13 @@ class Localizer:
                 )
             except DegenerateGeometryError as e:
                 reason = str(e)
+            if transform is not None and cfg.robust_refit:
+                transform = irls_refine(
+                    query.positions[final[:, 0]],
+                    target.positions[final[:, 1]],
+                    transform,
+                    None if weights is None else weights[rs.inliers],
+                )
             if transform is not None and cfg.icp:
                 transform = icp_refine(
                     query.positions,

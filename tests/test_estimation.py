@@ -1,0 +1,112 @@
+"""Weighted Kabsch, RANSAC and ICP."""
+
+import numpy as np
+import pytest
+
+from sgloc.errors import DegenerateGeometryError
+from sgloc.estimation import (
+    RansacConfig,
+    draw_triplets,
+    icp_refine,
+    ransac,
+    rigid_from_triplets,
+    squared_residuals,
+    weighted_kabsch,
+)
+from sgloc.geometry import apply, invert, random_rigid_transform, transform_error
+
+
+def test_kabsch_recovers_exact_transform(rng):
+    T = random_rigid_transform(rng)
+    src = rng.uniform(-50, 50, (10, 3))
+    est = weighted_kabsch(src, apply(T, src))
+    np.testing.assert_allclose(est, T, atol=1e-9)
+
+
+def test_kabsch_never_returns_a_reflection(rng):
+    # Planar points mirrored through their plane: the best orthogonal fit is a reflection;
+    # the guard must return a proper rotation.
+    src = np.column_stack([rng.uniform(-10, 10, (8, 2)), np.zeros(8)])
+    dst = src * np.array([1.0, 1.0, -1.0]) + rng.normal(0, 0.01, (8, 3))
+    src[:, 2] += rng.normal(0, 0.5, 8)
+    R = weighted_kabsch(src, dst)[:3, :3]
+    assert np.linalg.det(R) == pytest.approx(1.0)
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-9)
+
+
+def test_weights_pull_the_fit(rng):
+    src = rng.uniform(-20, 20, (6, 3))
+    dst = src.copy()
+    dst[0] += [3.0, 0, 0]  # one pair disagrees by 3 m
+    light = weighted_kabsch(src, dst)
+    heavy = weighted_kabsch(src, dst, weights=np.array([100.0, 1, 1, 1, 1, 1]))
+    res_light = np.linalg.norm(apply(light, src[:1]) - dst[:1])
+    res_heavy = np.linalg.norm(apply(heavy, src[:1]) - dst[:1])
+    assert res_heavy < 0.2 * res_light
+
+
+def test_kabsch_degenerate_inputs():
+    with pytest.raises(DegenerateGeometryError, match="at least 3"):
+        weighted_kabsch(np.zeros((2, 3)), np.zeros((2, 3)))
+    line = np.outer(np.arange(6.0), [1.0, 2.0, 0.5])
+    with pytest.raises(DegenerateGeometryError, match="collinear"):
+        weighted_kabsch(line, line + 1.0)
+
+
+def test_triplet_hypotheses_and_residuals(rng):
+    T = random_rigid_transform(rng)
+    s = rng.normal(0, 10, (50, 3, 3))
+    R, t = rigid_from_triplets(s, s @ T[:3, :3].T + T[:3, 3])
+    np.testing.assert_allclose(R, np.broadcast_to(T[:3, :3], R.shape), atol=1e-9)
+    src = rng.normal(0, 20, (30, 3))
+    dst = rng.normal(0, 20, (30, 3))
+    ref = np.sum((np.einsum("bij,mj->bmi", R, src) + t[:, None] - dst) ** 2, axis=2)
+    np.testing.assert_allclose(squared_residuals(R, t, src, dst), ref, rtol=1e-9, atol=1e-8)
+
+
+def test_triplets_are_distinct(rng):
+    tr = draw_triplets(4, 5000, rng)
+    assert np.all((tr[:, 0] != tr[:, 1]) & (tr[:, 1] != tr[:, 2]) & (tr[:, 0] != tr[:, 2]))
+    assert tr.min() == 0 and tr.max() == 3
+
+
+@pytest.mark.parametrize("scoring", ["count", "msac"])
+def test_ransac_with_outliers(rng, scoring):
+    T = random_rigid_transform(rng)
+    src = rng.uniform(-100, 100, (200, 3))
+    dst = apply(T, src) + rng.normal(0, 0.5, src.shape)
+    out = rng.choice(200, 140, replace=False)  # 70 % outliers
+    dst[out] = rng.uniform(-300, 300, (140, 3))
+    res = ransac(src, dst, RansacConfig(threshold=3.0, scoring=scoring), rng)
+    te, re = transform_error(res.transform, T)
+    assert te < 1.0 and re < 0.5
+    inl = np.setdiff1d(np.arange(200), out)
+    assert len(np.intersect1d(res.inliers, inl)) >= 0.95 * len(inl)
+
+
+def test_ransac_acceptance_rule(rng):
+    T = random_rigid_transform(rng)
+    src = rng.uniform(-100, 100, (4, 3))
+    res = ransac(src, apply(T, src), RansacConfig(), rng)  # 4 inliers < 5
+    assert res.transform is None and "at least 5" in res.reason
+    res = ransac(src[:2], src[:2], RansacConfig(), rng)
+    assert res.transform is None and "at least 3" in res.reason
+
+
+def test_ransac_collinear_matches(rng):
+    line = np.outer(np.linspace(0, 100, 20), [1.0, 0.5, 0.0])
+    res = ransac(line, line + 5.0, RansacConfig(), rng)
+    assert res.transform is None and "collinear" in res.reason
+
+
+def test_icp_refines_a_perturbed_estimate(rng):
+    src = rng.uniform(-80, 80, (150, 3))
+    labels = rng.integers(0, 4, 150)
+    T = random_rigid_transform(rng)
+    dst = apply(T, src) + rng.normal(0, 0.1, src.shape)
+    perturb = random_rigid_transform(rng, max_translation=1.5, max_roll_pitch_deg=0.5)
+    perturb[:3, :3] = np.eye(3)
+    start = perturb @ T
+    refined = icp_refine(src, labels, dst, labels, start, max_distance=5.0)
+    assert transform_error(refined, T)[0] < 0.1 < transform_error(start, T)[0]
+    assert np.allclose(invert(refined) @ refined, np.eye(4))
