@@ -88,7 +88,7 @@ class KittiDataset(Dataset):
             raise DatasetError(f"{self.folder}: no such KITTI sequence folder.")
         if poses is None:
             poses = self.folder / f"poses_{sequence}.txt"
-            if not poses.is_file():
+            if not poses.is_file() and (self.folder / "poses.txt").is_file():
                 poses = self.folder / "poses.txt"
         P = read_kitti_poses(Path(poses))
         calib = read_kitti_calib(self.folder / "calib.txt")

@@ -23,7 +23,6 @@ import numpy as np
 
 from sgloc.datasets.base import Dataset, Frame, parse_range, require_file
 from sgloc.errors import DatasetError
-from sgloc.geometry import invert
 from sgloc.io.poses import read_kitti_poses
 
 #: Class ids of the detections (the column order of bow.txt).
@@ -113,7 +112,7 @@ def find_kitti_objects_files(path: Path, sequence: str) -> tuple[Path, Path]:
     for cand in (path / f"gosmatch_{sequence}_objects.tar.xz", path / sequence, path):
         if cand.is_file() or (cand / "bow.txt").is_file():
             poses = path / f"poses_{sequence}.txt"
-            if not poses.is_file():
+            if not poses.is_file() and (path / "poses.txt").is_file():
                 poses = path / "poses.txt"
             return cand, poses
     raise DatasetError(
@@ -173,7 +172,7 @@ class KittiObjectsDataset(Dataset):
         self.indices = parse_range(scans, len(self._bow), "scans")
         T = P[self.indices] @ Tr4
         if start_frame:
-            T = invert(T[0]) @ T
+            T = np.linalg.inv(T[0]) @ T  # Tr is rigid only to ~1e-7: exact inverse
         self.start_frame = bool(start_frame)
         self.poses = T
 
