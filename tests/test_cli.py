@@ -1,0 +1,76 @@
+"""The command line: results, one-line errors with exit code 2, help with examples."""
+
+import json
+
+import numpy as np
+import pytest
+
+from sgloc import SemanticGraph
+from sgloc.cli import app, main
+
+
+def test_localize_writes_json(data_dir, tmp_path, capsys):
+    d = data_dir / "airsim_guo"
+    out = tmp_path / "res.json"
+    rc = main(["localize", str(d / "cloud1.pcd"), str(d / "cloud2.pcd"), "--json", str(out)])
+    assert rc == 0
+    res = json.loads(out.read_text())
+    assert res["success"] and res["n_matches"] > 10
+    T = np.array(res["transform"])
+    assert np.linalg.norm(T[:3, 3]) < 5.0  # ground truth is the identity
+    printed = capsys.readouterr().out
+    assert "T_target_query" in printed and "ransac" in printed
+
+
+def one_line_error(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ")
+    return err[0]
+
+
+def test_missing_file_is_one_line_exit_2(tmp_path, capsys):
+    rc = main(["localize", str(tmp_path / "a.pcd"), str(tmp_path / "b.pcd")])
+    assert rc == 2
+    assert "no such file" in one_line_error(capsys)
+
+
+def test_malformed_file_is_one_line_exit_2(tmp_path, capsys):
+    bad = tmp_path / "bad.json"
+    bad.write_text("[1, 2")
+    rc = main(["localize", str(bad), str(bad)])
+    assert rc == 2
+    assert "bad.json" in one_line_error(capsys)
+
+
+def test_unknown_descriptor_is_one_line_exit_2(data_dir, capsys):
+    d = data_dir / "airsim_guo"
+    rc = main(["localize", str(d / "cloud1.pcd"), str(d / "cloud2.pcd"), "--descriptor", "x"])
+    assert rc == 2
+    assert "unknown descriptor" in one_line_error(capsys)
+
+
+def test_not_localized_is_one_line_exit_2(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    SemanticGraph(rng.uniform(0, 60, (12, 3)), np.zeros(12, int)).save(tmp_path / "q.json")
+    SemanticGraph(rng.uniform(0, 60, (12, 3)), np.ones(12, int)).save(tmp_path / "t.json")
+    rc = main(["localize", str(tmp_path / "q.json"), str(tmp_path / "t.json")])
+    assert rc == 2
+    assert "not localized" in one_line_error(capsys)
+
+
+def test_nan_in_file_is_one_line_exit_2(tmp_path, capsys):
+    p = tmp_path / "nan.json"
+    p.write_text(
+        json.dumps(
+            {"positions": [[0, 0, 0], [1, "NaN", 0], [2, 2, 2]], "labels": [0, 0, 0]}
+        ).replace('"NaN"', "NaN")
+    )
+    rc = main(["localize", str(p), str(p)])
+    assert rc == 2
+    assert "NaN" in one_line_error(capsys)
+
+
+@pytest.mark.parametrize("command", [c.name for c in app.registered_commands])
+def test_every_command_help_has_an_example(command, capsys):
+    assert main([command, "--help"]) == 0
+    assert "Example" in capsys.readouterr().out
