@@ -69,7 +69,6 @@ def build_graph_cmd(
     options = _loader_options(
         dataset, {"robot": robot, "frames": frames, "start_frame": start_frame}
     )
-    ds = make_dataset(dataset, path, **options)
     overrides = {
         "merge_distance": merge_distance,
         "min_observations": min_observations,
@@ -82,6 +81,7 @@ def build_graph_cmd(
     config = extraction_preset(dataset).with_overrides(
         **{k: v for k, v in overrides.items() if v is not None}
     )
+    ds = make_dataset(dataset, path, **options)
     console = Console(stderr=True)
     with Progress(
         TextColumn("[bold]extracting"),
