@@ -22,8 +22,9 @@ def check_not_degenerate(points: np.ndarray, what: str = "points") -> None:
             f"{len(points)} {what} cannot fix a rigid transform; at least 3 non-collinear are "
             "needed (lower min_similarity or use graphs that overlap more)."
         )
-    s = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
-    if s[0] == 0 or s[1] / s[0] < COLLINEAR_RATIO:
+    c = points - points.mean(axis=0)
+    ev = np.linalg.eigvalsh(c.T @ c)  # ascending; singular values squared
+    if ev[2] <= 0 or np.sqrt(max(ev[1], 0.0) / ev[2]) < COLLINEAR_RATIO:
         raise DegenerateGeometryError(
             f"the {len(points)} {what} are (nearly) collinear, so the rotation about their line "
             "is undetermined; more spread-out matches are needed."
@@ -40,7 +41,12 @@ def weighted_kabsch(
     src = np.asarray(src, dtype=np.float64)
     dst = np.asarray(dst, dtype=np.float64)
     check_not_degenerate(src, "matched points")
-    w = np.ones(len(src)) if weights is None else np.asarray(weights, dtype=np.float64)
+    return _kabsch(src, dst, np.ones(len(src)) if weights is None else weights)
+
+
+def _kabsch(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """weighted_kabsch without the input checks (for inner loops on validated points)."""
+    w = np.asarray(weights, dtype=np.float64)
     w = w / w.sum()
     cs, cd = w @ src, w @ dst
     H = ((src - cs) * w[:, None]).T @ (dst - cd)
@@ -312,11 +318,8 @@ def irls_refine(
         w = prior * np.where(u < 1.0, (1.0 - u**2) ** 2, 0.0)
         if np.count_nonzero(w) < 3:
             break
-        try:
-            T_new = weighted_kabsch(src[w > 0], dst[w > 0], w[w > 0])
-        except DegenerateGeometryError:
-            break
-        done = np.allclose(T_new, T, atol=1e-9, rtol=0.0)
+        T_new = _kabsch(src, dst, w)
+        done = np.abs(T_new - T).max() < 1e-9
         T = T_new
         if done:
             break
