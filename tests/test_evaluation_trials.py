@@ -130,3 +130,17 @@ def test_dask_cluster_equals_local():
         on_dask = run_tasks(tasks, scheduler=cluster.scheduler_address, progress=done.append)
     assert sum(done) == len(tasks)
     _same(local, on_dask)
+
+
+def test_errors_in_the_target_maps_own_frame():
+    # object-world pairs are not moved: both error columns agree
+    t = overlap_sweep("object-world", trials=1, overlaps=[0.6], rejections=["neighbor"]).tasks()
+    row = run_task(t[0])
+    assert row["translation_error_m"] == pytest.approx(row["translation_error_moved_m"])
+    assert row["pair_overlap"] == 0.6
+    # airsim pairs are moved by up to 200 m: the moved-frame error adds rotation x shift
+    t = descriptor_rejection_sweep("airsim-guo", trials=4, descriptors=["histogram"]).tasks()
+    rows = [run_task(x) for x in t]
+    diff = [abs(r["translation_error_m"] - r["translation_error_moved_m"]) for r in rows]
+    bound = [np.radians(r["rotation_error_deg"]) * r["pair_initial_translation_m"] for r in rows]
+    assert all(d <= b + 1e-6 for d, b in zip(diff, bound, strict=True))

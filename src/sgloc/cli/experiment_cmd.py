@@ -113,7 +113,7 @@ def experiment_cmd(
         out = Path("results") / f"{name}-{Path(dataset).name}-{stamp}"
     console = Console()
     with Progress(
-        TextColumn(f"[bold]{name}[/] on {dataset}"),
+        TextColumn(f"[bold]{name}[/] on {dataset}: {{task.description}}"),
         BarColumn(),
         MofNCompleteColumn(),
         TimeRemainingColumn(),
@@ -122,8 +122,8 @@ def experiment_cmd(
     ) as bar:
         task = bar.add_task("trials", total=None)
 
-        def progress(done: int, total: int) -> None:
-            bar.update(task, completed=done, total=total)
+        def progress(done: int, total: int, phase: str = "trials") -> None:
+            bar.update(task, completed=done, total=total, description=phase)
 
         result = run_experiment(
             name, dataset, out, opt, workers=workers, scheduler=scheduler, progress=progress

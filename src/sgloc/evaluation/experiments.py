@@ -19,7 +19,6 @@ from typing import Any
 
 import numpy as np
 
-from sgloc.config import LocalizerConfig
 from sgloc.errors import UnknownNameError
 from sgloc.evaluation import plots
 from sgloc.evaluation.metrics import T_P, correct_matches, pose_errors
@@ -40,11 +39,12 @@ from sgloc.evaluation.sweeps import (
     REJECTION_NAMES,
     THRESHOLDS,
     Sweep,
+    config_for,
     descriptor_rejection_sweep,
     overlap_sweep,
     threshold_sweep,
 )
-from sgloc.evaluation.trials import LOCALIZER_STREAM, run_tasks
+from sgloc.evaluation.trials import LOCALIZER_STREAM, prepare_tasks, run_prepare, run_tasks
 from sgloc.localizer import Localizer
 
 EXPERIMENTS = ("table", "threshold", "pr", "overlap", "matches")
@@ -105,11 +105,11 @@ def run_experiment(
     options: ExperimentOptions | None = None,
     workers: int | None = None,
     scheduler: Any = None,
-    progress: Callable[[int, int], None] | None = None,
+    progress: Callable[[int, int, str], None] | None = None,
 ) -> ExperimentOutput:
     """Run experiment `name` on `dataset` and write its results folder `out`.
 
-    progress(done, total) is called as trials finish.
+    progress(done, total, phase) is called as trials (and world preparations) finish.
     """
     opt = options or ExperimentOptions()
     if name not in EXPERIMENTS:
@@ -132,8 +132,19 @@ def run_experiment(
         def tick(n: int) -> None:
             done[0] += n
             if progress:
-                progress(done[0], len(tasks))
+                progress(done[0], len(tasks), "trials")
 
+        prep = prepare_tasks(tasks)  # e.g. render each synthetic world once, in parallel
+        if prep:
+            ready = [0]
+
+            def tick_prep(n: int) -> None:
+                ready[0] += n
+                if progress:
+                    progress(ready[0], len(prep), "preparing worlds")
+
+            tick_prep(0)
+            run_tasks(prep, workers, scheduler, tick_prep, fn=run_prepare)
         rows = run_tasks(tasks, workers=workers, scheduler=scheduler, progress=tick)
     wall = time.perf_counter() - t0
     files = [write_csv(rows, folder / "trials.csv")]
@@ -146,9 +157,7 @@ def run_experiment(
     md = header + md
     (folder / "table.md").write_text(md)
     files.append(folder / "table.md")
-    configs = {
-        _cell_name(s, p): LocalizerConfig().with_overrides(**s).to_dict() for s, p in sweep.cells()
-    }
+    configs = {_cell_name(s, p): config_for(s).to_dict() for s, p in sweep.cells()}
     exp = {"name": name, **sweep.to_dict(), "workers": workers, "scheduler": str(scheduler)}
     files.append(write_config_yaml(folder / "config.yaml", exp, configs))
     return ExperimentOutput(folder, files, md, rows)
@@ -199,7 +208,7 @@ def _matches(dataset: str, folder: Path, opt: ExperimentOptions) -> ExperimentOu
     base = {"descriptor": opt.descriptor, "ransac_threshold": opt.threshold, **opt.settings}
     results = {}
     for rej in ("neighbor", "none"):
-        cfg = LocalizerConfig().with_overrides(**base, rejection=rej)
+        cfg = config_for({**base, "rejection": rej})
         rng = np.random.default_rng([seed, LOCALIZER_STREAM])
         results[rej] = (cfg, Localizer(cfg)(pair.query, pair.target, rng))
     nb, bl = results["neighbor"][1], results["none"][1]

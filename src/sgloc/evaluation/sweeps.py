@@ -6,12 +6,14 @@ and initial transforms (paired comparisons), and any cell can be re-run alone.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from sgloc.config import LocalizerConfig
+from sgloc.errors import UnknownNameError
 from sgloc.evaluation.metrics import FAILURE_M, T_P
 from sgloc.evaluation.trials import TrialTask
 
@@ -61,7 +63,7 @@ class Sweep:
         """The trials of the whole grid: cell-major, seed-minor."""
         tasks = []
         for settings, params in self.cells():
-            cfg = LocalizerConfig().with_overrides(**settings).to_dict()
+            cfg = config_for(settings).to_dict()
             tags = {k: params[k] for k in self.dataset_axes}
             for i in range(self.trials):
                 tasks.append(
@@ -90,6 +92,34 @@ class Sweep:
             "T_p": self.T_p,
             "failure_m": self.failure_m,
         }
+
+
+def _stage_params() -> set[str]:
+    """Names of every registered descriptor's and rejector's parameters."""
+    from sgloc.descriptors import DESCRIPTORS
+    from sgloc.rejection import REJECTORS
+
+    return {
+        f.name
+        for cls in [*DESCRIPTORS.values(), *REJECTORS.values()]
+        for f in dataclasses.fields(cls)
+    }
+
+
+def config_for(settings: dict[str, Any]) -> LocalizerConfig:
+    """The LocalizerConfig of flat `settings`; a parameter of another descriptor or rejector
+    than the cell's (e.g. tau when rejection is none) is left out, a misspelt one still raises."""
+    stage = {k: settings[k] for k in ("descriptor", "rejection") if k in settings}
+    cfg = LocalizerConfig().with_overrides(**stage)
+    for key, value in settings.items():
+        if key in stage:
+            continue
+        try:
+            cfg = cfg.with_overrides(**{key: value})
+        except UnknownNameError:
+            if key not in _stage_params():
+                raise
+    return cfg
 
 
 def descriptor_rejection_sweep(

@@ -20,6 +20,7 @@ import numpy as np
 from sgloc.config import LocalizerConfig
 from sgloc.evaluation.metrics import FAILURE_M, T_P, is_failure, match_stats, pose_errors
 from sgloc.evaluation.pairs import make_pair_source
+from sgloc.geometry import invert
 from sgloc.localizer import Localizer
 
 #: Stream index of the localizer's random numbers (RANSAC, random walks) within a trial seed.
@@ -50,7 +51,13 @@ class TrialTask:
 
 @dataclass
 class TrialRow:
-    """One trial's outcome: pose errors, match counts, recall/precision, stage times (ms)."""
+    """One trial's outcome: pose errors, match counts, recall/precision, stage times (ms).
+
+    translation_error_m / rotation_error_deg: of T_est @ inv(T_gt) in the target map's own
+    frame; translation_error_moved_m: the same in the randomly moved frame the target was
+    handed over in (adds up to |rotation error| x |random shift|); `failed` uses the former.
+    The pair's info (e.g. the achieved overlap) is appended as pair_* columns.
+    """
 
     dataset: str
     descriptor: str
@@ -61,6 +68,7 @@ class TrialRow:
     failed: bool
     translation_error_m: float
     rotation_error_deg: float
+    translation_error_moved_m: float
     n_candidates: int
     n_correct_candidates: int
     n_survivors: int
@@ -99,7 +107,10 @@ def run_task(task: TrialTask) -> dict[str, Any]:
     cfg = LocalizerConfig.from_dict(task.config)
     rng = np.random.default_rng([int(task.seed), LOCALIZER_STREAM])
     res = Localizer(cfg)(pair.query, pair.target, rng)
-    te, re = pose_errors(res.transform, pair.T_target_query)
+    te_moved, _ = pose_errors(res.transform, pair.T_target_query)
+    T_own_moved = invert(pair.T_moved_own)
+    T_est_own = None if res.transform is None else T_own_moved @ res.transform
+    te, re = pose_errors(T_est_own, T_own_moved @ pair.T_target_query)
     st = match_stats(
         pair.query.positions,
         pair.target.positions,
@@ -120,6 +131,7 @@ def run_task(task: TrialTask) -> dict[str, Any]:
         failed=is_failure(te, task.failure_m),
         translation_error_m=te,
         rotation_error_deg=re,
+        translation_error_moved_m=te_moved,
         recall=st.recall,
         precision=st.precision,
         **{k: v for k, v in dataclasses.asdict(st).items()},
@@ -131,19 +143,51 @@ def run_task(task: TrialTask) -> dict[str, Any]:
         t_total_ms=ms.get("total", float("nan")),
         reason=res.reason,
     )
-    return row.to_dict(task.tags)
+    info = {f"pair_{k}": v for k, v in pair.info.items()}
+    return {**row.to_dict(task.tags), **info}
 
 
 Progress = Callable[[int], None]
 
 
+@dataclass
+class PrepareTask:
+    """Warm a pair source's cache for one seed (e.g. render a synthetic world once)."""
+
+    dataset: str
+    dataset_params: dict[str, Any]
+    seed: int
+
+
+def prepare_tasks(tasks: Sequence[TrialTask]) -> list[PrepareTask]:
+    """One PrepareTask per distinct world the trials need, for sources with a `prepare(seed)`
+    method and a `world(seed)` naming the cached item; empty for the others."""
+    out, seen = [], set()
+    for t in tasks:
+        src = _source(t.dataset, t.dataset_params)
+        if not hasattr(src, "prepare"):
+            continue
+        key = (t.dataset, repr(sorted(t.dataset_params.items())), src.world(t.seed))
+        if key not in seen:
+            seen.add(key)
+            out.append(PrepareTask(t.dataset, t.dataset_params, t.seed))
+    return out
+
+
+def run_prepare(task: PrepareTask) -> str:
+    """Run one PrepareTask (picklable entry point)."""
+    return _source(task.dataset, task.dataset_params).prepare(task.seed)
+
+
 def run_tasks(
-    tasks: Sequence[TrialTask],
+    tasks: Sequence[Any],
     workers: int | None = None,
     scheduler: Any = None,
     progress: Progress | None = None,
-) -> list[dict[str, Any]]:
-    """Run trials and return their rows in the order of `tasks`.
+    fn: Callable[[Any], Any] = run_task,
+) -> list[Any]:
+    """Run trials (`fn` of each task, default `run_task`) and return the results in the
+    order of `tasks`.
 
     workers: local processes (default: the number of CPUs; 1 runs in this process).
     scheduler: a Dask scheduler address ("tcp://host:8786") or a `distributed.Client`; when
@@ -153,31 +197,31 @@ def run_tasks(
     tasks = list(tasks)
     tick = progress or (lambda n: None)
     if scheduler is not None:
-        return _run_dask(tasks, scheduler, tick)
+        return _run_dask(tasks, scheduler, tick, fn)
     workers = workers or os.cpu_count() or 1
     if workers <= 1 or len(tasks) <= 1:
         rows = []
         for t in tasks:
-            rows.append(run_task(t))
+            rows.append(fn(t))
             tick(1)
         return rows
     rows: list[dict[str, Any] | None] = [None] * len(tasks)
     with ProcessPoolExecutor(max_workers=min(workers, len(tasks))) as pool:
-        futures = {pool.submit(run_task, t): i for i, t in enumerate(tasks)}
+        futures = {pool.submit(fn, t): i for i, t in enumerate(tasks)}
         for fut in as_completed(futures):
             rows[futures[fut]] = fut.result()
             tick(1)
     return rows  # type: ignore[return-value]
 
 
-def _run_dask(tasks: list[TrialTask], scheduler: Any, tick: Progress) -> list[dict[str, Any]]:
+def _run_dask(tasks: list[Any], scheduler: Any, tick: Progress, fn: Callable) -> list[Any]:
     from dask.distributed import Client
     from dask.distributed import as_completed as dask_completed
 
     own = not isinstance(scheduler, Client)
     client = Client(scheduler) if own else scheduler
     try:
-        futures = client.map(run_task, tasks, pure=False)
+        futures = client.map(fn, tasks, pure=False)
         index = {f.key: i for i, f in enumerate(futures)}
         rows: list[dict[str, Any] | None] = [None] * len(tasks)
         for fut in dask_completed(futures):
