@@ -39,14 +39,13 @@ def _row_normalised(D) -> sparse.csr_array | np.ndarray:
 
 def cosine_similarity(desc_q, desc_t, labels_q: np.ndarray, labels_t: np.ndarray) -> np.ndarray:
     """(n_q, n_t) cosine similarity; 0 between vertices of different classes or without a
-    descriptor (all-zero row)."""
+    descriptor (all-zero row). Computed one class block at a time (only same-class pairs)."""
     Q, T = _row_normalised(desc_q), _row_normalised(desc_t)
-    if sparse.issparse(Q) or sparse.issparse(T):
-        S = sparse.csr_array(Q) @ sparse.csr_array(T).T
-        S = S.toarray()
-    else:
-        S = Q @ T.T
-    S[labels_q[:, None] != labels_t[None, :]] = 0.0
+    S = np.zeros((Q.shape[0], T.shape[0]))
+    for c in np.intersect1d(labels_q, labels_t):
+        iq, it = np.flatnonzero(labels_q == c), np.flatnonzero(labels_t == c)
+        block = Q[iq] @ T[it].T
+        S[np.ix_(iq, it)] = block.toarray() if sparse.issparse(block) else block
     return S
 
 
