@@ -38,10 +38,12 @@ def region_positions(
     d = np.asarray(depth, dtype=np.float64)[v, u]
     n = np.bincount(ids, minlength=r).astype(np.float64)
     if position == "mean":
-        pts = backproject_pixels(u.astype(np.float64), v.astype(np.float64), d, K)
-        return (
-            np.stack([np.bincount(ids, pts[:, k], minlength=r) for k in range(3)], 1) / n[:, None]
-        )
+        # mean of ((u-cx)/fx d, (v-cy)/fy d, d) from three weighted sums, no (n,3) array
+        sd = np.bincount(ids, d, minlength=r)
+        sud = np.bincount(ids, u * d, minlength=r)
+        svd = np.bincount(ids, v * d, minlength=r)
+        fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+        return np.stack([(sud - cx * sd) / fx, (svd - cy * sd) / fy, sd], axis=1) / n[:, None]
     if position == "centre":
         uc = np.bincount(ids, u, minlength=r) / n
         vc = np.bincount(ids, v, minlength=r) / n

@@ -4,7 +4,7 @@ A region is a connected component of the 4-connected pixel graph whose edges joi
 neighbouring pixels of the same class whose depths differ by less than `depth_jump`; pixels
 without a class, without a valid depth or deeper than `max_depth` belong to no region. This is
 exactly what a 4-connected flood fill with that joining rule produces, computed at once with
-scipy's connected components instead of a Python loop.
+scipy's C labelling (on a grid that also holds the edges) instead of a Python loop.
 """
 
 from __future__ import annotations
@@ -12,8 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import sparse
-from scipy.sparse.csgraph import connected_components
+from scipy import ndimage
 
 from sgloc.errors import SglocError
 
@@ -71,34 +70,31 @@ def segment(
     """
     sem, dep = _check_images(semantic, depth)
     H, W = sem.shape
-    valid = (sem >= 0) & np.isfinite(dep) & (dep > 0) & (dep <= max_depth)
+    valid = (sem >= 0) & (dep > 0) & (dep <= max_depth)  # NaN compares False
     if ignore_classes:
         valid &= ~np.isin(sem, np.asarray(ignore_classes))
     dep = np.where(valid, dep, 0.0)  # no inf - inf below
-    idx = np.arange(H * W).reshape(H, W)
 
-    def joined(a: tuple, b: tuple) -> tuple[np.ndarray, np.ndarray]:
-        ok = valid[a] & valid[b] & (sem[a] == sem[b]) & (np.abs(dep[a] - dep[b]) < depth_jump)
-        return idx[a][ok], idx[b][ok]
+    def joined(a: tuple, b: tuple) -> np.ndarray:
+        return valid[a] & valid[b] & (sem[a] == sem[b]) & (np.abs(dep[a] - dep[b]) < depth_jump)
 
-    r1, c1 = joined((slice(None), slice(0, -1)), (slice(None), slice(1, None)))  # horizontal
-    r2, c2 = joined((slice(0, -1), slice(None)), (slice(1, None), slice(None)))  # vertical
-    rows = np.concatenate([r1, r2])
-    cols = np.concatenate([c1, c2])
-    graph = sparse.csr_array(
-        (np.ones(rows.size, dtype=np.int8), (rows, cols)), shape=(H * W, H * W)
-    )
-    _, comp = connected_components(graph, directed=False)
-    comp = comp.reshape(H, W)
+    # The pixel graph drawn on a grid twice as fine: pixels at even (row, col), the edge between
+    # two neighbours at the cell between them, set when they join. 4-connected labelling of this
+    # grid gives exactly the connected components of the pixel graph.
+    grid = np.zeros((max(2 * H - 1, 0), max(2 * W - 1, 0)), dtype=bool)
+    grid[::2, ::2] = valid
+    grid[::2, 1::2] = joined((slice(None), slice(0, -1)), (slice(None), slice(1, None)))
+    grid[1::2, ::2] = joined((slice(0, -1), slice(None)), (slice(1, None), slice(None)))
+    labelled, n = ndimage.label(grid)
+    comp = labelled[::2, ::2]  # 0 = invalid pixel, 1..n = component
 
-    flat_comp = comp[valid]
-    sizes_all = np.bincount(flat_comp, minlength=comp.max() + 1 if comp.size else 0)
+    sizes_all = np.bincount(comp.ravel(), minlength=n + 1)
+    sizes_all[0] = 0
     keep = sizes_all >= max(int(min_pixels), 1)
-    # Invalid pixels are singleton components of no region: never keep them.
     kept_ids = np.flatnonzero(keep)
-    new_id = np.full(sizes_all.size, -1, dtype=np.int64)
+    new_id = np.full(n + 1, -1, dtype=np.int64)
     new_id[kept_ids] = np.arange(kept_ids.size)
-    region_map = np.where(valid, new_id[comp], -1)
+    region_map = new_id[comp]
     classes = np.zeros(kept_ids.size, dtype=np.int64)
     if kept_ids.size:
         rm = region_map.ravel()
