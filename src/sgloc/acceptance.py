@@ -11,9 +11,11 @@ class is the partner: the target of candidate i is a uniformly random target obj
 For a fixed transform T, candidate i is then an inlier (||T q_i - t_i|| < radius) with probability
 p_i = N_c(T q_i) / n_c (N_c: class-c target objects within `radius` of T q_i, n_c: all class-c
 target objects), so the number of inliers is Poisson-binomial with mean lambda = sum_i p_i.
-RANSAC searches over the transforms fixed by triples of candidates, so the number of false
-alarms is bounded by NFA = C(m, 3) * P(Poisson(lambda) >= k - 3) (k inliers among m candidates;
-Poisson has a heavier tail than the binomial of the same mean, so this is conservative in p).
+RANSAC searches over the transforms fixed by triples of candidates; only triples whose pairwise
+distances agree within 2 * radius in both graphs can all be inliers, so the number of tests N is
+the number of such triples (triangles of the pairwise-consistency graph; at most C(m, 3)), and
+the number of false alarms is NFA = N * P(Poisson(lambda) >= k - 3) (k inliers among the m
+candidates; Poisson has a heavier tail than the binomial of the same mean: conservative in p).
 
     confidence = 1 / (1 + NFA_best + NFA_best / NFA_runner_up)
 
@@ -44,6 +46,7 @@ from sgloc.estimation import kabsch_batch
 from sgloc.graph import SemanticGraph
 
 _LN10 = np.log(10.0)
+_POPCOUNT = np.array([bin(b).count("1") for b in range(256)], dtype=np.uint8)
 
 
 @dataclass
@@ -111,13 +114,30 @@ class _ChanceModel:
         return float(np.sum(near / self.class_count[target_labels]))
 
 
-def log10_nfa(k: int, m: int, lam: float) -> float:
-    """log10 of the number of false alarms C(m,3) * P(Poisson(lam) >= k - 3)."""
+def log10_nfa(k: int, m: int, lam: float, n_tests: float | None = None) -> float:
+    """log10 of the number of false alarms n_tests * P(Poisson(lam) >= k - 3); n_tests
+    defaults to C(m, 3), every triple of the m candidates."""
+    log_tests = _log_comb3(m) if n_tests is None else float(np.log(max(n_tests, 1.0)))
     excess = k - 3
     if excess <= 0:
-        return _log_comb3(m) / _LN10
+        return log_tests / _LN10
     tail = poisson.logsf(excess - 1, max(lam, 1e-12))
-    return float((_log_comb3(m) + tail) / _LN10)
+    return float((log_tests + tail) / _LN10)
+
+
+def consistent_triples(src: np.ndarray, dst: np.ndarray, radius: float) -> float:
+    """Number of candidate triples whose three pairwise distances agree within 2 * radius in
+    both graphs: the only triples that can all be inliers of one transform, hence the
+    hypotheses RANSAC can form (triangles of the pairwise-consistency graph: trace(M^3) / 6)."""
+    if len(src) < 3:
+        return 0.0
+    M = np.abs(cdist(src, src) - cdist(dst, dst)) < 2.0 * radius
+    np.fill_diagonal(M, False)
+    # Triangles = sum over consistent pairs (i < j) of |common neighbours| / 3, on bit-packed
+    # rows (no BLAS: a byte popcount table keeps it fast on a busy machine).
+    ii, jj = np.nonzero(np.triu(M))
+    packed = np.packbits(M, axis=1)
+    return float(_POPCOUNT[packed[ii] & packed[jj]].sum(dtype=np.int64) / 3.0)
 
 
 def _runner_up(
@@ -222,18 +242,20 @@ def assess(
     k = int(inl.sum())
     chance = _ChanceModel(target, r)
     lam = chance.expected_inliers(moved, tlab)
-    lg_best = log10_nfa(k, m, lam)
+    n_tests = consistent_triples(src, dst, r)
+    lg_best = log10_nfa(k, m, lam, n_tests)
     spread = inlier_spread(dst[inl])
     k2, T2 = _runner_up(src, dst, transform, res2 < (2 * r) ** 2, r, cfg, rng)
     if T2 is not None:
         lam2 = chance.expected_inliers(src @ T2[:3, :3].T + T2[:3, 3], tlab)
-        lg_second = log10_nfa(k2, m, lam2)
+        lg_second = log10_nfa(k2, m, lam2, n_tests)
     else:
         lam2, lg_second = 0.0, np.inf
     details = {
         "inliers": k,
         "candidates": m,
         "expected_chance_inliers": lam,
+        "log10_tests": float(np.log10(max(n_tests, 1.0))),
         "log10_nfa": lg_best,
         "runner_up_inliers": k2,
         "runner_up_log10_nfa": float(lg_second),

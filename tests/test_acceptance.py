@@ -1,0 +1,130 @@
+"""The acceptance test behind LocalizationResult.success (sgloc.acceptance)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sgloc import SemanticGraph, localize
+from sgloc.acceptance import AcceptanceConfig, assess, inlier_spread, log10_nfa
+from sgloc.config import LocalizerConfig
+from sgloc.evaluation.acceptance_pairs import (
+    airsim_pairs,
+    cut_shared_area,
+    kitti_pairs,
+    world_pairs,
+)
+from sgloc.geometry import make_transform, random_rigid_transform, transform_error
+
+
+def test_airsim_positive_accepted_with_high_confidence(airsim_graphs, rng):
+    c1, c2 = airsim_graphs
+    T = random_rigid_transform(rng, 200.0, 5.0)
+    res = localize(c1, c2.transformed(T), seed=1)
+    assert res.success, res.reason
+    assert 0.99 <= res.confidence <= 1.0
+    dt, dr = transform_error(res.transform, T)
+    assert dt < 10 and dr < 3
+    assert "acceptance" in res.timings
+
+
+def test_airsim_with_shared_area_cut_is_rejected(airsim_graphs, rng):
+    c1, c2 = airsim_graphs
+    q = cut_shared_area(c1, c2, np.eye(4), 25.0)
+    assert len(q) > 100  # plenty of objects left, just none in the shared area
+    T = random_rigid_transform(rng, 200.0, 5.0)
+    guo = localize(q, c2.transformed(T), seed=2, acceptance=False)
+    assert guo.success  # Guo's rule alone accepts this non-overlapping pair...
+    res = localize(q, c2.transformed(T), seed=2)
+    assert not res.success  # ...the acceptance test does not
+    assert res.transform is None and len(res.matches) == 0
+    assert 0.0 <= res.confidence < 0.99
+    assert res.reason
+
+
+def test_world_negatives_rejected_positives_accepted():
+    negs = world_pairs(6, positive=False, seed=3)
+    poss = world_pairs(4, positive=True, seed=3, overlaps=(0.5,))
+    for i, p in enumerate(negs):
+        assert not localize(p.query, p.target, seed=i).success
+    for i, p in enumerate(poss):
+        res = localize(p.query, p.target, seed=i)
+        assert res.success, res.reason
+        assert transform_error(res.transform, p.T_target_query)[0] < 5
+
+
+def test_kitti_positive_and_negative():
+    (pos,) = kitti_pairs(1, positive=True, seed=0)
+    (neg,) = kitti_pairs(1, positive=False, seed=0)
+    assert pos.info["overlap"] >= 0.2
+    res = localize(pos.query, pos.target, seed=0)
+    assert res.success, res.reason
+    assert transform_error(res.transform, pos.T_target_query)[0] < 3
+    assert not localize(neg.query, neg.target, seed=0).success
+
+
+def _two_copies(rng, shift):
+    """Query of 30 objects; target holds it twice (identity and `shift`), so two different
+    alignments are equally supported when every query object matches both copies."""
+    pos = rng.uniform(-40, 40, (30, 3))
+    pos[:, 2] = rng.uniform(0, 3, 30)
+    lab = rng.integers(0, 5, 30)
+    T2 = make_transform(np.eye(3), shift)
+    target = SemanticGraph(np.vstack([pos, pos + shift]), np.concatenate([lab, lab]))
+    query = SemanticGraph(pos, lab)
+    cand = np.vstack(
+        [np.column_stack([np.arange(30)] * 2), np.column_stack([np.arange(30), np.arange(30) + 30])]
+    )
+    return query, target, cand, T2
+
+
+def test_ambiguous_alignment_is_rejected(rng):
+    q, t, cand, _ = _two_copies(rng, np.array([200.0, 0.0, 0.0]))
+    a = assess(q, t, cand, np.eye(4), 2.0, AcceptanceConfig(), rng)
+    assert a.details["inliers"] == 30 and a.details["runner_up_inliers"] == 30
+    assert a.confidence == pytest.approx(0.5, abs=0.01)
+    assert not a.accepted and "ambiguous" in a.reason
+    # Only one copy's matches: unambiguous and far beyond chance.
+    b = assess(q, t, cand[:30], np.eye(4), 2.0, AcceptanceConfig(), rng)
+    assert b.accepted and b.confidence > 0.999
+
+
+def test_narrow_strip_of_inliers_gives_zero_confidence(rng):
+    x = np.linspace(0, 200, 40)
+    pos = np.column_stack([x, rng.normal(0, 0.3, 40), np.zeros(40)])
+    lab = rng.integers(0, 3, 40)
+    g = SemanticGraph(pos, lab)
+    cand = np.column_stack([np.arange(40), np.arange(40)])
+    assert inlier_spread(pos) < 1.0
+    a = assess(g, g, cand, np.eye(4), 2.0, AcceptanceConfig(min_spread=5.0), rng)
+    assert a.confidence == 0.0 and not a.accepted and "strip" in a.reason
+
+
+def test_nfa_grows_with_chance_and_shrinks_with_inliers():
+    assert log10_nfa(20, 100, 1.0) < log10_nfa(10, 100, 1.0) < log10_nfa(10, 100, 5.0)
+    assert log10_nfa(3, 100, 1.0) > 0  # three inliers fix the hypothesis: no evidence
+
+
+def test_strictness_zero_gives_guo_rule_back(airsim_graphs):
+    c1, c2 = airsim_graphs
+    q = cut_shared_area(c1, c2, np.eye(4), 25.0)
+    assert (
+        localize(q, c2, seed=0, min_confidence=0.0).success
+        == localize(q, c2, seed=0, acceptance=False).success
+    )
+
+
+def test_config_round_trip_and_overrides():
+    cfg = LocalizerConfig().with_overrides(min_confidence=0.5, min_spread=3.0)
+    assert cfg.acceptance.min_confidence == 0.5 and cfg.acceptance.min_spread == 3.0
+    back = LocalizerConfig.from_dict(cfg.to_dict())
+    assert back.acceptance == cfg.acceptance
+    assert LocalizerConfig.from_dict({}).acceptance == AcceptanceConfig()
+    assert not LocalizerConfig().with_overrides(acceptance=False).acceptance.enabled
+
+
+def test_airsim_pair_sets_are_labelled():
+    pos = airsim_pairs(2, True, seed=0)
+    neg = airsim_pairs(2, False, seed=0)
+    assert all(p.positive for p in pos) and not any(p.positive for p in neg)
+    assert {p.info["query"] for p in neg} == {"cloud1.pcd-cut25", "cloud2.pcd-cut25"}

@@ -1,0 +1,113 @@
+"""localize_fleet: pairs, acceptance, spanning tree, cycle check, merged map, CLI, Dask."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from sgloc.cli import main
+from sgloc.errors import SglocError
+from sgloc.evaluation.fleet_scenes import fleet_errors, kitti_fleet, world_fleet
+from sgloc.fleet import FleetConfig, PairLink, build_common_frame, localize_fleet, merge_graphs
+from sgloc.geometry import invert, make_transform
+from sgloc.graph import SemanticGraph
+
+
+def _check_placed(res, scene, max_m=3.0, max_deg=3.0):
+    errors = fleet_errors(res.T_world_robot, scene.T_gt_robot, res.root, scene.graphs)
+    for i, (dt, dr) in errors.items():
+        assert dt < max_m and dr < max_deg, (i, dt, dr)
+    return errors
+
+
+def test_world_fleet_places_overlapping_robots_and_reports_the_others(tmp_path):
+    scene = world_fleet(0)
+    res = localize_fleet(scene.graphs, workers=0, out=tmp_path)
+    _check_placed(res, scene)
+    # Robots 0-3 drive a chain of overlapping stretches; 4 and 5 see streets nobody else sees.
+    assert res.placed == [0, 1, 2, 3]
+    assert res.unplaced == [4, 5]
+    assert all(res.unplaced_reason[i] for i in res.unplaced)
+    assert (tmp_path / "fleet.png").stat().st_size > 1000
+    merged = SemanticGraph.load(tmp_path / "merged.json")
+    total = sum(len(scene.graphs[i]) for i in res.placed)
+    assert 0.5 * total < len(merged) < total  # duplicates were fused, distinct objects kept
+    info = json.loads((tmp_path / "fleet.json").read_text())
+    assert set(info["unplaced"]) == {scene.graphs[4].name, scene.graphs[5].name}
+
+
+def test_kitti_fleet_places_robots_within_3m_3deg():
+    scene = kitti_fleet()
+    res = localize_fleet(scene.graphs, workers=0)
+    _check_placed(res, scene)
+    assert len(res.placed) >= 4
+    # 2900-3300 shares no accepted link in this set; it must be reported, not guessed.
+    assert set(res.placed) | set(res.unplaced) == set(range(len(scene.graphs)))
+
+
+def _link(i, j, T, conf=1.0):
+    return PairLink(i, j, True, T, conf, 20)
+
+
+def test_cycle_check_drops_the_link_that_disagrees_around_loops(rng):
+    # Four robots with known poses; every pair linked; one confident link is wrong by 30 m.
+    pts = rng.uniform(-50, 50, (40, 3))
+    graphs = [SemanticGraph(pts, rng.integers(0, 3, 40), name=f"r{i}") for i in range(4)]
+    G = [make_transform(np.eye(3), np.array([40.0 * i, 0, 0])) for i in range(4)]
+    links = []
+    for i in range(4):
+        for j in range(i + 1, 4):
+            T = invert(G[j]) @ G[i]
+            if (i, j) == (0, 2):
+                T = make_transform(np.eye(3), np.array([30.0, 0, 0])) @ T
+                links.append(_link(i, j, T, conf=1.0))
+            else:
+                links.append(_link(i, j, T, conf=0.999))
+    root, poses, reasons = build_common_frame(graphs, links, FleetConfig())
+    assert sorted(poses) == [0, 1, 2, 3] and not reasons
+    bad = next(lk for lk in links if (lk.query, lk.target) == (0, 2))
+    assert bad.used == "dropped" and "loop" in bad.reason
+    for i in range(4):
+        T_gt = invert(G[root]) @ G[i]
+        assert np.allclose(poses[i], T_gt, atol=1e-6)
+
+
+def test_merge_fuses_same_class_duplicates_only():
+    a = SemanticGraph(np.array([[0.0, 0, 0], [10, 0, 0], [20, 0, 0]]), np.array([0, 1, 2]))
+    b = SemanticGraph(np.array([[0.5, 0, 0], [10.5, 0, 0], [40, 0, 0]]), np.array([0, 2, 2]))
+    merged, robot, _, _ = merge_graphs([a, b], {0: np.eye(4), 1: np.eye(4)}, fuse_radius=2.0)
+    assert len(merged) == 5  # (0,0.5) same class fused; (10,10.5) differ in class
+    assert np.allclose(merged.positions[0], [0.25, 0, 0])
+    assert set(robot.tolist()) == {0, 1}
+
+
+def test_fleet_needs_two_graphs():
+    with pytest.raises(SglocError):
+        localize_fleet([world_fleet(0).graphs[0]])
+
+
+def test_local_processes_and_dask_give_the_same_fleet():
+    from distributed import Client, LocalCluster
+
+    graphs = world_fleet(2).graphs[:4]
+    local = localize_fleet(graphs, workers=2)
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False) as cluster:
+        with Client(cluster):
+            dask = localize_fleet(graphs, scheduler=cluster.scheduler_address)
+    assert local.placed == dask.placed
+    for i in local.placed:
+        assert np.allclose(local.T_world_robot[i], dask.T_world_robot[i])
+
+
+def test_cli_fleet(tmp_path, capsys):
+    paths = []
+    for i, g in enumerate(world_fleet(0).graphs[:3]):
+        paths.append(str(g.save(tmp_path / f"robot{i}.json")))
+    rc = main(["fleet", *paths, "--out", str(tmp_path / "out"), "--workers", "0"])
+    assert rc == 0
+    assert (tmp_path / "out" / "merged.json").exists()
+    assert "root" in capsys.readouterr().out
+    assert main(["fleet", paths[0], str(tmp_path / "missing.json")]) == 2
+    assert main(["fleet", paths[0]]) == 2
