@@ -52,9 +52,9 @@ class CityConfig:
     park_probability: float = 0.15
     tree_row_probability: float = 0.7
     tree_spacing: tuple[float, float] = (9.0, 14.0)
-    pole_spacing: float = 24.0
+    pole_spacing: float = 20.0
     car_slot: float = 6.5
-    car_occupancy: float = 0.45
+    car_occupancy: float = 0.4
     signs_per_side: tuple[int, int] = (0, 2)
     fence_probability: float = 0.3
     bush_probability: float = 0.5
@@ -63,6 +63,7 @@ class CityConfig:
     bus_stop_probability: float = 0.15
     traffic_light_probability: float = 0.5
     building_height: tuple[float, float] = (8.0, 35.0)
+    tree_crown_radius: tuple[float, float] = (1.2, 1.8)
 
     @property
     def street_half_width(self) -> float:
@@ -200,7 +201,7 @@ def _street_side(b: _Builder, rng: np.random.Generator, cfg: CityConfig, to_worl
     if rng.random() < cfg.tree_row_probability:
         spacing = rng.uniform(*cfg.tree_spacing)
         for a in np.arange(rng.uniform(2, spacing), L - 2, spacing):
-            _tree(b, rng, *at(a + rng.uniform(-0.6, 0.6), curb + 1.6))
+            _tree(b, rng, cfg, *at(a + rng.uniform(-0.6, 0.6), curb + 1.6))
     # Traffic signs facing the traffic.
     for _ in range(rng.integers(cfg.signs_per_side[0], cfg.signs_per_side[1] + 1)):
         o = b.new_object()
@@ -242,11 +243,13 @@ def _street_side(b: _Builder, rng: np.random.Generator, cfg: CityConfig, to_worl
         b.box(o, CLASS_ID["fence"], (x, y, 0.8), (length / 2, 0.05, 0.8), yaw)
 
 
-def _tree(b: _Builder, rng: np.random.Generator, x: float, y: float) -> None:
+def _tree(b: _Builder, rng: np.random.Generator, cfg: CityConfig, x: float, y: float) -> None:
     o = b.new_object()
     crown_z0 = rng.uniform(2.2, 3.0)
     b.cylinder(o, CLASS_ID["tree"], x, y, 0.22, 0.0, crown_z0 + 0.5)
-    b.cylinder(o, CLASS_ID["tree"], x, y, rng.uniform(1.6, 2.4), crown_z0, crown_z0 + 3.5)
+    b.cylinder(
+        o, CLASS_ID["tree"], x, y, rng.uniform(*cfg.tree_crown_radius), crown_z0, crown_z0 + 3.5
+    )
 
 
 def _block(b: _Builder, rng: np.random.Generator, cfg: CityConfig, x0, y0, x1, y1) -> None:
@@ -255,7 +258,7 @@ def _block(b: _Builder, rng: np.random.Generator, cfg: CityConfig, x0, y0, x1, y
         for x in np.arange(x0 + 6, x1 - 4, rng.uniform(10, 16)):
             for y in np.arange(y0 + 6, y1 - 4, rng.uniform(10, 16)):
                 if rng.random() < 0.6:
-                    _tree(b, rng, x + rng.uniform(-2, 2), y + rng.uniform(-2, 2))
+                    _tree(b, rng, cfg, x + rng.uniform(-2, 2), y + rng.uniform(-2, 2))
                 elif rng.random() < 0.5:
                     o = b.new_object()
                     b.cylinder(o, CLASS_ID["bush"], x, y, rng.uniform(0.8, 1.3), 0.0, 1.5)

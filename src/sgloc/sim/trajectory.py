@@ -193,7 +193,9 @@ def make_routes(
     n = int(np.floor(cfg.length / cfg.step + 1e-9)) + 1
     L = (n - 1) * cfg.step  # the length actually driven
     offset = (1.0 - cfg.overlap) * (L + cfg.gap)
-    need = offset + L + 2 * cfg.corner_radius + cfg.step
+    # plan the path for overlap 0 whatever the overlap, so one seed gives the same streets at
+    # every overlap and only robot B's stretch moves
+    need = (L + cfg.gap) + L + 2 * cfg.corner_radius + cfg.step
     n_edges = int(np.ceil(need / city.config.pitch)) + 1
     corners = grid_path(city, n_edges, rng, cfg.straight_probability)
     pts, tangent, arc = _smooth_path(corners, cfg.corner_radius)
