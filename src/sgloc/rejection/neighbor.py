@@ -6,9 +6,9 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from scipy.spatial.distance import cdist
 
 from sgloc.rejection.base import Rejector
+from sgloc.rejection.pairwise import consistency_bool
 
 
 def consistency_matrix(
@@ -18,16 +18,15 @@ def consistency_matrix(
 
     form="distance" (Alg. 1): M_ij = |D(q_i,q_j) - D(t_i,t_j)| < tau.
     form="neighbor" (Eq. 2-3): M_ij = Nei(q_i,q_j) == Nei(t_i,t_j), Nei = distance < tau.
+    Computed tile by tile (float32 with an exact float64 recheck near tau, see
+    `sgloc.rejection.pairwise`): m bytes squared of memory, no (m,m) float matrix.
     """
-    dq, dt = cdist(src, src), cdist(dst, dst)
-    if form == "distance":
-        M = np.abs(dq - dt) < tau
-    elif form == "neighbor":
-        M = (dq < tau) == (dt < tau)
-    else:
-        raise ValueError(f"unknown consistency form {form!r}; use 'distance' or 'neighbor'")
-    np.fill_diagonal(M, False)
-    return M
+    return consistency_bool(src, dst, tau, form)
+
+
+#: Removed matches get this support, far above any real count (V_i <= m - 1) and immune to
+#: the decrements of later removals.
+_REMOVED = 1 << 30
 
 
 def prune_by_support(M: np.ndarray, eta: float) -> np.ndarray:
@@ -35,26 +34,32 @@ def prune_by_support(M: np.ndarray, eta: float) -> np.ndarray:
 
     While the remaining match with the least support V_i (number of other remaining matches it
     agrees with) has V_i < eta * (r - 1), r the number of matches still remaining, remove it and
-    update V -= M[i] (O(m) per removal). Returns the sorted indices of the survivors.
+    update V -= M[i] (O(r) per removal). Ties go to the lowest index. Returns the sorted indices
+    of the survivors.
 
     The bound shrinks with r: against the original m every match ends up removed (PAPER.md).
     M_ii does not count: a match does not vouch for itself, so V_i ranges over 0..r-1.
+    Supports are int32 and M is read as uint8 rows; whenever half of the rows still held are
+    gone, M is compacted to the survivors, so a removal costs O(r), not O(m).
     """
     m = M.shape[0]
     if m == 0:
         return np.zeros(0, dtype=np.int64)
-    V = M.sum(axis=1, dtype=np.int64).astype(np.float64)
-    alive = np.ones(m, dtype=bool)
+    M = M.view(np.uint8) if M.dtype == np.bool_ else (M != 0).view(np.uint8)
+    V = M.sum(axis=1, dtype=np.int32)
+    ids = np.arange(m)
     r = m
     while r > 1:
         i = int(np.argmin(V))
         if V[i] >= eta * (r - 1):
             break
-        V -= M[i]
-        V[i] = np.inf
-        alive[i] = False
+        np.subtract(V, M[i], out=V, casting="unsafe")
+        V[i] = _REMOVED
         r -= 1
-    return np.flatnonzero(alive)
+        if r <= len(V) // 2 and len(V) > 64:
+            keep = np.flatnonzero(V < _REMOVED // 2)
+            M, V, ids = M[np.ix_(keep, keep)], V[keep], ids[keep]
+    return ids[V < _REMOVED // 2]
 
 
 @dataclass
