@@ -1,4 +1,4 @@
-"""Outlier rejectors by name: `neighbor` (the paper), `none` (the baseline)."""
+"""Outlier rejectors by name: `neighbor` (the paper), `none` (baseline), `spectral`, `clique`."""
 
 from __future__ import annotations
 
@@ -6,11 +6,15 @@ from typing import Any
 
 from sgloc.errors import UnknownNameError
 from sgloc.rejection.base import NoRejection, Rejector
+from sgloc.rejection.clique import CliqueRejector
 from sgloc.rejection.neighbor import NeighborRejector, consistency_matrix, prune_by_support
+from sgloc.rejection.spectral import SpectralRejector
 
 REJECTORS: dict[str, type[Rejector]] = {
     "none": NoRejection,
     "neighbor": NeighborRejector,
+    "spectral": SpectralRejector,
+    "clique": CliqueRejector,
 }
 
 
@@ -26,9 +30,11 @@ def make_rejector(name: str | Rejector, **params: Any) -> Rejector:
 
 __all__ = [
     "REJECTORS",
+    "CliqueRejector",
     "NeighborRejector",
     "NoRejection",
     "Rejector",
+    "SpectralRejector",
     "consistency_matrix",
     "make_rejector",
     "prune_by_support",

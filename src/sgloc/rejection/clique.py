@@ -1,0 +1,168 @@
+"""Maximum-clique outlier rejection, as TEASER++ and CLIPPER do.
+
+Matches are vertices of a consistency graph (an edge when the two matches agree on their pair's
+distance within tau, `sgloc.rejection.pairwise`); correct matches agree with each other, so they
+form a clique, and the largest clique is kept. Finding it is NP-hard, so:
+1. a fast heuristic (greedy growth from the best-connected seeds, in core-number order) gives a
+   clique of size LB;
+2. only vertices of core number >= LB - 1 can lie in a larger clique (k-core pruning);
+3. when at most `exact_limit` of them remain, an exact branch and bound (bitsets, greedy
+   colouring bound, as Tomita's MCQ) searches for the maximum, within `max_nodes` expansions;
+   past either limit, the best clique found so far is returned.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sgloc.rejection.base import Rejector
+from sgloc.rejection.pairwise import consistency_bool
+
+
+def core_numbers(M: np.ndarray) -> np.ndarray:
+    """k-core number of every vertex of the graph with bool adjacency M (m,m), diagonal False.
+
+    Peels all vertices of the current least degree at once (vectorised rounds)."""
+    m = len(M)
+    Mu = M.view(np.uint8)
+    deg = Mu.sum(axis=1, dtype=np.int64)
+    core = np.zeros(m, dtype=np.int64)
+    alive = np.ones(m, dtype=bool)
+    k = 0
+    while alive.any():
+        k = max(k, int(deg[alive].min()))
+        peel = np.flatnonzero(alive & (deg <= k))
+        while len(peel):
+            core[peel] = k
+            alive[peel] = False
+            deg -= Mu[peel].sum(axis=0, dtype=np.int64)
+            peel = np.flatnonzero(alive & (deg <= k))
+    return core
+
+
+def greedy_clique(M: np.ndarray, rank: np.ndarray, seeds: np.ndarray) -> np.ndarray:
+    """Largest clique grown greedily from each seed: repeatedly add the candidate (adjacent to
+    every member so far) of highest `rank`. Returns sorted vertex indices."""
+    best = np.zeros(0, dtype=np.int64)
+    for s in seeds.tolist():
+        cand = M[s].copy()
+        clique = [s]
+        while True:
+            idx = np.flatnonzero(cand)
+            if len(idx) == 0:
+                break
+            if len(clique) + len(idx) <= len(best):
+                break  # cannot beat the best any more
+            u = int(idx[np.argmax(rank[idx])])
+            clique.append(u)
+            cand &= M[u]
+        if len(clique) > len(best):
+            best = np.sort(np.asarray(clique, dtype=np.int64))
+    return best
+
+
+def _bitsets(M: np.ndarray) -> list[int]:
+    """Row i of bool M as a Python int with bit j set when M[i, j]."""
+    packed = np.packbits(M, axis=1, bitorder="little")
+    return [int.from_bytes(row.tobytes(), "little") for row in packed]
+
+
+def exact_clique(
+    M: np.ndarray, lower_bound: int = 0, max_nodes: int = 50_000
+) -> tuple[list[int], bool]:
+    """Maximum clique of a small graph (bool M (n,n), diagonal False) larger than
+    `lower_bound`, by branch and bound with a greedy-colouring bound (Tomita's MCQ).
+
+    Returns (vertices, complete): vertices of the best clique found with more than
+    `lower_bound` vertices ([] if none), complete=False if `max_nodes` expansions ran out.
+    """
+    n = len(M)
+    order = np.argsort(-M.sum(axis=1), kind="stable")  # high degree first
+    nbr = _bitsets(M[np.ix_(order, order)])
+    best: list[int] = []
+    best_size = lower_bound
+    nodes = 0
+
+    def colour_sort(P: int) -> list[tuple[int, int]]:
+        """Vertices of P with their colour, in increasing colour (greedy sequential colouring
+        in vertex order); the colour bounds the clique within the vertex and those before."""
+        out: list[tuple[int, int]] = []
+        uncoloured = P
+        colour = 0
+        while uncoloured:
+            colour += 1
+            Q = uncoloured
+            while Q:
+                low = Q & -Q
+                v = low.bit_length() - 1
+                Q &= ~nbr[v] & ~low
+                uncoloured &= ~low
+                out.append((v, colour))
+        return out
+
+    def expand(R: list[int], P: int) -> bool:
+        nonlocal best, best_size, nodes
+        nodes += 1
+        if nodes > max_nodes:
+            return False
+        for v, colour in reversed(colour_sort(P)):
+            if len(R) + colour <= best_size:
+                return True
+            newP = P & nbr[v]
+            R.append(v)
+            if newP:
+                if not expand(R, newP):
+                    R.pop()
+                    return False
+            elif len(R) > best_size:
+                best, best_size = list(R), len(R)
+            R.pop()
+            P &= ~(1 << v)
+        return True
+
+    complete = expand([], (1 << n) - 1) if n else True
+    return sorted(int(order[v]) for v in best), complete
+
+
+@dataclass
+class CliqueRejector(Rejector):
+    """Keep the largest set of mutually consistent matches (maximum clique).
+
+    tau: metres; two matches are consistent when their pair's distances in the two graphs
+        differ by less than tau (the neighbor rejector's form="distance" consistency).
+    exact_limit: run the exact search only when at most this many vertices survive the
+        k-core pruning; otherwise return the heuristic clique.
+    max_nodes: expansions allowed to the exact search before it returns its best so far.
+    n_seeds: seeds of the greedy heuristic (the vertices of highest core number, then degree).
+    """
+
+    tau: float = 5.0
+    exact_limit: int = 1000
+    max_nodes: int = 50_000
+    n_seeds: int = 16
+    name = "clique"
+
+    def __call__(self, src, dst, scores=None):
+        m = len(src)
+        if m == 0:
+            return np.zeros(0, dtype=np.int64)
+        M = consistency_bool(src, dst, self.tau, "distance")
+        return self.max_clique(M)
+
+    def max_clique(self, M: np.ndarray) -> np.ndarray:
+        """Sorted vertex indices of the (near-)maximum clique of consistency graph M."""
+        m = len(M)
+        core = core_numbers(M)
+        deg = M.sum(axis=1)
+        rank = core * (m + 1) + deg
+        seeds = np.argsort(-rank, kind="stable")[: self.n_seeds]
+        best = greedy_clique(M, rank, seeds)
+        # A clique of size s > |best| needs core number >= s - 1 >= |best|.
+        pool = np.flatnonzero(core >= len(best))
+        if 0 < len(pool) <= self.exact_limit:
+            found, _ = exact_clique(M[np.ix_(pool, pool)], len(best), self.max_nodes)
+            if len(found) > len(best):
+                best = np.sort(pool[found])
+        return best

@@ -1,0 +1,101 @@
+"""Every registered rejector (neighbor, spectral, clique): keeps inliers, drops outliers, and
+leaves too little for RANSAC when nothing corresponds, so `localize` fails cleanly."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sgloc import SemanticGraph, localize
+from sgloc.estimation import RansacConfig, ransac
+from sgloc.geometry import apply, make_transform
+from sgloc.rejection import REJECTORS, make_rejector
+from sgloc.sim.correspondences import make_correspondences
+
+METHODS = ["neighbor", "spectral", "clique"]
+
+
+def _hand_made_set() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """12 inliers of a known motion (a 3 x 4 grid of objects 20 m apart, 2 m high rows),
+    then 6 outliers whose targets are far from where the motion puts them."""
+    gx, gy = np.meshgrid([0.0, 20.0, 40.0, 60.0], [0.0, 25.0, 50.0])
+    src_in = np.column_stack([gx.ravel(), gy.ravel(), np.tile([0.0, 2.0], 6)])
+    c, s = np.cos(0.7), np.sin(0.7)
+    T = make_transform(np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]]), np.array([30, -12, 1.0]))
+    dst_in = apply(T, src_in) + np.array([0.3, -0.2, 0.1]) * np.tile([1, -1], 6)[:, None]
+    src_out = np.array(
+        [[10, 10, 0], [50, 5, 1], [30, 40, 0], [5, 45, 2], [55, 30, 0], [25, 15, 1.0]]
+    )
+    dst_out = apply(T, src_out[[3, 0, 5, 1, 2, 4]]) + np.array([40.0, 0, 0])
+    src = np.vstack([src_in, src_out])
+    dst = np.vstack([dst_in, dst_out])
+    inlier = np.r_[np.ones(12, bool), np.zeros(6, bool)]
+    return src, dst, inlier
+
+
+def test_registry_has_the_new_rejectors():
+    for name in METHODS:
+        assert name in REJECTORS
+        assert make_rejector(name).name == name
+
+
+@pytest.mark.parametrize("name", METHODS)
+def test_keeps_all_inliers_and_drops_outliers_hand_made(name):
+    src, dst, inlier = _hand_made_set()
+    kept = make_rejector(name)(src, dst, None)
+    assert np.array_equal(kept, np.flatnonzero(inlier))
+
+
+@pytest.mark.parametrize("name", METHODS)
+@pytest.mark.parametrize("kind", ["random", "structured"])
+def test_keeps_inliers_on_synthetic_sets(name, kind):
+    cs = make_correspondences(300, 0.8, np.random.default_rng(3), kind)
+    kept = make_rejector(name)(cs.src, cs.dst, None)
+    assert cs.inlier[kept].sum() == cs.inlier.sum()
+    # At most a handful of outliers survive (chance agreement with the true motion).
+    assert (~cs.inlier[kept]).sum() <= 5
+    if kind == "structured":
+        assert not np.any(cs.group[kept] > 0), "a decoy group survived"
+
+
+@pytest.mark.parametrize("name", METHODS)
+@pytest.mark.parametrize("seed", [7, 8, 9])
+def test_all_outliers_leave_too_few_matches(name, seed):
+    cs = make_correspondences(60, 1.0, np.random.default_rng(seed), extent=300.0)
+    kept = make_rejector(name)(cs.src, cs.dst, None)
+    assert len(kept) <= 6  # of 60
+    # Too few (and too inconsistent) for RANSAC to accept any model.
+    rs = ransac(cs.src[kept], cs.dst[kept], RansacConfig(), np.random.default_rng(0))
+    assert rs.transform is None
+
+
+@pytest.mark.parametrize("name", METHODS)
+def test_empty_and_tiny_inputs(name):
+    rej = make_rejector(name)
+    assert len(rej(np.zeros((0, 3)), np.zeros((0, 3)), None)) == 0
+    one = rej(np.zeros((1, 3)), np.ones((1, 3)), None)
+    assert len(one) <= 1
+
+
+@pytest.mark.parametrize("name", METHODS)
+def test_localize_reports_failure_on_graphs_that_do_not_correspond(name):
+    rng = np.random.default_rng(11)
+    q = SemanticGraph(rng.uniform(0, 300, (80, 3)) * [1, 1, 0.02], rng.integers(0, 3, 80))
+    t = SemanticGraph(rng.uniform(0, 300, (80, 3)) * [1, 1, 0.02], rng.integers(0, 3, 80))
+    res = localize(q, t, rejection=name, seed=0)
+    assert len(res.candidates) >= 10  # there was something to reject
+    assert res.success is False
+    assert res.transform is None
+    assert res.reason
+
+
+@pytest.mark.parametrize("name", METHODS)
+def test_localize_succeeds_with_each_rejector(name):
+    from sgloc.geometry import transform_error
+    from sgloc.sim.object_world import make_two_robot_scene
+
+    scene = make_two_robot_scene(seed=2)
+    res = localize(scene.query, scene.target, rejection=name, seed=0)
+    assert res.success
+    dt, dr = transform_error(res.transform, scene.T_target_query)
+    assert dt < 3.0 and dr < 3.0
