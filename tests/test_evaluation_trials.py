@@ -144,3 +144,22 @@ def test_errors_in_the_target_maps_own_frame():
     diff = [abs(r["translation_error_m"] - r["translation_error_moved_m"]) for r in rows]
     bound = [np.radians(r["rotation_error_deg"]) * r["pair_initial_translation_m"] for r in rows]
     assert all(d <= b + 1e-6 for d, b in zip(diff, bound, strict=True))
+
+
+def _near_same_class(p, radius):
+    q = apply(p.T_target_query, p.query.positions)
+    d = np.linalg.norm(q[:, None] - p.target.positions[None], axis=2)
+    d[p.query.labels[:, None] != p.target.labels[None]] = np.inf
+    return int((d.min(axis=1) < radius).sum())
+
+
+def test_kitti00_pairs_ground_truth_and_overlap(data_dir):
+    split = make_pair_source("kitti00")(0)
+    assert split.info["scans_a"] == "0-800" and split.info["scans_b"] == "3900-4540"
+    # the data README: about 80 of B's objects have a same-class object of A within 2 m
+    assert _near_same_class(split, 2.0) >= 50
+    lo, hi = make_pair_source("kitti00", overlap=0.1), make_pair_source("kitti00", overlap=0.5)
+    p_lo, p_hi = lo(0), hi(0)
+    assert p_lo.info["overlap"] == pytest.approx(0.1, abs=0.03)
+    assert p_hi.info["overlap"] == pytest.approx(0.5, abs=0.05)
+    assert _near_same_class(p_hi, 2.0) > _near_same_class(p_lo, 2.0) >= 1

@@ -128,5 +128,5 @@ def experiment_cmd(
         result = run_experiment(
             name, dataset, out, opt, workers=workers, scheduler=scheduler, progress=progress
         )
-    console.print(result.markdown, markup=False, highlight=False)
+    console.print(result.markdown, markup=False, highlight=False, soft_wrap=True)
     console.print(f"results in {result.folder}/: " + ", ".join(p.name for p in result.files))

@@ -202,11 +202,53 @@ def kitti_pairs(
     return out
 
 
-def default_pair_sets(seed: int = 0, scale: int = 1) -> list[LabeledPair]:
+# -- Rendered synthetic city (sgloc.sim, through the evaluation harness' cached runs) --------
+def city_pairs(
+    n: int,
+    positive: bool,
+    seed: int = 0,
+    worlds: tuple[int, ...] = (0, 1, 2),
+    overlaps: tuple[float, ...] = (0.2, 0.5, 0.8),
+    cut: float = NEGATIVE_CUT,
+) -> list[LabeledPair]:
+    """Robots of the rendered city (graphs extracted from rendered frames, cached on disk).
+    Positives: the runs of `worlds` x `overlaps`; negatives: the same worlds at overlap 0 with
+    the shared area cut, and robot B of one world against robot A of another. Each pair gets
+    its own random rigid motion of the target and a 90 % object dropout of both maps."""
+    from sgloc.evaluation.pairs import _city_graphs
+
+    def graphs(world: int, ov: float):
+        return _city_graphs(world, ov, 320, 180, 400.0)
+
+    out = []
+    for i in range(n):
+        rng = np.random.default_rng([seed, i, 63])
+        w = worlds[i % len(worlds)]
+        if positive:
+            ov = overlaps[(i // len(worlds)) % len(overlaps)]
+            q, t, T0 = graphs(w, ov)
+            info = {"world": w, "overlap": ov}
+        elif i % 2 == 0:
+            q, t, T0 = graphs(w, 0.0)
+            q = cut_shared_area(q, t, T0, cut)
+            info = {"world": w, "overlap": 0.0}
+        else:
+            w2 = worlds[(i + 1) % len(worlds)]
+            q, _, _ = graphs(w2, 0.5)
+            _, t, _ = graphs(w, 0.5)
+            T0 = np.eye(4)
+            info = {"world": w, "query_world": w2}
+        q, t = _dropout(q, 0.9, rng), _dropout(t, 0.9, rng)
+        out.append(_moved(q, t, T0, rng, positive, "city", info))
+    return out
+
+
+def default_pair_sets(seed: int = 0, scale: int = 1, city: bool = False) -> list[LabeledPair]:
     """The benchmark's sets: per source `scale` x (positives, negatives) =
-    airsim (40, 40), object world (40, 40), KITTI 00 (40, 40)."""
+    airsim (40, 40), object world (40, 40), KITTI 00 (40, 40), and with `city` the rendered
+    city (40, 40; renders and caches 3 worlds x 5 runs on first use)."""
     n = 40 * scale
-    return (
+    out = (
         airsim_pairs(n, True, seed, keep=0.9)
         + airsim_pairs(n, False, seed, keep=0.9)
         + world_pairs(n, True, seed)
@@ -214,3 +256,6 @@ def default_pair_sets(seed: int = 0, scale: int = 1) -> list[LabeledPair]:
         + kitti_pairs(n, True, seed)
         + kitti_pairs(n, False, seed)
     )
+    if city:
+        out += city_pairs(n, True, seed) + city_pairs(n, False, seed)
+    return out

@@ -174,6 +174,11 @@ def summarize(rows: Sequence[dict[str, Any]], by: Sequence[str]) -> list[dict[st
                 "te_median": float(np.nanmedian(te_all)) if np.isfinite(te_all).any() else math.nan,
                 "re_mean": re_m,
                 "re_std": re_s,
+                **(
+                    {"achieved_overlap": float(np.nanmean(column(g, "pair_overlap")))}
+                    if "pair_overlap" in g[0]
+                    else {}
+                ),
             }
         )
     return out
@@ -252,11 +257,13 @@ def table1_markdown(summary: Sequence[dict[str, Any]], with_paper: bool = True) 
 
 def sweep_markdown(summary: Sequence[dict[str, Any]], by: Sequence[str]) -> str:
     """A compact table for sweeps: one row per cell."""
-    header = [*by, "trials", "failures", "final", "recall %", "precision %", "total ms",
+    extra = ["achieved overlap"] if summary and "achieved_overlap" in summary[0] else []
+    header = [*by, *extra, "trials", "failures", "final", "recall %", "precision %", "total ms",
               "trans. err m", "median trans. err m", "rot. err deg"]  # fmt: skip
     body = [
         [
             *(s[k] for k in by),
+            *([fmt(s["achieved_overlap"])] if extra else []),
             s["trials"],
             s["failures"],
             fmt(s["final_mean"], 1),
