@@ -25,7 +25,8 @@ class TrajectoryConfig:
     """Routes and camera poses (lengths in metres).
 
     length: route length of each robot (L).
-    step: distance driven between two frames.
+    step: distance between two frames along the street centre line (metres; in turns the
+        outer lane is a little longer, the inner one shorter).
     overlap: fraction of the route the two robots share, 0 (disjoint) to 1 (same streets).
     gap: extra separation along the path at overlap 0 (s = (1 - overlap) * (length + gap)); with
         gap >= twice the camera range the robots see nothing in common at overlap 0.
@@ -143,7 +144,7 @@ def _smooth_path(corners: np.ndarray, radius: float, ds: float = 0.25):
     seg = np.diff(corners, axis=0)
     seg_len = np.linalg.norm(seg, axis=1)
     cum = np.concatenate([[0.0], np.cumsum(seg_len)])
-    pad = radius + ds
+    pad = 3 * radius + 4 * ds  # > the support of the two box filters below (zero padded)
     s = np.arange(-pad, cum[-1] + pad + ds / 2, ds)
     # extend the first/last segments straight on so the ends stay straight after smoothing
     idx = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
