@@ -163,3 +163,22 @@ def test_kitti00_pairs_ground_truth_and_overlap(data_dir):
     assert p_lo.info["overlap"] == pytest.approx(0.1, abs=0.03)
     assert p_hi.info["overlap"] == pytest.approx(0.5, abs=0.05)
     assert _near_same_class(p_hi, 2.0) > _near_same_class(p_lo, 2.0) >= 1
+
+
+def test_airsim_layout_run_folder_is_a_pair_source(tmp_path):
+    from sgloc.evaluation.pairs import AirsimRunPairs
+    from sgloc.sim.run import make_synthetic_run
+
+    make_synthetic_run(seed=1, overlap=0.8, width=96, height=54, length=80.0).write(tmp_path)
+    src = make_pair_source(str(tmp_path))
+    assert isinstance(src, AirsimRunPairs)
+    p = src(0)
+    assert len(p.query) > 10 and len(p.target) > 10
+    # the ground truth brings shared objects together (the moved target alone does not)
+    assert _near_same_class(p, 3.0) > 3 * max(1, _near_same_class_no_gt(p, 3.0))
+
+
+def _near_same_class_no_gt(p, radius):
+    d = np.linalg.norm(p.query.positions[:, None] - p.target.positions[None], axis=2)
+    d[p.query.labels[:, None] != p.target.labels[None]] = np.inf
+    return int((d.min(axis=1) < radius).sum())

@@ -442,12 +442,48 @@ class CityPairs:
         return pair
 
 
+@functools.lru_cache(maxsize=8)
+def _airsim_run_graphs(root: str, target: str, query: str) -> tuple[SemanticGraph, ...]:
+    """(query graph, target graph) extracted from an Airsim-layout run, once per process."""
+    from sgloc.datasets import make_dataset
+    from sgloc.extraction import build_graph
+
+    graphs = []
+    for robot in (query, target):
+        ds = make_dataset("airsim", root, robot=robot)
+        graphs.append(build_graph(ds, name=f"{Path(root).name}:{robot}"))
+    return tuple(graphs)
+
+
+@register_pair_source("airsim-run")
+@dataclass(frozen=True)
+class AirsimRunPairs:
+    """A two-robot run in Guo's Airsim layout (e.g. written by `sgloc.sim`): the folders
+    `target` and `query` (frames + airsim.txt) and `ground_truth.txt` (T_target_query). Both
+    graphs are extracted from the images once per process; the target is moved by a random
+    rigid transform per trial."""
+
+    root: str = "."
+    target: str = "forwardCar"
+    query: str = "backwardCar"
+    max_translation: float = 200.0
+    max_roll_pitch_deg: float = 5.0
+
+    def __call__(self, seed: int) -> Pair:
+        from sgloc.sim.airsim_writer import read_ground_truth
+
+        q, t = _airsim_run_graphs(str(Path(self.root).resolve()), self.target, self.query)
+        T0 = read_ground_truth(self.root)
+        return _moved_target(q, t, T0, seed, self.max_translation, self.max_roll_pitch_deg)
+
+
 #: Dataset names that stand for another source with set parameters (filled in as modules land).
 ALIASES: dict[str, str] = {"synthetic": "city"}
 
 
 def make_pair_source(name: str, **params: Any) -> PairSource:
-    """A pair source by registered name (or alias), or by a folder path holding two graphs."""
+    """A pair source by registered name (or alias), or by a folder: an Airsim-layout two-robot
+    run (with ground_truth.txt), or a folder holding two graph files."""
     key = ALIASES.get(name, name)
     if key in PAIR_SOURCES:
         cls = PAIR_SOURCES[key]
@@ -461,11 +497,13 @@ def make_pair_source(name: str, **params: Any) -> PairSource:
         src = cls(**params)
         return src.resolved() if hasattr(src, "resolved") else src
     path = Path(name)
+    if path.is_dir() and (path / "ground_truth.txt").is_file():
+        return AirsimRunPairs(root=str(path.resolve()), **params)
     if path.is_dir():
         return GraphFilePairs(root=str(path.resolve()), **params)
     raise UnknownNameError(
         f"unknown dataset {name!r}; choose one of {', '.join(dataset_names())} or give a folder "
-        "holding two graph files."
+        "holding two graph files or an Airsim-layout run with ground_truth.txt."
     )
 
 

@@ -116,7 +116,8 @@ def overlap_boxplots(
     rows: Sequence[dict[str, Any]], path: str | Path, title: str = "", failure_m: float = 20.0
 ) -> Path:
     """Fig. 6: box plots of translation error per overlap rate, baseline beside +neighbor;
-    unlocalized trials drawn at the top of the axis, failure rates in the lower panel."""
+    unlocalized trials drawn at the top of the axis (1000 m); failure rates in the lower panel
+    (solid: localized but wrong by more than `failure_m`; hatched: not localized)."""
     rejections = list(dict.fromkeys(r["rejection"] for r in rows))
     overlaps = sorted({float(r["overlap"]) for r in rows})
     fig, (ax, ax2) = plt.subplots(
@@ -125,12 +126,14 @@ def overlap_boxplots(
     width = 0.8 / max(len(rejections), 1)
     cap = 1e3
     for k, rej in enumerate(rejections):
-        data, fails = [], []
+        data, wrong, unloc = [], [], []
         for o in overlaps:
             g = [r for r in rows if r["rejection"] == rej and float(r["overlap"]) == o]
             te = column(g, "translation_error_m")
             data.append(np.where(np.isfinite(te), np.minimum(te, cap), cap))
-            fails.append(100 * np.mean([bool(r["failed"]) for r in g]) if g else np.nan)
+            n = max(len(g), 1)
+            unloc.append(100 * sum(not r["localized"] for r in g) / n)
+            wrong.append(100 * sum(bool(r["localized"] and r["failed"]) for r in g) / n)
         pos = np.arange(len(overlaps)) + (k - (len(rejections) - 1) / 2) * width
         color = "tab:red" if rej == "none" else "tab:blue"
         label = "baseline (RANSAC)" if rej == "none" else f"+{rej}"
@@ -141,7 +144,8 @@ def overlap_boxplots(
         for b in bp["boxes"]:
             b.set(facecolor=color, alpha=0.35)
         ax.plot([], [], color=color, lw=6, alpha=0.35, label=label)
-        ax2.bar(pos, fails, width=width * 0.9, color=color, alpha=0.6)
+        ax2.bar(pos, wrong, width=width * 0.9, color=color, alpha=0.8)
+        ax2.bar(pos, unloc, bottom=wrong, width=width * 0.9, color=color, alpha=0.3, hatch="//")
     ax.axhline(failure_m, color="k", lw=0.8, ls=":", label=f"failure ({failure_m:g} m)")
     ax.set_yscale("log")
     ax.set_ylabel("translation error (m)")
@@ -151,6 +155,9 @@ def overlap_boxplots(
     ax2.set_xticks(range(len(overlaps)), [f"{o:g}" for o in overlaps])
     ax2.set_xlabel("overlap rate")
     ax2.set_ylabel("failures %")
+    ax2.bar([], [], color="0.4", alpha=0.8, label="wrong (> failure m)")
+    ax2.bar([], [], color="0.4", alpha=0.3, hatch="//", label="not localized")
+    ax2.legend(fontsize=7)
     ax2.grid(alpha=0.3, axis="y")
     return _save(fig, path)
 

@@ -4,7 +4,8 @@ Summaries follow the paper's Table 1: mean +- std over trials of final matches a
 mean recall and precision, and per-stage times. Times are medians (robust on a shared machine);
 "total" is rejection + RANSAC (incl. the final fit) as in the paper, "pipeline" adds
 descriptors and matching. Pose errors and precision average over the localized trials; failures
-(not localized or translation error > 20 m) are counted in their own column.
+(not localized, or localized with translation error > 20 m: "wrong") are counted in their own
+column.
 """
 
 from __future__ import annotations
@@ -159,6 +160,8 @@ def summarize(rows: Sequence[dict[str, Any]], by: Sequence[str]) -> list[dict[st
                 "trials": len(g),
                 "localized": len(loc),
                 "failures": int(sum(bool(r["failed"]) for r in g)),
+                "not_localized": len(g) - len(loc),
+                "wrong": int(sum(bool(r["failed"]) for r in loc)),
                 "final_mean": fin_m,
                 "final_std": fin_s,
                 "candidates_mean": float(np.nanmean(column(g, "n_candidates"))),
@@ -200,6 +203,7 @@ def markdown_table(header: Sequence[str], body: Sequence[Sequence[Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+FAILURES = "failures (not loc. + wrong)"
 SETTING_LABEL = {"histogram": "Histogram", "fast": "Fast", "random_walk": "Random Walk"}
 
 
@@ -213,8 +217,8 @@ def table1_markdown(summary: Sequence[dict[str, Any]], with_paper: bool = True) 
     """Table 1 layout for a descriptor x rejection summary; the paper's row under each of ours
     (when `with_paper` and the paper has that setting)."""
     header = [
-        "setting", "trials", "failures", "final matches", "recall %", "precision %",
-        "rejection ms", "RANSAC ms", "total ms", "pipeline ms", "trans. err m", "rot. err deg",
+        "setting", "trials", FAILURES, "final matches", "recall %", "precision %", "rejection ms",
+        "RANSAC ms", "total ms", "pipeline ms", "trans. err m", "rot. err deg",
     ]  # fmt: skip
     body = []
     for s in summary:
@@ -222,7 +226,7 @@ def table1_markdown(summary: Sequence[dict[str, Any]], with_paper: bool = True) 
             [
                 f"**{setting_label(s['descriptor'], s['rejection'])}** (ours)",
                 s["trials"],
-                s["failures"],
+                f"{s['failures']} ({s['not_localized']} + {s['wrong']})",
                 pm(s["final_mean"], s["final_std"]),
                 fmt(100 * s["recall"], 1),
                 fmt(100 * s["precision"], 1),
@@ -258,14 +262,14 @@ def table1_markdown(summary: Sequence[dict[str, Any]], with_paper: bool = True) 
 def sweep_markdown(summary: Sequence[dict[str, Any]], by: Sequence[str]) -> str:
     """A compact table for sweeps: one row per cell."""
     extra = ["achieved overlap"] if summary and "achieved_overlap" in summary[0] else []
-    header = [*by, *extra, "trials", "failures", "final", "recall %", "precision %", "total ms",
+    header = [*by, *extra, "trials", FAILURES, "final", "recall %", "precision %", "total ms",
               "trans. err m", "median trans. err m", "rot. err deg"]  # fmt: skip
     body = [
         [
             *(s[k] for k in by),
             *([fmt(s["achieved_overlap"])] if extra else []),
             s["trials"],
-            s["failures"],
+            f"{s['failures']} ({s['not_localized']} + {s['wrong']})",
             fmt(s["final_mean"], 1),
             fmt(100 * s["recall"], 1),
             fmt(100 * s["precision"], 1),
