@@ -1,0 +1,1 @@
+"""Peer benchmark: sgloc's rejectors against point-cloud registration peers (run.py)."""
