@@ -29,6 +29,11 @@ def consistency_matrix(
 _REMOVED = 1 << 30
 
 
+#: Up to this many remaining matches, M is widened to int16 rows so that each update is a plain
+#: int16 subtraction (2 x m^2 bytes: 32 MB at this size); above, uint8 rows are cast on the fly.
+_WIDE_LIMIT = 4096
+
+
 def prune_by_support(M: np.ndarray, eta: float) -> np.ndarray:
     """Alg. 1 step 2 on a consistency matrix M (m,m) with a False diagonal.
 
@@ -39,8 +44,9 @@ def prune_by_support(M: np.ndarray, eta: float) -> np.ndarray:
 
     The bound shrinks with r: against the original m every match ends up removed (PAPER.md).
     M_ii does not count: a match does not vouch for itself, so V_i ranges over 0..r-1.
-    Supports are int32 and M is read as uint8 rows; whenever half of the rows still held are
-    gone, M is compacted to the survivors, so a removal costs O(r), not O(m).
+    Supports are int32 (int16 once at most 4096 remain, with M as int16 rows; uint8 rows before)
+    and M is compacted to the survivors whenever half of the rows it holds are gone, so a
+    removal costs O(r), not O(m).
     """
     m = M.shape[0]
     if m == 0:
@@ -49,16 +55,33 @@ def prune_by_support(M: np.ndarray, eta: float) -> np.ndarray:
     V = M.sum(axis=1, dtype=np.int32)
     ids = np.arange(m)
     r = m
-    while r > 1:
-        i = int(np.argmin(V))
+    while r > 1 and len(V) > _WIDE_LIMIT:
+        i = int(V.argmin())
         if V[i] >= eta * (r - 1):
-            break
+            return ids[V < _REMOVED // 2]
         np.subtract(V, M[i], out=V, casting="unsafe")
         V[i] = _REMOVED
         r -= 1
-        if r <= len(V) // 2 and len(V) > 64:
+        if r <= len(V) // 2:
             keep = np.flatnonzero(V < _REMOVED // 2)
             M, V, ids = M[np.ix_(keep, keep)], V[keep], ids[keep]
+    # int16 rows and supports from here on (m <= _WIDE_LIMIT < 2^13): removed ones sit at 2^14
+    # and stay above 2^13 whatever is subtracted later.
+    W = M.astype(np.int16)
+    del M
+    gone = np.int16(1 << 14)
+    V = np.where(V < _REMOVED // 2, V, gone).astype(np.int16)
+    while r > 1:
+        i = int(V.argmin())
+        if V[i] >= eta * (r - 1):
+            break
+        V -= W[i]
+        V[i] = gone
+        r -= 1
+        if r <= len(V) // 2 and len(V) > 64:
+            keep = np.flatnonzero(V < gone // 2)
+            W, V, ids = W[np.ix_(keep, keep)], V[keep], ids[keep]
+    return ids[V < gone // 2]
     return ids[V < _REMOVED // 2]
 
 
