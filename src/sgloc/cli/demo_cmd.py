@@ -67,6 +67,9 @@ def demo_cmd(
         None, help="Where rendered runs are kept (default $SGLOC_CACHE or ~/.cache/sgloc)."
     ),
     refresh: bool = typer.Option(False, help="Render again even if the run is cached."),
+    paper_defaults: bool = typer.Option(
+        False, help="Localize with the paper's defaults only (no city class weights)."
+    ),
     out: Path = typer.Option(Path("sgloc_demo.png"), help="PNG of the aligned maps."),
     objects_only: bool = typer.Option(
         False, "--objects-only", help="Use the tiny object world (no rendering, instant)."
@@ -86,7 +89,7 @@ def demo_cmd(
     from sgloc.datasets import make_dataset
     from sgloc.extraction import ExtractionConfig, build_graph
     from sgloc.sim import QUERY, TARGET, SyntheticRunConfig, read_ground_truth
-    from sgloc.sim.run import SyntheticRun
+    from sgloc.sim.run import SyntheticRun, city_localizer_config
 
     cfg = SyntheticRunConfig(
         seed=seed, overlap=overlap, width=width, height=height, length=length, step=step
@@ -115,7 +118,8 @@ def demo_cmd(
             )
     T_gt = read_ground_truth(run_dir)
     target, query = graphs[TARGET], graphs[QUERY]
-    res = localize(query, target, descriptor, rejection, seed=seed)
+    config = None if paper_defaults else city_localizer_config()
+    res = localize(query, target, descriptor, rejection, seed=seed, config=config)
     _report(console, query, target, res, T_gt)
     T_plot = res.transform if res.success else T_gt
     path = plot_aligned_maps(target, query, T_plot, res.matches, out, run_dir, res.success)

@@ -42,6 +42,7 @@ class CityConfig:
     road_half_width: centre line to curb; lanes are 3.5 m wide either side of the centre.
     sidewalk: curb to property line (street furniture stands here).
     park_probability: chance a block is a park (trees, bushes, a fence) instead of buildings.
+    building_*: frontage width, gap between neighbours and height ranges of buildings.
     *_probability / *_spacing: densities of the street furniture, per side of a street segment.
     """
 
@@ -54,7 +55,7 @@ class CityConfig:
     tree_spacing: tuple[float, float] = (9.0, 14.0)
     pole_spacing: float = 20.0
     car_slot: float = 6.5
-    car_occupancy: float = 0.4
+    car_occupancy: float = 0.3
     signs_per_side: tuple[int, int] = (0, 2)
     fence_probability: float = 0.3
     bush_probability: float = 0.5
@@ -63,7 +64,9 @@ class CityConfig:
     bus_stop_probability: float = 0.15
     traffic_light_probability: float = 0.5
     building_height: tuple[float, float] = (8.0, 35.0)
-    tree_crown_radius: tuple[float, float] = (1.2, 1.8)
+    building_width: tuple[float, float] = (10.0, 20.0)
+    building_gap: tuple[float, float] = (3.0, 8.0)
+    tree_crown_radius: tuple[float, float] = (1.0, 1.4)
 
     @property
     def street_half_width(self) -> float:
@@ -275,7 +278,7 @@ def _block(b: _Builder, rng: np.random.Generator, cfg: CityConfig, x0, y0, x1, y
         to_world, yaw = _frame(origin, along)
         a = rng.uniform(0, 4)
         while a < length - 6:
-            width = min(rng.uniform(12, 28), length - a)
+            width = min(rng.uniform(*cfg.building_width), length - a)
             depth = rng.uniform(10, deepest)
             setback = rng.uniform(0.0, 3.0)
             height = rng.uniform(*cfg.building_height)
@@ -290,7 +293,7 @@ def _block(b: _Builder, rng: np.random.Generator, cfg: CityConfig, x0, y0, x1, y
                     (width / 2, depth / 2, height / 2),
                     yaw,
                 )
-            a += width + rng.uniform(0.0, 5.0)
+            a += width + rng.uniform(*cfg.building_gap)
 
 
 def make_city(seed: int | np.random.Generator = 0, config: CityConfig | None = None) -> City:
