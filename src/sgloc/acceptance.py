@@ -6,7 +6,9 @@ concentrates exactly those. This module scores an estimated transform T_target_q
 *a-contrario* test (as AC-RANSAC does) on the descriptor candidates, not on the survivors of
 rejection, which were selected for being consistent.
 
-Null model H0: the descriptor matches carry no information about *which* object of the same
+Two null models, and the estimate must beat both:
+
+H0u (uniform): the descriptor matches carry no information about *which* object of the same
 class is the partner: the target of candidate i is a uniformly random target object of its class.
 For a fixed transform T, candidate i is then an inlier (||T q_i - t_i|| < radius) with probability
 p_i = N_c(T q_i) / n_c (N_c: class-c target objects within `radius` of T q_i, n_c: all class-c
@@ -14,8 +16,16 @@ target objects), so the number of inliers is Poisson-binomial with mean lambda =
 RANSAC searches over the transforms fixed by triples of candidates; only triples whose pairwise
 distances agree within 2 * radius in both graphs can all be inliers, so the number of tests N is
 the number of such triples (triangles of the pairwise-consistency graph; at most C(m, 3)), and
-the number of false alarms is NFA = N * P(Poisson(lambda) >= k - 3) (k inliers among the m
+the number of false alarms is NFA_u = N * P(Poisson(lambda) >= k - 3) (k inliers among the m
 candidates; Poisson has a heavier tail than the binomial of the same mean: conservative in p).
+
+H0p (permutation): the target of candidate i is drawn from the targets the candidates of its
+class actually matched (what permuting targets within a class does). Repeated street furniture
+concentrates the matches on look-alike objects, which H0u ignores; H0p prices it in
+(lambda_p from the candidates' own targets). A true overlap also agrees *beyond* the matches:
+the query objects that are not inliers but land on a same-class target object after alignment
+are counted against a label-permutation null (log10_colocation_p), and that p-value multiplies
+NFA_p = N * P(Poisson(lambda_p) >= k - 3). NFA_best = max(NFA_u, NFA_p * p_colocation).
 
     confidence = 1 / (1 + NFA_best + NFA_best / NFA_runner_up)
 
@@ -46,6 +56,7 @@ from sgloc.estimation import kabsch_batch
 from sgloc.graph import SemanticGraph
 
 _LN10 = np.log(10.0)
+_TRIANGLE_EDGES = 2048
 _POPCOUNT = np.array([bin(b).count("1") for b in range(256)], dtype=np.uint8)
 
 
@@ -64,7 +75,7 @@ class AcceptanceConfig:
     """
 
     enabled: bool = True
-    min_confidence: float = 0.99
+    min_confidence: float = 0.999
     radius: float | None = None
     min_spread: float = 5.0
     distinct_translation: float = 10.0
@@ -113,6 +124,50 @@ class _ChanceModel:
         near = self.tree.query_ball_point(pts, self.radius, return_length=True)
         return float(np.sum(near / self.class_count[target_labels]))
 
+    def class_presence(self, moved: np.ndarray, n_classes: int) -> np.ndarray:
+        """(n, n_classes) bool: is a target object of class c within the radius of moved_i."""
+        if len(moved) == 0:
+            return np.zeros((0, n_classes), dtype=bool)
+        c = np.repeat(np.arange(n_classes), len(moved))
+        pts = np.column_stack([np.tile(moved, (n_classes, 1)), c * self.offset])
+        d, _ = self.tree.query(pts, distance_upper_bound=self.radius)
+        return np.isfinite(d).reshape(n_classes, len(moved)).T
+
+
+def permutation_expected_inliers(
+    moved: np.ndarray, dst: np.ndarray, target_labels: np.ndarray, radius: float
+) -> float:
+    """lambda under the permutation null: the target of candidate i is drawn from the targets
+    of the candidates of its class (as permuting the targets within a class does), so
+    p_i = #(class-c candidate targets within radius of moved_i) / #(class-c candidates)."""
+    if len(moved) == 0:
+        return 0.0
+    offset = 4.0 * (np.abs(np.concatenate([moved, dst])).max() + radius) + 1.0
+    tree = cKDTree(np.column_stack([dst, target_labels * offset]))
+    near = tree.query_ball_point(
+        np.column_stack([moved, target_labels * offset]), radius, return_length=True
+    )
+    return float(np.sum(near / np.bincount(target_labels)[target_labels]))
+
+
+def log10_colocation_p(
+    query: SemanticGraph, presence: np.ndarray, exclude: np.ndarray
+) -> tuple[float, int, float]:
+    """Independent confirmation beyond the inliers: among the query objects not in `exclude`
+    (the inliers' query objects), C = those with a same-class target object within the radius
+    after alignment. Under a label-permutation null (a query object's class drawn from the query's
+    class frequencies f, independent of where it lies) C is Poisson-binomial with mean
+    mu = sum_i sum_c presence[i, c] f_c. Returns (log10 P(X >= C), C, mu)."""
+    n_classes = presence.shape[1]
+    f = np.bincount(query.labels, minlength=n_classes)[:n_classes] / max(len(query), 1)
+    keep = np.ones(len(query), dtype=bool)
+    keep[exclude] = False
+    mu = float((presence[keep] @ f).sum())
+    C = int(presence[np.flatnonzero(keep), query.labels[keep]].sum())
+    if C == 0:
+        return 0.0, C, mu
+    return float(poisson.logsf(C - 1, max(mu, 1e-12)) / _LN10), C, mu
+
 
 def log10_nfa(k: int, m: int, lam: float, n_tests: float | None = None) -> float:
     """log10 of the number of false alarms n_tests * P(Poisson(lam) >= k - 3); n_tests
@@ -129,15 +184,29 @@ def consistent_triples(src: np.ndarray, dst: np.ndarray, radius: float) -> float
     """Number of candidate triples whose three pairwise distances agree within 2 * radius in
     both graphs: the only triples that can all be inliers of one transform, hence the
     hypotheses RANSAC can form (triangles of the pairwise-consistency graph: trace(M^3) / 6)."""
-    if len(src) < 3:
-        return 0.0
+    return _triangles(_consistency(src, dst, radius)) if len(src) >= 3 else 0.0
+
+
+def _consistency(src: np.ndarray, dst: np.ndarray, radius: float) -> np.ndarray:
+    """(m,m) bool: pairs whose distances agree within 2 * radius in both graphs (no diagonal)."""
     M = np.abs(cdist(src, src) - cdist(dst, dst)) < 2.0 * radius
     np.fill_diagonal(M, False)
+    return M
+
+
+def _triangles(M: np.ndarray) -> float:
+    """Number of triangles of the consistency graph M."""
     # Triangles = sum over consistent pairs (i < j) of |common neighbours| / 3, on bit-packed
-    # rows (no BLAS: a byte popcount table keeps it fast on a busy machine).
+    # rows (no BLAS: a byte popcount table keeps it fast on a busy machine). Only log10 of the
+    # count matters, so beyond _TRIANGLE_EDGES pairs an evenly spaced subset is scaled up.
     ii, jj = np.nonzero(np.triu(M))
+    if ii.size > _TRIANGLE_EDGES:
+        pick = np.linspace(0, ii.size - 1, _TRIANGLE_EDGES).astype(np.int64)
+        scale, ii, jj = ii.size / _TRIANGLE_EDGES, ii[pick], jj[pick]
+    else:
+        scale = 1.0
     packed = np.packbits(M, axis=1)
-    return float(_POPCOUNT[packed[ii] & packed[jj]].sum(dtype=np.int64) / 3.0)
+    return float(scale * _POPCOUNT[packed[ii] & packed[jj]].sum(dtype=np.int64) / 3.0)
 
 
 def _runner_up(
@@ -145,6 +214,7 @@ def _runner_up(
     dst: np.ndarray,
     T: np.ndarray,
     exclude: np.ndarray,
+    consistency: np.ndarray,
     radius: float,
     cfg: AcceptanceConfig,
     rng: np.random.Generator,
@@ -154,16 +224,15 @@ def _runner_up(
     The alternative must stand on its own evidence: it is drawn from, and scored on, only the
     candidates outside `exclude` (those T explains within twice the radius), so a slight tilt of
     T that keeps most of T's matches is not counted as a rival. Hypotheses come from triples of
-    pairwise-consistent candidates (|D(q_i,q_j) - D(t_i,t_j)| <
-    radius), drawn at random and fitted in one batch; those within the distinctness bounds of T
+    pairwise-consistent candidates (`consistency`: |D(q_i,q_j) - D(t_i,t_j)| <
+    2 * radius), drawn at random and fitted in one batch; those within the distinctness bounds of T
     are discarded.
     """
     pool = np.flatnonzero(~exclude)
     if pool.size < 3 or cfg.runner_up_samples <= 0:
         return 0, None
     ps, pd = src[pool], dst[pool]
-    M = np.abs(cdist(ps, ps) - cdist(pd, pd)) < radius
-    np.fill_diagonal(M, False)
+    M = consistency[np.ix_(pool, pool)]
     ii, jj = np.nonzero(np.triu(M))
     if ii.size == 0:
         return 0, None
@@ -242,10 +311,17 @@ def assess(
     k = int(inl.sum())
     chance = _ChanceModel(target, r)
     lam = chance.expected_inliers(moved, tlab)
-    n_tests = consistent_triples(src, dst, r)
-    lg_best = log10_nfa(k, m, lam, n_tests)
+    consistency = _consistency(src, dst, r) if m >= 3 else np.zeros((m, m), dtype=bool)
+    n_tests = _triangles(consistency) if m >= 3 else 0.0
+    lg_uniform = log10_nfa(k, m, lam, n_tests)
+    lam_perm = permutation_expected_inliers(moved, dst, tlab, r)
+    n_classes = max(query.n_classes, target.n_classes)
+    presence = chance.class_presence(query.transformed(transform).positions, n_classes)
+    lg_geo, colocated, mu_geo = log10_colocation_p(query, presence, cand[inl, 0])
+    lg_perm = log10_nfa(k, m, lam_perm, n_tests) + min(lg_geo, 0.0)
+    lg_best = max(lg_uniform, lg_perm)
     spread = inlier_spread(dst[inl])
-    k2, T2 = _runner_up(src, dst, transform, res2 < (2 * r) ** 2, r, cfg, rng)
+    k2, T2 = _runner_up(src, dst, transform, res2 < (2 * r) ** 2, consistency, r, cfg, rng)
     if T2 is not None:
         lam2 = chance.expected_inliers(src @ T2[:3, :3].T + T2[:3, 3], tlab)
         lg_second = log10_nfa(k2, m, lam2, n_tests)
@@ -257,6 +333,12 @@ def assess(
         "expected_chance_inliers": lam,
         "log10_tests": float(np.log10(max(n_tests, 1.0))),
         "log10_nfa": lg_best,
+        "log10_nfa_uniform": lg_uniform,
+        "expected_chance_inliers_permutation": lam_perm,
+        "colocated_beyond_inliers": colocated,
+        "expected_colocated": mu_geo,
+        "log10_p_colocation": lg_geo,
+        "log10_nfa_permutation_colocation": lg_perm,
         "runner_up_inliers": k2,
         "runner_up_log10_nfa": float(lg_second),
         "spread_m": spread,
