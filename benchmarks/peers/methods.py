@@ -31,16 +31,19 @@ class Method:
     ours: bool = False
 
 
-def sgloc_method(rejection: str) -> Method:
-    """sgloc rejector `rejection` (tau from the set) followed by sgloc's RANSAC."""
+def sgloc_method(rejection: str, **ransac_settings) -> Method:
+    """sgloc rejector `rejection` (tau from the set) followed by sgloc's RANSAC (its defaults,
+    threshold from the set, overridden by `ransac_settings`)."""
 
     def solve(src, dst, tau, threshold, rng):
         rej = make_rejector(rejection) if rejection == "none" else make_rejector(rejection, tau=tau)
         kept = rej(src, dst, None)
-        rs = ransac(src[kept], dst[kept], RansacConfig(threshold=threshold), rng)
-        return rs.transform
+        cfg = RansacConfig(threshold=threshold, **ransac_settings)
+        return ransac(src[kept], dst[kept], cfg, rng).transform
 
     label = "RANSAC alone" if rejection == "none" else f"{rejection} + RANSAC"
+    if ransac_settings:
+        label += " (" + ", ".join(f"{v}" for v in ransac_settings.values()) + ")"
     return Method(label, solve, ours=True)
 
 
@@ -190,6 +193,7 @@ def all_methods() -> list[Method]:
     return [
         sgloc_method("none"),
         sgloc_method("neighbor"),
+        sgloc_method("neighbor", scoring="msac"),
         sgloc_method("spectral"),
         sgloc_method("clique"),
         kiss_matcher_method(),

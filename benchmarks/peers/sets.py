@@ -100,7 +100,10 @@ def airsim_sets(seeds: int) -> Iterator[BenchSet]:
     d = data_path("airsim_guo")
     q, t = SemanticGraph.load(d / "cloud1.pcd"), SemanticGraph.load(d / "cloud2.pcd")
     cand = _candidates(q, t, MatchingConfig())
-    yield from _moved_sets("airsim-guo", q, t, np.eye(4), cand, seeds, 5.0, 5.0, 10.0, (5.0, 5.0))
+    # Success as the paper: translation error under 20 m (rotation is not bounded there).
+    yield from _moved_sets(
+        "airsim-guo", q, t, np.eye(4), cand, seeds, 5.0, 5.0, 10.0, (20.0, 180.0)
+    )
 
 
 def kitti_sets(seeds: int) -> Iterator[BenchSet]:
