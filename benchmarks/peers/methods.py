@@ -14,7 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sgloc.estimation import RansacConfig, ransac
+from sgloc.config import LocalizerConfig
+from sgloc.estimation import RansacConfig, irls_refine, ransac, weighted_kabsch
 from sgloc.geometry import make_transform
 from sgloc.rejection import make_rejector
 
@@ -32,14 +33,22 @@ class Method:
 
 
 def sgloc_method(rejection: str, **ransac_settings) -> Method:
-    """sgloc rejector `rejection` (tau from the set) followed by sgloc's RANSAC (its defaults,
-    threshold from the set, overridden by `ransac_settings`)."""
+    """sgloc's estimation stage as `localize` runs it: rejector `rejection` (tau from the set),
+    RANSAC (defaults, threshold from the set, overridden by `ransac_settings`), then the final
+    fit on its inliers (weighted Kabsch, plus the IRLS robust refit when the default
+    LocalizerConfig has it on)."""
+    robust = LocalizerConfig().robust_refit
 
     def solve(src, dst, tau, threshold, rng):
         rej = make_rejector(rejection) if rejection == "none" else make_rejector(rejection, tau=tau)
         kept = rej(src, dst, None)
         cfg = RansacConfig(threshold=threshold, **ransac_settings)
-        return ransac(src[kept], dst[kept], cfg, rng).transform
+        rs = ransac(src[kept], dst[kept], cfg, rng)
+        if rs.transform is None:
+            return None
+        s, d = src[kept][rs.inliers], dst[kept][rs.inliers]
+        T = weighted_kabsch(s, d)
+        return irls_refine(s, d, T) if robust else T
 
     label = "RANSAC alone" if rejection == "none" else f"{rejection} + RANSAC"
     if ransac_settings:
@@ -171,7 +180,6 @@ def clipper_method() -> Method:
         cp = importlib.import_module("clipperpy")
     except Exception as e:  # noqa: BLE001
         return _missing("CLIPPER", "clipperpy", e)
-    from sgloc.estimation import weighted_kabsch
 
     def solve(src, dst, tau, threshold, rng):
         iparams = cp.invariants.EuclideanDistanceParams()
@@ -193,7 +201,6 @@ def all_methods() -> list[Method]:
     return [
         sgloc_method("none"),
         sgloc_method("neighbor"),
-        sgloc_method("neighbor", scoring="msac"),
         sgloc_method("spectral"),
         sgloc_method("clique"),
         kiss_matcher_method(),
