@@ -182,3 +182,12 @@ def _near_same_class_no_gt(p, radius):
     d = np.linalg.norm(p.query.positions[:, None] - p.target.positions[None], axis=2)
     d[p.query.labels[:, None] != p.target.labels[None]] = np.inf
     return int((d.min(axis=1) < radius).sum())
+
+
+def test_timing_repeats_change_no_result():
+    sweep = descriptor_rejection_sweep("airsim-guo", trials=2, descriptors=["fast"])
+    once = run_tasks(sweep.tasks(), workers=1)
+    sweep.repeats = 3
+    thrice = run_tasks(sweep.tasks(), workers=1)
+    _same(once, thrice)
+    assert all(r["t_cpu_ms"] > 0 for r in thrice)

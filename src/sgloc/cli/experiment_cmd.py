@@ -59,7 +59,11 @@ def experiment_cmd(
         None, help="Local worker processes (default: all CPUs; 1 = in this process)."
     ),
     seed: int = typer.Option(0, help="Seed of the first trial (trial i uses seed + i)."),
-    threshold: float = typer.Option(5.0, help="RANSAC threshold T_error (m) of table/overlap."),
+    threshold: float | None = typer.Option(
+        None,
+        help="RANSAC threshold T_error (m) of table/overlap/matches (default: 5, or the "
+        "dataset's recommended value).",
+    ),
     thresholds: str | None = typer.Option(
         None, help="Comma-separated RANSAC thresholds for threshold/pr (default 1,2,...,20)."
     ),
@@ -74,10 +78,16 @@ def experiment_cmd(
     ),
     descriptor: str = typer.Option("histogram", help="Descriptor of overlap and matches."),
     setting: list[str] = typer.Option(
-        [], "--set", help="Localizer setting NAME=VALUE (repeatable), e.g. --set tau=3."
+        [],
+        "--set",
+        help="Localizer setting NAME=VALUE (repeatable), e.g. --set tau=3; "
+        "overrides the dataset's recommended settings.",
     ),
     dataset_param: list[str] = typer.Option(
         [], "--param", help="Dataset parameter NAME=VALUE (repeatable)."
+    ),
+    repeats: int = typer.Option(
+        1, help="Timing repeats per trial; each stage's fastest time is kept (results equal)."
     ),
     from_csv: Path | None = typer.Option(
         None, help="Re-make tables and figures from an earlier run's trials.csv (no trials)."
@@ -107,6 +117,7 @@ def experiment_cmd(
         settings=_settings(setting),
         dataset_params=_settings(dataset_param),
         from_csv=str(from_csv) if from_csv else None,
+        repeats=max(1, repeats),
     )
     if out is None:
         stamp = time.strftime("%Y%m%d-%H%M%S")

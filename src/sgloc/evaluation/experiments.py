@@ -11,6 +11,7 @@ overlap (Fig. 6), matches (Fig. 7).
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -56,7 +57,7 @@ class ExperimentOptions:
 
     trials: int = 100
     first_seed: int = 0
-    threshold: float = 5.0
+    threshold: float | None = None
     thresholds: Sequence[float] = THRESHOLDS
     overlaps: Sequence[float] = OVERLAPS
     descriptors: Sequence[str] = DESCRIPTOR_NAMES
@@ -65,6 +66,7 @@ class ExperimentOptions:
     settings: dict[str, Any] = field(default_factory=dict)
     dataset_params: dict[str, Any] = field(default_factory=dict)
     from_csv: str | None = None
+    repeats: int = 1
 
 
 @dataclass
@@ -77,10 +79,28 @@ class ExperimentOutput:
     rows: list[dict[str, Any]]
 
 
+def resolved_options(dataset: str, opt: ExperimentOptions) -> ExperimentOptions:
+    """Options with the dataset's recommended localizer settings filled in: the pair source's
+    `localizer_settings` (e.g. a 2 m RANSAC threshold for KITTI's precise LiDAR centroids)
+    under the options' own settings; threshold defaults to theirs, else 5 m (Table 1)."""
+    src = make_pair_source(dataset, **opt.dataset_params)
+    defaults = dict(getattr(src, "localizer_settings", {}))
+    thr = defaults.pop("ransac_threshold", 5.0)
+    return dataclasses.replace(
+        opt,
+        threshold=float(opt.threshold if opt.threshold is not None else thr),
+        settings={**defaults, **opt.settings},
+    )
+
+
 def make_sweep(name: str, dataset: str, opt: ExperimentOptions) -> Sweep:
     """The sweep behind experiment `name` (matches has none: it is a single trial)."""
+    opt = resolved_options(dataset, opt)
     common = dict(
-        first_seed=opt.first_seed, dataset_params=dict(opt.dataset_params), settings=opt.settings
+        first_seed=opt.first_seed,
+        dataset_params=dict(opt.dataset_params),
+        settings=opt.settings,
+        repeats=opt.repeats,
     )
     if name == "table":
         return descriptor_rejection_sweep(
@@ -118,7 +138,7 @@ def run_experiment(
         )
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
-    make_pair_source(dataset, **opt.dataset_params)  # fail early on a bad dataset name
+    opt = resolved_options(dataset, opt)  # fails early on a bad dataset name
     if name == "matches":
         return _matches(dataset, folder, opt)
     sweep = make_sweep(name, dataset, opt)

@@ -16,7 +16,7 @@ import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -279,6 +279,9 @@ class Kitti00Pairs:
     accurate and the split's maps reach hundreds of metres beyond it).
     """
 
+    #: Recommended localizer settings (the extraction preset's: precise LiDAR centroids).
+    localizer_settings: ClassVar[dict[str, Any]] = {"ransac_threshold": 2.0, "tau": 2.0}
+
     root: str | None = None
     overlap: float | None = None
     length: int = 300
@@ -417,6 +420,9 @@ class CityPairs:
     and lies in the robot's own start frame. Trial seed s uses city `s % n_worlds` (rendering
     is the expensive part; graphs are cached on disk under .sgloc_cache/), and the target is
     moved by a random rigid transform per trial."""
+
+    #: Recommended localizer settings (sgloc.sim.CITY_LOCALIZER_SETTINGS: buildings weigh less).
+    localizer_settings: ClassVar[dict[str, Any]] = {"class_weights": {0: 0.1}}
 
     overlap: float = 0.5
     n_worlds: int = 5

@@ -33,6 +33,7 @@ class Sweep:
     axes: localizer settings to sweep, name -> values (e.g. {"ransac_threshold": [1, 2]}).
     dataset_axes: pair-source parameters to sweep (e.g. {"overlap": [0.1, 0.3]}).
     trials: trials per grid cell; first_seed: seed of trial 0.
+    repeats: timing repeats per trial (each stage's fastest is kept; results are identical).
     """
 
     dataset: str
@@ -44,6 +45,7 @@ class Sweep:
     first_seed: int = 0
     T_p: float = T_P
     failure_m: float = FAILURE_M
+    repeats: int = 1
 
     def cells(self) -> list[tuple[dict[str, Any], dict[str, Any]]]:
         """Every (localizer settings, dataset parameters) of the grid, in a fixed order."""
@@ -75,6 +77,7 @@ class Sweep:
                         tags=tags,
                         T_p=self.T_p,
                         failure_m=self.failure_m,
+                        repeats=self.repeats,
                     )
                 )
         return tasks
@@ -91,6 +94,7 @@ class Sweep:
             "first_seed": self.first_seed,
             "T_p": self.T_p,
             "failure_m": self.failure_m,
+            "repeats": self.repeats,
         }
 
 
