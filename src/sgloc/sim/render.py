@@ -18,7 +18,7 @@ import numpy as np
 from sgloc.datasets.base import Frame
 from sgloc.errors import SglocError
 from sgloc.geometry import invert
-from sgloc.sim.city import BOX, Primitives
+from sgloc.sim.city import BOX, CYLINDER, Primitives
 
 #: T_body_optical: optical (x right, y down, z forward) -> AirSim body (x forward, y right,
 #: z down); a point (X, Y, Z) of the optical frame is (Z, X, Y) in the body frame.
@@ -89,7 +89,7 @@ class Renderer:
     chunk_pairs bounds the (pixel, primitive) pairs handled at once (memory ~ 200 B a pair).
     """
 
-    def __init__(self, primitives: Primitives, camera: Camera, chunk_pairs: int = 400_000):
+    def __init__(self, primitives: Primitives, camera: Camera, chunk_pairs: int = 40_000):
         self.prims = primitives
         self.camera = camera
         self.chunk_pairs = int(chunk_pairs)
@@ -123,6 +123,7 @@ class Renderer:
         u1 = np.floor(np.where(valid, u, -np.inf).max(axis=1))
         v0 = np.ceil(np.where(valid, v, np.inf).min(axis=1))
         v1 = np.floor(np.where(valid, v, -np.inf).max(axis=1))
+        zmin = np.where(valid, P[..., 2], np.inf).min(axis=1)
         u0, v0 = np.maximum(u0, 0), np.maximum(v0, 0)
         u1, v1 = np.minimum(u1, cam.width - 1), np.minimum(v1, cam.height - 1)
         ok = (u0 <= u1) & (v0 <= v1)
@@ -132,6 +133,7 @@ class Renderer:
             u1[ok].astype(np.int64),
             v0[ok].astype(np.int64),
             v1[ok].astype(np.int64),
+            zmin[ok].astype(np.float32),
         )
 
     # -- ray-primitive intersections ----------------------------------------------------------
@@ -207,42 +209,41 @@ class Renderer:
             with np.errstate(divide="ignore"):
                 tg = np.where(dirs[:, 2] < 0, np.float32(-o[2]) / dirs[:, 2], np.inf)
             depth = np.where(tg <= cam.max_range, tg, np.inf).astype(np.float32)
-        idx, u0, u1, v0, v1 = self._rectangles(R, o)
+        idx, u0, u1, v0, v1, zmin = self._rectangles(R, o)
+        # front to back: a pair is skipped when its pixel already holds something nearer than
+        # the primitive's nearest possible point (occlusion culling across chunks)
+        order = np.argsort(zmin, kind="stable")
+        idx, u0, u1, v0, v1, zmin = (x[order] for x in (idx, u0, u1, v0, v1, zmin))
         kind = self.prims.kind[idx]
-        order = np.argsort(kind, kind="stable")  # boxes first, then cylinders, contiguous
-        idx, u0, u1, v0, v1, kind = (
-            idx[order],
-            u0[order],
-            u1[order],
-            v0[order],
-            v1[order],
-            kind[order],
-        )
         w = u1 - u0 + 1
         counts = w * (v1 - v0 + 1)
-        # chunks of about chunk_pairs pairs that never mix the two kinds
-        chunk_id = (np.cumsum(counts) - 1) // max(self.chunk_pairs, 1) * 2 + kind
+        chunk_id = (np.cumsum(counts) - 1) // max(self.chunk_pairs, 1)
         starts = np.concatenate([[0], np.flatnonzero(np.diff(chunk_id)) + 1, [len(idx)]])
         hits_pix, hits_t, hits_prim = [], [], []
         for a, b in zip(starts[:-1], starts[1:], strict=True):
             if b <= a:
                 continue
             cnt = counts[a:b]
+            local = np.repeat(np.arange(b - a), cnt)
             first = np.cumsum(cnt) - cnt
-            k = np.arange(cnt.sum()) - np.repeat(first, cnt)
-            ww = np.repeat(w[a:b], cnt)
-            pix = (np.repeat(v0[a:b], cnt) + k // ww) * cam.width + np.repeat(u0[a:b], cnt) + k % ww
-            d = dirs[pix]
-            if kind[a] == BOX:
-                t = self._hit_boxes(idx[a:b], cnt, o, d)
-            else:
-                t = self._hit_cylinders(idx[a:b], cnt, o, d)
-            hit = t < np.minimum(depth[pix], np.float32(cam.max_range))
-            pix, t = pix[hit], t[hit]
-            np.minimum.at(depth, pix, t)
-            hits_pix.append(pix)
-            hits_t.append(t)
-            hits_prim.append(np.repeat(idx[a:b], cnt)[hit])
+            k = np.arange(cnt.sum()) - first[local]
+            ww = w[a:b][local]
+            pix = (v0[a:b][local] + k // ww) * cam.width + u0[a:b][local] + k % ww
+            visible = depth[pix] > zmin[a:b][local]
+            for K, hit_fn in ((BOX, self._hit_boxes), (CYLINDER, self._hit_cylinders)):
+                m = visible & (kind[a:b][local] == K)
+                if not m.any():
+                    continue
+                n_k = np.bincount(local[m], minlength=b - a)
+                sel = np.flatnonzero(n_k)
+                p_k = pix[m]
+                t = hit_fn(idx[a:b][sel], n_k[sel], o, dirs[p_k])
+                hit = t < np.minimum(depth[p_k], np.float32(cam.max_range))
+                p_k, t = p_k[hit], t[hit]
+                np.minimum.at(depth, p_k, t)
+                hits_pix.append(p_k)
+                hits_t.append(t)
+                hits_prim.append(np.repeat(idx[a:b][sel], n_k[sel])[hit])
         semantic = np.full(cam.n_pixels, -1, np.int64)
         instance = np.full(cam.n_pixels, -1, np.int64)
         if hits_pix:
@@ -265,7 +266,7 @@ def render_frames(
     T_world_body: np.ndarray,
     camera: Camera,
     T_world_map: np.ndarray | None = None,
-    chunk_pairs: int = 400_000,
+    chunk_pairs: int = 40_000,
 ) -> Iterator[Frame]:
     """Render a robot's run frame by frame as `Frame`s (semantic, planar depth with np.inf for
     no hit, K, and T_map_sensor of the OPTICAL frame in the robot's map frame).
