@@ -86,6 +86,9 @@ def demo_cmd(
     if objects_only:
         _objects_only(console, seed, overlap, descriptor, rejection)
         return
+    from sgloc.config import LocalizerConfig
+
+    LocalizerConfig().with_overrides(descriptor=descriptor, rejection=rejection)  # fail early
     from sgloc.datasets import make_dataset
     from sgloc.extraction import ExtractionConfig, build_graph
     from sgloc.sim import QUERY, TARGET, SyntheticRunConfig, read_ground_truth
