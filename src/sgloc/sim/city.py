@@ -9,7 +9,7 @@ cities.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -124,7 +124,6 @@ class City:
     object_positions: np.ndarray  # (k,3) centre of each object's bounding box, metres
     object_labels: np.ndarray  # (k,) class ids
     seed: int | None = None
-    meta: dict = field(default_factory=dict)
 
     @property
     def n_objects(self) -> int:
@@ -149,7 +148,9 @@ class _Builder:
     def box(self, obj: int, label: int, center, half, yaw: float = 0.0) -> None:
         self.rows.append((BOX, *center, *half, yaw, label, obj))
 
-    def cylinder(self, obj: int, label: int, x: float, y: float, r: float, z0: float, z1: float):
+    def cylinder(
+        self, obj: int, label: int, x: float, y: float, r: float, z0: float, z1: float
+    ) -> None:
         self.rows.append((CYLINDER, x, y, (z0 + z1) / 2, r, r, (z1 - z0) / 2, 0.0, label, obj))
 
     def build(self) -> Primitives:
