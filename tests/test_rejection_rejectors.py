@@ -99,3 +99,11 @@ def test_localize_succeeds_with_each_rejector(name):
     assert res.success
     dt, dr = transform_error(res.transform, scene.T_target_query)
     assert dt < 3.0 and dr < 3.0
+
+
+def test_unknown_consistency_form_is_a_clear_error():
+    from sgloc.errors import SglocError
+    from sgloc.rejection import NeighborRejector
+
+    with pytest.raises(SglocError, match="consistency form"):
+        NeighborRejector(form="nearest")(np.zeros((3, 3)), np.ones((3, 3)))

@@ -19,7 +19,7 @@ def consistency_matrix(
     form="distance" (Alg. 1): M_ij = |D(q_i,q_j) - D(t_i,t_j)| < tau.
     form="neighbor" (Eq. 2-3): M_ij = Nei(q_i,q_j) == Nei(t_i,t_j), Nei = distance < tau.
     Computed tile by tile (float32 with an exact float64 recheck near tau, see
-    `sgloc.rejection.pairwise`): m bytes squared of memory, no (m,m) float matrix.
+    `sgloc.rejection.pairwise`): m^2 bytes of memory, no (m,m) float matrix.
     """
     return consistency_bool(src, dst, tau, form)
 

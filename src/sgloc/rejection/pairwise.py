@@ -14,6 +14,8 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from sgloc.errors import UnknownNameError
+
 #: Side of the square tiles computed at once: 512 x 512 float32 = 1 MB per temporary (L2-sized).
 TILE = 512
 
@@ -58,7 +60,7 @@ def consistent_blocks(
     form "distance": ok = diff < tau (Alg. 1); "neighbor": ok = (D_src < tau) == (D_dst < tau).
     """
     if form not in FORMS:
-        raise ValueError(f"unknown consistency form {form!r}; use 'distance' or 'neighbor'")
+        raise UnknownNameError(f"unknown consistency form {form!r}; use 'distance' or 'neighbor'.")
     src = np.asarray(src, dtype=np.float64)
     dst = np.asarray(dst, dtype=np.float64)
     m = len(src)
