@@ -93,7 +93,9 @@ class Renderer:
         self.prims = primitives
         self.camera = camera
         self.chunk_pairs = int(chunk_pairs)
-        self._rays = camera.rays()
+        rays = camera.rays()
+        self._ray_x = rays[:, 0].astype(np.float32)
+        self._ray_y = rays[:, 1].astype(np.float32)
         self._corners = primitives.corners()
         self._radius = primitives.bounding_radius()
         c, s = np.cos(primitives.yaw), np.sin(primitives.yaw)
@@ -203,7 +205,10 @@ class Renderer:
         cam = self.camera
         T = np.asarray(T_world_optical, dtype=np.float64)
         R, o = T[:3, :3], T[:3, 3]
-        dirs = (self._rays @ R.T).astype(np.float32)  # (H*W,3) world directions, optical z = 1
+        # (H*W,3) world directions, optical z = 1: x R[:,0] + y R[:,1] + R[:,2] (a plain matmul
+        # of an (N,3) array by 3x3 is much slower in numpy)
+        Rf = R.astype(np.float32)
+        dirs = self._ray_x[:, None] * Rf[:, 0] + self._ray_y[:, None] * Rf[:, 1] + Rf[:, 2]
         depth = np.full(cam.n_pixels, np.inf, dtype=np.float32)
         if o[2] > 0:
             with np.errstate(divide="ignore"):
