@@ -35,9 +35,9 @@ MAX_M, MAX_DEG = 3.0, 3.0
 
 
 def city_fleet(seed: int = 0, overlap: float = 0.5, pieces: int = 3) -> FleetScene:
-    """Robots cut from a rendered synthetic city run: each robot's extracted map is split into
-    `pieces` overlapping chunks along its route (by object order of first sight is not kept,
-    so along the map's principal direction), each chunk in its own random frame."""
+    """Robots cut from a rendered synthetic city run (graphs extracted from rendered frames):
+    each of the two robots' maps is split into `pieces` chunks along its principal direction,
+    neighbouring chunks sharing 15 % of the map's length, each chunk in its own random frame."""
     from sgloc.evaluation.pairs import _city_graphs
     from sgloc.geometry import apply, invert, random_rigid_transform
     from sgloc.graph import SemanticGraph

@@ -49,10 +49,11 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
-from scipy.special import gammaln
+from scipy.special import gammaln, pdtrc
 from scipy.stats import poisson
 
 from sgloc.estimation import kabsch_batch
+from sgloc.geometry import apply
 from sgloc.graph import SemanticGraph
 
 _LN10 = np.log(10.0)
@@ -105,49 +106,46 @@ def _log_comb3(m: int) -> float:
 
 
 class _ChanceModel:
-    """Per-candidate chance of agreeing with a transform under H0 (same-class density)."""
+    """Chance agreement of a transform under the nulls, from one neighbour search: the
+    same-class target objects within the radius of each moved query object."""
 
-    def __init__(self, target: SemanticGraph, radius: float) -> None:
-        pos, lab = target.positions, target.labels
-        span = np.abs(pos).max() if len(pos) else 1.0
-        # Separate the classes by a 4th coordinate so one KD-tree serves them all.
-        self.offset = 4.0 * (span + radius) + 1.0
-        self.tree = cKDTree(np.column_stack([pos, lab * self.offset]))
-        self.class_count = np.bincount(lab).astype(np.float64)
+    def __init__(self, target: SemanticGraph, radius: float, n_classes: int) -> None:
+        self.tree = cKDTree(target.positions)
+        self.labels = target.labels
+        self.n_classes = n_classes
+        self.class_count = np.bincount(target.labels, minlength=n_classes).astype(np.float64)
         self.radius = radius
 
-    def expected_inliers(self, moved: np.ndarray, target_labels: np.ndarray) -> float:
-        """lambda = sum_i N_c(moved_i) / n_c for candidates with image `moved` (m,3)."""
-        if len(moved) == 0:
-            return 0.0
-        pts = np.column_stack([moved, target_labels * self.offset])
-        near = self.tree.query_ball_point(pts, self.radius, return_length=True)
-        return float(np.sum(near / self.class_count[target_labels]))
+    def near_counts(
+        self, moved: np.ndarray, weights: tuple[np.ndarray | None, ...] = (None,)
+    ) -> list[np.ndarray]:
+        """For each entry of `weights`: (n, n_classes) number (None) or summed weights of the
+        class-c target objects within the radius of each point of `moved` (n,3)."""
+        n, k = len(moved), self.n_classes
+        if n == 0:
+            return [np.zeros((0, k)) for _ in weights]
+        pairs = cKDTree(moved).sparse_distance_matrix(self.tree, self.radius, output_type="ndarray")
+        i, j = pairs["i"], pairs["j"]
+        cell = i * k + self.labels[j]
+        return [
+            np.bincount(cell, None if w is None else w[j], minlength=n * k).reshape(n, k)
+            for w in weights
+        ]
 
-    def class_presence(self, moved: np.ndarray, n_classes: int) -> np.ndarray:
-        """(n, n_classes) bool: is a target object of class c within the radius of moved_i."""
-        if len(moved) == 0:
-            return np.zeros((0, n_classes), dtype=bool)
-        c = np.repeat(np.arange(n_classes), len(moved))
-        pts = np.column_stack([np.tile(moved, (n_classes, 1)), c * self.offset])
-        d, _ = self.tree.query(pts, distance_upper_bound=self.radius)
-        return np.isfinite(d).reshape(n_classes, len(moved)).T
+    def expected_inliers(self, counts: np.ndarray, qi: np.ndarray, tlab: np.ndarray) -> float:
+        """lambda = sum over candidates (query qi, target class tlab) of N_c / n_c, with
+        `counts` = near_counts of the moved query objects."""
+        return float(np.sum(counts[qi, tlab] / self.class_count[tlab]))
 
 
-def permutation_expected_inliers(
-    moved: np.ndarray, dst: np.ndarray, target_labels: np.ndarray, radius: float
-) -> float:
-    """lambda under the permutation null: the target of candidate i is drawn from the targets
-    of the candidates of its class (as permuting the targets within a class does), so
-    p_i = #(class-c candidate targets within radius of moved_i) / #(class-c candidates)."""
-    if len(moved) == 0:
+def _log10_poisson_tail(k: int, lam: float) -> float:
+    """log10 P(Poisson(lam) >= k)."""
+    if k <= 0:
         return 0.0
-    offset = 4.0 * (np.abs(np.concatenate([moved, dst])).max() + radius) + 1.0
-    tree = cKDTree(np.column_stack([dst, target_labels * offset]))
-    near = tree.query_ball_point(
-        np.column_stack([moved, target_labels * offset]), radius, return_length=True
-    )
-    return float(np.sum(near / np.bincount(target_labels)[target_labels]))
+    p = pdtrc(k - 1, max(lam, 1e-12))
+    if p > 1e-280:
+        return float(np.log10(p))
+    return float(poisson.logsf(k - 1, max(lam, 1e-12)) / _LN10)
 
 
 def log10_colocation_p(
@@ -166,7 +164,7 @@ def log10_colocation_p(
     C = int(presence[np.flatnonzero(keep), query.labels[keep]].sum())
     if C == 0:
         return 0.0, C, mu
-    return float(poisson.logsf(C - 1, max(mu, 1e-12)) / _LN10), C, mu
+    return _log10_poisson_tail(C, mu), C, mu
 
 
 def log10_nfa(k: int, m: int, lam: float, n_tests: float | None = None) -> float:
@@ -176,8 +174,7 @@ def log10_nfa(k: int, m: int, lam: float, n_tests: float | None = None) -> float
     excess = k - 3
     if excess <= 0:
         return log_tests / _LN10
-    tail = poisson.logsf(excess - 1, max(lam, 1e-12))
-    return float((log_tests + tail) / _LN10)
+    return float(log_tests / _LN10 + _log10_poisson_tail(excess, lam))
 
 
 def consistent_triples(src: np.ndarray, dst: np.ndarray, radius: float) -> float:
@@ -309,21 +306,25 @@ def assess(
     res2 = np.sum((moved - dst) ** 2, axis=1)
     inl = res2 < r**2
     k = int(inl.sum())
-    chance = _ChanceModel(target, r)
-    lam = chance.expected_inliers(moved, tlab)
+    n_classes = max(query.n_classes, target.n_classes)
+    chance = _ChanceModel(target, r, n_classes)
+    qi = cand[:, 0]
+    # Permutation null: target j drawn with the frequency the candidates of its class chose it.
+    usage = np.bincount(cand[:, 1], minlength=len(target)).astype(np.float64)
+    counts, used = chance.near_counts(apply(transform, query.positions), (None, usage))
+    lam = chance.expected_inliers(counts, qi, tlab)
     consistency = _consistency(src, dst, r) if m >= 3 else np.zeros((m, m), dtype=bool)
     n_tests = _triangles(consistency) if m >= 3 else 0.0
     lg_uniform = log10_nfa(k, m, lam, n_tests)
-    lam_perm = permutation_expected_inliers(moved, dst, tlab, r)
-    n_classes = max(query.n_classes, target.n_classes)
-    presence = chance.class_presence(query.transformed(transform).positions, n_classes)
-    lg_geo, colocated, mu_geo = log10_colocation_p(query, presence, cand[inl, 0])
+    lam_perm = float(np.sum(used[qi, tlab] / np.bincount(tlab, minlength=n_classes)[tlab]))
+    lg_geo, colocated, mu_geo = log10_colocation_p(query, counts > 0, cand[inl, 0])
     lg_perm = log10_nfa(k, m, lam_perm, n_tests) + min(lg_geo, 0.0)
     lg_best = max(lg_uniform, lg_perm)
     spread = inlier_spread(dst[inl])
     k2, T2 = _runner_up(src, dst, transform, res2 < (2 * r) ** 2, consistency, r, cfg, rng)
     if T2 is not None:
-        lam2 = chance.expected_inliers(src @ T2[:3, :3].T + T2[:3, 3], tlab)
+        (counts2,) = chance.near_counts(apply(T2, query.positions))
+        lam2 = chance.expected_inliers(counts2, qi, tlab)
         lg_second = log10_nfa(k2, m, lam2, n_tests)
     else:
         lam2, lg_second = 0.0, np.inf
