@@ -38,11 +38,11 @@ def city_fleet(seed: int = 0, overlap: float = 0.5, pieces: int = 3) -> FleetSce
     """Robots cut from a rendered synthetic city run (graphs extracted from rendered frames):
     each of the two robots' maps is split into `pieces` chunks along its principal direction,
     neighbouring chunks sharing 15 % of the map's length, each chunk in its own random frame."""
-    from sgloc.evaluation.pairs import _city_graphs
+    from sgloc.evaluation.acceptance_pairs import city_graphs
     from sgloc.geometry import apply, invert, random_rigid_transform
     from sgloc.graph import SemanticGraph
 
-    q, t, T_t_q = _city_graphs(seed, overlap, 320, 180, 400.0)
+    q, t, T_t_q = city_graphs(seed, overlap)
     rng = np.random.default_rng([seed, 62])
     graphs, Ts, notes = [], [], []
     for name, g, T_gt in (("A", t, np.eye(4)), ("B", q, T_t_q)):

@@ -203,6 +203,30 @@ def kitti_pairs(
 
 
 # -- Rendered synthetic city (sgloc.sim, through the evaluation harness' cached runs) --------
+def city_graphs(world: int, overlap: float) -> tuple[SemanticGraph, SemanticGraph, np.ndarray]:
+    """(query, target, T_target_query) of city run `world` at `overlap` (320x180, 400 m).
+
+    Uses the newest graphs in the evaluation harness' disk cache for that run, even when they
+    were rendered by an earlier version of the sim code (the cache key names it); renders and
+    caches the run (`sgloc.evaluation.pairs._city_graphs`) only when none is cached."""
+    from sgloc.data import PROJECT_ROOT
+    from sgloc.evaluation.pairs import CACHE_DIR, _city_graphs
+
+    found = sorted(
+        (PROJECT_ROOT / CACHE_DIR).glob(f"city-w{world}-o{overlap:g}-320x180-L400-*.npz"),
+        key=lambda p: p.stat().st_mtime,
+    )
+    if not found:
+        return _city_graphs(world, overlap, 320, 180, 400.0)
+    z = np.load(found[-1])
+    name = found[-1].stem
+    return (
+        SemanticGraph(z["q_pos"], z["q_lab"], name=f"{name}:query"),
+        SemanticGraph(z["t_pos"], z["t_lab"], name=f"{name}:target"),
+        z["T"],
+    )
+
+
 def city_pairs(
     n: int,
     positive: bool,
@@ -215,10 +239,9 @@ def city_pairs(
     Positives: the runs of `worlds` x `overlaps`; negatives: the same worlds at overlap 0 with
     the shared area cut, and robot B of one world against robot A of another. Each pair gets
     its own random rigid motion of the target and a 90 % object dropout of both maps."""
-    from sgloc.evaluation.pairs import _city_graphs
 
     def graphs(world: int, ov: float):
-        return _city_graphs(world, ov, 320, 180, 400.0)
+        return city_graphs(world, ov)
 
     out = []
     for i in range(n):
