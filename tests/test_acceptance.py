@@ -128,3 +128,12 @@ def test_airsim_pair_sets_are_labelled():
     neg = airsim_pairs(2, False, seed=0)
     assert all(p.positive for p in pos) and not any(p.positive for p in neg)
     assert {p.info["query"] for p in neg} == {"cloud1.pcd-cut25", "cloud2.pcd-cut25"}
+
+
+def test_bad_strictness_is_a_clear_error(airsim_graphs):
+    from sgloc.errors import SglocError
+
+    with pytest.raises(SglocError, match="min_confidence"):
+        localize(*airsim_graphs, min_confidence=1.5)
+    with pytest.raises(SglocError, match="min_spread"):
+        AcceptanceConfig(min_spread=-1)

@@ -52,6 +52,7 @@ from scipy.spatial.distance import cdist
 from scipy.special import gammaln, pdtrc
 from scipy.stats import poisson
 
+from sgloc.errors import SglocError
 from sgloc.estimation import kabsch_batch
 from sgloc.geometry import apply
 from sgloc.graph import SemanticGraph
@@ -82,6 +83,17 @@ class AcceptanceConfig:
     distinct_translation: float = 10.0
     distinct_rotation: float = 10.0
     runner_up_samples: int = 128
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= float(self.min_confidence) <= 1.0:
+            raise SglocError(
+                f"min_confidence must be in [0, 1], got {self.min_confidence}; 0 keeps Guo's "
+                "rule, 0.999 is the default."
+            )
+        if self.radius is not None and not float(self.radius) > 0:
+            raise SglocError(f"acceptance radius must be > 0 m or None, got {self.radius}.")
+        if float(self.min_spread) < 0:
+            raise SglocError(f"min_spread must be >= 0 m, got {self.min_spread}.")
 
     def get_params(self) -> dict:
         return asdict(self)

@@ -79,7 +79,7 @@ class LocalizerConfig:
             elif key in rej_fields:
                 cfg.rejection_params[key] = value
             elif key in _fields(AcceptanceConfig) and key not in {"enabled", "radius"}:
-                setattr(cfg.acceptance, key, value)
+                cfg.acceptance = dataclasses.replace(cfg.acceptance, **{key: value})
             elif key == "acceptance":
                 cfg.acceptance = _acceptance(value)
             elif key in {"class_weights", "robust_refit", "icp", "icp_max_distance"}:

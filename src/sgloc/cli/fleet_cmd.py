@@ -24,7 +24,9 @@ def fleet_cmd(
     out: Path = typer.Option(
         Path("fleet_out"), help="Folder for merged.json, fleet.json, fleet.png."
     ),
-    min_confidence: float = typer.Option(0.99, help="Acceptance strictness for each pair (0-1)."),
+    min_confidence: float | None = typer.Option(
+        None, help="Acceptance strictness for each pair, 0-1 (default: the library's 0.999)."
+    ),
     workers: int | None = typer.Option(None, help="Local processes (default: CPU count)."),
     edge_radius: float = typer.Option(20.0, help="Graph edge radius (m)."),
     seed: int = typer.Option(0, help="Random seed."),
@@ -38,9 +40,8 @@ def fleet_cmd(
     Example: sgloc fleet a.pcd b.pcd c.json d.npz --out fleet_out --scheduler tcp://10.0.0.5:8786
     """
     gs = [SemanticGraph.load(p, edge_radius=edge_radius) for p in graphs]
-    cfg = FleetConfig(
-        localizer=LocalizerConfig().with_overrides(min_confidence=min_confidence), seed=seed
-    )
+    overrides = {} if min_confidence is None else {"min_confidence": min_confidence}
+    cfg = FleetConfig(localizer=LocalizerConfig().with_overrides(**overrides), seed=seed)
     res = localize_fleet(
         gs, cfg, names=[p.name for p in graphs], scheduler=scheduler, workers=workers, out=out
     )
