@@ -191,3 +191,15 @@ def test_timing_repeats_change_no_result():
     thrice = run_tasks(sweep.tasks(), workers=1)
     _same(once, thrice)
     assert all(r["t_cpu_ms"] > 0 for r in thrice)
+
+
+def test_cpu_clock_stage_times_add_up_to_at_most_the_calls_cpu_time():
+    import time as time_module
+
+    import sgloc.localizer
+
+    t = descriptor_rejection_sweep("airsim-guo", trials=1, descriptors=["histogram"]).tasks()
+    row = run_task(t[1])
+    stages = sum(row[f"t_{k}_ms"] for k in ("descriptors", "matching", "rejection", "ransac"))
+    assert 0 < stages <= row["t_total_ms"] <= row["t_cpu_ms"] * 1.02 + 0.2
+    assert sgloc.localizer.time is time_module  # the stage clock is restored

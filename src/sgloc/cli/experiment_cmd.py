@@ -89,6 +89,9 @@ def experiment_cmd(
     repeats: int = typer.Option(
         1, help="Timing repeats per trial; each stage's fastest time is kept (results equal)."
     ),
+    clock: str = typer.Option(
+        "cpu", help="Stage timer: cpu (this thread's CPU time; robust on a shared machine) | wall."
+    ),
     from_csv: Path | None = typer.Option(
         None, help="Re-make tables and figures from an earlier run's trials.csv (no trials)."
     ),
@@ -101,6 +104,8 @@ def experiment_cmd(
     """
     if name not in EXPERIMENTS:
         raise fail(f"unknown experiment {name!r}; choose one of {', '.join(EXPERIMENTS)}")
+    if clock not in ("cpu", "wall"):
+        raise fail(f"--clock must be cpu or wall, got {clock!r}")
     if trials < 1:
         raise fail(f"--trials must be >= 1, got {trials}")
     if from_csv is not None and not from_csv.is_file():
@@ -118,6 +123,7 @@ def experiment_cmd(
         dataset_params=_settings(dataset_param),
         from_csv=str(from_csv) if from_csv else None,
         repeats=max(1, repeats),
+        clock=clock,
     )
     if out is None:
         stamp = time.strftime("%Y%m%d-%H%M%S")

@@ -67,6 +67,7 @@ class ExperimentOptions:
     dataset_params: dict[str, Any] = field(default_factory=dict)
     from_csv: str | None = None
     repeats: int = 1
+    clock: str = "cpu"
 
 
 @dataclass
@@ -101,6 +102,7 @@ def make_sweep(name: str, dataset: str, opt: ExperimentOptions) -> Sweep:
         dataset_params=dict(opt.dataset_params),
         settings=opt.settings,
         repeats=opt.repeats,
+        clock=opt.clock,
     )
     if name == "table":
         return descriptor_rejection_sweep(

@@ -34,6 +34,7 @@ class Sweep:
     dataset_axes: pair-source parameters to sweep (e.g. {"overlap": [0.1, 0.3]}).
     trials: trials per grid cell; first_seed: seed of trial 0.
     repeats: timing repeats per trial (each stage's fastest is kept; results are identical).
+    clock: "cpu" (stage CPU time, default) or "wall" (see `TrialTask`).
     """
 
     dataset: str
@@ -46,6 +47,7 @@ class Sweep:
     T_p: float = T_P
     failure_m: float = FAILURE_M
     repeats: int = 1
+    clock: str = "cpu"
 
     def cells(self) -> list[tuple[dict[str, Any], dict[str, Any]]]:
         """Every (localizer settings, dataset parameters) of the grid, in a fixed order."""
@@ -78,6 +80,7 @@ class Sweep:
                         T_p=self.T_p,
                         failure_m=self.failure_m,
                         repeats=self.repeats,
+                        clock=self.clock,
                     )
                 )
         return tasks
@@ -95,6 +98,7 @@ class Sweep:
             "T_p": self.T_p,
             "failure_m": self.failure_m,
             "repeats": self.repeats,
+            "clock": self.clock,
         }
 
 

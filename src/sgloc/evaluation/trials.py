@@ -8,10 +8,12 @@ Trials run serially, on local processes (`workers`), or on a Dask cluster (`sche
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import time
-from collections.abc import Callable, Sequence
+import types
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from typing import Any
@@ -42,6 +44,11 @@ class TrialTask:
     repeats: run the (deterministic) localization this many times and keep each stage's
         fastest time, as timeit does: on a loaded machine a single run's wall times measure
         the other processes as much as ours.
+    clock: "cpu" (default) times each stage by the CPU time of this thread, "wall" by
+        wall-clock time. On a machine shared with other work, wall times mostly measure the
+        wait for a core (measured here: ~200 ms wall for ~30 ms of CPU); single-threaded
+        (see `limit_blas_threads`), CPU time is the stage's own cost, what an idle machine
+        shows as wall time.
     """
 
     dataset: str
@@ -52,6 +59,7 @@ class TrialTask:
     T_p: float = T_P
     failure_m: float = FAILURE_M
     repeats: int = 1
+    clock: str = "cpu"
 
 
 @dataclass
@@ -107,8 +115,42 @@ def _source(dataset: str, params: dict[str, Any]):
     return _SOURCES[key]
 
 
+_THREADS_LIMITED = False
+
+
+def limit_blas_threads() -> None:
+    """Limit BLAS/OpenMP to one thread in this process (once). Trials are small matrix work:
+    a multi-threaded OpenBLAS only spins on a loaded machine (measured here: matching 2 ms
+    single-threaded, ~170 ms with OpenBLAS threads while other processes ran), and parallel
+    trial workers would oversubscribe the cores."""
+    global _THREADS_LIMITED
+    if not _THREADS_LIMITED:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(limits=1)
+        _THREADS_LIMITED = True
+
+
+@contextlib.contextmanager
+def _stage_clock(clock: str) -> Iterator[None]:
+    """Make the localizer's stage timer (`time.perf_counter` in sgloc.localizer) read this
+    thread's CPU time while the block runs (clock="cpu"); clock="wall" leaves it alone."""
+    import sgloc.localizer as loc
+
+    if clock == "wall" or getattr(loc, "time", None) is not time:
+        yield
+        return
+    loc.time = types.SimpleNamespace(perf_counter=time.thread_time)
+    try:
+        yield
+    finally:
+        loc.time = time
+
+
 def run_task(task: TrialTask) -> dict[str, Any]:
-    """Run one trial and return its row as a flat dict (tags first)."""
+    """Run one trial and return its row as a flat dict (tags first). BLAS runs single-threaded
+    in the calling process from then on (see `limit_blas_threads`)."""
+    limit_blas_threads()
     pair = _source(task.dataset, task.dataset_params)(task.seed)
     cfg = LocalizerConfig.from_dict(task.config)
     localizer = Localizer(cfg)
@@ -117,7 +159,8 @@ def run_task(task: TrialTask) -> dict[str, Any]:
     for _ in range(max(1, task.repeats)):
         rng = np.random.default_rng([int(task.seed), LOCALIZER_STREAM])
         c0 = time.thread_time()
-        res = localizer(pair.query, pair.target, rng)
+        with _stage_clock(task.clock):
+            res = localizer(pair.query, pair.target, rng)
         cpu.append(time.thread_time() - c0)
         timings.append(res.timings)
     fastest = {k: min(t[k] for t in timings) for k in timings[0]}
@@ -159,7 +202,9 @@ def run_task(task: TrialTask) -> dict[str, Any]:
         reason=res.reason,
     )
     info = {f"pair_{k}": v for k, v in pair.info.items()}
-    return {**row.to_dict(task.tags), **info}
+    known = {"descriptors", "matching", "rejection", "ransac", "estimation", "total"}
+    extra = {f"t_{k}_ms": v for k, v in ms.items() if k not in known}  # e.g. acceptance
+    return {**row.to_dict(task.tags), **extra, **info}
 
 
 Progress = Callable[[int], None]
