@@ -28,7 +28,7 @@ from rich.progress import track
 
 from sgloc.acceptance import AcceptanceConfig, assess
 from sgloc.evaluation.acceptance_pairs import NEGATIVE_CUT, default_pair_sets
-from sgloc.geometry import transform_error
+from sgloc.geometry import apply, transform_error
 from sgloc.localizer import localize
 
 INTRO = """# Acceptance test: when not to trust an alignment
@@ -60,8 +60,11 @@ The strictness setting is `AcceptanceConfig.min_confidence` (`localize(..., min_
 `LocalizerConfig.acceptance`); 0 keeps only the spread gate on top of Guo's rule.
 
 Goal: no false accept on at least 100 negative pairs with at least 95 % of the positives
-accepted. Columns: true accepts = positives accepted with error <= 10 m and 5 deg; wrong accepts
-= positives accepted with a larger error; false accepts = negatives accepted.
+accepted. Columns: true accepts = positives accepted with error <= 10 m and 5 deg (paper-style:
+the error of the transform at the target map's origin); imprecise accepts = positives accepted
+with a larger error, in brackets those within 3 m where the maps overlap (at the centroid of
+the inliers: the overlap is found, but a short overlap leaves the rotation a few degrees off,
+which the far origin magnifies); false accepts = negatives accepted (any transform).
 
 ![ROC](acceptance_roc.png)
 
@@ -78,7 +81,14 @@ def evaluate(pairs) -> list[dict]:
         row = {"source": p.source, "positive": p.positive, "estimated": res.transform is not None}
         row["total_s"] = res.timings["total"]
         if res.transform is None:
-            row.update(confidence=-1.0, correct=False, terr=np.nan, rerr=np.nan, accept_s=0.0)
+            row.update(
+                confidence=-1.0,
+                correct=False,
+                terr=np.nan,
+                rerr=np.nan,
+                accept_s=0.0,
+                local_err=np.nan,
+            )
         else:
             t0 = time.perf_counter()
             a = assess(
@@ -92,7 +102,17 @@ def evaluate(pairs) -> list[dict]:
             )
             row["accept_s"] = time.perf_counter() - t0
             te, re = transform_error(res.transform, p.T_target_query)
+            # Error where the maps overlap: at the centroid of the final inliers (query objects).
+            c = p.query.positions[res.matches[:, 0]].mean(axis=0) if len(res.matches) else None
+            local = (
+                np.nan
+                if c is None
+                else float(
+                    np.linalg.norm(apply(res.transform, c[None]) - apply(p.T_target_query, c[None]))
+                )
+            )
             row.update(
+                local_err=local,
                 confidence=a.confidence,
                 correct=te <= CORRECT_M and re <= CORRECT_DEG,
                 terr=te,
@@ -119,28 +139,30 @@ def rates(rows, threshold: float | None, source: str | None = None) -> dict:
 
     ta = sum(acc(r) and r["correct"] for r in pos)
     wrong = sum(acc(r) and not r["correct"] for r in pos)
+    local_ok = sum(acc(r) and not r["correct"] and r["local_err"] <= 3.0 for r in pos)
     fa = sum(acc(r) for r in neg)
-    return {"P": len(pos), "N": len(neg), "TA": ta, "wrong": wrong, "FA": fa}
+    return {"P": len(pos), "N": len(neg), "TA": ta, "wrong": wrong, "local": local_ok, "FA": fa}
 
 
 def _fmt(r: dict) -> str:
     tar = r["TA"] / max(r["P"], 1)
     far = r["FA"] / max(r["N"], 1)
     return (
-        f"{r['TA']}/{r['P']} = {100 * tar:.1f} % | {r['wrong']} | {r['FA']}/{r['N']} = "
-        f"{100 * far:.1f} %"
+        f"{r['TA']}/{r['P']} = {100 * tar:.1f} % | {r['wrong']} ({r['local']}) | "
+        f"{r['FA']}/{r['N']} = {100 * far:.1f} %"
     )
 
 
-def report(rows, seed: int, default: float) -> str:
+def report(rows, seed: int, default: float, city: bool = False) -> str:
     sources = sorted({r["source"] for r in rows})
     lines = [
         f"## Pair sets of seed {seed}",
         "",
-        f"Command: `python benchmarks/acceptance_roc.py --seed {seed}`. Negatives cut: every "
+        f"Command: `python benchmarks/acceptance_roc.py --seed {seed}{' --city' * city}`. "
+        f"Negatives cut: every "
         f"query object within {NEGATIVE_CUT:g} m (ground truth) of a target object removed.",
         "",
-        "| min_confidence | true accepts | wrong accepts of positives | false accepts |",
+        "| min_confidence | true accepts | imprecise accepts (locally right) | false accepts |",
         "|---|---|---|---|",
     ]
     guo = rates(rows, None)
@@ -152,7 +174,7 @@ def report(rows, seed: int, default: float) -> str:
         "",
         f"Per source at the default min_confidence = {default}:",
         "",
-        "| source | true accepts | wrong accepts of positives | false accepts |",
+        "| source | true accepts | imprecise accepts (locally right) | false accepts |",
         "|---|---|---|---|",
     ]
     for s in sources:
@@ -217,7 +239,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"seed {seed}: {len(pairs)} pairs built in {time.perf_counter() - t0:.1f} s")
         rows = evaluate(pairs)
         rows_by_seed[seed] = rows
-        text = report(rows, seed, default)
+        text = report(rows, seed, default, args.city)
         print(text)
         sections.append(text)
     args.out.mkdir(parents=True, exist_ok=True)

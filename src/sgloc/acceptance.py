@@ -18,6 +18,9 @@ distances agree within 2 * radius in both graphs can all be inliers, so the numb
 the number of such triples (triangles of the pairwise-consistency graph; at most C(m, 3)), and
 the number of false alarms is NFA_u = N * P(Poisson(lambda) >= k - 3) (k inliers among the m
 candidates; Poisson has a heavier tail than the binomial of the same mean: conservative in p).
+As in AC-RANSAC the radius adapts to the precision of the fit: lambda is scaled by
+(r_fit / radius)^2, r_fit = the largest inlier residual (at least 10 % of the radius), so an
+exact fit is more significant than a sloppy one with the same count.
 
 H0p (permutation): the target of candidate i is drawn from the targets the candidates of its
 class actually matched (what permuting targets within a class does). Repeated street furniture
@@ -59,6 +62,8 @@ from sgloc.graph import SemanticGraph
 
 _LN10 = np.log(10.0)
 _TRIANGLE_EDGES = 2048
+#: The precision-adapted inlier radius is at least this fraction of the radius.
+MIN_RADIUS_FRACTION = 0.1
 _POPCOUNT = np.array([bin(b).count("1") for b in range(256)], dtype=np.uint8)
 
 
@@ -318,6 +323,10 @@ def assess(
     res2 = np.sum((moved - dst) ** 2, axis=1)
     inl = res2 < r**2
     k = int(inl.sum())
+    # Precision: the inliers fit within their largest residual (>= MIN_RADIUS_FRACTION * r);
+    # chance agreement scales with the area of that disc (maps are nearly planar).
+    r_fit = max(float(np.sqrt(res2[inl].max())) if k else r, MIN_RADIUS_FRACTION * r)
+    shrink = min(r_fit / r, 1.0) ** 2
     n_classes = max(query.n_classes, target.n_classes)
     chance = _ChanceModel(target, r, n_classes)
     qi = cand[:, 0]
@@ -327,16 +336,19 @@ def assess(
     lam = chance.expected_inliers(counts, qi, tlab)
     consistency = _consistency(src, dst, r) if m >= 3 else np.zeros((m, m), dtype=bool)
     n_tests = _triangles(consistency) if m >= 3 else 0.0
-    lg_uniform = log10_nfa(k, m, lam, n_tests)
+    lg_uniform = log10_nfa(k, m, lam * shrink, n_tests)
     lam_perm = float(np.sum(used[qi, tlab] / np.bincount(tlab, minlength=n_classes)[tlab]))
     lg_geo, colocated, mu_geo = log10_colocation_p(query, counts > 0, cand[inl, 0])
-    lg_perm = log10_nfa(k, m, lam_perm, n_tests) + min(lg_geo, 0.0)
+    lg_perm = log10_nfa(k, m, lam_perm * shrink, n_tests) + min(lg_geo, 0.0)
     lg_best = max(lg_uniform, lg_perm)
     spread = inlier_spread(dst[inl])
-    k2, T2 = _runner_up(src, dst, transform, res2 < (2 * r) ** 2, consistency, r, cfg, rng)
+    explained = res2 < (2 * r) ** 2
+    k2, T2 = _runner_up(src, dst, transform, explained, consistency, r, cfg, rng)
     if T2 is not None:
         (counts2,) = chance.near_counts(apply(T2, query.positions))
-        lam2 = chance.expected_inliers(counts2, qi, tlab)
+        d2 = np.sum((apply(T2, src) - dst) ** 2, axis=1)[~explained]
+        fit2 = max(float(np.sqrt(d2[d2 < r**2].max())) if k2 else r, MIN_RADIUS_FRACTION * r)
+        lam2 = chance.expected_inliers(counts2, qi, tlab) * min(fit2 / r, 1.0) ** 2
         lg_second = log10_nfa(k2, m, lam2, n_tests)
     else:
         lam2, lg_second = 0.0, np.inf
@@ -346,6 +358,7 @@ def assess(
         "expected_chance_inliers": lam,
         "log10_tests": float(np.log10(max(n_tests, 1.0))),
         "log10_nfa": lg_best,
+        "fit_radius_m": r_fit,
         "log10_nfa_uniform": lg_uniform,
         "expected_chance_inliers_permutation": lam_perm,
         "colocated_beyond_inliers": colocated,
