@@ -55,9 +55,11 @@ def prune_by_support(M: np.ndarray, eta: float) -> np.ndarray:
     V = M.sum(axis=1, dtype=np.int32)
     ids = np.arange(m)
     r = m
+    # (Bound methods and .item(): this loop is Python-overhead bound.)
+    argmin, item = V.argmin, V.item
     while r > 1 and len(V) > _WIDE_LIMIT:
-        i = int(V.argmin())
-        if V[i] >= eta * (r - 1):
+        i = argmin()
+        if item(i) >= eta * (r - 1):
             return ids[V < _REMOVED // 2]
         np.subtract(V, M[i], out=V, casting="unsafe")
         V[i] = _REMOVED
@@ -65,24 +67,26 @@ def prune_by_support(M: np.ndarray, eta: float) -> np.ndarray:
         if r <= len(V) // 2:
             keep = np.flatnonzero(V < _REMOVED // 2)
             M, V, ids = M[np.ix_(keep, keep)], V[keep], ids[keep]
+            argmin, item = V.argmin, V.item
     # int16 rows and supports from here on (m <= _WIDE_LIMIT < 2^13): removed ones sit at 2^14
     # and stay above 2^13 whatever is subtracted later.
     W = M.astype(np.int16)
     del M
     gone = np.int16(1 << 14)
     V = np.where(V < _REMOVED // 2, V, gone).astype(np.int16)
+    argmin, item, subtract = V.argmin, V.item, np.subtract
     while r > 1:
-        i = int(V.argmin())
-        if V[i] >= eta * (r - 1):
+        i = argmin()
+        if item(i) >= eta * (r - 1):
             break
-        V -= W[i]
+        subtract(V, W[i], out=V)
         V[i] = gone
         r -= 1
         if r <= len(V) // 2 and len(V) > 64:
             keep = np.flatnonzero(V < gone // 2)
             W, V, ids = W[np.ix_(keep, keep)], V[keep], ids[keep]
+            argmin, item = V.argmin, V.item
     return ids[V < gone // 2]
-    return ids[V < _REMOVED // 2]
 
 
 @dataclass
