@@ -107,3 +107,24 @@ def test_unknown_consistency_form_is_a_clear_error():
 
     with pytest.raises(SglocError, match="consistency form"):
         NeighborRejector(form="nearest")(np.zeros((3, 3)), np.ones((3, 3)))
+
+
+@pytest.mark.parametrize("name", ["spectral", "clique"])
+def test_cli_localize_with_rejection(name, data_dir, tmp_path):
+    import json
+
+    from typer.testing import CliRunner
+
+    from sgloc.cli import app
+
+    d = data_dir / "airsim_guo"
+    out = tmp_path / "res.json"
+    args = ["localize", str(d / "cloud1.pcd"), str(d / "cloud2.pcd"), "--rejection", name]
+    result = CliRunner().invoke(app, [*args, "--json", str(out)])
+    assert result.exit_code == 0, result.output
+    res = json.loads(out.read_text())
+    assert res["success"] and res["config"]["rejection"] == name
+    # Same frame: the transform is near the identity.
+    T = np.array(res["transform"])
+    assert np.linalg.norm(T[:3, 3]) < 10.0
+    assert 0 < res["n_survivors"] < res["n_candidates"]
