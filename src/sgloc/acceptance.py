@@ -82,7 +82,7 @@ class AcceptanceConfig:
     """
 
     enabled: bool = True
-    min_confidence: float = 0.999
+    min_confidence: float = 0.9999
     radius: float | None = None
     min_spread: float = 5.0
     distinct_translation: float = 10.0
@@ -93,7 +93,7 @@ class AcceptanceConfig:
         if not 0.0 <= float(self.min_confidence) <= 1.0:
             raise SglocError(
                 f"min_confidence must be in [0, 1], got {self.min_confidence}; 0 keeps Guo's "
-                "rule, 0.999 is the default."
+                "rule, 0.9999 is the default."
             )
         if self.radius is not None and not float(self.radius) > 0:
             raise SglocError(f"acceptance radius must be > 0 m or None, got {self.radius}.")
@@ -198,7 +198,10 @@ def consistent_triples(src: np.ndarray, dst: np.ndarray, radius: float) -> float
     """Number of candidate triples whose three pairwise distances agree within 2 * radius in
     both graphs: the only triples that can all be inliers of one transform, hence the
     hypotheses RANSAC can form (triangles of the pairwise-consistency graph: trace(M^3) / 6)."""
-    return _triangles(_consistency(src, dst, radius)) if len(src) >= 3 else 0.0
+    if len(src) < 3:
+        return 0.0
+    M = _consistency(src, dst, radius)
+    return _triangles(M, *np.nonzero(np.triu(M)))
 
 
 def _consistency(src: np.ndarray, dst: np.ndarray, radius: float) -> np.ndarray:
@@ -208,12 +211,11 @@ def _consistency(src: np.ndarray, dst: np.ndarray, radius: float) -> np.ndarray:
     return M
 
 
-def _triangles(M: np.ndarray) -> float:
-    """Number of triangles of the consistency graph M."""
+def _triangles(M: np.ndarray, ii: np.ndarray, jj: np.ndarray) -> float:
+    """Number of triangles of the consistency graph M with edges (ii, jj), ii < jj."""
     # Triangles = sum over consistent pairs (i < j) of |common neighbours| / 3, on bit-packed
     # rows (no BLAS: a byte popcount table keeps it fast on a busy machine). Only log10 of the
     # count matters, so beyond _TRIANGLE_EDGES pairs an evenly spaced subset is scaled up.
-    ii, jj = np.nonzero(np.triu(M))
     if ii.size > _TRIANGLE_EDGES:
         pick = np.linspace(0, ii.size - 1, _TRIANGLE_EDGES).astype(np.int64)
         scale, ii, jj = ii.size / _TRIANGLE_EDGES, ii[pick], jj[pick]
@@ -229,6 +231,7 @@ def _runner_up(
     T: np.ndarray,
     exclude: np.ndarray,
     consistency: np.ndarray,
+    edges: tuple[np.ndarray, np.ndarray],
     radius: float,
     cfg: AcceptanceConfig,
     rng: np.random.Generator,
@@ -242,23 +245,24 @@ def _runner_up(
     2 * radius), drawn at random and fitted in one batch; those within the distinctness bounds of T
     are discarded.
     """
-    pool = np.flatnonzero(~exclude)
-    if pool.size < 3 or cfg.runner_up_samples <= 0:
+    free = ~exclude
+    if free.sum() < 3 or cfg.runner_up_samples <= 0:
         return 0, None
-    ps, pd = src[pool], dst[pool]
-    M = consistency[np.ix_(pool, pool)]
-    ii, jj = np.nonzero(np.triu(M))
+    ps, pd = src[free], dst[free]
+    ii, jj = edges
+    keep = free[ii] & free[jj]
+    ii, jj = ii[keep], jj[keep]
     if ii.size == 0:
         return 0, None
     pick = rng.integers(0, ii.size, cfg.runner_up_samples)
     i, j = ii[pick], jj[pick]
-    common = M[i] & M[j]
+    common = consistency[i] & consistency[j] & free
     has = common.any(axis=1)
     if not has.any():
         return 0, None
     keys = np.where(common, rng.random(common.shape, dtype=np.float32), -1.0)
     k3 = np.argmax(keys, axis=1)
-    trip = pool[np.column_stack([i, j, k3])[has]]
+    trip = np.column_stack([i, j, k3])[has]
     S, D = src[trip], dst[trip]
     e1, e2 = S[:, 1] - S[:, 0], S[:, 2] - S[:, 0]
     area2 = np.linalg.norm(np.cross(e1, e2), axis=1)
@@ -335,7 +339,8 @@ def assess(
     counts, used = chance.near_counts(apply(transform, query.positions), (None, usage))
     lam = chance.expected_inliers(counts, qi, tlab)
     consistency = _consistency(src, dst, r) if m >= 3 else np.zeros((m, m), dtype=bool)
-    n_tests = _triangles(consistency) if m >= 3 else 0.0
+    edges = np.nonzero(np.triu(consistency))
+    n_tests = _triangles(consistency, *edges) if m >= 3 else 0.0
     lg_uniform = log10_nfa(k, m, lam * shrink, n_tests)
     lam_perm = float(np.sum(used[qi, tlab] / np.bincount(tlab, minlength=n_classes)[tlab]))
     lg_geo, colocated, mu_geo = log10_colocation_p(query, counts > 0, cand[inl, 0])
@@ -343,7 +348,7 @@ def assess(
     lg_best = max(lg_uniform, lg_perm)
     spread = inlier_spread(dst[inl])
     explained = res2 < (2 * r) ** 2
-    k2, T2 = _runner_up(src, dst, transform, explained, consistency, r, cfg, rng)
+    k2, T2 = _runner_up(src, dst, transform, explained, consistency, edges, r, cfg, rng)
     if T2 is not None:
         (counts2,) = chance.near_counts(apply(T2, query.positions))
         d2 = np.sum((apply(T2, src) - dst) ** 2, axis=1)[~explained]

@@ -25,7 +25,7 @@ def fleet_cmd(
         Path("fleet_out"), help="Folder for merged.json, fleet.json, fleet.png."
     ),
     min_confidence: float | None = typer.Option(
-        None, help="Acceptance strictness for each pair, 0-1 (default: the library's 0.999)."
+        None, help="Acceptance strictness for each pair, 0-1 (default: the library's 0.9999)."
     ),
     workers: int | None = typer.Option(None, help="Local processes (default: CPU count)."),
     edge_radius: float = typer.Option(20.0, help="Graph edge radius (m)."),
