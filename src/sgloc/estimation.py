@@ -125,8 +125,9 @@ class RansacConfig:
     iterations: hypotheses drawn (each from 3 distinct matches).
     min_inliers, min_inlier_ratio: accept a model only with >= min_inliers inliers and
         >= min_inlier_ratio of the matches given to RANSAC (Guo: 5 and 1 %).
-    scoring: "count" (Guo: most inliers, ties by least inlier residual) or "msac" (least
-        truncated quadratic cost sum(min(r^2, threshold^2))).
+    scoring: "msac" (least truncated quadratic cost sum(min(r^2, threshold^2)); the default:
+        it separates hypotheses with equal inlier counts) or "count" (Guo: most inliers, ties
+        by least inlier residual).
     confidence: stop drawing once, with this probability, an all-inlier sample has been drawn
         given the best inlier ratio so far (the standard adaptive stop); None draws all
         `iterations` (Guo's fixed 1000).
@@ -138,7 +139,7 @@ class RansacConfig:
     iterations: int = 1000
     min_inliers: int = 5
     min_inlier_ratio: float = 0.01
-    scoring: str = "count"
+    scoring: str = "msac"
     confidence: float | None = 0.999
     batch: int = 100
     refit_rounds: int = 2
@@ -202,7 +203,9 @@ def ransac(
     best_key, best_T, drawn, needed = (np.inf, np.inf), None, 0, cfg.iterations
     batch = max(1, min(cfg.batch, _BLOCK // m))
     while drawn < min(needed, cfg.iterations):
-        n = min(batch, cfg.iterations - drawn)
+        # A small first block: after rejection the inlier ratio is often near 1 and a handful
+        # of draws settles it.
+        n = min(batch if drawn else min(batch, 16), cfg.iterations - drawn)
         drawn += n
         samples = draw_triplets(m, n, rng)
         S, D = src_c[samples], dst_c[samples]
@@ -272,7 +275,11 @@ def _non_collinear(P: np.ndarray) -> np.ndarray:
     """(B,) True where the triplet P (B,3,3) spans a triangle: twice its area is not small
     against its longest side squared (duplicate points count as collinear)."""
     e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
-    area2 = np.linalg.norm(np.cross(e1, e2), axis=1)
+    # The cross product by components: np.cross costs more in call overhead than in flops here.
+    c0 = e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1]
+    c1 = e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2]
+    c2 = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    area2 = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
     longest = np.maximum(np.einsum("ij,ij->i", e1, e1), np.einsum("ij,ij->i", e2, e2))
     return area2 > COLLINEAR_RATIO * np.maximum(longest, 1e-12)
 
@@ -297,7 +304,7 @@ def irls_refine(
     dst: np.ndarray,
     T: np.ndarray,
     weights: np.ndarray | None = None,
-    iterations: int = 30,
+    iterations: int = 15,
 ) -> np.ndarray:
     """Refine T_dst_src on matched points (metres) by an M-estimator: iteratively reweighted
     least squares with Tukey's biweight, c = 4.685 * sigma, sigma re-estimated each round as
@@ -309,6 +316,7 @@ def irls_refine(
     uniformly noisy matches (all residuals alike) it stays close to least squares.
     """
     prior = np.ones(len(src)) if weights is None else np.asarray(weights, dtype=np.float64)
+    w_prev = None
     for _ in range(iterations):
         r = np.linalg.norm(src @ T[:3, :3].T + T[:3, 3] - dst, axis=1)
         sigma = 1.4826 * np.median(r)
@@ -318,6 +326,10 @@ def irls_refine(
         w = prior * np.where(u < 1.0, (1.0 - u**2) ** 2, 0.0)
         if np.count_nonzero(w) < 3:
             break
+        # The fit is a function of the weights alone: unchanged weights, unchanged fit.
+        if w_prev is not None and np.allclose(w, w_prev, rtol=0.0, atol=1e-6):
+            break
+        w_prev = w
         T_new = _kabsch(src, dst, w)
         done = np.abs(T_new - T).max() < 1e-9
         T = T_new
