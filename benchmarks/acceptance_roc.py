@@ -49,15 +49,30 @@ hypotheses RANSAC can form). Permutation: the same with lambda computed as if ea
 target were drawn from the targets its class's candidates actually matched (repeated look-alike
 objects), times the p-value of the query objects that are *not* inliers yet land on a same-class
 target object (against the query's class frequencies): independent confirmation by the rest of
-the map. The runner-up is the best *distinct* alignment (> 10 m or > 10 deg away, supported by
+the map. Both lambdas are scaled by (r_fit / threshold)^2, r_fit = the largest inlier residual
+(at least 10 % of the threshold), as AC-RANSAC adapts its radius to the precision of the fit.
+The runner-up is the best *distinct* alignment (> 10 m or > 10 deg away, supported by
 candidates the best does not explain). So confidence is the weight of the best alignment when
-it, the runner-up and chance are weighed by 1/NFA; under the null, a non-overlapping pair
-reaches confidence >= c with probability about (1 - c) / c at most (if the null held exactly:
-real negatives below show it is optimistic for repeated street furniture, hence the default).
+it, the runner-up and chance are weighed by 1/NFA; under the nulls, a non-overlapping pair
+reaches confidence >= c with probability about (1 - c) / c at most (if the nulls held exactly:
+the real negatives below show they are optimistic for repeated street furniture and for the
+repeated game assets of the Airsim city, hence the strict default).
 Spread = standard deviation of the inliers along their second principal axis (a narrow strip
 of inliers, e.g. one side of one street, does not fix the rotation about it).
 The strictness setting is `AcceptanceConfig.min_confidence` (`localize(..., min_confidence=)`,
-`LocalizerConfig.acceptance`); 0 keeps only the spread gate on top of Guo's rule.
+`LocalizerConfig.acceptance`); 0 keeps only the spread gate on top of Guo's rule. The default,
+0.9999, is the smallest tabulated threshold with no false accept on all three seeds' pair sets
+below (chosen on these sets; there is no separate held-out set).
+
+Pair sets per seed (40 each): positives = Airsim cloud1 vs cloud2 under a random rigid motion
+(any yaw, roll/pitch <= 5 deg, <= 200 m; 10 % object dropout per map so the pairs differ),
+KITTI 00 scan ranges of 400-800 scans with trajectory overlap >= 0.2 (10 m), object world at
+overlap 0.2/0.3/0.5/0.7, rendered city (3 worlds x overlap 0.2/0.5/0.8, 10 % dropout);
+negatives = the same sources with every query object within 25 m (ground truth) of any target
+object removed (Airsim both directions; KITTI ranges whose trajectories are >= 50 m apart;
+object world and city at overlap 0), plus object-world and city robots from two different
+worlds. A pair without an estimated transform (RANSAC or Guo's rule failed) counts as
+rejected. Times: same process, median; the machine was shared by several jobs.
 
 Goal: no false accept on at least 100 negative pairs with at least 95 % of the positives
 accepted. Columns: true accepts = positives accepted with error <= 10 m and 5 deg (paper-style:
@@ -244,7 +259,25 @@ def main(argv: list[str] | None = None) -> int:
         sections.append(text)
     args.out.mkdir(parents=True, exist_ok=True)
     plot(rows_by_seed, args.out / "acceptance_roc.png")
-    (args.out / "acceptance.md").write_text(INTRO + "\n".join(sections))
+    all_rows = [r for rows in rows_by_seed.values() for r in rows]
+    summary = [
+        f"## Summary over seeds {', '.join(map(str, args.seed))}",
+        "",
+        "| min_confidence | true accepts | imprecise accepts (locally right) | false accepts |",
+        "|---|---|---|---|",
+        f"| Guo's rule only | {_fmt(rates(all_rows, None))} |",
+    ]
+    for c in THRESHOLDS:
+        mark = " (default)" if c == default else ""
+        summary.append(f"| {c:.10g}{mark} | {_fmt(rates(all_rows, c))} |")
+    summary += ["", "Per source at the default:", ""]
+    summary += [
+        f"- {src}: {_fmt(rates(all_rows, default, src))}"
+        for src in sorted({r["source"] for r in all_rows})
+    ]
+    summary.append("")
+    print("\n".join(summary))
+    (args.out / "acceptance.md").write_text(INTRO + "\n".join(summary + sections))
     print(f"wrote {args.out / 'acceptance.md'} and {args.out / 'acceptance_roc.png'}")
     return 0
 

@@ -44,7 +44,7 @@ def test_airsim_with_shared_area_cut_is_rejected(airsim_graphs, rng):
 
 def test_world_negatives_rejected_positives_accepted():
     negs = world_pairs(6, positive=False, seed=3)
-    poss = world_pairs(4, positive=True, seed=3, overlaps=(0.5,))
+    poss = world_pairs(4, positive=True, seed=3, overlaps=(0.7,))
     for i, p in enumerate(negs):
         assert not localize(p.query, p.target, seed=i).success
     for i, p in enumerate(poss):

@@ -388,12 +388,12 @@ def assess(
         if ratio > nfa1:
             reason = (
                 f"ambiguous: a distinct alignment explains {k2} matches against the best's {k} "
-                f"(confidence {confidence:.3g} < min_confidence {cfg.min_confidence})"
+                f"(confidence {confidence:.6g} < min_confidence {cfg.min_confidence})"
             )
         else:
             reason = (
                 f"{k} inliers of {m} candidate matches could be chance ({lam:.1f} expected from "
-                f"repeated objects; log10 NFA {lg_best:.1f}); confidence {confidence:.3g} < "
+                f"repeated objects; log10 NFA {lg_best:.1f}); confidence {confidence:.6g} < "
                 f"min_confidence {cfg.min_confidence}; the maps may not overlap"
             )
     return Assessment(not reason, confidence, reason, details)
