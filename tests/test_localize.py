@@ -12,6 +12,12 @@ from sgloc.geometry import invert, random_rigid_transform, transform_error
 STAGES = {"descriptors", "matching", "rejection", "ransac", "estimation", "total"}
 
 
+def _random_graph_and_motion(seed: int, n: int) -> tuple[SemanticGraph, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    g = SemanticGraph(rng.uniform(0, 120, (n, 3)) * [1, 1, 0.1], rng.integers(0, 6, n))
+    return g, random_rigid_transform(rng, max_translation=500.0, max_roll_pitch_deg=30.0)
+
+
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     seed=st.integers(0, 2**31 - 1),
@@ -19,17 +25,48 @@ STAGES = {"descriptors", "matching", "rejection", "ransac", "estimation", "total
     descriptor=st.sampled_from(["histogram", "random_walk", "fast"]),
     rejection=st.sampled_from(["neighbor", "none"]),
 )
-def test_localize_against_transformed_copy(seed, n, descriptor, rejection):
-    """A graph against its own rigidly moved copy: the transform is recovered exactly."""
-    rng = np.random.default_rng(seed)
-    g = SemanticGraph(rng.uniform(0, 120, (n, 3)) * [1, 1, 0.1], rng.integers(0, 6, n))
-    T = random_rigid_transform(rng, max_translation=500.0, max_roll_pitch_deg=30.0)
-    res = localize(g, g.transformed(T), descriptor, rejection, seed=seed)
+def test_pipeline_recovers_transform_of_a_moved_copy(seed, n, descriptor, rejection):
+    """A graph against its own rigidly moved copy: the pipeline (descriptors, matching,
+    rejection, RANSAC, robust fit; Guo's acceptance rule only) recovers the transform exactly."""
+    g, T = _random_graph_and_motion(seed, n)
+    res = localize(g, g.transformed(T), descriptor, rejection, seed=seed, acceptance=False)
     assert res.success, res.reason
     te, re = transform_error(res.transform, T)
     assert te < 1e-6 and re < 1e-6
     assert STAGES <= set(res.timings)
     assert len(res.matches) >= 5
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    n=st.integers(40, 120),
+    descriptor=st.sampled_from(["histogram", "random_walk", "fast"]),
+    rejection=st.sampled_from(["neighbor", "none"]),
+)
+def test_localize_accepts_and_recovers_a_moved_copy(seed, n, descriptor, rejection):
+    """With the default acceptance test too, from 40 objects up (about 7 per class; below that
+    the a-contrario test cannot rule out chance at its default strictness, see
+    test_small_copies_are_never_placed_wrongly)."""
+    g, T = _random_graph_and_motion(seed, n)
+    res = localize(g, g.transformed(T), descriptor, rejection, seed=seed)
+    assert res.success, res.reason
+    te, re = transform_error(res.transform, T)
+    assert te < 1e-6 and re < 1e-6
+    assert 0.0 <= res.confidence <= 1.0
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(6, 40))
+def test_small_copies_are_never_placed_wrongly(seed, n):
+    """Small graphs may be declared not localized, but an accepted result is exact."""
+    g, T = _random_graph_and_motion(seed, n)
+    res = localize(g, g.transformed(T), seed=seed)
+    if res.success:
+        te, re = transform_error(res.transform, T)
+        assert te < 1e-6 and re < 1e-6
+    else:
+        assert res.transform is None and res.reason
 
 
 def test_airsim_twenty_random_transforms(airsim_graphs):
