@@ -186,7 +186,8 @@ def _run_tasks(tasks: list[tuple], scheduler: str | None, workers: int | None) -
 
 # -- frame building --------------------------------------------------------------------------
 def _spanning_tree(n: int, edges: list[PairLink]) -> list[PairLink]:
-    """Kruskal on descending confidence (ties: more matches): a maximum-confidence forest."""
+    """Kruskal on descending confidence (to 1e-6; ties: more matches): a maximum-confidence
+    forest."""
     parent = list(range(n))
 
     def find(a: int) -> int:
@@ -196,7 +197,10 @@ def _spanning_tree(n: int, edges: list[PairLink]) -> list[PairLink]:
         return a
 
     tree = []
-    for e in sorted(edges, key=lambda e: (-e.confidence, -e.n_matches, e.query, e.target)):
+    # Confidence saturates near 1 for strong pairs: rank it to 1e-6, then by matches.
+    for e in sorted(
+        edges, key=lambda e: (-round(e.confidence, 6), -e.n_matches, e.query, e.target)
+    ):
         ra, rb = find(e.query), find(e.target)
         if ra != rb:
             parent[ra] = rb
