@@ -172,16 +172,23 @@ def run_experiment(
     files = [write_csv(rows, folder / "trials.csv")]
     md, figs = _outputs(name, dataset, rows, folder, opt)
     files += figs
-    header = (
-        f"# {name} on {dataset}\n\n{len(rows)} trials ({sweep.trials} per cell, seeds "
-        f"{sweep.first_seed}-{sweep.first_seed + sweep.trials - 1}); wall time {wall:.0f} s.\n\n"
-    )
-    md = header + md
+    if opt.from_csv:
+        seeds = sorted({int(r["seed"]) for r in rows})
+        run = f"seeds {seeds[0]}-{seeds[-1]}; tables and figures re-made from {opt.from_csv}"
+    else:
+        last = sweep.first_seed + sweep.trials - 1
+        run = f"{sweep.trials} per cell, seeds {sweep.first_seed}-{last}; wall time {wall:.0f} s"
+    md = f"# {name} on {dataset}\n\n{len(rows)} trials ({run}).\n\n" + md
     (folder / "table.md").write_text(md)
     files.append(folder / "table.md")
-    configs = {_cell_name(s, p): config_for(s).to_dict() for s, p in sweep.cells()}
-    exp = {"name": name, **sweep.to_dict(), "workers": workers, "scheduler": str(scheduler)}
-    files.append(write_config_yaml(folder / "config.yaml", exp, configs))
+    cfg_path = folder / "config.yaml"
+    if not (opt.from_csv and cfg_path.exists()):  # keep the config of the run that made the CSV
+        configs = {_cell_name(s, p): config_for(s).to_dict() for s, p in sweep.cells()}
+        exp = {"name": name, **sweep.to_dict(), "workers": workers, "scheduler": str(scheduler)}
+        if opt.from_csv:
+            exp["from_csv"] = opt.from_csv
+        write_config_yaml(cfg_path, exp, configs)
+    files.append(cfg_path)
     return ExperimentOutput(folder, files, md, rows)
 
 

@@ -16,6 +16,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
+from matplotlib.patches import Patch  # noqa: E402
 
 from sgloc.evaluation.metrics import correct_matches  # noqa: E402
 from sgloc.evaluation.report import column, group_rows, setting_label, summarize  # noqa: E402
@@ -34,11 +35,11 @@ def _style(descriptor: str, rejection: str) -> dict[str, Any]:
     }
 
 
-def _save(fig: plt.Figure, path: str | Path, top: float = 1.0) -> Path:
+def _save(fig: plt.Figure, path: str | Path, top: float = 1.0, dpi: int = DPI) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout(rect=(0, 0, 1, top))
-    fig.savefig(path, dpi=DPI)
+    fig.savefig(path, dpi=dpi)
     plt.close(fig)
     return path
 
@@ -155,9 +156,13 @@ def overlap_boxplots(
     ax2.set_xticks(range(len(overlaps)), [f"{o:g}" for o in overlaps])
     ax2.set_xlabel("overlap rate")
     ax2.set_ylabel("failures %")
-    ax2.bar([], [], color="0.4", alpha=0.8, label="wrong (> failure m)")
-    ax2.bar([], [], color="0.4", alpha=0.3, hatch="//", label="not localized")
-    ax2.legend(fontsize=7)
+    ax2.legend(
+        handles=[
+            Patch(facecolor="0.4", alpha=0.8, label=f"wrong (> {failure_m:g} m)"),
+            Patch(facecolor="0.4", alpha=0.3, hatch="//", label="not localized"),
+        ],
+        fontsize=7,
+    )
     ax2.grid(alpha=0.3, axis="y")
     return _save(fig, path)
 
@@ -203,4 +208,4 @@ def matches_picture(
     axes[0][0].legend(fontsize=6, loc="lower left")
     if title:
         fig.suptitle(title, fontsize=10)
-    return _save(fig, path, top=0.93 if title else 1.0)
+    return _save(fig, path, top=0.93 if title else 1.0, dpi=85)
