@@ -212,24 +212,31 @@ def plot(rows_by_seed: dict[int, list], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(5, 4), dpi=100)
-    fine = np.concatenate([[0.0], 1 - np.logspace(0, -12, 60)[1:]])
-    for seed, rows in rows_by_seed.items():
+    fig, ax = plt.subplots(figsize=(5.5, 4), dpi=100)
+    fine = np.concatenate([[0.0], 1 - np.logspace(0, -12, 80)[1:]])
+    colors = plt.get_cmap("tab10")
+    for k, (seed, rows) in enumerate(rows_by_seed.items()):
         rs = [rates(rows, c) for c in fine]
         far = [r["FA"] / r["N"] for r in rs]
         tar = [r["TA"] / r["P"] for r in rs]
-        ax.plot(far, tar, "-", label=f"seed {seed}")
-        for c in (0.99, 0.999):
-            r = rates(rows, c)
-            ax.plot(r["FA"] / r["N"], r["TA"] / r["P"], "o", ms=4)
-            ax.annotate(f"{c:g}", (r["FA"] / r["N"], r["TA"] / r["P"]), fontsize=6)
+        ax.plot(far, tar, "-", color=colors(k), label=f"seed {seed}")
+        r = rates(rows, AcceptanceConfig().min_confidence)
+        ax.plot(r["FA"] / r["N"], r["TA"] / r["P"], "o", ms=5, color=colors(k))
         g = rates(rows, None)
-        ax.plot(g["FA"] / g["N"], g["TA"] / g["P"], "kx")
-    ax.annotate("Guo's rule", (g["FA"] / g["N"], g["TA"] / g["P"]), fontsize=7)
+        ax.plot(g["FA"] / g["N"], g["TA"] / g["P"], "x", color=colors(k))
+    ax.annotate("Guo's rule (x)", (g["FA"] / g["N"], g["TA"] / g["P"]), fontsize=7)
+    ax.annotate(
+        f"default {AcceptanceConfig().min_confidence:g} (o)",
+        (r["FA"] / r["N"], r["TA"] / r["P"]),
+        xytext=(0.002, 0.75),
+        fontsize=7,
+        arrowprops={"arrowstyle": "->", "lw": 0.5},
+    )
+    ax.set_xscale("symlog", linthresh=0.01)
     ax.set_xlabel("false-accept rate (negatives accepted)")
     ax.set_ylabel("true-accept rate (positives accepted, correct)")
-    ax.set_xlim(-0.02, 1.02)
-    ax.set_ylim(0.5, 1.0)
+    ax.set_xlim(0, 1.0)
+    ax.set_ylim(0.6, 1.0)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     ax.set_title("acceptance test over min_confidence", fontsize=9)

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sgloc.config import LocalizerConfig
 from sgloc.evaluation.fleet_scenes import (
     FleetScene,
     expected_placeable,
@@ -29,7 +30,7 @@ from sgloc.evaluation.fleet_scenes import (
     kitti_fleet,
     world_fleet,
 )
-from sgloc.fleet import localize_fleet
+from sgloc.fleet import FleetConfig, localize_fleet
 
 MAX_M, MAX_DEG = 3.0, 3.0
 
@@ -64,12 +65,15 @@ def city_fleet(seed: int = 0, overlap: float = 0.5, pieces: int = 3) -> FleetSce
     return FleetScene(graphs, Ts, notes)
 
 
-def run_fleet(name: str, scene: FleetScene, out: Path, workers: int | None) -> dict:
+def run_fleet(
+    name: str, scene: FleetScene, out: Path, workers: int | None, config: FleetConfig | None = None
+) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        res = localize_fleet(scene.graphs, workers=workers, out=tmp)
+        res = localize_fleet(scene.graphs, config, workers=workers, out=tmp)
         secs = time.perf_counter() - t0
-        shutil.copy(Path(tmp) / "fleet.png", out / f"fleet_{name}.png")
+        if config is None and not name.startswith("world") or name == "world0":
+            shutil.copy(Path(tmp) / "fleet.png", out / f"fleet_{name}.png")
     errs = fleet_errors(res.T_world_robot, scene.T_gt_robot, res.root, scene.graphs)
     wrong = [i for i, (dt, dr) in errs.items() if dt > MAX_M or dr > MAX_DEG]
     oracle = expected_placeable(scene)
@@ -127,13 +131,17 @@ def main(argv: list[str] | None = None) -> int:
     fleets.append(("kitti00", kitti_fleet))
     if args.city:
         fleets.append(("city", city_fleet))
+    guo = FleetConfig(localizer=LocalizerConfig().with_overrides(acceptance=False))
+    baseline = []
     for name, make in fleets:
-        r = run_fleet(name, make(), args.out, args.workers)
+        scene = make()
+        r = run_fleet(name, scene, args.out, args.workers)
         rows.append(r)
         print(
             f"{name}: placed {r['placed']} unplaced {r['unplaced']} wrong {r['wrong']} "
             f"worst {r['worst_m']:.2f} m {r['worst_deg']:.2f} deg ({r['seconds']:.1f} s)"
         )
+        baseline.append(run_fleet(f"{name} (Guo's rule only)", scene, args.out, args.workers, guo))
     total_wrong = sum(len(r["wrong"]) for r in rows)
     placed = sum(len(r["placed"]) for r in rows)
     text = "\n".join(
@@ -157,6 +165,11 @@ def main(argv: list[str] | None = None) -> int:
             "",
             f"Total: {placed} robots placed, {total_wrong} placed wrongly.",
             "",
+            "The same fleets with the acceptance test off (Guo's rule alone decides which pairs "
+            "are kept; the spanning tree and the loop check still run):",
+            "",
+            table(baseline),
+            "",
             "Per robot (translation m, rotation deg relative to the root; '-' = unplaced):",
             "",
         ]
@@ -173,7 +186,12 @@ def main(argv: list[str] | None = None) -> int:
             )
             for r in rows
         ]
-        + ["", "![world fleet](fleet_world0.png) ![KITTI fleet](fleet_kitti00.png)", ""]
+        + [
+            "",
+            "![world fleet](fleet_world0.png) ![KITTI fleet](fleet_kitti00.png)"
+            + (" ![city fleet](fleet_city.png)" if args.city else ""),
+            "",
+        ]
     )
     (args.out / "fleet.md").write_text(text)
     print(table(rows))
