@@ -42,7 +42,9 @@ P(NFA <= e) <= e, so a non-overlapping pair reaches confidence >= c with probabi
 about (1 - c) / c. The confidence is 0 when the inliers are nearly collinear (standard deviation
 along their second principal axis under `min_spread` metres): the evidence then does not fix
 the rotation about their line. A result is accepted when confidence >= `min_confidence` (the
-one strictness setting; 0 gives back Guo's rule alone).
+one strictness setting; 0 gives back Guo's rule alone). When chance alone already puts the
+confidence below `min_confidence`, the runner-up search is skipped (it could only lower it) and
+the confidence reported is 1 / (1 + NFA_best).
 """
 
 from __future__ import annotations
@@ -348,7 +350,15 @@ def assess(
     lg_best = max(lg_uniform, lg_perm)
     spread = inlier_spread(dst[inl])
     explained = res2 < (2 * r) ** 2
-    k2, T2 = _runner_up(src, dst, transform, explained, consistency, edges, r, cfg, rng)
+    # The runner-up can only lower the confidence: skip its search when chance alone (or the
+    # spread) already rejects; the reported confidence is then 1 / (1 + NFA_best).
+    hopeless = spread < cfg.min_spread or 1.0 / (1.0 + 10.0 ** min(lg_best, 300.0)) < (
+        cfg.min_confidence
+    )
+    if hopeless:
+        k2, T2 = 0, None
+    else:
+        k2, T2 = _runner_up(src, dst, transform, explained, consistency, edges, r, cfg, rng)
     if T2 is not None:
         (counts2,) = chance.near_counts(apply(T2, query.positions))
         d2 = np.sum((apply(T2, src) - dst) ** 2, axis=1)[~explained]
