@@ -211,7 +211,8 @@ def localize(
         seed: seed of the random generator (RANSAC, random walks); ignored when `rng` is given.
         config: a full LocalizerConfig to start from; arguments given here override it.
         **settings: any stage setting by name, e.g. tau=3.0, eta=0.5, min_similarity=0.6,
-            top_k=2, mutual=True, iterations=2000, n_walks=300, class_weights={3: 11.0}, icp=True.
+            top_k=2, mutual=True, iterations=2000, n_walks=300, class_weights={3: 11.0}, icp=True,
+            min_confidence=0.9999 (acceptance strictness, sgloc.acceptance), acceptance=False.
     """
     named = {"descriptor": descriptor, "rejection": rejection, "ransac_threshold": ransac_threshold}
     overrides = {k: v for k, v in named.items() if v is not None} | settings
