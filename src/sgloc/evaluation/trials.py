@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from sgloc.config import LocalizerConfig
+from sgloc.errors import SglocError
 from sgloc.evaluation.metrics import FAILURE_M, T_P, is_failure, match_stats, pose_errors
 from sgloc.evaluation.pairs import make_pair_source
 from sgloc.geometry import invert
@@ -279,7 +280,13 @@ def _run_dask(tasks: list[Any], scheduler: Any, tick: Progress, fn: Callable) ->
     from dask.distributed import as_completed as dask_completed
 
     own = not isinstance(scheduler, Client)
-    client = Client(scheduler) if own else scheduler
+    try:
+        client = Client(scheduler, timeout="15s") if own else scheduler
+    except (OSError, TimeoutError, ValueError) as e:
+        raise SglocError(
+            f"cannot reach the Dask scheduler at {scheduler!r} ({e}); start one (e.g. "
+            "`dask scheduler` and `dask worker ADDRESS`) or drop --scheduler to run locally."
+        ) from None
     try:
         futures = client.map(fn, tasks, pure=False)
         index = {f.key: i for i, f in enumerate(futures)}
