@@ -53,14 +53,14 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.spatial.distance import cdist
 from scipy.special import gammaln, pdtrc
 from scipy.stats import poisson
 
 from sgloc.errors import SglocError
-from sgloc.estimation import kabsch_batch
+from sgloc.estimation import non_collinear, rigid_from_triplets, squared_residuals
 from sgloc.geometry import apply
 from sgloc.graph import SemanticGraph
+from sgloc.rejection.neighbor import consistency_matrix
 
 _LN10 = np.log(10.0)
 _TRIANGLE_EDGES = 2048
@@ -208,9 +208,7 @@ def consistent_triples(src: np.ndarray, dst: np.ndarray, radius: float) -> float
 
 def _consistency(src: np.ndarray, dst: np.ndarray, radius: float) -> np.ndarray:
     """(m,m) bool: pairs whose distances agree within 2 * radius in both graphs (no diagonal)."""
-    M = np.abs(cdist(src, src) - cdist(dst, dst)) < 2.0 * radius
-    np.fill_diagonal(M, False)
-    return M
+    return consistency_matrix(src, dst, 2.0 * radius, "distance")
 
 
 def _triangles(M: np.ndarray, ii: np.ndarray, jj: np.ndarray) -> float:
@@ -266,13 +264,10 @@ def _runner_up(
     k3 = np.argmax(keys, axis=1)
     trip = np.column_stack([i, j, k3])[has]
     S, D = src[trip], dst[trip]
-    e1, e2 = S[:, 1] - S[:, 0], S[:, 2] - S[:, 0]
-    area2 = np.linalg.norm(np.cross(e1, e2), axis=1)
-    longest = np.maximum(np.einsum("ij,ij->i", e1, e1), np.einsum("ij,ij->i", e2, e2))
-    ok = area2 > 1e-2 * np.maximum(longest, 1e-12)
+    ok = non_collinear(S, 1e-2) & non_collinear(D, 1e-2)
     if not ok.any():
         return 0, None
-    R, t = kabsch_batch(S[ok], D[ok])
+    R, t = rigid_from_triplets(S[ok], D[ok])
     # Distinctness, measured where it matters: at the centroid of T's support (query frame).
     c = src[exclude].mean(axis=0) if exclude.any() else src.mean(axis=0)
     dtrans = np.linalg.norm(R @ c + t - (T[:3, :3] @ c + T[:3, 3]), axis=1)
@@ -282,8 +277,7 @@ def _runner_up(
     if not distinct.any():
         return 0, None
     R, t = R[distinct], t[distinct]
-    res = np.matmul(ps[None], np.swapaxes(R, 1, 2)) + (t[:, None, :] - pd[None])
-    counts = (np.einsum("bmi,bmi->bm", res, res) < radius**2).sum(axis=1)
+    counts = (squared_residuals(R, t, ps, pd) < radius**2).sum(axis=1)
     h = int(np.argmax(counts))
     T2 = np.eye(4)
     T2[:3, :3], T2[:3, 3] = R[h], t[h]

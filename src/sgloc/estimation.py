@@ -209,7 +209,7 @@ def ransac(
         drawn += n
         samples = draw_triplets(m, n, rng)
         S, D = src_c[samples], dst_c[samples]
-        ok = _non_collinear(S) & _non_collinear(D)
+        ok = non_collinear(S) & non_collinear(D)
         if not ok.any():
             continue
         R, t = rigid_from_triplets(S[ok], D[ok])
@@ -271,9 +271,9 @@ def ransac(
     return RansacResult(T, inliers)
 
 
-def _non_collinear(P: np.ndarray) -> np.ndarray:
-    """(B,) True where the triplet P (B,3,3) spans a triangle: twice its area is not small
-    against its longest side squared (duplicate points count as collinear)."""
+def non_collinear(P: np.ndarray, ratio: float = COLLINEAR_RATIO) -> np.ndarray:
+    """(B,) True where the triplet P (B,3,3) spans a triangle: twice its area is more than
+    `ratio` times its longest side squared (duplicate points count as collinear)."""
     e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
     # The cross product by components: np.cross costs more in call overhead than in flops here.
     c0 = e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1]
@@ -281,7 +281,7 @@ def _non_collinear(P: np.ndarray) -> np.ndarray:
     c2 = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
     area2 = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
     longest = np.maximum(np.einsum("ij,ij->i", e1, e1), np.einsum("ij,ij->i", e2, e2))
-    return area2 > COLLINEAR_RATIO * np.maximum(longest, 1e-12)
+    return area2 > ratio * np.maximum(longest, 1e-12)
 
 
 def _needed_draws(inlier_ratio: float, confidence: float, cap: int) -> int:
