@@ -16,7 +16,8 @@ from sgloc.datasets.base import Dataset, Frame
 from sgloc.datasets.kitti import KittiDataset
 from sgloc.datasets.kitti_objects import KittiObjectsDataset
 from sgloc.datasets.synthia import SynthiaDataset
-from sgloc.errors import DatasetError, UnknownNameError
+from sgloc.errors import DatasetError
+from sgloc.registry import lookup
 
 #: Loader classes by name.
 DATASETS: dict[str, type[Dataset]] = {
@@ -29,15 +30,12 @@ DATASETS: dict[str, type[Dataset]] = {
 
 def make_dataset(name: str, path: str | Path, **options: Any) -> Dataset:
     """The loader `name` (see DATASETS) on `path`, with its own options (e.g. robot=, scans=)."""
-    key = name.strip().lower().replace("-", "_")
-    if key not in DATASETS:
-        raise UnknownNameError(f"unknown dataset {name!r}; choose one of {sorted(DATASETS)}.")
-    cls = DATASETS[key]
+    cls = lookup(DATASETS, name, "dataset")
     try:
         inspect.signature(cls).bind(path, **options)
     except TypeError as e:
         raise DatasetError(
-            f"dataset {key!r}: bad option ({e}); see help({cls.__name__})."
+            f"dataset {name!r}: bad option ({e}); see help({cls.__name__})."
         ) from None
     return cls(path, **options)
 

@@ -8,7 +8,7 @@ from sgloc.descriptors.base import Descriptor, DescriptorMatrix
 from sgloc.descriptors.fast import FastDescriptor
 from sgloc.descriptors.histogram import HistogramDescriptor
 from sgloc.descriptors.random_walk import RandomWalkDescriptor
-from sgloc.errors import UnknownNameError
+from sgloc.registry import lookup
 
 DESCRIPTORS: dict[str, type[Descriptor]] = {
     "histogram": HistogramDescriptor,
@@ -21,12 +21,7 @@ def make_descriptor(name: str | Descriptor, **params: Any) -> Descriptor:
     """A descriptor by name (`histogram`, `random_walk`, `fast`) with optional parameters."""
     if isinstance(name, Descriptor):
         return name
-    key = name.replace("-", "_").lower()
-    if key not in DESCRIPTORS:
-        raise UnknownNameError(
-            f"unknown descriptor {name!r}; choose one of {', '.join(DESCRIPTORS)}."
-        )
-    return DESCRIPTORS[key](**params)
+    return lookup(DESCRIPTORS, name, "descriptor")(**params)
 
 
 __all__ = [

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from sgloc.errors import UnknownNameError
+from sgloc.registry import lookup
 from sgloc.rejection.base import NoRejection, Rejector
 from sgloc.rejection.clique import CliqueRejector
 from sgloc.rejection.neighbor import NeighborRejector, consistency_matrix, prune_by_support
@@ -22,10 +22,7 @@ def make_rejector(name: str | Rejector, **params: Any) -> Rejector:
     """A rejector by name with optional parameters."""
     if isinstance(name, Rejector):
         return name
-    key = name.lower()
-    if key not in REJECTORS:
-        raise UnknownNameError(f"unknown rejection {name!r}; choose one of {', '.join(REJECTORS)}.")
-    return REJECTORS[key](**params)
+    return lookup(REJECTORS, name, "rejection")(**params)
 
 
 __all__ = [
