@@ -64,26 +64,28 @@ class Sweep:
         return out
 
     def tasks(self) -> list[TrialTask]:
-        """The trials of the whole grid: cell-major, seed-minor."""
-        tasks = []
-        for settings, params in self.cells():
-            cfg = config_for(settings).to_dict()
-            tags = {k: params[k] for k in self.dataset_axes}
-            for i in range(self.trials):
-                tasks.append(
-                    TrialTask(
-                        dataset=self.dataset,
-                        config=cfg,
-                        seed=self.first_seed + i,
-                        dataset_params=params,
-                        tags=tags,
-                        T_p=self.T_p,
-                        failure_m=self.failure_m,
-                        repeats=self.repeats,
-                        clock=self.clock,
-                    )
-                )
-        return tasks
+        """The trials of the whole grid, seed-major: trial i of every cell, then trial i + 1.
+        Interleaving the cells exposes them all alike to load that drifts during a run (on a
+        shared machine even CPU times drift by tens of percent), so their times compare."""
+        cells = [
+            (config_for(settings).to_dict(), params, {k: params[k] for k in self.dataset_axes})
+            for settings, params in self.cells()
+        ]
+        return [
+            TrialTask(
+                dataset=self.dataset,
+                config=cfg,
+                seed=self.first_seed + i,
+                dataset_params=params,
+                tags=tags,
+                T_p=self.T_p,
+                failure_m=self.failure_m,
+                repeats=self.repeats,
+                clock=self.clock,
+            )
+            for i in range(self.trials)
+            for cfg, params, tags in cells
+        ]
 
     def to_dict(self) -> dict[str, Any]:
         """The sweep as plain data (for the experiment's config YAML)."""
