@@ -203,3 +203,18 @@ def test_cpu_clock_stage_times_add_up_to_at_most_the_calls_cpu_time():
     stages = sum(row[f"t_{k}_ms"] for k in ("descriptors", "matching", "rejection", "ransac"))
     assert 0 < stages <= row["t_total_ms"] <= row["t_cpu_ms"] * 1.02 + 0.2
     assert sgloc.localizer.time is time_module  # the stage clock is restored
+
+
+def test_dataset_recommended_settings_and_overrides(data_dir):
+    from sgloc.evaluation.experiments import ExperimentOptions, make_sweep
+
+    kitti = make_sweep("overlap", "kitti00", ExperimentOptions(trials=1, overlaps=[0.3]))
+    cfg = kitti.tasks()[0].config
+    assert cfg["ransac"]["threshold"] == 2.0  # the KITTI objects preset
+    assert any(t.config["rejection_params"].get("tau") == 2.0 for t in kitti.tasks())
+    mine = make_sweep(
+        "overlap", "kitti00", ExperimentOptions(trials=1, overlaps=[0.3], threshold=4.0)
+    )
+    assert mine.tasks()[0].config["ransac"]["threshold"] == 4.0
+    airsim = make_sweep("table", "airsim-guo", ExperimentOptions(trials=1))
+    assert {t.config["ransac"]["threshold"] for t in airsim.tasks()} == {5.0}
