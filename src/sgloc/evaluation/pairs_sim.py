@@ -1,0 +1,132 @@
+"""Pair sources from rendered runs: `city` (the synthetic city, graphs cached on disk) and
+`airsim-run` (any two-robot run in Guo's Airsim layout)."""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from sgloc.evaluation.pairs import Pair, _moved_target, register_pair_source
+from sgloc.graph import SemanticGraph
+
+#: Disk cache of graphs extracted from rendered synthetic runs (gitignored).
+CACHE_DIR = Path(".sgloc_cache") / "evaluation"
+
+
+@functools.lru_cache(maxsize=1)
+def _code_hash() -> str:
+    """Short hash of the simulator's and the extraction's source (a cache key part, so cached
+    graphs are rebuilt when that code changes)."""
+    import hashlib
+
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha1()
+    for p in sorted([*(root / "sim").glob("*.py"), *(root / "extraction").glob("*.py")]):
+        h.update(p.read_bytes())
+    return h.hexdigest()[:8]
+
+
+@functools.lru_cache(maxsize=64)
+def _city_graphs(
+    world: int, overlap: float, width: int, height: int, length: float
+) -> tuple[SemanticGraph, SemanticGraph, np.ndarray]:
+    """(query = backwardCar graph, target = forwardCar graph, T_target_query) of the synthetic
+    city run `world` at `overlap`: rendered and extracted once, then read from the disk cache."""
+    from sgloc.data import PROJECT_ROOT
+
+    key = f"city-w{world}-o{overlap:g}-{width}x{height}-L{length:g}-{_code_hash()}"
+    path = PROJECT_ROOT / CACHE_DIR / f"{key}.npz"
+    if path.is_file():
+        z = np.load(path)
+        return (
+            SemanticGraph(z["q_pos"], z["q_lab"], name=f"{key}:query"),
+            SemanticGraph(z["t_pos"], z["t_lab"], name=f"{key}:target"),
+            z["T"],
+        )
+    from sgloc.extraction import build_graph
+    from sgloc.sim.run import QUERY, TARGET, make_synthetic_run
+
+    run = make_synthetic_run(seed=world, overlap=overlap, width=width, height=height, length=length)
+    t = build_graph(run.frames(TARGET), name=f"{key}:target")
+    q = build_graph(run.frames(QUERY), name=f"{key}:query")
+    T = run.ground_truth
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(f".{np.random.default_rng().integers(1 << 30)}.tmp.npz")
+    np.savez(tmp, q_pos=q.positions, q_lab=q.labels, t_pos=t.positions, t_lab=t.labels, T=T)
+    tmp.replace(path)
+    return q, t, T
+
+
+@register_pair_source("city")
+@dataclass(frozen=True)
+class CityPairs:
+    """The rendered synthetic city (`sgloc.sim`): two robots drive opposite ways sharing
+    `overlap` of their routes; each map is extracted from its rendered semantic + depth frames
+    and lies in the robot's own start frame. Trial seed s uses city `s % n_worlds` (rendering
+    is the expensive part; graphs are cached on disk under .sgloc_cache/), and the target is
+    moved by a random rigid transform per trial."""
+
+    #: Recommended localizer settings (sgloc.sim.CITY_LOCALIZER_SETTINGS: buildings weigh less).
+    localizer_settings: ClassVar[dict[str, Any]] = {"class_weights": {0: 0.1}}
+
+    overlap: float = 0.5
+    n_worlds: int = 5
+    width: int = 320
+    height: int = 180
+    length: float = 400.0
+    max_translation: float = 200.0
+    max_roll_pitch_deg: float = 5.0
+
+    def world(self, seed: int) -> int:
+        return int(seed) % self.n_worlds
+
+    def prepare(self, seed: int) -> str:
+        """Render and extract the world of `seed` into the cache (for parallel warm-up)."""
+        _city_graphs(self.world(seed), self.overlap, self.width, self.height, self.length)
+        return f"world {self.world(seed)}"
+
+    def __call__(self, seed: int) -> Pair:
+        w = self.world(seed)
+        q, t, T0 = _city_graphs(w, self.overlap, self.width, self.height, self.length)
+        pair = _moved_target(q, t, T0, seed, self.max_translation, self.max_roll_pitch_deg)
+        pair.info.update({"overlap": self.overlap, "world": w})
+        return pair
+
+
+@functools.lru_cache(maxsize=8)
+def _airsim_run_graphs(root: str, target: str, query: str) -> tuple[SemanticGraph, ...]:
+    """(query graph, target graph) extracted from an Airsim-layout run, once per process."""
+    from sgloc.datasets import make_dataset
+    from sgloc.extraction import build_graph
+
+    graphs = []
+    for robot in (query, target):
+        ds = make_dataset("airsim", root, robot=robot)
+        graphs.append(build_graph(ds, name=f"{Path(root).name}:{robot}"))
+    return tuple(graphs)
+
+
+@register_pair_source("airsim-run")
+@dataclass(frozen=True)
+class AirsimRunPairs:
+    """A two-robot run in Guo's Airsim layout (e.g. written by `sgloc.sim`): the folders
+    `target` and `query` (frames + airsim.txt) and `ground_truth.txt` (T_target_query). Both
+    graphs are extracted from the images once per process; the target is moved by a random
+    rigid transform per trial."""
+
+    root: str = "."
+    target: str = "forwardCar"
+    query: str = "backwardCar"
+    max_translation: float = 200.0
+    max_roll_pitch_deg: float = 5.0
+
+    def __call__(self, seed: int) -> Pair:
+        from sgloc.sim.airsim_writer import read_ground_truth
+
+        q, t = _airsim_run_graphs(str(Path(self.root).resolve()), self.target, self.query)
+        T0 = read_ground_truth(self.root)
+        return _moved_target(q, t, T0, seed, self.max_translation, self.max_roll_pitch_deg)
