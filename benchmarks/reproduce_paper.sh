@@ -35,6 +35,13 @@ run overlap overlap-city --dataset synthetic --trials 100 --overlaps 0.1,0.2,0.3
 run overlap overlap-city-paper-acceptance --dataset synthetic --trials 100 \
   --overlaps 0.1,0.2,0.3,0.5,0.7,0.9 --set acceptance=false
 
+# The paper's KITTI experiment (whole maps, T_error 5 and 10 m, its acceptance rule), on the
+# KITTI 00 two-robot split (A = scans 0-800, B = 3900-4540).
+for T in 5 10; do
+  run table "kitti00-split-T$T" --dataset kitti00 --trials 100 --threshold "$T" --set tau="$T" \
+    --set acceptance=false --descriptors histogram
+done
+
 # Fig. 7: the matches of one Airsim trial, and of a city trial at overlap 0.2 (paper's acceptance
 # rule) where RANSAC alone returns a wrong transform (seed 3: the first such trial in the CSV).
 run matches matches-airsim --dataset airsim-guo --seed 0
