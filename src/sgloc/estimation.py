@@ -56,22 +56,6 @@ def _kabsch(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> np.ndarray
     return make_transform(R, cd - R @ cs)
 
 
-def kabsch_batch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unweighted Kabsch for a batch: src, dst (B,k,3) -> R (B,3,3), t (B,3) (dst = R src + t)."""
-    cs, cd = src.mean(axis=1), dst.mean(axis=1)
-    H = np.einsum("bki,bkj->bij", src - cs[:, None], dst - cd[:, None])
-    U, _, Vt = np.linalg.svd(H)
-    V = np.swapaxes(Vt, 1, 2)
-    d = np.sign(np.linalg.det(V @ np.swapaxes(U, 1, 2)))
-    d[d == 0] = 1.0
-    D = np.zeros((len(src), 3, 3))
-    D[:, 0, 0] = D[:, 1, 1] = 1.0
-    D[:, 2, 2] = d
-    R = V @ D @ np.swapaxes(U, 1, 2)
-    t = cd - np.einsum("bij,bj->bi", R, cs)
-    return R, t
-
-
 def rigid_from_triplets(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Hypotheses from minimal samples: src, dst (B,3,3) point triplets -> R (B,3,3), t (B,3).
 
