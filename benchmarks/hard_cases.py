@@ -1,0 +1,815 @@
+"""Hard real cases: reverse revisits, crossings, low overlap, small maps, one scan against a map,
+non-overlapping pairs (KITTI 00 LiDAR objects), the rendered city at overlap 0.1 / 0.2 and Guo's
+Airsim maps, localized by several named configurations.
+
+    python benchmarks/hard_cases.py [--quick] [--only CATEGORY ...] [--configs NAME ...]
+        [--variant 'NAME=key=value,key=value'] [--workers N] [--heldout] [--out DIR]
+        [--update-docs]
+
+Prints per category and configuration: localized within tolerance, wrong (accepted but outside
+it; for negatives any accept), refused, and the median CPU time of the localize call. Writes
+pairs.csv (one row per pair and configuration) and table.md under --out; with --update-docs
+also docs/hard_cases.md and docs/hard_cases.png. See HEADER below for the definitions.
+"""
+
+from __future__ import annotations
+
+import os
+
+# Small matrices: one BLAS thread is fastest and keeps timings stable on a shared machine.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import csv  # noqa: E402
+import dataclasses  # noqa: E402
+import functools  # noqa: E402
+import math  # noqa: E402
+import re  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from collections.abc import Iterable, Sequence  # noqa: E402
+from dataclasses import dataclass  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from sgloc.evaluation.pairs import Pair, _moved_target  # noqa: E402
+from sgloc.evaluation.pairs_kitti import (  # noqa: E402
+    Kitti00Pairs,
+    _kitti_graph,
+    _kitti_sequence,
+    route_overlap,
+)
+from sgloc.geometry import invert, transform_error  # noqa: E402
+from sgloc.graph import SemanticGraph  # noqa: E402
+
+#: Last scan of the tuning part of KITTI 00; pairs with any scan after it are held out.
+TUNING_LAST_SCAN = 3000
+EDGE_RADIUS = 20.0
+MAX_TRANSLATION, MAX_ROLL_PITCH_DEG = 200.0, 5.0
+#: Heading difference (deg) at the revisit: reverse above, same-direction below, crossing between.
+REVERSE_DEG, SAME_DEG = 135.0, 45.0
+NEGATIVE_GAP_M = 150.0
+OVERLAP_RADIUS = 10.0
+LOW_OVERLAP = (0.2, 0.3)
+MAP_LENGTHS = (300, 200, 150, 100)  # scans (~0.85 m each), cycled over a category's pairs
+SMALL_LENGTH = 50
+#: Two pairs of a category differ by at least this many scans in the target or query window.
+MIN_SHIFT = 20
+SCAN_TARGET_LENGTH = 300
+NEGATIVE_QUERY_LENGTHS = (1, 50, 150, 300)
+#: Ground-truth check (see gt_check): overlap radius, largest ICP shift, fewest aligned objects.
+GT_NEAR, GT_SHIFT_M, GT_MIN_WITHIN = 3.0, 1.5, 3
+
+KITTI_CATEGORIES = (
+    "reverse",
+    "same",
+    "crossing",
+    "low_overlap",
+    "small_maps",
+    "scan_to_map",
+    "negatives",
+)
+CATEGORIES = (*KITTI_CATEGORIES, "city_0.1", "city_0.2", "airsim")
+#: Positives per category (full, quick); KITTI positive categories give fewer if the data has
+#: fewer distinct revisits.
+COUNTS = {"kitti": (15, 2), "negatives": (100, 4), "city": (10, 2), "airsim": (100, 3)}
+#: (translation m, rotation deg) within which a localized positive counts as right.
+TOLERANCE = {"airsim": (5.0, 2.0)}
+DEFAULT_TOLERANCE = (3.0, 3.0)
+
+# ---------------------------------------------------------------------------------------------
+# Configurations. `previous` spells out every default of sgloc at commit 5466411, so that later
+# default changes do not alter it; settings that appear later keep their (new) defaults and are
+# listed in the printout.
+PREVIOUS: dict[str, Any] = {
+    "descriptor": "histogram",
+    "rejection": "neighbor",
+    "tau": 5.0,
+    "eta": 0.5,
+    "form": "distance",
+    "min_similarity": 0.5,
+    "top_k": 1,
+    "mutual": False,
+    "ransac_threshold": 5.0,
+    "iterations": 1000,
+    "min_inliers": 5,
+    "min_inlier_ratio": 0.01,
+    "scoring": "msac",
+    "confidence": 0.999,
+    "batch": 100,
+    "refit_rounds": 2,
+    "class_weights": None,
+    "robust_refit": True,
+    "icp": False,
+    "icp_max_distance": 5.0,
+    "acceptance": {
+        "enabled": True,
+        "min_confidence": 0.9999,
+        "radius": None,
+        "min_spread": 5.0,
+        "distinct_translation": 10.0,
+        "distinct_rotation": 10.0,
+        "runner_up_samples": 128,
+    },
+}
+#: Settings of LocalizerConfig.to_dict() at commit 5466411, nested ones as "stage.name" (newer
+#: ones are reported, since `previous` and `paper` then take their current defaults).
+PREVIOUS_CONFIG_KEYS = {
+    "descriptor", "descriptor_params", "rejection", "rejection_params", "class_weights",
+    "robust_refit", "icp", "icp_max_distance",
+    "matching.min_similarity", "matching.top_k", "matching.mutual",
+    "ransac.threshold", "ransac.iterations", "ransac.min_inliers", "ransac.min_inlier_ratio",
+    "ransac.scoring", "ransac.confidence", "ransac.batch", "ransac.refit_rounds",
+    "acceptance.enabled", "acceptance.min_confidence", "acceptance.radius",
+    "acceptance.min_spread", "acceptance.distinct_translation", "acceptance.distinct_rotation",
+    "acceptance.runner_up_samples",
+}  # fmt: skip
+#: The paper's pipeline: histogram + neighbor (Alg. 1), Guo's RANSAC (1000 fixed iterations,
+#: most inliers, >= 5 inliers and >= 1 %), T_error = tau = 5 m, plain weighted fit, and Guo's
+#: acceptance rule only.
+PAPER: dict[str, Any] = {
+    **{k: v for k, v in PREVIOUS.items() if k != "acceptance"},
+    "scoring": "count",
+    "confidence": None,
+    "robust_refit": False,
+    "acceptance": False,
+}
+CONFIGS: dict[str, dict[str, Any]] = {"paper": PAPER, "previous": PREVIOUS, "default": {}}
+DEFAULT_CONFIGS = ("paper", "previous", "default")
+
+
+def parse_value(text: str) -> Any:
+    """A setting's value from the command line: YAML scalars/collections, None, else the text."""
+    import yaml
+
+    if text.strip() in {"None", "none"}:
+        return None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError:
+        return text
+
+
+def parse_variant(spec: str) -> tuple[str, dict[str, Any]]:
+    """'NAME=key=value,key=value' -> (NAME, settings). `base=paper|previous` starts from that
+    configuration (default: no settings, i.e. the tree's defaults)."""
+    name, sep, rest = spec.partition("=")
+    if not sep or not name.strip():
+        raise SystemExit(f"--variant {spec!r}: expected NAME=key=value,key=value")
+    settings: dict[str, Any] = {}
+    for item in re.split(r",(?=\s*\w+\s*=)", rest) if rest.strip() else []:
+        key, eq, value = item.partition("=")
+        if not eq:
+            raise SystemExit(f"--variant {spec!r}: {item!r} is not key=value")
+        settings[key.strip()] = parse_value(value.strip())
+    base = settings.pop("base", None)
+    if base is not None:
+        if base not in CONFIGS:
+            raise SystemExit(f"--variant {spec!r}: unknown base {base!r}")
+        settings = {**CONFIGS[base], **settings}
+    return name.strip(), settings
+
+
+# ---------------------------------------------------------------------------------------------
+# Pairs.
+
+
+@dataclass(frozen=True)
+class PairSpec:
+    """One labelled pair, cheap to pickle; `make_pair` builds its graphs (once per process).
+
+    kind: "kitti" (target = scans a, query = scans b; a one-scan b holds that scan's objects),
+    "city" or "airsim". k: index of the refined revisit transform the GT chains through
+    (-1: raw poses, used only for negatives). seed: the random motion of the target.
+    """
+
+    category: str
+    index: int
+    kind: str
+    seed: int
+    positive: bool = True
+    a: tuple[int, int] = (0, 0)
+    b: tuple[int, int] = (0, 0)
+    k: int = -1
+    heading_deg: float = float("nan")
+    overlap: float = float("nan")
+    revisit_m: float = float("nan")
+    city_overlap: float = 0.0
+    n_worlds: int = 5
+
+    @property
+    def label(self) -> str:
+        if self.kind == "kitti":
+            return f"A{self.a[0]}-{self.a[1]} B{self.b[0]}-{self.b[1]}"
+        return f"seed {self.seed}"
+
+
+def kitti_root() -> str:
+    from sgloc.data import data_path
+
+    return str(data_path("kitti00").resolve())
+
+
+@functools.lru_cache(maxsize=1)
+def headings_deg(root: str) -> np.ndarray:
+    """(N,) heading of each scan's LiDAR x axis on the ground plane (camera x-z), degrees."""
+    L, _, _ = _kitti_sequence(root)
+    return np.degrees(np.arctan2(L[:, 2, 0], L[:, 0, 0]))
+
+
+def heading_difference(root: str, i: int, j: int) -> float:
+    """Absolute difference (deg, 0-180) of the driving directions at scans i and j."""
+    h = headings_deg(root)
+    return float(abs((h[j] - h[i] + 180.0) % 360.0 - 180.0))
+
+
+def _in_split(scans: Iterable[int], heldout: bool) -> bool:
+    beyond = any(s > TUNING_LAST_SCAN for s in scans)
+    return beyond if heldout else not beyond
+
+
+def _window(centre: int, length: int, n: int) -> tuple[int, int]:
+    first = int(np.clip(centre - length // 2, 0, n - length))
+    return first, first + length - 1
+
+
+def _spread(items: Sequence[Any], n: int) -> list[Any]:
+    """Up to n items evenly spread over the sequence."""
+    if len(items) <= n:
+        return list(items)
+    return [items[int(round(x))] for x in np.linspace(0, len(items) - 1, n)]
+
+
+def _distinct_revisits(root: str, ks: np.ndarray, min_step: int = 5) -> list[int]:
+    """Revisit indices sorted by (i, j), dropping one whose i and j both lie within `min_step`
+    scans of an already kept one (near-duplicate entries of the revisit files)."""
+    _, ij, _ = _kitti_sequence(root)
+    kept: list[int] = []
+    for k in ks[np.lexsort((ij[ks, 1], ij[ks, 0]))]:
+        if all(np.abs(ij[k] - ij[c]).max() >= min_step for c in kept):
+            kept.append(int(k))
+    return kept
+
+
+def revisit_candidates(root: str, category: str, heldout: bool) -> list[int]:
+    """Indices of the refined revisits (i, j) usable for a map-to-map category."""
+    _, ij, _ = _kitti_sequence(root)
+    d = np.array([heading_difference(root, i, j) for i, j in ij])
+    sel = {
+        "reverse": d > REVERSE_DEG,
+        "same": d < SAME_DEG,
+        "crossing": (d >= SAME_DEG) & (d <= REVERSE_DEG),
+    }.get(category, np.ones(len(ij), bool))
+    return _distinct_revisits(root, np.flatnonzero(sel))
+
+
+def _revisit_spec(root, category, index, k, a, b, heldout) -> PairSpec | None:
+    _, ij, _ = _kitti_sequence(root)
+    if not _in_split((*a, *b), heldout):
+        return None
+    i, j = (int(x) for x in ij[k])
+    L, _, _ = _kitti_sequence(root)
+    xy = L[:, [0, 2], 3]
+    ov = 1.0
+    if b[1] > b[0]:
+        ov = route_overlap(xy[b[0] : b[1] + 1], xy[a[0] : a[1] + 1], OVERLAP_RADIUS)
+    return PairSpec(
+        category, index, "kitti", 1000 * CATEGORIES.index(category) + index, True, a, b, int(k),
+        heading_difference(root, i, j), round(ov, 3), float(np.linalg.norm(xy[i] - xy[j])),
+    )  # fmt: skip
+
+
+def kitti_positive_specs(category: str, n: int, heldout: bool) -> list[PairSpec]:
+    """Up to n positive pairs of a KITTI category, spread over its distinct revisits."""
+    root = kitti_root()
+    L, ij, _ = _kitti_sequence(root)
+    N = len(L)
+    specs: list[PairSpec] = []
+    for k in revisit_candidates(root, category, heldout):
+        i, j = (int(x) for x in ij[k])
+        idx = len(specs)
+        if category == "small_maps":
+            a, b = _window(i, SMALL_LENGTH, N), _window(j, SMALL_LENGTH, N)
+        elif category == "scan_to_map":
+            a, b = _window(i, SCAN_TARGET_LENGTH, N), (j, j)
+            if len(scan_graph(root, j)) < 3:  # localize needs 3 objects
+                continue
+        elif category == "low_overlap":
+            found = _low_overlap_windows(root, int(k), heldout, specs)
+            if found is None:
+                continue
+            a, b = found
+        else:
+            length = MAP_LENGTHS[idx % len(MAP_LENGTHS)]
+            a, b = _window(i, length, N), _window(j, length, N)
+        if a[1] >= b[0]:
+            continue
+        spec = _revisit_spec(root, category, idx, k, a, b, heldout)
+        if spec is not None and _distinct(a, b, specs):
+            specs.append(spec)
+    return _spread(specs, n)
+
+
+def _distinct(a: tuple[int, int], b: tuple[int, int], specs: list[PairSpec]) -> bool:
+    """Whether windows (a, b) differ from every chosen pair's by >= MIN_SHIFT scans in a or b."""
+    return all(abs(a[0] - s.a[0]) >= MIN_SHIFT or abs(b[0] - s.b[0]) >= MIN_SHIFT for s in specs)
+
+
+def _low_overlap_windows(root: str, k: int, heldout: bool, specs: list[PairSpec]):
+    """(A, B) windows of 300 scans around revisit k with route overlap in LOW_OVERLAP (the one
+    closest to its middle that is distinct from `specs`), using the `kitti00` pair source's
+    sliding windows."""
+    src = Kitti00Pairs(root=root)
+    a, starts, ovs = src._sliding(k)
+    ends = starts + src.length - 1
+    ok = (ovs >= LOW_OVERLAP[0]) & (ovs <= LOW_OVERLAP[1])
+    ok &= np.array(
+        [_in_split((*a, s, e), heldout) for s, e in zip(starts, ends, strict=True)], bool
+    )
+    if not ok.any():
+        return None
+    for c in np.flatnonzero(ok)[np.argsort(np.abs(ovs[ok] - np.mean(LOW_OVERLAP)))]:
+        if _distinct(a, (int(starts[c]), int(ends[c])), specs):
+            return a, (int(starts[c]), int(ends[c]))
+    return None
+
+
+def negative_specs(n: int, heldout: bool, seed: int = 7) -> list[PairSpec]:
+    """n pairs of scan ranges whose trajectories stay >= NEGATIVE_GAP_M apart (target 300 scans,
+    query 1-300 scans); held out: the query lies after the tuning scans."""
+    from scipy.spatial.distance import cdist
+
+    root = kitti_root()
+    L, _, _ = _kitti_sequence(root)
+    xy, N = L[:, [0, 2], 3], len(L)
+    rng = np.random.default_rng(seed)
+    specs: list[PairSpec] = []
+    while len(specs) < n:
+        lq = int(NEGATIVE_QUERY_LENGTHS[len(specs) % len(NEGATIVE_QUERY_LENGTHS)])
+        hi = TUNING_LAST_SCAN if not heldout else N - 1
+        lo_q = 0 if not heldout else TUNING_LAST_SCAN + 1
+        a0 = int(rng.integers(0, hi - 300 + 2 if not heldout else N - 300))
+        b0 = int(rng.integers(lo_q, hi - lq + 2))
+        a, b = (a0, a0 + 299), (b0, b0 + lq - 1)
+        if not _in_split((*a, *b), heldout):
+            continue
+        if cdist(xy[a[0] : a[1] + 1], xy[b[0] : b[1] + 1]).min() < NEGATIVE_GAP_M:
+            continue
+        if lq == 1 and len(scan_graph(root, b0)) < 3:
+            continue
+        idx = len(specs)
+        specs.append(
+            PairSpec("negatives", idx, "kitti", 1000 * CATEGORIES.index("negatives") + idx,
+                     False, a, b, -1, float("nan"), 0.0)
+        )  # fmt: skip
+    return specs
+
+
+def category_specs(category: str, quick: bool = False, heldout: bool = False) -> list[PairSpec]:
+    """The labelled pairs of one category (see HEADER)."""
+    pick = 1 if quick else 0
+    if category in KITTI_CATEGORIES[:-1]:
+        return kitti_positive_specs(category, COUNTS["kitti"][pick], heldout)
+    if category == "negatives":
+        return negative_specs(COUNTS["negatives"][pick], heldout)
+    cid = 1000 * CATEGORIES.index(category)
+    if category.startswith("city_"):
+        ov = float(category.split("_")[1])
+        n = COUNTS["city"][pick]
+        # Tuning: cities 0-4; held out: cities 5-9 (10 worlds, seeds 5-9, 15-19).
+        seeds = [s + (5 if heldout else 0) + 10 * (s // 5) for s in range(n)]
+        return [
+            PairSpec(category, i, "city", s, city_overlap=ov, n_worlds=10 if heldout else 5)
+            for i, s in enumerate(seeds)
+        ]
+    if category == "airsim":
+        return [PairSpec(category, i, "airsim", cid + i) for i in range(COUNTS["airsim"][pick])]
+    raise SystemExit(f"unknown category {category!r}; choose from {', '.join(CATEGORIES)}")
+
+
+@functools.lru_cache(maxsize=512)
+def scan_graph(root: str, scan: int) -> SemanticGraph:
+    """The objects of one scan (each seen once, so no minimum observation count), LiDAR frame."""
+    from sgloc.datasets import make_dataset
+    from sgloc.extraction import build_graph, kitti_objects_extraction_config
+
+    cfg = dataclasses.replace(kitti_objects_extraction_config(), min_observations=1)
+    ds = make_dataset("kitti_objects", root, scans=(scan, scan), start_frame=True)
+    return build_graph(ds, cfg, name=f"kitti00[{scan}]").with_edge_radius(EDGE_RADIUS)
+
+
+def kitti_ground_truth(root: str, a: tuple[int, int], b: tuple[int, int], k: int) -> np.ndarray:
+    """T_A_B (query = scans b's first-scan frame -> target = scans a's): the poses chained
+    through the refined revisit transform k (p_j = M p_i), or the raw poses when k < 0."""
+    L, ij, M = _kitti_sequence(root)
+    if k < 0:
+        return invert(L[a[0]]) @ L[b[0]]
+    i, j = ij[k]
+    return invert(L[a[0]]) @ L[i] @ invert(M[k]) @ invert(L[j]) @ L[b[0]]
+
+
+def make_pair(spec: PairSpec) -> Pair:
+    """Build the pair of a spec (graphs cached per process; target moved by a random motion)."""
+    if spec.kind == "city":
+        from sgloc.evaluation.pairs_sim import CityPairs
+
+        return CityPairs(overlap=spec.city_overlap, n_worlds=spec.n_worlds)(spec.seed)
+    if spec.kind == "airsim":
+        from sgloc.evaluation.pairs import AirsimGuoPairs
+
+        return AirsimGuoPairs().resolved()(spec.seed)
+    root = kitti_root()
+    target = _kitti_graph(root, spec.a[0], spec.a[1], EDGE_RADIUS)
+    if spec.b[0] == spec.b[1]:
+        query = scan_graph(root, spec.b[0])
+    else:
+        query = _kitti_graph(root, spec.b[0], spec.b[1], EDGE_RADIUS)
+    T0 = kitti_ground_truth(root, spec.a, spec.b, spec.k)
+    return _moved_target(query, target, T0, spec.seed, MAX_TRANSLATION, MAX_ROLL_PITCH_DEG)
+
+
+def gt_residuals(pair: Pair) -> np.ndarray:
+    """Distance (m) of each query object, moved by the ground truth, to the nearest target
+    object of its class (inf when the class is absent)."""
+    from scipy.spatial import cKDTree
+
+    q = pair.query.positions @ pair.T_target_query[:3, :3].T + pair.T_target_query[:3, 3]
+    out = np.full(len(q), np.inf)
+    for c in np.unique(pair.query.labels):
+        tq, tt = pair.query.labels == c, pair.target.labels == c
+        if tt.any():
+            out[tq] = cKDTree(pair.target.positions[tt]).query(q[tq])[0]
+    return out
+
+
+def gt_check(pair: Pair) -> dict[str, Any]:
+    """How well the ground truth aligns the two object maps. Overlap objects = query objects
+    with a same-class target object within GT_NEAR m under the GT. `gt_within_1m`: the share of
+    them within 1 m under the GT; `gt_shift_m`: median displacement of them when the GT is
+    refined by mutual-nearest-neighbour ICP (2 m radius); `gt_ok`: that shift <= GT_SHIFT_M and,
+    after it, at least half of them (and >= GT_MIN_WITHIN objects) within 1 m."""
+    from sgloc.estimation import icp_refine
+
+    d = gt_residuals(pair)
+    near = d < GT_NEAR
+    if near.sum() < GT_MIN_WITHIN:
+        return {"gt_ok": False, "gt_overlap_objects": int(near.sum()), "gt_within_1m": 0.0,
+                "gt_shift_m": float("nan")}  # fmt: skip
+    q, T = pair.query, pair.T_target_query
+    T2 = icp_refine(q.positions, q.labels, pair.target.positions, pair.target.labels, T, 2.0)
+    p = q.positions[near]
+    shift = float(
+        np.median(
+            np.linalg.norm((p @ T2[:3, :3].T + T2[:3, 3]) - (p @ T[:3, :3].T + T[:3, 3]), axis=1)
+        )
+    )
+    d2 = gt_residuals(dataclasses.replace(pair, T_target_query=T2))[near]
+    ok = shift <= GT_SHIFT_M and (d2 < 1.0).mean() >= 0.5 and (d2 < 1.0).sum() >= GT_MIN_WITHIN
+    return {
+        "gt_ok": bool(ok),
+        "gt_overlap_objects": int(near.sum()),
+        "gt_within_1m": round(float((d[near] < 1.0).mean()), 3),
+        "gt_shift_m": round(shift, 3),
+    }
+
+
+# ---------------------------------------------------------------------------------------------
+# Running.
+
+
+def new_config_keys() -> dict[str, Any]:
+    """LocalizerConfig settings that did not exist at commit 5466411, with their current
+    defaults (`previous` and `paper` take those; override them with a --variant)."""
+    from sgloc.config import LocalizerConfig
+
+    flat: dict[str, Any] = {}
+    for key, value in LocalizerConfig().to_dict().items():
+        if isinstance(value, dict) and key in {"matching", "ransac", "acceptance"}:
+            flat |= {f"{key}.{k}": v for k, v in value.items()}
+        else:
+            flat[key] = value
+    return {k: v for k, v in flat.items() if k not in PREVIOUS_CONFIG_KEYS}
+
+
+def run_spec(spec: PairSpec, configs: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
+    """Localize one pair with every configuration (interleaved); one row per configuration."""
+    from sgloc.evaluation.trials import limit_blas_threads
+    from sgloc.localizer import localize
+
+    limit_blas_threads()
+    pair = make_pair(spec)
+    gt = gt_check(pair) if spec.kind == "kitti" and spec.positive else {"gt_ok": True}
+    T_own = invert(pair.T_moved_own)
+    tol_t, tol_r = TOLERANCE.get(spec.category, DEFAULT_TOLERANCE)
+    rows = []
+    for name, settings in configs.items():
+        c0 = time.thread_time()
+        res = localize(pair.query, pair.target, seed=spec.seed, **settings)
+        ms = 1e3 * (time.thread_time() - c0)
+        te = re_ = float("nan")
+        if res.success:
+            te, re_ = transform_error(T_own @ res.transform, T_own @ pair.T_target_query)
+        right = spec.positive and res.success and te <= tol_t and re_ <= tol_r
+        outcome = "localized" if right else ("wrong" if res.success else "refused")
+        rows.append(
+            {
+                "category": spec.category, "index": spec.index, "config": name,
+                "outcome": outcome, "translation_error_m": te, "rotation_error_deg": re_,
+                "ms": ms, "positive": spec.positive, **gt_columns(gt), "n_query": len(pair.query),
+                "n_target": len(pair.target), "heading_deg": round(spec.heading_deg, 1),
+                "overlap": spec.overlap, "revisit_m": round(spec.revisit_m, 1),
+                "pair": spec.label, "reason": res.reason[:80],
+            }
+        )  # fmt: skip
+    return rows
+
+
+def gt_columns(gt: dict[str, Any]) -> dict[str, Any]:
+    keys = ("gt_ok", "gt_overlap_objects", "gt_within_1m", "gt_shift_m")
+    return {k: gt.get(k, "") for k in keys}
+
+
+def _run_chunk(args: tuple[list[PairSpec], dict[str, dict[str, Any]]]) -> list[dict[str, Any]]:
+    specs, configs = args
+    return [row for spec in specs for row in run_spec(spec, configs)]
+
+
+def run_all(
+    specs: list[PairSpec], configs: dict[str, dict[str, Any]], workers: int = 1
+) -> list[dict[str, Any]]:
+    """Rows for every (pair, configuration). Pairs sharing a map go to the same worker."""
+    from rich.progress import Progress
+
+    chunks: dict[tuple, list[PairSpec]] = {}
+    for s in specs:  # group by target map, so each map is built in one process
+        chunks.setdefault((s.category, s.a) if s.kind == "kitti" else (s.category, s.index), [])
+        chunks[(s.category, s.a) if s.kind == "kitti" else (s.category, s.index)].append(s)
+    jobs = [(c, configs) for c in chunks.values()]
+    rows: list[dict[str, Any]] = []
+    with Progress() as bar:
+        task = bar.add_task("pairs", total=len(specs))
+        if workers <= 1:
+            for job in jobs:
+                rows += _run_chunk(job)
+                bar.advance(task, len(job[0]))
+        else:
+            from concurrent.futures import ProcessPoolExecutor, as_completed
+
+            with ProcessPoolExecutor(workers) as pool:
+                futs = {pool.submit(_run_chunk, job): len(job[0]) for job in jobs}
+                for f in as_completed(futs):
+                    rows += f.result()
+                    bar.advance(task, futs[f])
+    return sorted(rows, key=lambda r: (CATEGORIES.index(r["category"]), r["index"]))
+
+
+# ---------------------------------------------------------------------------------------------
+# Reporting.
+
+
+def summarize(rows: list[dict[str, Any]], configs: Sequence[str]) -> list[dict[str, Any]]:
+    """One row per (category, configuration): counts over the pairs whose GT passed the check."""
+    out = []
+    for cat in CATEGORIES:
+        for name in configs:
+            sel = [r for r in rows if r["category"] == cat and r["config"] == name]
+            if not sel:
+                continue
+            kept = [r for r in sel if r["gt_ok"]]
+            loc = [r for r in kept if r["outcome"] == "localized"]
+            te = [r["translation_error_m"] for r in loc]
+            out.append(
+                {
+                    "category": cat, "config": name, "pairs": len(kept),
+                    "dropped": len(sel) - len(kept),
+                    "localized": len(loc),
+                    "wrong": sum(r["outcome"] == "wrong" for r in kept),
+                    "refused": sum(r["outcome"] == "refused" for r in kept),
+                    "mean_te_m": float(np.mean(te)) if te else float("nan"),
+                    "median_ms": float(np.median([r["ms"] for r in kept])) if kept else math.nan,
+                }
+            )  # fmt: skip
+    return out
+
+
+def markdown_table(summary: list[dict[str, Any]]) -> str:
+    lines = [
+        "| category | config | pairs | localized | wrong | refused | mean err. m (localized) "
+        "| median ms |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for s in summary:
+        pos = s["category"] != "negatives"
+        loc = f"{s['localized']} ({100 * s['localized'] / max(s['pairs'], 1):.0f} %)"
+        drop = f" (+{s['dropped']} dropped)" if s["dropped"] else ""
+        lines.append(
+            f"| {s['category']} | {s['config']} | {s['pairs']}{drop} | {loc if pos else '-'} | "
+            f"{s['wrong']} | {s['refused']} | "
+            f"{'-' if math.isnan(s['mean_te_m']) else format(s['mean_te_m'], '.2f')} | "
+            f"{s['median_ms']:.1f} |"
+        )
+    return "\n".join(lines)
+
+
+def plot(summary: list[dict[str, Any]], configs: Sequence[str], path: Path) -> None:
+    """Grouped stacked bars: per category one bar per configuration, split into localized /
+    wrong / refused as fractions of the category's pairs."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cats = [c for c in CATEGORIES if any(s["category"] == c for s in summary)]
+    width = 0.8 / len(configs)
+    fig, ax = plt.subplots(figsize=(max(8, 1.3 * len(cats) * len(configs) / 2), 4.8))
+    colours = {"localized": "#2a9d8f", "wrong": "#e63946", "refused": "#bdbdbd"}
+    hatches = ["", "//", "..", "xx", "\\\\", "oo"]
+    for ci, name in enumerate(configs):
+        x = np.arange(len(cats)) - 0.4 + width * (ci + 0.5)
+        bottom = np.zeros(len(cats))
+        for outcome, colour in colours.items():
+            vals = []
+            for c in cats:
+                s = next((s for s in summary if s["category"] == c and s["config"] == name), None)
+                vals.append(s[outcome] / max(s["pairs"], 1) if s else 0.0)
+            ax.bar(x, vals, width * 0.92, bottom=bottom, color=colour, edgecolor="black",
+                   linewidth=0.4, hatch=hatches[ci % len(hatches)])  # fmt: skip
+            bottom += np.array(vals)
+    ax.set_xticks(np.arange(len(cats)))
+    counts = {c: next(s["pairs"] for s in summary if s["category"] == c) for c in cats}
+    ax.set_xticklabels([f"{c}\n(n={counts[c]})" for c in cats], fontsize=8)
+    ax.set_ylabel("fraction of pairs")
+    ax.set_ylim(0, 1.0)
+    ax.set_title("Hard cases: bars left to right per category = " + ", ".join(configs))
+    from matplotlib.patches import Patch
+
+    handles = [Patch(facecolor=c, edgecolor="black", label=o) for o, c in colours.items()]
+    handles += [
+        Patch(facecolor="white", edgecolor="black", hatch=hatches[i % len(hatches)], label=n)
+        for i, n in enumerate(configs)
+    ]
+    ax.legend(handles=handles, ncol=2, fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+HEADER = """# Hard cases: reverse revisits, one scan against a map, few-class LiDAR objects
+
+Generated by `{command}` (do not edit by hand). {when}
+
+## Pairs
+KITTI 00 LiDAR objects (GOSMatch: vehicle / trunk / pole, `$SGLOC_DATA/kitti00`); every map
+is built by the `kitti00` pair source's builder (scan range -> one graph in its first scan's
+LiDAR frame, kitti_objects extraction preset, edges within 20 m). Tuning pairs use scans
+0-{last} only; `--heldout` builds the same categories from pairs with a scan after {last}
+(never used to choose settings). Each map-to-map pair is centred on a distinct refined revisit
+(i, j) of `kitti_lc_test_*.txt` (target = scans around i, query = scans around j, j > i):
+- reverse / same / crossing: heading difference of the LiDAR's driving direction at i and j
+  above {rev:g} deg / below {same:g} deg / in between; map lengths cycle over {lengths} scans
+  (~0.85 m a scan);
+- low_overlap: 300-scan maps, the query window slid along its route until {lo:g}-{hi:g} of it
+  passes within 10 m of the target's route (`route_overlap`), any heading;
+- small_maps: {small}-scan maps (~40 m) around i and j, any heading;
+- scan_to_map: the objects of scan j alone (at least 3) against {stl} scans around i;
+- negatives: random scan ranges (target 300 scans, query 1 / 50 / 150 / 300 scans) whose
+  trajectories stay >= {gap:g} m apart everywhere; any accept is wrong.
+Ground truth: the poses chained through the revisit's refined transform M (p_j = M p_i,
+LiDAR frames). Checked per pair (overlap objects = query objects with a same-class target
+object within {near:g} m under the GT): refining the GT by mutual-nearest-neighbour ICP must move
+them by a median <= {shift:g} m, after which at least half of them (and >= {minw}) lie within
+1 m of a same-class target object; pairs failing this are dropped (column `dropped`).
+{gtstats}
+Rendered city (`city` pair source): two robots drive opposite ways (reverse revisits by
+construction) sharing 10 % / 20 % of their routes; tuning uses cities 0-4, held out 5-9.
+airsim: Guo's cloud1 against cloud2 under random transforms (`airsim-guo`).
+Every target map is moved by a random rigid transform (any yaw, roll/pitch <= 5 deg, up to
+200 m), so no method profits from the identity.
+
+## Scoring
+Error = T_est @ inv(T_gt) in the target map's own (unmoved) frame. localized = accepted and
+within 3 m / 3 deg (airsim: 5 m / 2 deg, Guo's two maps disagree by metres); wrong = accepted
+but outside (for negatives: any accept); refused = not localized. Mean error over the localized
+pairs; median = CPU time of the whole `localize` call (thread time, one BLAS thread).
+
+## Configurations
+- paper: histogram + neighbor (Alg. 1, tau 5 m), Guo's RANSAC (1000 iterations, most inliers,
+  T_error 5 m, >= 5 inliers and >= 1 %), plain weighted fit, Guo's acceptance rule only.
+- previous: sgloc's defaults before the hard-case work, written out setting by setting.
+- default: `localize(query, target)` with no settings (this tree's defaults).
+{extra}
+"""
+
+
+def gt_summary(rows: list[dict[str, Any]]) -> str:
+    """One sentence on the measured GT quality of the KITTI positives."""
+    first = rows[0]["config"] if rows else ""
+    sel = [r for r in rows if r["config"] == first and r["gt_overlap_objects"] != ""]
+    if not sel:
+        return ""
+    share = [r["gt_within_1m"] for r in sel]
+    shift = [r["gt_shift_m"] for r in sel if not math.isnan(r["gt_shift_m"])]
+    dropped = sum(not r["gt_ok"] for r in sel)
+    return (
+        f"Measured on these {len(sel)} KITTI positives: under the GT a median "
+        f"{100 * np.median(share):.0f} % (min {100 * min(share):.0f} %) of the overlap objects lie "
+        f"within 1 m of a same-class object; ICP moves them by a median {np.median(shift):.2f} m "
+        f"(max {max(shift):.2f} m); {dropped} pair(s) dropped."
+    )
+
+
+def header(
+    args: argparse.Namespace, configs: dict[str, dict[str, Any]], rows: list[dict[str, Any]]
+) -> str:
+    import sgloc
+
+    try:  # the commit of the sgloc under test (which may be another tree than this script's)
+        commit = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True,
+            cwd=Path(sgloc.__file__).parent,
+        ).stdout.strip()  # fmt: skip
+    except (OSError, subprocess.CalledProcessError):
+        commit = "unknown"
+    dirty = subprocess.run(["git", "status", "--porcelain", "--", "."], capture_output=True,
+                           text=True, cwd=Path(sgloc.__file__).parent).stdout.strip()  # fmt: skip
+    commit += " (with uncommitted changes)" if dirty else ""
+    extra = [f"- {n}: {s}" for n, s in configs.items() if n not in CONFIGS]
+    new = new_config_keys()
+    if new:
+        extra.append(f"- settings newer than `previous` (at their current defaults): {new}")
+    cmd = "python benchmarks/hard_cases.py " + " ".join(sys.argv[1:])
+    when = f"Code at commit {commit}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}."
+    gtstats = gt_summary(rows)
+    return HEADER.format(
+        command=cmd.strip(), when=when, last=TUNING_LAST_SCAN, rev=REVERSE_DEG, same=SAME_DEG,
+        lengths="/".join(map(str, MAP_LENGTHS)), lo=LOW_OVERLAP[0], hi=LOW_OVERLAP[1],
+        small=SMALL_LENGTH, stl=SCAN_TARGET_LENGTH, gap=NEGATIVE_GAP_M, near=GT_NEAR,
+        shift=GT_SHIFT_M, minw=GT_MIN_WITHIN, gtstats=gtstats, extra="\n".join(extra),
+    )  # fmt: skip
+
+
+def write_rows(rows: list[dict[str, Any]], path: Path) -> None:
+    with path.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+
+
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--quick", action="store_true", help="a few pairs per category")
+    p.add_argument("--only", nargs="+", metavar="CATEGORY", choices=CATEGORIES)
+    p.add_argument("--configs", nargs="+", metavar="NAME", help="of paper, previous, default "
+                   "and the --variant names (default: all of them)")  # fmt: skip
+    p.add_argument("--variant", action="append", default=[], metavar="NAME=key=value,...",
+                   help="an extra configuration: localize settings on top of the defaults "
+                   "(base=paper|previous to start from those)")  # fmt: skip
+    p.add_argument("--workers", type=int, default=1, help="processes")
+    p.add_argument("--heldout", action="store_true", help="pairs with scans after 3000")
+    p.add_argument("--out", type=Path, default=Path("results/hard_cases"))
+    p.add_argument("--update-docs", action="store_true", help="write docs/hard_cases.md/.png")
+    return p.parse_args(argv)
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    args = parse_args(argv)
+    configs = dict(CONFIGS)
+    for v in args.variant:
+        name, settings = parse_variant(v)
+        configs[name] = settings
+    names = args.configs or list(configs)
+    unknown = [n for n in names if n not in configs]
+    if unknown:
+        raise SystemExit(f"unknown configuration(s) {unknown}; known: {list(configs)}")
+    configs = {n: configs[n] for n in names}
+    t0 = time.time()
+    specs = [
+        s for c in (args.only or CATEGORIES) for s in category_specs(c, args.quick, args.heldout)
+    ]
+    print(f"{len(specs)} pairs ({time.time() - t0:.1f} s to choose them); configs {names}")
+    if new_config_keys():
+        print(f"note: settings newer than `previous`, at their current defaults: "
+              f"{new_config_keys()}")  # fmt: skip
+    rows = run_all(specs, configs, args.workers)
+    summary = summarize(rows, names)
+    table = markdown_table(summary)
+    print(table)
+    print(f"wall time {time.time() - t0:.0f} s")
+    args.out.mkdir(parents=True, exist_ok=True)
+    tag = ("heldout" if args.heldout else "tuning") + ("-quick" if args.quick else "")
+    write_rows(rows, args.out / f"pairs-{tag}.csv")
+    doc = header(args, configs, rows) + f"\n## Results ({tag})\n\n" + table + "\n"
+    (args.out / f"table-{tag}.md").write_text(doc)
+    if args.update_docs:
+        docs = Path(__file__).resolve().parents[1] / "docs"
+        plot(summary, names, docs / "hard_cases.png")
+        (docs / "hard_cases.md").write_text(doc + "\n![hard cases](hard_cases.png)\n")
+    print(f"rows in {args.out}/pairs-{tag}.csv")
+
+
+if __name__ == "__main__":
+    main()
