@@ -77,8 +77,12 @@ CATEGORIES = (*KITTI_CATEGORIES, "city_0.1", "city_0.2", "airsim")
 #: Positives per category (full, quick); KITTI positive categories give fewer if the data has
 #: fewer distinct revisits.
 COUNTS = {"kitti": (15, 2), "negatives": (100, 4), "city": (10, 2), "airsim": (100, 3)}
+CITY_WORLDS = 10
 #: (translation m, rotation deg) within which a localized positive counts as right.
-TOLERANCE = {"airsim": (5.0, 2.0)}
+#: City: a least-squares fit on every true pair (same-class objects within 3 m under the GT) is
+#: itself 3.2-6.5 m / 0.9-1.6 deg off at overlap 0.1 (1.0-4.6 m at 0.2) at the target's origin,
+#: so a 3 m bound would call right alignments wrong; 10 m / 5 deg is the acceptance benchmark's.
+TOLERANCE = {"airsim": (5.0, 2.0), "city_0.1": (10.0, 5.0), "city_0.2": (10.0, 5.0)}
 DEFAULT_TOLERANCE = (3.0, 3.0)
 
 # ---------------------------------------------------------------------------------------------
@@ -296,8 +300,6 @@ def kitti_positive_specs(category: str, n: int, heldout: bool) -> list[PairSpec]
             a, b = _window(i, SMALL_LENGTH, N), _window(j, SMALL_LENGTH, N)
         elif category == "scan_to_map":
             a, b = _window(i, SCAN_TARGET_LENGTH, N), (j, j)
-            if len(scan_graph(root, j)) < 3:  # localize needs 3 objects
-                continue
         elif category == "low_overlap":
             found = _low_overlap_windows(root, int(k), heldout, specs)
             if found is None:
@@ -311,7 +313,8 @@ def kitti_positive_specs(category: str, n: int, heldout: bool) -> list[PairSpec]
         spec = _revisit_spec(root, category, idx, k, a, b, heldout)
         if spec is not None and _distinct(a, b, specs):
             specs.append(spec)
-    return _spread(specs, n)
+    # localize needs 3 objects (checked after the spread: building a scan's graph costs time)
+    return [s for s in _spread(specs, n) if s.b[1] > s.b[0] or len(scan_graph(root, s.b[0])) >= 3]
 
 
 def _distinct(a: tuple[int, int], b: tuple[int, int], specs: list[PairSpec]) -> bool:
@@ -380,11 +383,11 @@ def category_specs(category: str, quick: bool = False, heldout: bool = False) ->
     if category.startswith("city_"):
         ov = float(category.split("_")[1])
         n = COUNTS["city"][pick]
-        # Tuning: cities 0-4; held out: cities 5-9 (10 worlds, seeds 5-9, 15-19).
-        seeds = [s + (5 if heldout else 0) + 10 * (s // 5) for s in range(n)]
+        # Tuning: cities 0-9, held out: cities 10-19 (one pair each).
+        first = CITY_WORLDS if heldout else 0
         return [
-            PairSpec(category, i, "city", s, city_overlap=ov, n_worlds=10 if heldout else 5)
-            for i, s in enumerate(seeds)
+            PairSpec(category, i, "city", first + i, city_overlap=ov, n_worlds=2 * CITY_WORLDS)
+            for i in range(n)
         ]
     if category == "airsim":
         return [PairSpec(category, i, "airsim", cid + i) for i in range(COUNTS["airsim"][pick])]
@@ -451,7 +454,7 @@ def gt_check(pair: Pair) -> dict[str, Any]:
     with a same-class target object within GT_NEAR m under the GT. `gt_within_1m`: the share of
     them within 1 m under the GT; `gt_shift_m`: median displacement of them when the GT is
     refined by mutual-nearest-neighbour ICP (2 m radius); `gt_ok`: that shift <= GT_SHIFT_M and,
-    after it, at least half of them (and >= GT_MIN_WITHIN objects) within 1 m."""
+    after it, at least GT_MIN_WITHIN of them within 1 m (the maps align near the GT)."""
     from sgloc.estimation import icp_refine
 
     d = gt_residuals(pair)
@@ -468,7 +471,7 @@ def gt_check(pair: Pair) -> dict[str, Any]:
         )
     )
     d2 = gt_residuals(dataclasses.replace(pair, T_target_query=T2))[near]
-    ok = shift <= GT_SHIFT_M and (d2 < 1.0).mean() >= 0.5 and (d2 < 1.0).sum() >= GT_MIN_WITHIN
+    ok = shift <= GT_SHIFT_M and (d2 < 1.0).sum() >= GT_MIN_WITHIN
     return {
         "gt_ok": bool(ok),
         "gt_overlap_objects": int(near.sum()),
@@ -681,18 +684,21 @@ LiDAR frame, kitti_objects extraction preset, edges within 20 m). Tuning pairs u
 Ground truth: the poses chained through the revisit's refined transform M (p_j = M p_i,
 LiDAR frames). Checked per pair (overlap objects = query objects with a same-class target
 object within {near:g} m under the GT): refining the GT by mutual-nearest-neighbour ICP must move
-them by a median <= {shift:g} m, after which at least half of them (and >= {minw}) lie within
-1 m of a same-class target object; pairs failing this are dropped (column `dropped`).
+them by a median <= {shift:g} m (the GT is within that of the best local alignment), after
+which at least {minw} of them lie within 1 m of a same-class target object; pairs failing this
+are dropped (column `dropped`).
 {gtstats}
 Rendered city (`city` pair source): two robots drive opposite ways (reverse revisits by
-construction) sharing 10 % / 20 % of their routes; tuning uses cities 0-4, held out 5-9.
+construction) sharing 10 % / 20 % of their routes; tuning uses cities 0-9, held out 10-19.
 airsim: Guo's cloud1 against cloud2 under random transforms (`airsim-guo`).
 Every target map is moved by a random rigid transform (any yaw, roll/pitch <= 5 deg, up to
 200 m), so no method profits from the identity.
 
 ## Scoring
 Error = T_est @ inv(T_gt) in the target map's own (unmoved) frame. localized = accepted and
-within 3 m / 3 deg (airsim: 5 m / 2 deg, Guo's two maps disagree by metres); wrong = accepted
+within 3 m / 3 deg (airsim: 5 m / 2 deg, Guo's two maps disagree by metres; city: 10 m /
+5 deg, since a least-squares fit on every true pair is itself 1-6.5 m off at the target's
+origin, hundreds of metres from the shared stretch); wrong = accepted
 but outside (for negatives: any accept); refused = not localized. Mean error over the localized
 pairs; median = CPU time of the whole `localize` call (thread time, one BLAS thread).
 
