@@ -187,8 +187,9 @@ class PairSpec:
     """One labelled pair, cheap to pickle; `make_pair` builds its graphs (once per process).
 
     kind: "kitti" (target = scans a, query = scans b; a one-scan b holds that scan's objects),
-    "city" or "airsim". k: index of the refined revisit transform the GT chains through
-    (-1: raw poses, used only for negatives). seed: the random motion of the target.
+    "city" or "airsim". k: index of the refined revisit (i, j) the GT chains through (-1: raw
+    poses, used only for negatives); swap: the query is around i, the target around j (else the
+    reverse). seed: the random motion of the target.
     """
 
     category: str
@@ -202,6 +203,7 @@ class PairSpec:
     heading_deg: float = float("nan")
     overlap: float = float("nan")
     revisit_m: float = float("nan")
+    swap: bool = False
     city_overlap: float = 0.0
     n_worlds: int = 5
 
@@ -271,48 +273,60 @@ def revisit_candidates(root: str, category: str, heldout: bool) -> list[int]:
     return _distinct_revisits(root, np.flatnonzero(sel))
 
 
-def _revisit_spec(root, category, index, k, a, b, heldout) -> PairSpec | None:
-    _, ij, _ = _kitti_sequence(root)
-    if not _in_split((*a, *b), heldout):
-        return None
+def _revisit_spec(root, category, index, k, a, b, heldout, swap) -> PairSpec | None:
+    if not _in_split((*a, *b), heldout) or max(a[0], b[0]) <= min(a[1], b[1]):
+        return None  # outside the split, or the two windows share scans
+    L, ij, _ = _kitti_sequence(root)
     i, j = (int(x) for x in ij[k])
-    L, _, _ = _kitti_sequence(root)
     xy = L[:, [0, 2], 3]
     ov = 1.0
     if b[1] > b[0]:
         ov = route_overlap(xy[b[0] : b[1] + 1], xy[a[0] : a[1] + 1], OVERLAP_RADIUS)
     return PairSpec(
         category, index, "kitti", 1000 * CATEGORIES.index(category) + index, True, a, b, int(k),
-        heading_difference(root, i, j), round(ov, 3), float(np.linalg.norm(xy[i] - xy[j])),
+        heading_difference(root, i, j), round(ov, 3), float(np.linalg.norm(xy[i] - xy[j])), swap,
     )  # fmt: skip
+
+
+def _roles(category: str, index: int) -> tuple[bool, ...]:
+    """Which side of a revisit is the query (True: the earlier visit i): reverse revisits are
+    scarce, so both; low_overlap keeps the later visit as query (its window is the slid one);
+    the others alternate."""
+    if category == "reverse":
+        return (False, True)
+    return (False,) if category == "low_overlap" else (index % 2 == 1,)
+
+
+def _windows(category: str, i: int, j: int, index: int, n: int, swap: bool):
+    """(target, query) scan windows of a map-to-map category around revisit (i, j)."""
+    t, q = (j, i) if swap else (i, j)
+    if category == "small_maps":
+        return _window(t, SMALL_LENGTH, n), _window(q, SMALL_LENGTH, n)
+    if category == "scan_to_map":
+        return _window(t, SCAN_TARGET_LENGTH, n), (q, q)
+    length = MAP_LENGTHS[index % len(MAP_LENGTHS)]
+    return _window(t, length, n), _window(q, length, n)
 
 
 def kitti_positive_specs(category: str, n: int, heldout: bool) -> list[PairSpec]:
     """Up to n positive pairs of a KITTI category, spread over its distinct revisits."""
     root = kitti_root()
     L, ij, _ = _kitti_sequence(root)
-    N = len(L)
     specs: list[PairSpec] = []
     for k in revisit_candidates(root, category, heldout):
         i, j = (int(x) for x in ij[k])
-        idx = len(specs)
-        if category == "small_maps":
-            a, b = _window(i, SMALL_LENGTH, N), _window(j, SMALL_LENGTH, N)
-        elif category == "scan_to_map":
-            a, b = _window(i, SCAN_TARGET_LENGTH, N), (j, j)
-        elif category == "low_overlap":
-            found = _low_overlap_windows(root, int(k), heldout, specs)
-            if found is None:
-                continue
-            a, b = found
-        else:
-            length = MAP_LENGTHS[idx % len(MAP_LENGTHS)]
-            a, b = _window(i, length, N), _window(j, length, N)
-        if a[1] >= b[0]:
-            continue
-        spec = _revisit_spec(root, category, idx, k, a, b, heldout)
-        if spec is not None and _distinct(a, b, specs):
-            specs.append(spec)
+        for swap in _roles(category, len(specs)):
+            idx = len(specs)
+            if category == "low_overlap":
+                found = _low_overlap_windows(root, int(k), heldout, specs)
+                if found is None:
+                    continue
+                a, b = found
+            else:
+                a, b = _windows(category, i, j, idx, len(L), swap)
+            spec = _revisit_spec(root, category, idx, k, a, b, heldout, swap)
+            if spec is not None and _distinct(a, b, specs):
+                specs.append(spec)
     # localize needs 3 objects (checked after the spread: building a scan's graph costs time)
     return [s for s in _spread(specs, n) if s.b[1] > s.b[0] or len(scan_graph(root, s.b[0])) >= 3]
 
@@ -405,13 +419,18 @@ def scan_graph(root: str, scan: int) -> SemanticGraph:
     return build_graph(ds, cfg, name=f"kitti00[{scan}]").with_edge_radius(EDGE_RADIUS)
 
 
-def kitti_ground_truth(root: str, a: tuple[int, int], b: tuple[int, int], k: int) -> np.ndarray:
+def kitti_ground_truth(
+    root: str, a: tuple[int, int], b: tuple[int, int], k: int, swap: bool = False
+) -> np.ndarray:
     """T_A_B (query = scans b's first-scan frame -> target = scans a's): the poses chained
-    through the refined revisit transform k (p_j = M p_i), or the raw poses when k < 0."""
+    through the refined revisit transform k (p_j = M p_i; a holds i and b holds j, or the
+    other way round with swap), or the raw poses when k < 0."""
     L, ij, M = _kitti_sequence(root)
     if k < 0:
         return invert(L[a[0]]) @ L[b[0]]
     i, j = ij[k]
+    if swap:
+        return invert(L[a[0]]) @ L[j] @ M[k] @ invert(L[i]) @ L[b[0]]
     return invert(L[a[0]]) @ L[i] @ invert(M[k]) @ invert(L[j]) @ L[b[0]]
 
 
@@ -431,7 +450,7 @@ def make_pair(spec: PairSpec) -> Pair:
         query = scan_graph(root, spec.b[0])
     else:
         query = _kitti_graph(root, spec.b[0], spec.b[1], EDGE_RADIUS)
-    T0 = kitti_ground_truth(root, spec.a, spec.b, spec.k)
+    T0 = kitti_ground_truth(root, spec.a, spec.b, spec.k, spec.swap)
     return _moved_target(query, target, T0, spec.seed, MAX_TRANSLATION, MAX_ROLL_PITCH_DEG)
 
 
@@ -525,7 +544,7 @@ def run_spec(spec: PairSpec, configs: dict[str, dict[str, Any]]) -> list[dict[st
                 "ms": ms, "positive": spec.positive, **gt_columns(gt), "n_query": len(pair.query),
                 "n_target": len(pair.target), "heading_deg": round(spec.heading_deg, 1),
                 "overlap": spec.overlap, "revisit_m": round(spec.revisit_m, 1),
-                "pair": spec.label, "reason": res.reason[:80],
+                "pair": spec.label, "query_earlier": spec.swap, "reason": res.reason[:80],
             }
         )  # fmt: skip
     return rows
@@ -628,7 +647,7 @@ def plot(summary: list[dict[str, Any]], configs: Sequence[str], path: Path) -> N
 
     cats = [c for c in CATEGORIES if any(s["category"] == c for s in summary)]
     width = 0.8 / len(configs)
-    fig, ax = plt.subplots(figsize=(max(8, 1.3 * len(cats) * len(configs) / 2), 4.8))
+    fig, ax = plt.subplots(figsize=(12, 4.8))
     colours = {"localized": "#2a9d8f", "wrong": "#e63946", "refused": "#bdbdbd"}
     hatches = ["", "//", "..", "xx", "\\\\", "oo"]
     for ci, name in enumerate(configs):
@@ -647,7 +666,8 @@ def plot(summary: list[dict[str, Any]], configs: Sequence[str], path: Path) -> N
     ax.set_xticklabels([f"{c}\n(n={counts[c]})" for c in cats], fontsize=8)
     ax.set_ylabel("fraction of pairs")
     ax.set_ylim(0, 1.0)
-    ax.set_title("Hard cases: bars left to right per category = " + ", ".join(configs))
+    ax.set_xlabel("category (n = pairs)")
+    ax.set_title("Outcome per category; bars left to right: " + ", ".join(configs))
     from matplotlib.patches import Patch
 
     handles = [Patch(facecolor=c, edgecolor="black", label=o) for o, c in colours.items()]
@@ -663,7 +683,8 @@ def plot(summary: list[dict[str, Any]], configs: Sequence[str], path: Path) -> N
 
 HEADER = """# Hard cases: reverse revisits, one scan against a map, few-class LiDAR objects
 
-Generated by `{command}` (do not edit by hand). {when}
+Generated by `python benchmarks/hard_cases.py --workers 2 --update-docs` (tuning pairs) and the
+same with `--heldout` (do not edit by hand). Rows per pair: `results/hard_cases/pairs-*.csv`.
 
 ## Pairs
 KITTI 00 LiDAR objects (GOSMatch: vehicle / trunk / pole, `$SGLOC_DATA/kitti00`); every map
@@ -671,14 +692,17 @@ is built by the `kitti00` pair source's builder (scan range -> one graph in its 
 LiDAR frame, kitti_objects extraction preset, edges within 20 m). Tuning pairs use scans
 0-{last} only; `--heldout` builds the same categories from pairs with a scan after {last}
 (never used to choose settings). Each map-to-map pair is centred on a distinct refined revisit
-(i, j) of `kitti_lc_test_*.txt` (target = scans around i, query = scans around j, j > i):
+(i, j) of `kitti_lc_test_*.txt`, j > i: the scans around one visit are the target map, those
+around the other the query (reverse: both ways, as reverse revisits are scarce; low_overlap:
+query from the later visit; the others alternate):
 - reverse / same / crossing: heading difference of the LiDAR's driving direction at i and j
   above {rev:g} deg / below {same:g} deg / in between; map lengths cycle over {lengths} scans
-  (~0.85 m a scan);
+  (~0.85 m a scan). Scans 0-{last} hold one reverse stretch (scans ~520-600 against
+  ~1350-1420), so the tuning reverse pairs all come from it;
 - low_overlap: 300-scan maps, the query window slid along its route until {lo:g}-{hi:g} of it
   passes within 10 m of the target's route (`route_overlap`), any heading;
 - small_maps: {small}-scan maps (~40 m) around i and j, any heading;
-- scan_to_map: the objects of scan j alone (at least 3) against {stl} scans around i;
+- scan_to_map: the objects of one scan (at least 3) against {stl} scans around the other visit;
 - negatives: random scan ranges (target 300 scans, query 1 / 50 / 150 / 300 scans) whose
   trajectories stay >= {gap:g} m apart everywhere; any accept is wrong.
 Ground truth: the poses chained through the revisit's refined transform M (p_j = M p_i,
@@ -686,11 +710,10 @@ LiDAR frames). Checked per pair (overlap objects = query objects with a same-cla
 object within {near:g} m under the GT): refining the GT by mutual-nearest-neighbour ICP must move
 them by a median <= {shift:g} m (the GT is within that of the best local alignment), after
 which at least {minw} of them lie within 1 m of a same-class target object; pairs failing this
-are dropped (column `dropped`).
-{gtstats}
+are dropped (column `pairs`: "+n dropped").
 Rendered city (`city` pair source): two robots drive opposite ways (reverse revisits by
 construction) sharing 10 % / 20 % of their routes; tuning uses cities 0-9, held out 10-19.
-airsim: Guo's cloud1 against cloud2 under random transforms (`airsim-guo`).
+airsim: Guo's cloud1 against cloud2 under random transforms (`airsim-guo`; no held-out set).
 Every target map is moved by a random rigid transform (any yaw, roll/pitch <= 5 deg, up to
 200 m), so no method profits from the identity.
 
@@ -698,17 +721,94 @@ Every target map is moved by a random rigid transform (any yaw, roll/pitch <= 5 
 Error = T_est @ inv(T_gt) in the target map's own (unmoved) frame. localized = accepted and
 within 3 m / 3 deg (airsim: 5 m / 2 deg, Guo's two maps disagree by metres; city: 10 m /
 5 deg, since a least-squares fit on every true pair is itself 1-6.5 m off at the target's
-origin, hundreds of metres from the shared stretch); wrong = accepted
-but outside (for negatives: any accept); refused = not localized. Mean error over the localized
-pairs; median = CPU time of the whole `localize` call (thread time, one BLAS thread).
+origin, hundreds of metres from the shared stretch); wrong = accepted but outside (negatives:
+any accept); refused = not localized. Mean error over the localized pairs; median ms = CPU time
+of the whole `localize` call (thread time, one BLAS thread; configurations interleaved pair by
+pair).
 
 ## Configurations
 - paper: histogram + neighbor (Alg. 1, tau 5 m), Guo's RANSAC (1000 iterations, most inliers,
   T_error 5 m, >= 5 inliers and >= 1 %), plain weighted fit, Guo's acceptance rule only.
 - previous: sgloc's defaults before the hard-case work, written out setting by setting.
-- default: `localize(query, target)` with no settings (this tree's defaults).
-{extra}
+- default: `localize(query, target)` with no settings (the defaults of the code measured).
 """
+
+SECTION_TITLES = {"tuning": "tuning pairs (scans 0-3000)", "heldout": "held-out pairs"}
+
+
+def code_version() -> str:
+    """The last commit that changed the sgloc package under test (maybe another tree than this
+    script's), and whether it has uncommitted changes."""
+    import sgloc
+
+    where = Path(sgloc.__file__).parent
+    try:
+        commit = subprocess.run(
+            ["git", "log", "-1", "--format=%h", "--", "."], capture_output=True, text=True,
+            check=True, cwd=where,
+        ).stdout.strip()  # fmt: skip
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--", "."], capture_output=True, text=True, cwd=where
+        ).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return commit + (" with uncommitted changes" if dirty else "")
+
+
+def header() -> str:
+    return HEADER.format(
+        last=TUNING_LAST_SCAN, rev=REVERSE_DEG, same=SAME_DEG,
+        lengths="/".join(map(str, MAP_LENGTHS)), lo=LOW_OVERLAP[0], hi=LOW_OVERLAP[1],
+        small=SMALL_LENGTH, stl=SCAN_TARGET_LENGTH, gap=NEGATIVE_GAP_M, near=GT_NEAR,
+        shift=GT_SHIFT_M, minw=GT_MIN_WITHIN,
+    )  # fmt: skip
+
+
+def goals(summary: list[dict[str, Any]], config: str = "default") -> list[str]:
+    """The targets for the default settings, read off the table (met / not met)."""
+    rows = {s["category"]: s for s in summary if s["config"] == config}
+    out = []
+
+    def verdict(ok: bool) -> str:
+        return "**met**" if ok else "**not met**"
+
+    for cat in KITTI_CATEGORIES[:-1]:
+        if cat in rows:
+            r = rows[cat]
+            share = r["localized"] / max(r["pairs"], 1)
+            out.append(
+                f"- {cat}: {100 * share:.0f} % localized (goal >= 90 %): {verdict(share >= 0.9)}"
+            )
+    kitti = [rows[c] for c in KITTI_CATEGORIES if c in rows]
+    if kitti:
+        wrong = sum(r["wrong"] for r in kitti)
+        out.append(f"- wrong accepts over all KITTI positives and negatives: {wrong} (goal 0): "
+                   f"{verdict(wrong == 0)}")  # fmt: skip
+    for cat, goal in (("city_0.1", 0.8), ("city_0.2", 0.95)):
+        if cat in rows:
+            r = rows[cat]
+            share = r["localized"] / max(r["pairs"], 1)
+            out.append(
+                f"- {cat}: {100 * share:.0f} % localized (goal >= {100 * goal:.0f} %), "
+                f"{r['wrong']} wrong (goal 0): {verdict(share >= goal and not r['wrong'])}"
+            )
+    if "airsim" in rows:
+        r = rows["airsim"]
+        ok = r["localized"] == r["pairs"] and r["mean_te_m"] <= 2.0
+        out.append(
+            f"- airsim: {r['localized']} of {r['pairs']} within 5 m / 2 deg, mean "
+            f"{r['mean_te_m']:.2f} m (goals all, <= 2.0 m): {verdict(ok)}"
+        )
+        prev = next((s for s in summary if s["category"] == "airsim"
+                     and s["config"] == "previous"), None)  # fmt: skip
+        if prev and config != "previous":
+            ratio = r["median_ms"] / prev["median_ms"]
+            out.append(
+                f"- airsim localize time {r['median_ms']:.1f} ms vs previous "
+                f"{prev['median_ms']:.1f} ms ({ratio:.2f}x, goal <= 1): "
+                f"{verdict(ratio <= 1.05)} (5 % noise allowed)"
+            )
+    return out
 
 
 def gt_summary(rows: list[dict[str, Any]]) -> str:
@@ -721,41 +821,28 @@ def gt_summary(rows: list[dict[str, Any]]) -> str:
     shift = [r["gt_shift_m"] for r in sel if not math.isnan(r["gt_shift_m"])]
     dropped = sum(not r["gt_ok"] for r in sel)
     return (
-        f"Measured on these {len(sel)} KITTI positives: under the GT a median "
+        f"Ground truth on these {len(sel)} KITTI positives: a median "
         f"{100 * np.median(share):.0f} % (min {100 * min(share):.0f} %) of the overlap objects lie "
         f"within 1 m of a same-class object; ICP moves them by a median {np.median(shift):.2f} m "
         f"(max {max(shift):.2f} m); {dropped} pair(s) dropped."
     )
 
 
-def header(
-    args: argparse.Namespace, configs: dict[str, dict[str, Any]], rows: list[dict[str, Any]]
-) -> str:
-    import sgloc
-
-    try:  # the commit of the sgloc under test (which may be another tree than this script's)
-        commit = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True,
-            cwd=Path(sgloc.__file__).parent,
-        ).stdout.strip()  # fmt: skip
-    except (OSError, subprocess.CalledProcessError):
-        commit = "unknown"
-    dirty = subprocess.run(["git", "status", "--porcelain", "--", "."], capture_output=True,
-                           text=True, cwd=Path(sgloc.__file__).parent).stdout.strip()  # fmt: skip
-    commit += " (with uncommitted changes)" if dirty else ""
-    extra = [f"- {n}: {s}" for n, s in configs.items() if n not in CONFIGS]
+def section(tag: str, configs: dict[str, dict[str, Any]], rows, summary) -> str:
+    """The results of one run: command, code, extra configurations, GT check, table, goals."""
+    cmd = "python benchmarks/hard_cases.py " + " ".join(sys.argv[1:])
+    lines = [
+        f"## Results: {SECTION_TITLES.get(tag, tag)}", "",
+        f"`{cmd.strip()}` on sgloc {code_version()}, "
+        f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.",
+    ]  # fmt: skip
+    lines += [f"Configuration {n}: `{s}`." for n, s in configs.items() if n not in CONFIGS]
     new = new_config_keys()
     if new:
-        extra.append(f"- settings newer than `previous` (at their current defaults): {new}")
-    cmd = "python benchmarks/hard_cases.py " + " ".join(sys.argv[1:])
-    when = f"Code at commit {commit}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}."
-    gtstats = gt_summary(rows)
-    return HEADER.format(
-        command=cmd.strip(), when=when, last=TUNING_LAST_SCAN, rev=REVERSE_DEG, same=SAME_DEG,
-        lengths="/".join(map(str, MAP_LENGTHS)), lo=LOW_OVERLAP[0], hi=LOW_OVERLAP[1],
-        small=SMALL_LENGTH, stl=SCAN_TARGET_LENGTH, gap=NEGATIVE_GAP_M, near=GT_NEAR,
-        shift=GT_SHIFT_M, minw=GT_MIN_WITHIN, gtstats=gtstats, extra="\n".join(extra),
-    )  # fmt: skip
+        lines.append(f"Settings newer than `previous` (there at their current defaults): {new}.")
+    lines += [gt_summary(rows), "", markdown_table(summary), "", "Goals for `default`:", ""]
+    lines += goals(summary) + [""]
+    return "\n".join(lines)
 
 
 def write_rows(rows: list[dict[str, Any]], path: Path) -> None:
@@ -777,12 +864,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--workers", type=int, default=1, help="processes")
     p.add_argument("--heldout", action="store_true", help="pairs with scans after 3000")
     p.add_argument("--out", type=Path, default=Path("results/hard_cases"))
-    p.add_argument("--update-docs", action="store_true", help="write docs/hard_cases.md/.png")
+    p.add_argument("--update-docs", action="store_true",
+                   help="write docs/hard_cases.md (+ .png from the tuning run)")  # fmt: skip
     return p.parse_args(argv)
 
 
-def main(argv: Sequence[str] | None = None) -> None:
-    args = parse_args(argv)
+def configurations(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
     configs = dict(CONFIGS)
     for v in args.variant:
         name, settings = parse_variant(v)
@@ -791,29 +878,48 @@ def main(argv: Sequence[str] | None = None) -> None:
     unknown = [n for n in names if n not in configs]
     if unknown:
         raise SystemExit(f"unknown configuration(s) {unknown}; known: {list(configs)}")
-    configs = {n: configs[n] for n in names}
+    return {n: configs[n] for n in names}
+
+
+def update_docs(out: Path, tag: str, summary, names: Sequence[str]) -> None:
+    """docs/hard_cases.md = definitions + the full tuning and held-out sections found in `out`;
+    the plot from the tuning run."""
+    docs = Path(__file__).resolve().parents[1] / "docs"
+    if tag == "tuning":
+        plot(summary, names, docs / "hard_cases.png")
+    parts = [header()]
+    for t in ("tuning", "heldout"):
+        f = out / f"section-{t}.md"
+        if f.is_file():
+            parts.append(f.read_text())
+            if t == "tuning":
+                parts.append("![hard cases, tuning pairs](hard_cases.png)\n")
+    (docs / "hard_cases.md").write_text("\n".join(parts))
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    args = parse_args(argv)
+    if args.update_docs and (args.quick or args.only):
+        raise SystemExit("--update-docs needs the full set: drop --quick and --only")
+    configs = configurations(args)
     t0 = time.time()
-    specs = [
-        s for c in (args.only or CATEGORIES) for s in category_specs(c, args.quick, args.heldout)
-    ]
-    print(f"{len(specs)} pairs ({time.time() - t0:.1f} s to choose them); configs {names}")
+    cats = args.only or CATEGORIES
+    specs = [s for c in cats for s in category_specs(c, args.quick, args.heldout)]
+    print(f"{len(specs)} pairs ({time.time() - t0:.1f} s to choose them); configs {list(configs)}")
     if new_config_keys():
         print(f"note: settings newer than `previous`, at their current defaults: "
               f"{new_config_keys()}")  # fmt: skip
     rows = run_all(specs, configs, args.workers)
-    summary = summarize(rows, names)
-    table = markdown_table(summary)
-    print(table)
+    summary = summarize(rows, list(configs))
+    tag = ("heldout" if args.heldout else "tuning") + ("-quick" if args.quick else "")
+    text = section(tag, configs, rows, summary)
+    print(text)
     print(f"wall time {time.time() - t0:.0f} s")
     args.out.mkdir(parents=True, exist_ok=True)
-    tag = ("heldout" if args.heldout else "tuning") + ("-quick" if args.quick else "")
     write_rows(rows, args.out / f"pairs-{tag}.csv")
-    doc = header(args, configs, rows) + f"\n## Results ({tag})\n\n" + table + "\n"
-    (args.out / f"table-{tag}.md").write_text(doc)
+    (args.out / f"section-{tag}.md").write_text(text)
     if args.update_docs:
-        docs = Path(__file__).resolve().parents[1] / "docs"
-        plot(summary, names, docs / "hard_cases.png")
-        (docs / "hard_cases.md").write_text(doc + "\n![hard cases](hard_cases.png)\n")
+        update_docs(args.out, tag, summary, list(configs))
     print(f"rows in {args.out}/pairs-{tag}.csv")
 
 

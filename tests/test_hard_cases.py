@@ -44,7 +44,7 @@ def test_heading_categories(hc, sequence):
         specs = hc.category_specs(cat, quick=True)
         assert specs, cat
         for s in specs:
-            i, j = ij[s.k]
+            i, j = ij[s.k][::-1] if s.swap else ij[s.k]
             assert s.a[0] <= i <= s.a[1] and s.b[0] <= j <= s.b[1]
             assert lo - 3 <= _forward_angle_deg(L, i, j) <= hi + 3, (cat, s.label)
 
@@ -68,9 +68,10 @@ def test_tuning_pairs_stay_before_scan_3000(hc):
         assert any(max(*s.a, *s.b) > 3000 for s in hc.category_specs(cat, True, heldout=True))
 
 
-def test_ground_truth_aligns_the_maps(hc):
-    spec = min(hc.category_specs("reverse"), key=lambda s: s.a[1] - s.a[0])
-    pair = hc.make_pair(spec)
+@pytest.mark.parametrize("swap", [False, True])
+def test_ground_truth_aligns_the_maps(hc, swap):
+    specs = [s for s in hc.category_specs("reverse") if s.swap == swap]
+    pair = hc.make_pair(min(specs, key=lambda s: s.a[1] - s.a[0]))
     assert not np.allclose(pair.T_moved_own, np.eye(4))  # the target is moved
     within = hc.gt_residuals(pair) < 1.0
     assert within.sum() >= 15 and within.mean() >= 0.2
