@@ -804,9 +804,9 @@ def goals(summary: list[dict[str, Any]], config: str = "default") -> list[str]:
         if prev and config != "previous":
             ratio = r["median_ms"] / prev["median_ms"]
             out.append(
-                f"- airsim localize time {r['median_ms']:.1f} ms vs previous "
+                f"- airsim localize time {r['median_ms']:.1f} ms vs `previous` settings "
                 f"{prev['median_ms']:.1f} ms ({ratio:.2f}x, goal <= 1): "
-                f"{verdict(ratio <= 1.05)} (5 % noise allowed)"
+                f"{verdict(ratio <= 1.05)} (same code and process; 5 % noise allowed)"
             )
     return out
 
