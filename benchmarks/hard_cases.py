@@ -32,7 +32,7 @@ import time  # noqa: E402
 from collections.abc import Iterable, Sequence  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
 from pathlib import Path  # noqa: E402
-from typing import Any  # noqa: E402
+from typing import Any, NoReturn  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -146,6 +146,12 @@ CONFIGS: dict[str, dict[str, Any]] = {"paper": PAPER, "previous": PREVIOUS, "def
 DEFAULT_CONFIGS = ("paper", "previous", "default")
 
 
+def usage_error(message: str) -> NoReturn:
+    """Bad command-line input: one line on stderr, exit status 2."""
+    print(f"hard_cases.py: error: {message}", file=sys.stderr)
+    raise SystemExit(2)
+
+
 def parse_value(text: str) -> Any:
     """A setting's value from the command line: YAML scalars/collections, None, else the text."""
     import yaml
@@ -163,17 +169,17 @@ def parse_variant(spec: str) -> tuple[str, dict[str, Any]]:
     configuration (default: no settings, i.e. the tree's defaults)."""
     name, sep, rest = spec.partition("=")
     if not sep or not name.strip():
-        raise SystemExit(f"--variant {spec!r}: expected NAME=key=value,key=value")
+        usage_error(f"--variant {spec!r}: expected NAME=key=value,key=value")
     settings: dict[str, Any] = {}
     for item in re.split(r",(?=\s*\w+\s*=)", rest) if rest.strip() else []:
         key, eq, value = item.partition("=")
         if not eq:
-            raise SystemExit(f"--variant {spec!r}: {item!r} is not key=value")
+            usage_error(f"--variant {spec!r}: {item!r} is not key=value")
         settings[key.strip()] = parse_value(value.strip())
     base = settings.pop("base", None)
     if base is not None:
         if base not in CONFIGS:
-            raise SystemExit(f"--variant {spec!r}: unknown base {base!r}")
+            usage_error(f"--variant {spec!r}: unknown base {base!r}")
         settings = {**CONFIGS[base], **settings}
     return name.strip(), settings
 
@@ -405,7 +411,7 @@ def category_specs(category: str, quick: bool = False, heldout: bool = False) ->
         ]
     if category == "airsim":
         return [PairSpec(category, i, "airsim", cid + i) for i in range(COUNTS["airsim"][pick])]
-    raise SystemExit(f"unknown category {category!r}; choose from {', '.join(CATEGORIES)}")
+    usage_error(f"unknown category {category!r}; choose from {', '.join(CATEGORIES)}")
 
 
 @functools.lru_cache(maxsize=512)
@@ -840,8 +846,9 @@ def section(tag: str, configs: dict[str, dict[str, Any]], rows, summary) -> str:
     new = new_config_keys()
     if new:
         lines.append(f"Settings newer than `previous` (there at their current defaults): {new}.")
-    lines += [gt_summary(rows), "", markdown_table(summary), "", "Goals for `default`:", ""]
-    lines += goals(summary) + [""]
+    lines += [gt_summary(rows), "", markdown_table(summary), ""]
+    met = goals(summary)
+    lines += ["Goals for `default`:", "", *met, ""] if met else []
     return "\n".join(lines)
 
 
@@ -877,7 +884,15 @@ def configurations(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
     names = args.configs or list(configs)
     unknown = [n for n in names if n not in configs]
     if unknown:
-        raise SystemExit(f"unknown configuration(s) {unknown}; known: {list(configs)}")
+        usage_error(f"unknown configuration(s) {unknown}; known: {list(configs)}")
+    from sgloc.config import LocalizerConfig
+    from sgloc.errors import SglocError
+
+    for name in names:  # fail on a bad setting before any work
+        try:
+            LocalizerConfig().with_overrides(**dict(configs[name]))
+        except (SglocError, TypeError, ValueError) as e:
+            usage_error(f"configuration {name!r}: {e}")
     return {n: configs[n] for n in names}
 
 
@@ -900,7 +915,7 @@ def update_docs(out: Path, tag: str, summary, names: Sequence[str]) -> None:
 def main(argv: Sequence[str] | None = None) -> None:
     args = parse_args(argv)
     if args.update_docs and (args.quick or args.only):
-        raise SystemExit("--update-docs needs the full set: drop --quick and --only")
+        usage_error("--update-docs needs the full set: drop --quick and --only")
     configs = configurations(args)
     t0 = time.time()
     cats = args.only or CATEGORIES
