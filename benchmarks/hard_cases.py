@@ -8,8 +8,10 @@ Airsim maps, localized by several named configurations.
 
 Prints per category and configuration: localized within tolerance, wrong (accepted but outside
 it; for negatives any accept), refused, and the median CPU time of the localize call. Writes
-pairs.csv (one row per pair and configuration) and table.md under --out; with --update-docs
-also docs/hard_cases.md and docs/hard_cases.png. See HEADER below for the definitions.
+pairs-<split>.csv (one row per pair and configuration) and section-<split>.md under --out; with
+--update-docs also docs/hard_cases.md and docs/hard_cases.png. See HEADER below for the
+definitions. From Python: add entries to CONFIGS (name -> localize settings), then call
+main([...]); category_specs / make_pair give the labelled pairs themselves.
 """
 
 from __future__ import annotations
@@ -267,7 +269,7 @@ def _distinct_revisits(root: str, ks: np.ndarray, min_step: int = 5) -> list[int
     return kept
 
 
-def revisit_candidates(root: str, category: str, heldout: bool) -> list[int]:
+def revisit_candidates(root: str, category: str) -> list[int]:
     """Indices of the refined revisits (i, j) usable for a map-to-map category."""
     _, ij, _ = _kitti_sequence(root)
     d = np.array([heading_difference(root, i, j) for i, j in ij])
@@ -319,7 +321,7 @@ def kitti_positive_specs(category: str, n: int, heldout: bool) -> list[PairSpec]
     root = kitti_root()
     L, ij, _ = _kitti_sequence(root)
     specs: list[PairSpec] = []
-    for k in revisit_candidates(root, category, heldout):
+    for k in revisit_candidates(root, category):
         i, j = (int(x) for x in ij[k])
         for swap in _roles(category, len(specs)):
             idx = len(specs)
