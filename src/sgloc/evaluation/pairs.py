@@ -199,11 +199,13 @@ def _register_all() -> None:
     """Import the modules that register the heavier pair sources (KITTI, rendered runs)."""
     import sgloc.evaluation.pairs_kitti  # noqa: F401
     import sgloc.evaluation.pairs_sim  # noqa: F401
+    import sgloc.evaluation.pairs_synthia  # noqa: F401
 
 
 def make_pair_source(name: str, **params: Any) -> PairSource:
-    """A pair source by registered name (or alias), or by a folder: an Airsim-layout two-robot
-    run (with ground_truth.txt), or a folder holding two graph files."""
+    """A pair source by registered name (or alias), or by a folder: a SYNTHIA sequence (with
+    CameraParams/), an Airsim-layout two-robot run (with ground_truth.txt), or a folder holding
+    two graph files."""
     _register_all()
     key = ALIASES.get(name, name)
     if key in PAIR_SOURCES:
@@ -218,6 +220,8 @@ def make_pair_source(name: str, **params: Any) -> PairSource:
         src = cls(**params)
         return src.resolved() if hasattr(src, "resolved") else src
     path = Path(name)
+    if path.is_dir() and (path / "CameraParams").is_dir():
+        return PAIR_SOURCES["synthia"](root=str(path.resolve()), **params)
     if path.is_dir() and (path / "ground_truth.txt").is_file():
         return PAIR_SOURCES["airsim-run"](root=str(path.resolve()), **params)
     if path.is_dir():

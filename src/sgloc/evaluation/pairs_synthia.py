@@ -1,0 +1,105 @@
+"""Pair source `synthia`: SYNTHIA's forward camera (Omni_F) and backward camera (Omni_B) as two
+robots, the paper's SYNTHIA experiment (Table 2 whole maps, Fig. 6 overlap sweep)."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from sgloc.evaluation.pairs import Pair, _moved_target, register_pair_source
+from sgloc.evaluation.pairs_kitti import route_overlap
+from sgloc.geometry import invert
+
+CAMERAS = ("Omni_F", "Omni_B")
+
+
+def synthia_extraction_config():
+    """Extraction settings for SYNTHIA: the paper's defaults without its non-object classes
+    (sky, road, sidewalk, lane marking)."""
+    from sgloc.datasets.synthia import SYNTHIA_STUFF_CLASSES
+    from sgloc.extraction import ExtractionConfig
+
+    return ExtractionConfig(ignore_classes=SYNTHIA_STUFF_CLASSES)
+
+
+@functools.lru_cache(maxsize=4)
+def _camera_poses(root: str, camera: str) -> np.ndarray:
+    """(N,4,4) world-from-optical poses of every frame of one camera."""
+    from sgloc.datasets import make_dataset
+
+    return make_dataset("synthia", root, camera=camera).poses
+
+
+@functools.lru_cache(maxsize=64)
+def _synthia_graph(root: str, camera: str, first: int, last: int, edge_radius: float):
+    """One camera's graph from frames first..last (inclusive), in its first frame's optical
+    frame."""
+    from sgloc.datasets import make_dataset
+    from sgloc.extraction import build_graph
+
+    ds = make_dataset("synthia", root, camera=camera, frames=(first, last), start_frame=True)
+    g = build_graph(ds, synthia_extraction_config(), name=f"{camera}[{first}-{last}]")
+    return g.with_edge_radius(edge_radius)
+
+
+@register_pair_source("synthia")
+@dataclass(frozen=True)
+class SynthiaPairs:
+    """A SYNTHIA sequence folder (e.g. SYNTHIA-SEQS-04-SUMMER, or one written by
+    `sgloc.sim.synthia_writer`): robot A (target) = Omni_F, robot B (query) = Omni_B, each map in
+    its first frame's camera frame; the target is moved by a random rigid transform per trial.
+
+    overlap=None: the whole sequences (Table 2). overlap=o: robot A maps the first `length`
+    frames, robot B a window of `length` frames slid along the sequence so that the fraction of
+    B's route within `radius` m of A's route is as close to o as it allows (the achieved value
+    is in the pair's info as `overlap`). Ground truth: both cameras' poses are in the
+    sequence's world frame, T_A_B = inv(P_A[a0]) @ P_B[b0].
+    """
+
+    root: str | None = None
+    overlap: float | None = None
+    length: int = 200
+    radius: float = 10.0
+    max_translation: float = 200.0
+    max_roll_pitch_deg: float = 5.0
+    edge_radius: float = 20.0
+
+    def resolved(self) -> SynthiaPairs:
+        from sgloc.data import data_path
+
+        root = Path(self.root) if self.root else data_path("synthia")
+        return dataclasses.replace(self, root=str(root.resolve()))
+
+    def windows(self) -> tuple[tuple[int, int], tuple[int, int], float]:
+        """(A frames, B frames, achieved route overlap), inclusive ranges."""
+        PA, PB = (_camera_poses(self.root, c) for c in CAMERAS)
+        xa, xb = PA[:, :3, 3], PB[:, :3, 3]
+        if self.overlap is None:
+            a, b = (0, len(PA) - 1), (0, len(PB) - 1)
+            return a, b, route_overlap(xb, xa, self.radius)
+        n = min(self.length, len(PA), len(PB))
+        a = (0, n - 1)
+        starts = np.arange(0, len(PB) - n + 1)
+        ovs = np.array([route_overlap(xb[s : s + n], xa[: n], self.radius) for s in starts])
+        s = int(starts[np.argmin(np.abs(ovs - self.overlap))])
+        return a, (s, s + n - 1), float(ovs[s])
+
+    def __call__(self, seed: int) -> Pair:
+        src = self if self.root else self.resolved()
+        a, b, ov = src.windows()
+        PA, PB = (_camera_poses(src.root, c) for c in CAMERAS)
+        target = _synthia_graph(src.root, CAMERAS[0], *a, src.edge_radius)
+        query = _synthia_graph(src.root, CAMERAS[1], *b, src.edge_radius)
+        T_A_B = invert(PA[a[0]]) @ PB[b[0]]
+        pair = _moved_target(
+            query, target, T_A_B, seed, src.max_translation, src.max_roll_pitch_deg
+        )
+        pair.info.update(
+            {"overlap": round(ov, 4), "frames_a": f"{a[0]}-{a[1]}", "frames_b": f"{b[0]}-{b[1]}"}
+        )
+        return pair
+
