@@ -10,7 +10,6 @@ instead (no rendering).
 
 from __future__ import annotations
 
-import os
 import shutil
 from pathlib import Path
 
@@ -34,11 +33,10 @@ from sgloc.localizer import LocalizationResult, localize
 
 
 def default_cache_dir() -> Path:
-    """$SGLOC_CACHE, else $XDG_CACHE_HOME/sgloc, else ~/.cache/sgloc."""
-    if os.environ.get("SGLOC_CACHE"):
-        return Path(os.environ["SGLOC_CACHE"])
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "sgloc"
+    """$SGLOC_CACHE, else the per-user cache folder (~/.cache/sgloc on Linux)."""
+    from sgloc.data import cache_dir
+
+    return cache_dir()
 
 
 def _progress(console: Console) -> Progress:
