@@ -160,12 +160,9 @@ def _localize_task(task: tuple) -> dict[str, Any]:
 
 def _run_tasks(tasks: list[tuple], scheduler: str | None, workers: int | None) -> list[dict]:
     if scheduler:
-        try:
-            from distributed import Client
-        except ImportError as e:  # pragma: no cover - dask[distributed] is a dependency
-            raise SglocError(
-                "a Dask scheduler was given but dask.distributed is not installed"
-            ) from e
+        from sgloc.optional import require
+
+        Client = require("distributed", "dask", "--scheduler (a Dask cluster)").Client
         try:
             client = Client(scheduler, timeout=10)
         except OSError as e:
