@@ -64,10 +64,11 @@ class DataSet:
     licence: str
     files: tuple[RemoteFile, ...]
     shipped: bool = False
+    licence_detail: str = ""
 
     @property
     def size_hint(self) -> str:
-        return {"airsim_guo": "36 KB", "kitti00": "8 MB"}.get(self.name, "")
+        return {"airsim_guo": "26 KB", "kitti00": "3.5 MB"}.get(self.name, "")
 
 
 _GUO = ("GuancongLuo/semantic-histogram-based-global-localization",
@@ -90,7 +91,7 @@ DATASETS: dict[str, DataSet] = {
     "airsim_guo": DataSet(
         "airsim_guo",
         "Airsim object maps of two robots (Guo et al., RA-L 2021); shipped with sgloc",
-        "MIT (code and maps of gxytcrc/semantic-histogram-based-global-localization)",
+        "MIT",
         (
             RemoteFile("cloud1.pcd", *_GUO, "results/cloud1.pcd",
                        "5f64ab4cdbf9cdf33c820efcb572ac6ce69f60d191f2b9978f373fed7a0fc7cb"),
@@ -98,13 +99,14 @@ DATASETS: dict[str, DataSet] = {
                        "8e4f2067406464ebb1d0dfdfae310fe9b85216dbb318709e94747c00fc196365"),
         ),
         shipped=True,
+        licence_detail="MIT licence of gxytcrc/semantic-histogram-based-global-localization "
+        "(Copyright (c) 2022 gxytcrc); the maps were written by that code.",
     ),
     "kitti00": DataSet(
         "kitti00",
         "KITTI odometry 00: GOSMatch LiDAR object centroids, ground-truth poses, "
         "refined loop-closure transforms",
-        "CC BY-NC-SA 3.0 (KITTI; non-commercial research use only), "
-        "see https://www.cvlibs.net/datasets/kitti/",
+        "CC BY-NC-SA 3.0",
         (
             RemoteFile("gosmatch_00_objects.tar.xz", *_GOSMATCH, "00.tar.xz",
                        "fb736417cdd1906ac7b43ad57780d84689b547767dff376ccde1262aaff15849"),
@@ -116,6 +118,10 @@ DATASETS: dict[str, DataSet] = {
                 for k, (h, up) in _LC_HASH.items()
             ),
         ),
+        licence_detail="Derived from the KITTI Vision Benchmark (Geiger et al.), licensed CC "
+        "BY-NC-SA 3.0: non-commercial use only, attribute, share alike "
+        "(https://www.cvlibs.net/datasets/kitti/). Hosted by GOSMatch (objects), evo (poses) and "
+        "G3Reg (refined loop transforms, sequence 00 rows kept), whose code is MIT.",
     ),
 }
 
