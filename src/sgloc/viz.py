@@ -83,7 +83,11 @@ def plot_aligned_maps(
     if len(m):
         segs = np.stack([q[m[:, 0], :2], t[m[:, 1], :2]], axis=1)
         ax.add_collection(LineCollection(segs, colors="#D62728", lw=1.6, alpha=0.9))
-    handles.append(Line2D([], [], color="#D62728", lw=1.6, label=f"{len(m)} final matches"))
+        # matched pairs usually lie on top of each other once aligned: ring them
+        ax.scatter(t[m[:, 1], 0], t[m[:, 1], 1], s=90, facecolors="none", edgecolors="#D62728",
+                   linewidths=1.1)
+    handles.append(Line2D([], [], ls="-", marker="o", mfc="none", color="#D62728", lw=1.6,
+                          label=f"{len(m)} final matches"))
     if routes is not None:
         ra, rb = routes[0], apply(T_target_query, routes[1])
         ax.plot(ra[:, 0], ra[:, 1], "-", c="0.35", lw=1.0)
