@@ -88,3 +88,33 @@ def test_not_localized_prints_nothing_on_stdout(tmp_path, capsys):
     rc = main(["localize", str(tmp_path / "a.csv"), str(tmp_path / "b.csv"), "--format", "kitti"])
     cap = capsys.readouterr()
     assert rc == 2 and cap.out == "" and "not localized" in cap.err
+
+
+def test_flat_settings_round_trip():
+    from sgloc.cli.options import flat_settings
+
+    cfg = LocalizerConfig().with_overrides(
+        descriptor="random_walk", n_walks=50, tau=3.0, top_k=2, ransac_threshold=2.5,
+        class_weights={1: 3.0}, min_confidence=0.99, icp=True,
+    )
+    flat = flat_settings(cfg)
+    assert flat["ransac_threshold"] == 2.5 and flat["n_walks"] == 50
+    assert LocalizerConfig().with_overrides(**flat) == cfg
+    assert flat_settings(LocalizerConfig()) == {}
+
+
+def test_flat_yaml_config_and_experiment_preset(tmp_path, capsys):
+    (tmp_path / "flat.yaml").write_text("tau: 3.5\nmin_similarity: 0.4\n")
+    out = tmp_path / "r"
+    argv = ["localize", "--example", "--out", str(out), "--config", str(tmp_path / "flat.yaml")]
+    assert main(argv) == 0
+    cfg = LocalizerConfig.from_yaml(out / "config.yaml")
+    assert cfg.rejection_params["tau"] == 3.5 and cfg.matching.min_similarity == 0.4
+    ex = tmp_path / "ex"
+    assert main(["experiment", "table", "--dataset", "object-world", "--trials", "1",
+                 "--workers", "1", "--descriptors", "fast", "--rejections", "neighbor",
+                 "--preset", "city", "--config", str(tmp_path / "flat.yaml"),
+                 "--out", str(ex)]) == 0
+    used = yaml.safe_load((ex / "config.yaml").read_text())
+    text = yaml.safe_dump(used)
+    assert "3.5" in text and "0.1" in text  # the file's tau and the preset's class weight

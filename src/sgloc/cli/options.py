@@ -49,21 +49,78 @@ def parse_settings(items: list[str]) -> dict[str, Any]:
     return out
 
 
+_NESTED = {"matching", "ransac", "acceptance", "descriptor_params", "rejection_params"}
+
+
+def flat_settings(cfg: LocalizerConfig) -> dict[str, Any]:
+    """The flat settings (as `--set` and `localize(**settings)` take them) in which `cfg`
+    differs from the defaults: `LocalizerConfig().with_overrides(**flat) == cfg`."""
+    import dataclasses
+
+    base = LocalizerConfig()
+    out: dict[str, Any] = {}
+    for key in ("descriptor", "rejection"):
+        if getattr(cfg, key) != getattr(base, key):
+            out[key] = getattr(cfg, key)
+    out |= cfg.descriptor_params | cfg.rejection_params
+    for section in ("matching", "ransac"):
+        now, ref = (dataclasses.asdict(getattr(c, section)) for c in (cfg, base))
+        for k, v in now.items():
+            if v != ref[k]:
+                out["ransac_threshold" if (section, k) == ("ransac", "threshold") else k] = v
+    if cfg.acceptance != base.acceptance:
+        out["acceptance"] = dataclasses.asdict(cfg.acceptance)
+    for k in ("class_weights", "robust_refit", "icp", "icp_max_distance"):
+        if getattr(cfg, k) != getattr(base, k):
+            out[k] = getattr(cfg, k)
+    return out
+
+
+def read_settings_file(path: Path) -> dict[str, Any]:
+    """Flat settings from a YAML file: either flat (`tau: 3`) or a whole LocalizerConfig as
+    `--out DIR/config.yaml` holds it (then the settings that differ from the defaults)."""
+    import yaml
+
+    path = Path(path)
+    if not path.is_file():
+        raise SglocError(f"{path}: no such config file; give a YAML file of settings.")
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as e:
+        raise SglocError(f"{path}: not valid YAML ({e}).") from None
+    if not isinstance(data, dict):
+        raise SglocError(f"{path}: expected a mapping of settings (NAME: value).")
+    if _NESTED & set(data):
+        return flat_settings(LocalizerConfig.from_dict(data))
+    return data
+
+
+def merged_settings(
+    preset: str | None = None,
+    config_file: Path | None = None,
+    settings: list[str] | None = None,
+    **named: Any,
+) -> dict[str, Any]:
+    """Flat settings in the order they apply: the YAML file, the preset, every --set, then the
+    named options that were given (not None)."""
+    from sgloc.presets import localizer_settings
+
+    out = read_settings_file(config_file) if config_file else {}
+    out |= localizer_settings(preset) if preset else {}
+    out |= parse_settings(settings or [])
+    return out | {k: v for k, v in named.items() if v is not None}
+
+
 def localizer_config(
     preset: str | None = None,
     config_file: Path | None = None,
     settings: list[str] | None = None,
     **named: Any,
 ) -> LocalizerConfig:
-    """The LocalizerConfig a command runs with: the YAML file (or the defaults), then the
-    preset's settings, then every --set, then the named options that were given (not None)."""
-    from sgloc.presets import localizer_settings
-
-    cfg = LocalizerConfig.from_yaml(config_file) if config_file else LocalizerConfig()
-    overrides = localizer_settings(preset) if preset else {}
-    overrides |= parse_settings(settings or [])
-    overrides |= {k: v for k, v in named.items() if v is not None}
-    return cfg.with_overrides(**overrides) if overrides else cfg
+    """The LocalizerConfig a command runs with (`merged_settings` over the defaults)."""
+    return LocalizerConfig().with_overrides(
+        **merged_settings(preset, config_file, settings, **named)
+    )
 
 
 def load_graph(
