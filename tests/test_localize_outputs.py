@@ -115,6 +115,6 @@ def test_flat_yaml_config_and_experiment_preset(tmp_path, capsys):
                  "--workers", "1", "--descriptors", "fast", "--rejections", "neighbor",
                  "--preset", "city", "--config", str(tmp_path / "flat.yaml"),
                  "--out", str(ex)]) == 0
-    used = yaml.safe_load((ex / "config.yaml").read_text())
-    text = yaml.safe_dump(used)
-    assert "3.5" in text and "0.1" in text  # the file's tau and the preset's class weight
+    used = yaml.safe_load((ex / "config.yaml").read_text())["experiment"]["settings"]
+    assert used["tau"] == 3.5 and used["min_similarity"] == 0.4  # from the file
+    assert {int(k): v for k, v in used["class_weights"].items()} == {0: 0.1}  # the preset
