@@ -140,8 +140,14 @@ def experiment_cmd(
         def progress(done: int, total: int, phase: str = "trials") -> None:
             bar.update(task, completed=done, total=total, description=phase)
 
-        result = run_experiment(
-            name, dataset, out, opt, workers=workers, scheduler=scheduler, progress=progress
-        )
+        existed = out.exists()
+        try:
+            result = run_experiment(
+                name, dataset, out, opt, workers=workers, scheduler=scheduler, progress=progress
+            )
+        except BaseException:
+            if not existed and out.is_dir() and not any(out.iterdir()):
+                out.rmdir()  # a failed run leaves no empty results folder behind
+            raise
     console.print(result.markdown, markup=False, highlight=False, soft_wrap=True)
     console.print(f"results in {result.folder}/: " + ", ".join(p.name for p in result.files))
