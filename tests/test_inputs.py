@@ -111,3 +111,24 @@ def test_pcd_with_a_colour_table(tmp_path, airsim_dir):
     ref = SemanticGraph.load(airsim_dir / "cloud1.pcd")
     _, lab = read_graph_with(airsim_dir / "cloud1.pcd", colour_table=table)
     np.testing.assert_array_equal(lab, ref.labels)
+
+
+def test_build_graph_writes_ply_and_csv(tmp_path, capsys):
+    from sgloc.sim import make_synthetic_run
+
+    make_synthetic_run(seed=0, width=96, height=54, length=150, step=5).write(tmp_path / "run")
+    graphs = {}
+    for suffix in (".npz", ".ply", ".csv", ".txt"):
+        out = tmp_path / f"g{suffix}"
+        argv = ["build-graph", "airsim", str(tmp_path / "run"), "--robot", "forwardCar",
+                "--preset", "paper", "-o", str(out), "-q"]
+        assert main(argv) == 0, capsys.readouterr().err
+        graphs[suffix] = SemanticGraph.load(out)
+    ref = graphs[".npz"]
+    assert len(ref) > 5
+    for g in graphs.values():
+        np.testing.assert_allclose(g.positions, ref.positions, atol=1e-5)
+        np.testing.assert_array_equal(g.labels, ref.labels)
+    bad = ["build-graph", "airsim", str(tmp_path / "run"), "--robot", "forwardCar",
+           "--preset", "nope", "-o", str(tmp_path / "x.json")]
+    assert main(bad) == 2 and "preset" in capsys.readouterr().err

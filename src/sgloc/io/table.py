@@ -80,3 +80,14 @@ def _columns(
             )
         label_index = header.index(name)
     return header.index("x"), header.index("y"), header.index("z"), label_index
+
+
+def write_table(path: str | Path, positions: np.ndarray, labels: np.ndarray) -> Path:
+    """Write objects as a table with a header `x y z label`: commas for .csv, spaces else."""
+    path = Path(path)
+    sep = "," if path.suffix.lower() == ".csv" else " "
+    path.parent.mkdir(parents=True, exist_ok=True)
+    rows = np.column_stack([np.asarray(positions, dtype=np.float64), labels])
+    np.savetxt(path, rows, fmt=["%.6f"] * 3 + ["%d"], delimiter=sep,
+               header=sep.join(("x", "y", "z", "label")), comments="")
+    return path
