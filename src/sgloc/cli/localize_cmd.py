@@ -52,6 +52,10 @@ def localize_cmd(
     json_out: Path | None = typer.Option(
         None, "--json", help="Write the full result (with every match) as JSON here."
     ),
+    rerun: Path | None = typer.Option(
+        None, "--rerun", help="Write both maps, the matches and the transform as a Rerun "
+        "recording (.rrd; needs pip install 'sgloc[rerun]')."
+    ),
 ) -> None:
     """Find T_target_query, the rigid transform from QUERY's frame into TARGET's
     (p_target = T @ p_query).
@@ -64,6 +68,10 @@ def localize_cmd(
     """
     if fmt is not None and fmt not in FORMATS:
         raise fail(f"--format must be one of {', '.join(FORMATS)}, got {fmt!r}.")
+    if rerun is not None:
+        from sgloc.optional import require
+
+        require("rerun", "rerun", "--rerun (a Rerun recording)")  # fail before the work
     if example:
         if query is not None or target is not None:
             raise fail("give either two graph files or --example, not both.")
@@ -83,6 +91,11 @@ def localize_cmd(
     if out is not None:
         files = write_results(out, res, cfg, **info)
         files["png"] = _picture(out / "aligned_maps.png", q, t, res, example)
+    if rerun is not None:
+        from sgloc.io.rerun_file import write_rerun
+
+        T = res.transform if res.success else np.eye(4)
+        write_rerun(rerun, t, q, T, res.matches if res.success else np.zeros((0, 2)))
     if json_out is not None:
         json_out.parent.mkdir(parents=True, exist_ok=True)
         json_out.write_text(json.dumps(res.to_dict(), indent=1))
