@@ -77,6 +77,10 @@ def demo_cmd(
     objects_only: bool = typer.Option(
         False, "--objects-only", help="Use the tiny object world (no rendering, instant)."
     ),
+    preset: str | None = typer.Option(
+        None, "--preset", help="Named localizer settings (default: city; see sgloc.presets)."
+    ),
+    setting: list[str] = typer.Option([], "--set", help="A setting NAME=VALUE (repeatable)."),
 ) -> None:
     """Render a synthetic city seen by two robots, build their semantic graphs, localize one in
     the other and compare with the ground truth.
@@ -95,7 +99,7 @@ def demo_cmd(
     from sgloc.datasets import make_dataset
     from sgloc.extraction import ExtractionConfig, build_graph
     from sgloc.sim import QUERY, TARGET, SyntheticRunConfig, read_ground_truth
-    from sgloc.sim.run import SyntheticRun, city_localizer_config
+    from sgloc.sim.run import SyntheticRun
 
     cfg = SyntheticRunConfig(
         seed=seed, overlap=overlap, width=width, height=height, length=length, step=step
@@ -124,7 +128,9 @@ def demo_cmd(
             )
     T_gt = read_ground_truth(run_dir)
     target, query = graphs[TARGET], graphs[QUERY]
-    config = None if paper_defaults else city_localizer_config()
+    from sgloc.cli.options import localizer_config
+
+    config = localizer_config(preset or ("paper" if paper_defaults else "city"), None, setting)
     res = localize(query, target, descriptor, rejection, seed=seed, config=config)
     _report(console, query, target, res, T_gt)
     T_plot = res.transform if res.success else T_gt
