@@ -46,7 +46,7 @@ def write_rerun(
             static=True)
     m = np.asarray(matches, dtype=np.int64).reshape(-1, 2)
     segs = np.stack([apply(T, query.positions[m[:, 0]]), target.positions[m[:, 1]]], axis=1)
-    rec.log("world/matches", rr.LineStrips3D(segs, colors=[214, 39, 40]), static=True)
+    rec.log("world/matches", rr.LineStrips3D(segs, colors=[255, 0, 255]), static=True)
     rec.flush()
     rec.disconnect()
     return path
