@@ -65,10 +65,7 @@ class DataSet:
     files: tuple[RemoteFile, ...]
     shipped: bool = False
     licence_detail: str = ""
-
-    @property
-    def size_hint(self) -> str:
-        return {"airsim_guo": "26 KB", "kitti00": "3.5 MB"}.get(self.name, "")
+    size: str = ""  # on disk, for `sgloc data list`
 
 
 _GUO = ("GuancongLuo/semantic-histogram-based-global-localization",
@@ -99,6 +96,7 @@ DATASETS: dict[str, DataSet] = {
                        "8e4f2067406464ebb1d0dfdfae310fe9b85216dbb318709e94747c00fc196365"),
         ),
         shipped=True,
+        size="26 KB",
         licence_detail="MIT licence of gxytcrc/semantic-histogram-based-global-localization "
         "(Copyright (c) 2022 gxytcrc); the maps were written by that code.",
     ),
@@ -118,6 +116,7 @@ DATASETS: dict[str, DataSet] = {
                 for k, (h, up) in _LC_HASH.items()
             ),
         ),
+        size="3.5 MB",
         licence_detail="Derived from the KITTI Vision Benchmark (Geiger et al.), licensed CC "
         "BY-NC-SA 3.0: non-commercial use only, attribute, share alike "
         "(https://www.cvlibs.net/datasets/kitti/). Hosted by GOSMatch (objects), evo (poses) and "

@@ -29,7 +29,7 @@ def list_cmd() -> None:
             status = f"shipped in {folder}" if shipped else f"in {folder}"
         else:
             status = f"not here: sgloc data fetch {ds.name}"
-        typer.echo(f"{ds.name:<11} {ds.size_hint:>7}  {ds.licence:<16} {ds.description}")
+        typer.echo(f"{ds.name:<11} {ds.size:>7}  {ds.licence:<16} {ds.description}")
         typer.echo(f"{'':<11} {'':>7}  {status}")
     typer.echo(f"downloads go to {fetch_dir()} (set SGLOC_DATA to use another folder)")
 

@@ -49,7 +49,7 @@ def experiment_cmd(
     scheduler: str | None = typer.Option(
         None,
         help="Dask scheduler address (tcp://host:8786): run the trials on that cluster "
-        "(needs pip install 'sgloc[dask]').",
+        "(needs pip install 'sgloc\\[dask]').",
     ),
     workers: int | None = typer.Option(
         None, help="Local worker processes (default: all CPUs; 1 = in this process)."

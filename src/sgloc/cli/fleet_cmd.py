@@ -29,7 +29,7 @@ def fleet_cmd(
     ),
     scheduler: str | None = typer.Option(
         None,
-        help="Address of an existing Dask scheduler (needs pip install 'sgloc[dask]'); "
+        help="Address of an existing Dask scheduler (needs pip install 'sgloc\\[dask]'); "
         "default: local processes.",
     ),
     out: Path = typer.Option(

@@ -54,7 +54,7 @@ def localize_cmd(
     ),
     rerun: Path | None = typer.Option(
         None, "--rerun", help="Write both maps, the matches and the transform as a Rerun "
-        "recording (.rrd; needs pip install 'sgloc[rerun]')."
+        "recording (.rrd; needs pip install 'sgloc\\[rerun]')."
     ),
 ) -> None:
     """Find T_target_query, the rigid transform from QUERY's frame into TARGET's

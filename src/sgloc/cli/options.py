@@ -17,7 +17,7 @@ PRESET_HELP = f"Named settings: {' | '.join(LOCALIZER_PRESETS)} (see sgloc.prese
 CONFIG_HELP = "Localizer settings from a YAML file (as written by --out DIR/config.yaml)."
 SET_HELP = "A localizer setting NAME=VALUE (repeatable), e.g. --set tau=3 --set top_k=2."
 LABEL_HELP = "Class column of .ply/.csv/.txt graphs: a field name or a 0-based column index."
-COLOURS_HELP = "Colour table (lines `class r g b [name]`) for graphs whose classes are colours."
+COLOURS_HELP = "Colour table (lines `class r g b \\[name]`) for graphs whose classes are colours."
 
 
 def preset_option() -> Any:
