@@ -1,25 +1,81 @@
-"""Shared fixtures. Real-data tests read $SGLOC_DATA (default ../shared/data); in CI it is there,
-so they must run, not skip."""
+"""Shared fixtures and the `data` marker.
+
+Guo's Airsim maps ship with the package, so tests using them always run. Tests needing the
+downloaded KITTI 00 set carry the `data` marker (added here to every test using the `data_dir`
+or `kitti_dir` fixture) and skip, naming `sgloc data fetch kitti00`, when it is absent. With
+`SGLOC_REQUIRE_DATA=1` (as in CI, where the data is always there) such a test fails instead."""
 
 from __future__ import annotations
+
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from sgloc import SemanticGraph
-from sgloc.data import data_root
+from sgloc.data import airsim_guo, dataset, dataset_dir, is_complete
+
+#: Fixtures that need a downloaded data set; tests using them get the `data` marker.
+DATA_FIXTURES = {"data_dir", "kitti_dir"}
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line(
+        "markers",
+        "data(name='kitti00'): needs a downloaded data set (`sgloc data fetch NAME`); skips when "
+        "it is absent, fails then if SGLOC_REQUIRE_DATA is set",
+    )
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if DATA_FIXTURES & set(getattr(item, "fixturenames", ())):
+            if item.get_closest_marker("data") is None:
+                item.add_marker(pytest.mark.data)
+
+
+def require_data(name: str = "kitti00") -> Path:
+    """The folder of data set `name`; skips (or fails under SGLOC_REQUIRE_DATA) when absent."""
+    if is_complete(name):
+        return dataset_dir(name)
+    msg = (
+        f"data set {dataset(name).name} not found: run `sgloc data fetch {dataset(name).name}` "
+        "or set SGLOC_DATA"
+    )
+    if os.environ.get("SGLOC_REQUIRE_DATA", "") not in ("", "0"):
+        pytest.fail(f"{msg} (SGLOC_REQUIRE_DATA is set: data tests must run)", pytrace=False)
+    pytest.skip(msg)
+
+
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    marker = item.get_closest_marker("data")
+    if marker is not None:
+        require_data(*marker.args, **marker.kwargs)
 
 
 @pytest.fixture(scope="session")
-def data_dir():
-    return data_root()
+def kitti_dir() -> Path:
+    """The KITTI 00 folder (gosmatch_00_objects.tar.xz, poses_00.txt, kitti_lc_test_*.txt)."""
+    return require_data("kitti00")
 
 
 @pytest.fixture(scope="session")
-def airsim_graphs(data_dir) -> tuple[SemanticGraph, SemanticGraph]:
+def data_dir(kitti_dir) -> Path:
+    """The data folder holding kitti00/."""
+    return kitti_dir.parent
+
+
+@pytest.fixture(scope="session")
+def airsim_dir() -> Path:
+    """The folder of Guo's Airsim maps (shipped with the package unless SGLOC_DATA has them)."""
+    return dataset_dir("airsim_guo")
+
+
+@pytest.fixture(scope="session")
+def airsim_graphs() -> tuple[SemanticGraph, SemanticGraph]:
     """(cloud1, cloud2) of Guo's Airsim maps; ground truth between them is the identity."""
-    d = data_dir / "airsim_guo"
-    return SemanticGraph.load(d / "cloud1.pcd"), SemanticGraph.load(d / "cloud2.pcd")
+    return airsim_guo()
 
 
 @pytest.fixture

@@ -53,6 +53,7 @@ def test_world_negatives_rejected_positives_accepted():
         assert transform_error(res.transform, p.T_target_query)[0] < 5
 
 
+@pytest.mark.data
 def test_kitti_positive_and_negative():
     (pos,) = kitti_pairs(1, positive=True, seed=0)
     (neg,) = kitti_pairs(1, positive=False, seed=0)

@@ -10,10 +10,10 @@ from sgloc.classes import AIRSIM_COLORS
 from sgloc.cli import main
 
 
-def test_build_graph_kitti_objects_scan_range_start_frame(data_dir, tmp_path, capsys):
+def test_build_graph_kitti_objects_scan_range_start_frame(kitti_dir, tmp_path, capsys):
     out = tmp_path / "a.json"
     rc = main(
-        ["build-graph", "kitti_objects", str(data_dir / "kitti00"), "--scans", "100-200",
+        ["build-graph", "kitti_objects", str(kitti_dir), "--scans", "100-200",
          "--start-frame", "--merge-distance", "3", "-o", str(out), "-q"]
     )  # fmt: skip
     assert rc == 0, capsys.readouterr().err

@@ -9,8 +9,8 @@ from sgloc import SemanticGraph
 from sgloc.cli import app, main
 
 
-def test_localize_writes_json(data_dir, tmp_path, capsys):
-    d = data_dir / "airsim_guo"
+def test_localize_writes_json(airsim_dir, tmp_path, capsys):
+    d = airsim_dir
     out = tmp_path / "res.json"
     rc = main(["localize", str(d / "cloud1.pcd"), str(d / "cloud2.pcd"), "--json", str(out)])
     assert rc == 0
@@ -42,8 +42,8 @@ def test_malformed_file_is_one_line_exit_2(tmp_path, capsys):
     assert "bad.json" in one_line_error(capsys)
 
 
-def test_unknown_descriptor_is_one_line_exit_2(data_dir, capsys):
-    d = data_dir / "airsim_guo"
+def test_unknown_descriptor_is_one_line_exit_2(airsim_dir, capsys):
+    d = airsim_dir
     rc = main(["localize", str(d / "cloud1.pcd"), str(d / "cloud2.pcd"), "--descriptor", "x"])
     assert rc == 2
     assert "unknown descriptor" in one_line_error(capsys)

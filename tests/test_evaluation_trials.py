@@ -27,7 +27,7 @@ def _same(rows_a, rows_b):
     assert [repr(sorted(x.items())) for x in a] == [repr(sorted(x.items())) for x in b]
 
 
-def test_airsim_pair_ground_truth_aligns_the_two_maps(data_dir):
+def test_airsim_pair_ground_truth_aligns_the_two_maps():
     src = make_pair_source("airsim-guo")
     p0, p1 = src(0), src(1)
     assert not np.allclose(p0.T_target_query, p1.T_target_query)  # each seed its own pose

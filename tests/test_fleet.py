@@ -40,6 +40,7 @@ def test_world_fleet_places_overlapping_robots_and_reports_the_others(tmp_path):
     assert set(info["unplaced"]) == {scene.graphs[i].name for i in res.unplaced}
 
 
+@pytest.mark.data
 def test_kitti_fleet_places_robots_within_3m_3deg():
     scene = kitti_fleet()
     res = localize_fleet(scene.graphs, workers=0)

@@ -83,9 +83,13 @@ def test_missing_file(tmp_path):
 
 
 def test_unknown_suffix(tmp_path):
-    p = tmp_path / "g.txt"
+    p = tmp_path / "g.xyz"
     p.write_text("1 2 3")
     with pytest.raises(GraphFileError, match="unknown graph format"):
+        SemanticGraph.load(p)
+    p = tmp_path / "g.txt"  # a table without a class column
+    p.write_text("1 2 3")
+    with pytest.raises(GraphFileError, match="class column"):
         SemanticGraph.load(p)
 
 

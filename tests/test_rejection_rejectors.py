@@ -110,14 +110,14 @@ def test_unknown_consistency_form_is_a_clear_error():
 
 
 @pytest.mark.parametrize("name", ["spectral", "clique"])
-def test_cli_localize_with_rejection(name, data_dir, tmp_path):
+def test_cli_localize_with_rejection(name, airsim_dir, tmp_path):
     import json
 
     from typer.testing import CliRunner
 
     from sgloc.cli import app
 
-    d = data_dir / "airsim_guo"
+    d = airsim_dir
     out = tmp_path / "res.json"
     args = ["localize", str(d / "cloud1.pcd"), str(d / "cloud2.pcd"), "--rejection", name]
     result = CliRunner().invoke(app, [*args, "--json", str(out)])

@@ -7,6 +7,7 @@ res.transform  # T_target_query (4x4) or None when not localized
 
 from sgloc.config import LocalizerConfig
 from sgloc.errors import SglocError
+from sgloc.fleet import localize_fleet as localize_fleet  # re-exported beside localize
 from sgloc.graph import SemanticGraph
 from sgloc.localizer import LocalizationResult, Localizer, NotLocalizedError, localize
 

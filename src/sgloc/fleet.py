@@ -160,12 +160,9 @@ def _localize_task(task: tuple) -> dict[str, Any]:
 
 def _run_tasks(tasks: list[tuple], scheduler: str | None, workers: int | None) -> list[dict]:
     if scheduler:
-        try:
-            from distributed import Client
-        except ImportError as e:  # pragma: no cover - dask[distributed] is a dependency
-            raise SglocError(
-                "a Dask scheduler was given but dask.distributed is not installed"
-            ) from e
+        from sgloc.optional import require
+
+        Client = require("distributed", "dask", "--scheduler (a Dask cluster)").Client
         try:
             client = Client(scheduler, timeout=10)
         except OSError as e:
@@ -389,35 +386,35 @@ def merge_graphs(
 
 
 def plot_fleet(result: FleetResult, graphs: Sequence[SemanticGraph], path: str | Path) -> Path:
-    """PNG of the merged map, each placed robot's objects in its own colour."""
+    """PNG of the merged map, top-down (x right, y up): each placed robot's objects with its
+    own marker and colour, the fused objects as rings; unplaced robots named in the title."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6, 6), dpi=100)
-    cmap = plt.get_cmap("tab10")
+    from sgloc.viz import CLASS_PALETTE, ROBOT_MARKERS, top_down
+
+    fig, ax = plt.subplots(figsize=(7.5, 6), dpi=100)
     for i in result.placed:
         p = apply(result.T_world_robot[i], graphs[i].positions)
-        ax.scatter(p[:, 0], p[:, 1], s=4, color=cmap(i % 10), label=result.names[i], alpha=0.7)
+        root = " (world frame)" if i == result.root else ""
+        ax.scatter(p[:, 0], p[:, 1], s=9, color=CLASS_PALETTE[i % len(CLASS_PALETTE)],
+                   marker=ROBOT_MARKERS[i % len(ROBOT_MARKERS)], alpha=0.75,
+                   label=f"{result.names[i]}{root}")
     if result.merged is not None and len(result.merged):
-        ax.scatter(
-            *result.merged.positions[:, :2].T,
-            s=14,
-            facecolors="none",
-            edgecolors="k",
-            linewidths=0.3,
-        )
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
+        ax.scatter(*result.merged.positions[:, :2].T, s=20, facecolors="none", edgecolors="k",
+                   linewidths=0.3, label=f"merged map, {len(result.merged)} objects")
     title = f"{len(result.placed)} of {len(result.names)} robots placed"
     if result.unplaced:
         title += " (unplaced: " + ", ".join(result.names[i] for i in result.unplaced) + ")"
-    ax.set_title(title, fontsize=8)
-    ax.legend(fontsize=6, markerscale=2, loc="best")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7, markerscale=1.5, loc="upper left", bbox_to_anchor=(1.01, 1.0),
+              frameon=False)
+    top_down(ax)
     fig.tight_layout()
     path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
     plt.close(fig)
     return path
@@ -501,5 +498,26 @@ def localize_fleet(
         d.mkdir(parents=True, exist_ok=True)
         merged.save(d / "merged.json")
         (d / "fleet.json").write_text(json.dumps(result.to_dict(), indent=1))
+        write_fleet_poses(result, d)
+        cfg.localizer.to_yaml(d / "config.yaml")
         plot_fleet(result, graphs, d / "fleet.png")
     return result
+
+
+def write_fleet_poses(result: FleetResult, folder: str | Path) -> list[Path]:
+    """Each placed robot's pose T_world_robot as TUM and KITTI files (for evo and friends):
+    `poses/<robot>.tum` and `poses/<robot>.kitti` (one line each), and `poses.tum` /
+    `poses.kitti` with every placed robot, one line each, the TUM timestamp = the robot's
+    index in `names` (the KITTI rows in the same order)."""
+    from sgloc.io.poses import write_kitti_poses, write_tum_poses
+
+    d = Path(folder)
+    placed = sorted(result.T_world_robot)
+    T = np.array([result.T_world_robot[i] for i in placed]).reshape(-1, 4, 4)
+    files = [write_tum_poses(d / "poses.tum", np.array(placed, float), T),
+             write_kitti_poses(d / "poses.kitti", T)]
+    for k, i in enumerate(placed):
+        stem = Path(result.names[i]).stem or f"robot{i}"
+        files.append(write_tum_poses(d / "poses" / f"{stem}.tum", np.array([float(i)]), T[k:k + 1]))
+        files.append(write_kitti_poses(d / "poses" / f"{stem}.kitti", T[k:k + 1]))
+    return files

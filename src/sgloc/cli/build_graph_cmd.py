@@ -41,7 +41,9 @@ def _loader_options(dataset: str, given: dict) -> dict:
 def build_graph_cmd(
     dataset: str = typer.Argument(..., help=f"Loader name: {' | '.join(sorted(DATASETS))}."),
     path: Path = typer.Argument(..., help="Dataset folder (or run folder with robot folders)."),
-    out: Path = typer.Option(..., "-o", "--out", help="Graph file to write (.pcd, .json, .npz)."),
+    out: Path = typer.Option(
+        ..., "-o", "--out", help="Graph file to write (.pcd .json .npz .ply .csv .txt)."
+    ),
     robot: str | None = typer.Option(
         None, help="Robot folder (airsim) or camera (synthia: Omni_F | Omni_B)."
     ),
@@ -60,6 +62,9 @@ def build_graph_cmd(
     position: str | None = typer.Option(None, help="Vertex position rule: mean | centre."),
     max_range: float | None = typer.Option(None, help="Ignore detections farther (m)."),
     edge_radius: float | None = typer.Option(None, help="Graph edge radius (m)."),
+    preset: str | None = typer.Option(
+        None, help="Extraction preset (sgloc.presets; default: the one named like DATASET)."
+    ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
     """Build a robot's semantic graph from a dataset's frames and write it to a file.
@@ -78,7 +83,12 @@ def build_graph_cmd(
         "max_range": max_range,
         "edge_radius": edge_radius,
     }
-    config = extraction_preset(dataset).with_overrides(
+    from sgloc.presets import EXTRACTION_PRESETS
+
+    if preset is not None and preset.strip().lower().replace("_", "-") not in EXTRACTION_PRESETS:
+        raise fail(f"unknown extraction preset {preset!r}; choose one of "
+                   f"{', '.join(EXTRACTION_PRESETS)}.")
+    config = extraction_preset(preset or dataset).with_overrides(
         **{k: v for k, v in overrides.items() if v is not None}
     )
     ds = make_dataset(dataset, path, **options)
@@ -98,6 +108,20 @@ def build_graph_cmd(
             f"no objects were extracted from {len(ds)} frames of {path}; check the images or "
             "lower --min-pixels / --min-observations."
         )
-    written = graph.save(out)
+    written = _save(graph, out)
     per_class = dict(sorted(Counter(graph.labels.tolist()).items()))
     Console().print(f"{graph} from {len(ds)} frames -> {written}\nvertices per class: {per_class}")
+
+
+def _save(graph, out: Path) -> Path:
+    """Write the graph; .ply and .csv/.txt besides SemanticGraph.save's formats."""
+    suffix = out.suffix.lower()
+    if suffix == ".ply":
+        from sgloc.io.ply import write_ply
+
+        return write_ply(out, graph.positions, graph.labels)
+    if suffix in (".csv", ".txt"):
+        from sgloc.io.table import write_table
+
+        return write_table(out, graph.positions, graph.labels)
+    return graph.save(out)

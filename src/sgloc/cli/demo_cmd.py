@@ -10,7 +10,6 @@ instead (no rendering).
 
 from __future__ import annotations
 
-import os
 import shutil
 from pathlib import Path
 
@@ -28,17 +27,19 @@ from rich.progress import (
 from rich.table import Table
 
 from sgloc.cli.app import app, fail
-from sgloc.geometry import apply, transform_error
+from sgloc.geometry import transform_error
 from sgloc.graph import SemanticGraph
 from sgloc.localizer import LocalizationResult, localize
 
+#: Where `sgloc demo` saves its picture unless told otherwise (relative to the current folder).
+DEFAULT_OUT = Path("results") / "demo" / "aligned_maps.png"
+
 
 def default_cache_dir() -> Path:
-    """$SGLOC_CACHE, else $XDG_CACHE_HOME/sgloc, else ~/.cache/sgloc."""
-    if os.environ.get("SGLOC_CACHE"):
-        return Path(os.environ["SGLOC_CACHE"])
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "sgloc"
+    """$SGLOC_CACHE, else the per-user cache folder (~/.cache/sgloc on Linux)."""
+    from sgloc.data import cache_dir
+
+    return cache_dir()
 
 
 def _progress(console: Console) -> Progress:
@@ -70,10 +71,16 @@ def demo_cmd(
     paper_defaults: bool = typer.Option(
         False, help="Localize with the paper's defaults only (no city class weights)."
     ),
-    out: Path = typer.Option(Path("sgloc_demo.png"), help="PNG of the aligned maps."),
+    out: Path = typer.Option(
+        DEFAULT_OUT, help="PNG of the aligned maps (its folder is created)."
+    ),
     objects_only: bool = typer.Option(
         False, "--objects-only", help="Use the tiny object world (no rendering, instant)."
     ),
+    preset: str | None = typer.Option(
+        None, "--preset", help="Named localizer settings (default: city; see sgloc.presets)."
+    ),
+    setting: list[str] = typer.Option([], "--set", help="A setting NAME=VALUE (repeatable)."),
 ) -> None:
     """Render a synthetic city seen by two robots, build their semantic graphs, localize one in
     the other and compare with the ground truth.
@@ -92,7 +99,7 @@ def demo_cmd(
     from sgloc.datasets import make_dataset
     from sgloc.extraction import ExtractionConfig, build_graph
     from sgloc.sim import QUERY, TARGET, SyntheticRunConfig, read_ground_truth
-    from sgloc.sim.run import SyntheticRun, city_localizer_config
+    from sgloc.sim.run import SyntheticRun
 
     cfg = SyntheticRunConfig(
         seed=seed, overlap=overlap, width=width, height=height, length=length, step=step
@@ -121,11 +128,20 @@ def demo_cmd(
             )
     T_gt = read_ground_truth(run_dir)
     target, query = graphs[TARGET], graphs[QUERY]
-    config = None if paper_defaults else city_localizer_config()
+    from sgloc.cli.options import localizer_config
+
+    config = localizer_config(preset or ("paper" if paper_defaults else "city"), None, setting)
     res = localize(query, target, descriptor, rejection, seed=seed, config=config)
     _report(console, query, target, res, T_gt)
     T_plot = res.transform if res.success else T_gt
-    path = plot_aligned_maps(target, query, T_plot, res.matches, out, run_dir, res.success)
+    title = None
+    if res.success:
+        te, re = transform_error(res.transform, T_gt)
+        conf = "" if res.confidence is None else f", confidence {res.confidence:.3f}"
+        title = f"B placed in A's map: error {te:.2f} m / {re:.2f}°{conf}"
+    path = plot_aligned_maps(
+        target, query, T_plot, res.matches, out, run_dir, res.success, title=title
+    )
     console.print(f"saved {path}")
     if not res.success:
         raise fail(f"not localized: {res.reason}")
@@ -155,67 +171,26 @@ def plot_aligned_maps(
     path: Path,
     run_dir: Path | None = None,
     estimated: bool = True,
+    title: str | None = None,
 ) -> Path:
-    """Top view of robot A's map and robot B's map placed by `T_target_query`, vertices
-    coloured by class, final matches as lines (and the two routes when `run_dir` is given)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.collections import LineCollection
-
-    from sgloc.classes import AIRSIM_COLORS
+    """Top-down view (x right, y up) of robot A's map and robot B's map placed by
+    `T_target_query`, classes coloured, final matches as lines, and the two routes when
+    `run_dir` is given (sgloc.viz.plot_aligned_maps)."""
     from sgloc.sim.city import CITY_CLASSES
+    from sgloc.viz import plot_aligned_maps as plot
 
-    t = target.positions
-    q = apply(T_target_query, query.positions)
-    # the map frames are AirSim body frames (x forward, y right, z down): seen from above,
-    # y runs right and x up
-    both = np.concatenate([t, q])
-    w, h = np.ptp(both[:, 1]) + 20.0, np.ptp(both[:, 0]) + 20.0
-    fig, ax = plt.subplots(figsize=(float(np.clip(6.0 * w / h, 4.0, 9.0)), 6.0))
-    colours = AIRSIM_COLORS / 255.0
-    ax.scatter(t[:, 1], t[:, 0], s=9, c=colours[target.labels % len(colours)], marker="o")
-    ax.scatter(q[:, 1], q[:, 0], s=14, c=colours[query.labels % len(colours)], marker="x")
+    routes = None
     if run_dir is not None:
         from sgloc.datasets import make_dataset
         from sgloc.sim import QUERY, TARGET
 
-        pa = make_dataset("airsim", run_dir, robot=TARGET).poses[:, :3, 3]
-        pb = apply(T_target_query, make_dataset("airsim", run_dir, robot=QUERY).poses[:, :3, 3])
-        ax.plot(pa[:, 1], pa[:, 0], "-", c="0.3", lw=1.0, label="robot A route (target)")
-        ax.plot(pb[:, 1], pb[:, 0], "--", c="tab:purple", lw=1.0, label="robot B route (query)")
-    m = np.asarray(matches, dtype=np.int64).reshape(-1, 2)
-    if len(m):
-        segs = np.stack([q[m[:, 0]][:, [1, 0]], t[m[:, 1]][:, [1, 0]]], axis=1)
-        ax.add_collection(LineCollection(segs, colors="tab:green", lw=2.0, alpha=0.9))
-        ax.scatter(
-            t[m[:, 1], 1],
-            t[m[:, 1], 0],
-            s=45,
-            facecolors="none",
-            edgecolors="tab:green",
-            linewidths=1.2,
-            label="final matches",
+        routes = (
+            make_dataset("airsim", run_dir, robot=TARGET).poses[:, :3, 3],
+            make_dataset("airsim", run_dir, robot=QUERY).poses[:, :3, 3],
         )
-    present = np.unique(np.concatenate([target.labels, query.labels]))
-    for c in present[present < len(CITY_CLASSES)]:
-        ax.scatter([], [], s=12, c=[colours[c]], label=CITY_CLASSES[c])
-    ax.legend(fontsize=6, loc="best", markerscale=1.0, ncol=2)
     how = "estimated" if estimated else "ground-truth (not localized)"
-    ax.set_title(
-        f"A's map (o) and B's map (x) placed by the {how} transform; {len(m)} final matches",
-        fontsize=8,
-    )
-    ax.set_aspect("equal")
-    ax.set_xlabel("y (m)")
-    ax.set_ylabel("x (m)")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    title = title or f"B placed in A's map by the {how} transform"
+    return plot(target, query, T_target_query, matches, path, title, CITY_CLASSES, routes)
 
 
 def _objects_only(console: Console, seed: int, overlap: float, descriptor: str, rejection: str):

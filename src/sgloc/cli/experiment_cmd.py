@@ -10,6 +10,8 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from sgloc.cli.app import app, fail
+from sgloc.cli.options import config_option, merged_settings, parse_settings, preset_option
+from sgloc.errors import SglocError
 from sgloc.evaluation.experiments import EXPERIMENTS, ExperimentOptions, run_experiment
 from sgloc.evaluation.sweeps import OVERLAPS, THRESHOLDS
 
@@ -28,18 +30,10 @@ def _names(text: str | None, default: tuple[str, ...]) -> tuple[str, ...]:
 
 
 def _settings(items: list[str]) -> dict:
-    out = {}
-    for item in items:
-        if "=" not in item:
-            raise fail(f"--set expects NAME=VALUE, got {item!r}")
-        k, v = item.split("=", 1)
-        try:
-            import yaml
-
-            out[k.strip()] = yaml.safe_load(v)
-        except Exception:  # noqa: BLE001
-            out[k.strip()] = v
-    return out
+    try:
+        return parse_settings(items)
+    except SglocError as e:
+        raise fail(str(e)) from None
 
 
 @app.command("experiment")
@@ -53,7 +47,9 @@ def experiment_cmd(
         None, help="Results folder (default results/<name>-<dataset>-<timestamp>)."
     ),
     scheduler: str | None = typer.Option(
-        None, help="Dask scheduler address (tcp://host:8786): run the trials on that cluster."
+        None,
+        help="Dask scheduler address (tcp://host:8786): run the trials on that cluster "
+        "(needs pip install 'sgloc\\[dask]').",
     ),
     workers: int | None = typer.Option(
         None, help="Local worker processes (default: all CPUs; 1 = in this process)."
@@ -83,6 +79,8 @@ def experiment_cmd(
         help="Localizer setting NAME=VALUE (repeatable), e.g. --set tau=3; "
         "overrides the dataset's recommended settings.",
     ),
+    preset: str | None = preset_option(),
+    config: Path | None = config_option(),
     dataset_param: list[str] = typer.Option(
         [], "--param", help="Dataset parameter NAME=VALUE (repeatable)."
     ),
@@ -119,7 +117,7 @@ def experiment_cmd(
         descriptors=_names(descriptors, ExperimentOptions.descriptors),
         rejections=_names(rejections, ExperimentOptions.rejections),
         descriptor=descriptor,
-        settings=_settings(setting),
+        settings=merged_settings(preset, config, setting),
         dataset_params=_settings(dataset_param),
         from_csv=str(from_csv) if from_csv else None,
         repeats=max(1, repeats),
@@ -142,8 +140,14 @@ def experiment_cmd(
         def progress(done: int, total: int, phase: str = "trials") -> None:
             bar.update(task, completed=done, total=total, description=phase)
 
-        result = run_experiment(
-            name, dataset, out, opt, workers=workers, scheduler=scheduler, progress=progress
-        )
+        existed = out.exists()
+        try:
+            result = run_experiment(
+                name, dataset, out, opt, workers=workers, scheduler=scheduler, progress=progress
+            )
+        except BaseException:
+            if not existed and out.is_dir() and not any(out.iterdir()):
+                out.rmdir()  # a failed run leaves no empty results folder behind
+            raise
     console.print(result.markdown, markup=False, highlight=False, soft_wrap=True)
     console.print(f"results in {result.folder}/: " + ", ".join(p.name for p in result.files))

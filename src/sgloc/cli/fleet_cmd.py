@@ -10,19 +10,32 @@ from rich.console import Console
 from rich.table import Table
 
 from sgloc.cli.app import app
-from sgloc.config import LocalizerConfig
+from sgloc.cli.options import (
+    COLOURS_HELP,
+    LABEL_HELP,
+    config_option,
+    load_graph,
+    localizer_config,
+    preset_option,
+    set_option,
+)
 from sgloc.fleet import FleetConfig, localize_fleet
-from sgloc.graph import SemanticGraph
 
 
 @app.command("fleet")
 def fleet_cmd(
-    graphs: list[Path] = typer.Argument(..., help="Two or more robot graphs (.pcd/.json/.npz)."),
+    graphs: list[Path] = typer.Argument(
+        ..., help="Two or more robot graphs (.pcd .ply .csv .txt .json .npz)."
+    ),
     scheduler: str | None = typer.Option(
-        None, help="Address of an existing Dask scheduler; default: local processes."
+        None,
+        help="Address of an existing Dask scheduler (needs pip install 'sgloc\\[dask]'); "
+        "default: local processes.",
     ),
     out: Path = typer.Option(
-        Path("fleet_out"), help="Folder for merged.json, fleet.json, fleet.png."
+        Path("fleet_out"),
+        help="Folder for merged.json, fleet.json, poses.tum, poses.kitti, poses/, config.yaml, "
+        "fleet.png.",
     ),
     min_confidence: float | None = typer.Option(
         None, help="Acceptance strictness for each pair, 0-1 (default: the library's 0.9999)."
@@ -30,6 +43,11 @@ def fleet_cmd(
     workers: int | None = typer.Option(None, help="Local processes (default: CPU count)."),
     edge_radius: float = typer.Option(20.0, help="Graph edge radius (m)."),
     seed: int = typer.Option(0, help="Random seed."),
+    preset: str | None = preset_option(),
+    config: Path | None = config_option(),
+    setting: list[str] = set_option(),
+    label_field: str | None = typer.Option(None, help=LABEL_HELP),
+    colour_table: Path | None = typer.Option(None, help=COLOURS_HELP),
 ) -> None:
     """Place N robots' graphs in one common frame and merge their maps.
 
@@ -39,9 +57,9 @@ def fleet_cmd(
 
     Example: sgloc fleet a.pcd b.pcd c.json d.npz --out fleet_out --scheduler tcp://10.0.0.5:8786
     """
-    gs = [SemanticGraph.load(p, edge_radius=edge_radius) for p in graphs]
-    overrides = {} if min_confidence is None else {"min_confidence": min_confidence}
-    cfg = FleetConfig(localizer=LocalizerConfig().with_overrides(**overrides), seed=seed)
+    localizer = localizer_config(preset, config, setting, min_confidence=min_confidence)
+    gs = [load_graph(p, edge_radius, label_field, colour_table) for p in graphs]
+    cfg = FleetConfig(localizer=localizer, seed=seed)
     res = localize_fleet(
         gs, cfg, names=[p.name for p in graphs], scheduler=scheduler, workers=workers, out=out
     )
@@ -64,4 +82,7 @@ def fleet_cmd(
         f"merged objects {len(res.merged) if res.merged is not None else 0}  "
         f"({res.timings['pairs']:.2f} s pairs)"
     )
-    console.print(f"wrote {out / 'merged.json'}, {out / 'fleet.json'}, {out / 'fleet.png'}")
+    console.print(
+        f"results in {out}/: merged.json, fleet.json, poses.tum, poses.kitti, poses/, "
+        "config.yaml, fleet.png"
+    )

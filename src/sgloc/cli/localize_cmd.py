@@ -11,32 +11,105 @@ from rich.console import Console
 from rich.table import Table
 
 from sgloc.cli.app import app, fail
-from sgloc.graph import SemanticGraph
-from sgloc.localizer import localize
+from sgloc.cli.options import (
+    COLOURS_HELP,
+    LABEL_HELP,
+    config_option,
+    load_graph,
+    localizer_config,
+    preset_option,
+    set_option,
+)
+from sgloc.io.results import FORMATS, render, write_results
+from sgloc.localizer import Localizer
 
 
 @app.command("localize")
 def localize_cmd(
-    query: Path = typer.Argument(..., help="Query graph (.pcd, .json, .npz): the map to place."),
-    target: Path = typer.Argument(..., help="Target graph: the map to place it in."),
-    descriptor: str = typer.Option("histogram", help="histogram | random_walk | fast"),
-    rejection: str = typer.Option("neighbor", help="neighbor | none | any registered rejector"),
-    ransac_threshold: float = typer.Option(5.0, help="RANSAC inlier distance T_error (m)."),
+    query: Path | None = typer.Argument(
+        None, help="Query graph (.pcd .ply .csv .txt .json .npz): the map to place."
+    ),
+    target: Path | None = typer.Argument(None, help="Target graph: the map to place it in."),
+    example: bool = typer.Option(
+        False, "--example", help="Use the Airsim maps shipped with sgloc (cloud1 in cloud2)."
+    ),
+    descriptor: str | None = typer.Option(None, help="histogram | random_walk | fast"),
+    rejection: str | None = typer.Option(None, help="neighbor | none | any registered rejector"),
+    ransac_threshold: float | None = typer.Option(None, help="RANSAC inlier distance (m)."),
+    preset: str | None = preset_option(),
+    config: Path | None = config_option(),
+    setting: list[str] = set_option(),
     edge_radius: float = typer.Option(20.0, help="Graph edge radius (m)."),
     seed: int = typer.Option(0, help="Random seed."),
-    json_out: Path | None = typer.Option(None, "--json", help="Write the result as JSON here."),
+    label_field: str | None = typer.Option(None, help=LABEL_HELP),
+    colour_table: Path | None = typer.Option(None, help=COLOURS_HELP),
+    out: Path | None = typer.Option(
+        None, help="Results folder: result.json, T_target_query*.txt, config.yaml, PNG."
+    ),
+    fmt: str | None = typer.Option(
+        None, "--format", help=f"Print only the result to stdout as {' | '.join(FORMATS)}."
+    ),
+    json_out: Path | None = typer.Option(
+        None, "--json", help="Write the full result (with every match) as JSON here."
+    ),
+    rerun: Path | None = typer.Option(
+        None, "--rerun", help="Write both maps, the matches and the transform as a Rerun "
+        "recording (.rrd; needs pip install 'sgloc\\[rerun]')."
+    ),
 ) -> None:
-    """Find T_target_query, the rigid transform from QUERY's frame into TARGET's.
+    """Find T_target_query, the rigid transform from QUERY's frame into TARGET's
+    (p_target = T @ p_query).
 
-    Example: sgloc localize cloud1.pcd cloud2.pcd --descriptor histogram --json out.json
+    Settings are applied in order: --config FILE, --preset NAME, each --set NAME=VALUE, then
+    --descriptor / --rejection / --ransac-threshold.
+
+    Examples: sgloc localize --example --out results/example |
+    sgloc localize cloud1.pcd cloud2.pcd --format kitti > T.txt
     """
-    q = SemanticGraph.load(query, edge_radius=edge_radius)
-    t = SemanticGraph.load(target, edge_radius=edge_radius)
-    res = localize(q, t, descriptor, rejection, ransac_threshold, seed)
+    if fmt is not None and fmt not in FORMATS:
+        raise fail(f"--format must be one of {', '.join(FORMATS)}, got {fmt!r}.")
+    if rerun is not None:
+        from sgloc.optional import require
+
+        require("rerun", "rerun", "--rerun (a Rerun recording)")  # fail before the work
+    if example:
+        if query is not None or target is not None:
+            raise fail("give either two graph files or --example, not both.")
+        from sgloc.data import airsim_guo_paths
+
+        query, target = airsim_guo_paths()
+    elif query is None or target is None:
+        raise fail("give two graph files (QUERY TARGET), or --example for the shipped maps.")
+    cfg = localizer_config(
+        preset, config, setting,
+        descriptor=descriptor, rejection=rejection, ransac_threshold=ransac_threshold,
+    )
+    q = load_graph(query, edge_radius, label_field, colour_table)
+    t = load_graph(target, edge_radius, label_field, colour_table)
+    res = Localizer(cfg)(q, t, seed)
+    info = {"query": str(query), "target": str(target), "seed": seed}
+    if out is not None:
+        files = write_results(out, res, cfg, **info)
+        files["png"] = _picture(out / "aligned_maps.png", q, t, res, example)
+    if rerun is not None:
+        from sgloc.io.rerun_file import write_rerun
+
+        T = res.transform if res.success else np.eye(4)
+        write_rerun(rerun, t, q, T, res.matches if res.success else np.zeros((0, 2)))
     if json_out is not None:
         json_out.parent.mkdir(parents=True, exist_ok=True)
         json_out.write_text(json.dumps(res.to_dict(), indent=1))
-    console = Console()
+    console = Console(stderr=fmt is not None)
+    _report(console, q, t, res, example)
+    if out is not None:
+        console.print(f"results in {out}/: " + ", ".join(sorted(p.name for p in files.values())))
+    if fmt is not None and (res.success or fmt == "json"):
+        typer.echo(render(res, fmt, **info), nl=False)
+    if not res.success:
+        raise fail(f"not localized: {res.reason}")
+
+
+def _report(console: Console, q, t, res, example: bool) -> None:
     console.print(f"query  {q}\ntarget {t}")
     console.print(
         f"candidates {len(res.candidates)}  after rejection {len(res.survivors)}  "
@@ -46,7 +119,30 @@ def localize_cmd(
     for k, v in res.timings.items():
         table.add_row(k, f"{v * 1e3:.2f}")
     console.print(table)
-    if not res.success:
-        raise fail(f"not localized: {res.reason}")
-    with np.printoptions(precision=4, suppress=True):
-        console.print(f"T_target_query =\n{res.transform}")
+    if res.success:
+        conf = "n/a" if res.confidence is None else f"{res.confidence:.4f}"
+        with np.printoptions(precision=4, suppress=True):
+            console.print(f"confidence {conf}\nT_target_query =\n{res.transform}")
+        if example:
+            from sgloc.geometry import transform_error
+
+            te, re = transform_error(res.transform, np.eye(4))
+            console.print(f"error against the ground truth (identity): {te:.2f} m, {re:.2f} deg")
+
+
+def _picture(path: Path, q, t, res, example: bool) -> Path:
+    from sgloc.viz import plot_aligned_maps
+
+    if res.success:
+        conf = "" if res.confidence is None else f", confidence {res.confidence:.3f}"
+        title = f"{t.name} (A) and {q.name} (B) aligned{conf}"
+        if example:
+            from sgloc.geometry import transform_error
+
+            te, re = transform_error(res.transform, np.eye(4))
+            title += f"\nerror vs ground truth {te:.2f} m / {re:.2f}°"
+        T = res.transform
+    else:
+        title = f"not localized ({res.reason}); B shown in its own frame"
+        T = np.eye(4)
+    return plot_aligned_maps(t, q, T, res.matches if res.success else [], path, title)

@@ -209,11 +209,11 @@ def city_graphs(world: int, overlap: float) -> tuple[SemanticGraph, SemanticGrap
     Uses the newest graphs in the evaluation harness' disk cache for that run, even when they
     were rendered by an earlier version of the sim code (the cache key names it); renders and
     caches the run (`sgloc.evaluation.pairs._city_graphs`) only when none is cached."""
-    from sgloc.data import PROJECT_ROOT
-    from sgloc.evaluation.pairs import CACHE_DIR, _city_graphs
+    from sgloc.evaluation.pairs import _city_graphs
+    from sgloc.evaluation.pairs_sim import evaluation_cache_dir
 
     found = sorted(
-        (PROJECT_ROOT / CACHE_DIR).glob(f"city-w{world}-o{overlap:g}-320x180-L400-*.npz"),
+        evaluation_cache_dir().glob(f"city-w{world}-o{overlap:g}-320x180-L400-*.npz"),
         key=lambda p: p.stat().st_mtime,
     )
     if not found:

@@ -14,6 +14,7 @@ from sgloc.errors import DatasetError
 from sgloc.evaluation.pairs import Pair, _moved_target, register_pair_source
 from sgloc.geometry import invert
 from sgloc.graph import SemanticGraph
+from sgloc.presets import localizer_settings as preset_settings
 
 KITTI_LC_FILES = ("kitti_lc_test_0_10.txt", "kitti_lc_test_10_20.txt", "kitti_lc_test_20_30.txt")
 
@@ -104,7 +105,7 @@ class Kitti00Pairs:
     """
 
     #: Recommended localizer settings (the extraction preset's: precise LiDAR centroids).
-    localizer_settings: ClassVar[dict[str, Any]] = {"ransac_threshold": 2.0, "tau": 2.0}
+    localizer_settings: ClassVar[dict[str, Any]] = preset_settings("kitti-objects")
 
     root: str | None = None
     overlap: float | None = None

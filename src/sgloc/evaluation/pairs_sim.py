@@ -12,9 +12,17 @@ import numpy as np
 
 from sgloc.evaluation.pairs import Pair, _moved_target, register_pair_source
 from sgloc.graph import SemanticGraph
+from sgloc.presets import localizer_settings as preset_settings
 
-#: Disk cache of graphs extracted from rendered synthetic runs (gitignored).
-CACHE_DIR = Path(".sgloc_cache") / "evaluation"
+#: Disk cache of graphs extracted from rendered synthetic runs, under sgloc.data.cache_dir().
+CACHE_DIR = Path("evaluation")
+
+
+def evaluation_cache_dir() -> Path:
+    """Where extracted city graphs are cached: `<sgloc.data.cache_dir()>/evaluation`."""
+    from sgloc.data import cache_dir
+
+    return cache_dir() / CACHE_DIR
 
 
 @functools.lru_cache(maxsize=1)
@@ -36,10 +44,8 @@ def _city_graphs(
 ) -> tuple[SemanticGraph, SemanticGraph, np.ndarray]:
     """(query = backwardCar graph, target = forwardCar graph, T_target_query) of the synthetic
     city run `world` at `overlap`: rendered and extracted once, then read from the disk cache."""
-    from sgloc.data import PROJECT_ROOT
-
     key = f"city-w{world}-o{overlap:g}-{width}x{height}-L{length:g}-{_code_hash()}"
-    path = PROJECT_ROOT / CACHE_DIR / f"{key}.npz"
+    path = evaluation_cache_dir() / f"{key}.npz"
     if path.is_file():
         z = np.load(path)
         return (
@@ -67,11 +73,11 @@ class CityPairs:
     """The rendered synthetic city (`sgloc.sim`): two robots drive opposite ways sharing
     `overlap` of their routes; each map is extracted from its rendered semantic + depth frames
     and lies in the robot's own start frame. Trial seed s uses city `s % n_worlds` (rendering
-    is the expensive part; graphs are cached on disk under .sgloc_cache/), and the target is
-    moved by a random rigid transform per trial."""
+    is the expensive part; graphs are cached on disk under sgloc.data.cache_dir()), and the
+    target is moved by a random rigid transform per trial."""
 
-    #: Recommended localizer settings (sgloc.sim.CITY_LOCALIZER_SETTINGS: buildings weigh less).
-    localizer_settings: ClassVar[dict[str, Any]] = {"class_weights": {0: 0.1}}
+    #: Recommended localizer settings (the `city` preset: buildings weigh less).
+    localizer_settings: ClassVar[dict[str, Any]] = preset_settings("city")
 
     overlap: float = 0.5
     n_worlds: int = 5

@@ -116,26 +116,34 @@ def pr_curves(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
 def overlap_boxplots(
     rows: Sequence[dict[str, Any]], path: str | Path, title: str = "", failure_m: float = 20.0
 ) -> Path:
-    """Fig. 6: box plots of translation error per overlap rate, baseline beside +neighbor;
-    unlocalized trials drawn at the top of the axis (1000 m); failure rates in the lower panel
-    (solid: localized but wrong by more than `failure_m`; hatched: not localized)."""
+    """Fig. 6: box plots of the translation error of the localized trials per overlap rate,
+    baseline beside +neighbor; above each box the count of unlocalized trials (`k/n` not
+    localized; they have no error to draw); failure rates in the lower panel (solid: localized
+    but wrong by more than `failure_m`; hatched: not localized)."""
     rejections = list(dict.fromkeys(r["rejection"] for r in rows))
     overlaps = sorted({float(r["overlap"]) for r in rows})
     fig, (ax, ax2) = plt.subplots(
         2, 1, figsize=(7.5, 5.4), sharex=True, gridspec_kw={"height_ratios": [3, 1.2]}
     )
     width = 0.8 / max(len(rejections), 1)
-    cap = 1e3
+    top = ax.get_xaxis_transform()  # x in data, y in axes fraction
     for k, rej in enumerate(rejections):
-        data, wrong, unloc = [], [], []
+        data, wrong, unloc, counts = [], [], [], []
         for o in overlaps:
             g = [r for r in rows if r["rejection"] == rej and float(r["overlap"]) == o]
             te = column(g, "translation_error_m")
-            data.append(np.where(np.isfinite(te), np.minimum(te, cap), cap))
+            localized = np.array([bool(r["localized"]) for r in g], dtype=bool)
+            te = te[localized & np.isfinite(te)] if len(g) else te
+            data.append(te if len(te) else np.array([np.nan]))
             n = max(len(g), 1)
-            unloc.append(100 * sum(not r["localized"] for r in g) / n)
+            n_unloc = int(np.sum(~localized))
+            counts.append((n_unloc, len(g)))
+            unloc.append(100 * n_unloc / n)
             wrong.append(100 * sum(bool(r["localized"] and r["failed"]) for r in g) / n)
         pos = np.arange(len(overlaps)) + (k - (len(rejections) - 1) / 2) * width
+        for x, (n_unloc, n) in zip(pos, counts, strict=True):
+            ax.text(x, 0.985, f"{n_unloc}/{n}", transform=top, ha="center", va="top",
+                    fontsize=6, color="tab:red" if rej == "none" else "tab:blue")
         color = "tab:red" if rej == "none" else "tab:blue"
         label = "baseline (RANSAC)" if rej == "none" else f"+{rej}"
         bp = ax.boxplot(
@@ -149,8 +157,10 @@ def overlap_boxplots(
         ax2.bar(pos, unloc, bottom=wrong, width=width * 0.9, color=color, alpha=0.3, hatch="//")
     ax.axhline(failure_m, color="k", lw=0.8, ls=":", label=f"failure ({failure_m:g} m)")
     ax.set_yscale("log")
-    ax.set_ylabel("translation error (m)")
-    ax.legend(fontsize=7)
+    lo, hi = ax.get_ylim()
+    ax.set_ylim(lo, hi * 4)  # room for the unlocalized counts
+    ax.set_ylabel("translation error of localized trials (m)")
+    ax.legend(fontsize=7, title="k/n over a box: k of n not localized", title_fontsize=7)
     ax.grid(alpha=0.3, axis="y")
     ax.set_title(title or "Translation error vs overlap")
     ax2.set_xticks(range(len(overlaps)), [f"{o:g}" for o in overlaps])

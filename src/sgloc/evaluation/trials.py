@@ -276,6 +276,9 @@ def run_tasks(
 
 
 def _run_dask(tasks: list[Any], scheduler: Any, tick: Progress, fn: Callable) -> list[Any]:
+    from sgloc.optional import require
+
+    require("distributed", "dask", "--scheduler (running trials on a Dask cluster)")
     from dask.distributed import Client
     from dask.distributed import as_completed as dask_completed
 

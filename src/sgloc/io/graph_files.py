@@ -22,6 +22,10 @@ def read_graph(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         raise GraphFileError(f"{path}: is a folder; give a graph file (.pcd, .json or .npz).")
     suffix = path.suffix.lower()
     try:
+        if suffix in (".ply", ".csv", ".txt"):  # readers with options: sgloc.io.inputs
+            from sgloc.io.inputs import read_graph_with
+
+            return read_graph_with(path)
         if suffix == ".pcd":
             from sgloc.io.pcd import read_pcd
 

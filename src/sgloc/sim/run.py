@@ -14,6 +14,7 @@ import numpy as np
 
 from sgloc.config import LocalizerConfig
 from sgloc.datasets.base import Frame
+from sgloc.presets import localizer_preset, localizer_settings
 from sgloc.sim.airsim_writer import write_ground_truth, write_robot, write_run_metadata
 from sgloc.sim.city import City, CityConfig, make_city
 from sgloc.sim.render import Camera, render_frames
@@ -22,16 +23,13 @@ from sgloc.sim.trajectory import ROBOT_NAMES, TrajectoryConfig, TwoRobotRoutes, 
 #: Robot A (the target map) and robot B (the query), as in Guo's Airsim data.
 TARGET, QUERY = ROBOT_NAMES
 
-#: Localizer settings for graphs extracted from the city. Guo weighs one class x11 in the final
-#: weighted fit; here the building class is the one whose vertices depend on the viewpoint
-#: (the centroid of the visible part of a facade moves as a robot drives past, and the two
-#: robots see opposite ends), so every other class weighs 10x a building.
-CITY_LOCALIZER_SETTINGS: dict = {"class_weights": {0: 0.1}}
+#: Localizer settings for graphs extracted from the city (the `city` preset of sgloc.presets).
+CITY_LOCALIZER_SETTINGS: dict = localizer_settings("city")
 
 
 def city_localizer_config() -> LocalizerConfig:
-    """LocalizerConfig for the synthetic city (the paper's defaults + CITY_LOCALIZER_SETTINGS)."""
-    return LocalizerConfig().with_overrides(**CITY_LOCALIZER_SETTINGS)
+    """LocalizerConfig for the synthetic city (the paper's defaults + the `city` preset)."""
+    return localizer_preset("city")
 
 
 @dataclass

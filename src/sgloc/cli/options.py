@@ -1,0 +1,136 @@
+"""Options shared by several commands: localizer settings (`--preset`, `--config`, `--set`)
+and graph inputs (`--label-field`, `--colour-table`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from sgloc.config import LocalizerConfig
+from sgloc.errors import SglocError
+from sgloc.graph import SemanticGraph
+from sgloc.presets import LOCALIZER_PRESETS
+
+PRESET_HELP = f"Named settings: {' | '.join(LOCALIZER_PRESETS)} (see sgloc.presets)."
+CONFIG_HELP = "Localizer settings from a YAML file (as written by --out DIR/config.yaml)."
+SET_HELP = "A localizer setting NAME=VALUE (repeatable), e.g. --set tau=3 --set top_k=2."
+LABEL_HELP = "Class column of .ply/.csv/.txt graphs: a field name or a 0-based column index."
+COLOURS_HELP = "Colour table (lines `class r g b \\[name]`) for graphs whose classes are colours."
+
+
+def preset_option() -> Any:
+    return typer.Option(None, "--preset", help=PRESET_HELP)
+
+
+def config_option() -> Any:
+    return typer.Option(None, "--config", help=CONFIG_HELP, exists=False)
+
+
+def set_option() -> Any:
+    return typer.Option([], "--set", help=SET_HELP)
+
+
+def parse_settings(items: list[str]) -> dict[str, Any]:
+    """{NAME: value} from `NAME=VALUE` strings; values are read as YAML (3 -> int, a,b -> str,
+    {0: 0.1} -> dict). Raises SglocError on an item without `=`."""
+    import yaml
+
+    out: dict[str, Any] = {}
+    for item in items:
+        if "=" not in item:
+            raise SglocError(f"--set expects NAME=VALUE, got {item!r}.")
+        key, text = item.split("=", 1)
+        try:
+            out[key.strip()] = yaml.safe_load(text)
+        except yaml.YAMLError:
+            out[key.strip()] = text
+    return out
+
+
+_NESTED = {"matching", "ransac", "acceptance", "descriptor_params", "rejection_params"}
+
+
+def flat_settings(cfg: LocalizerConfig) -> dict[str, Any]:
+    """The flat settings (as `--set` and `localize(**settings)` take them) in which `cfg`
+    differs from the defaults: `LocalizerConfig().with_overrides(**flat) == cfg`."""
+    import dataclasses
+
+    base = LocalizerConfig()
+    out: dict[str, Any] = {}
+    for key in ("descriptor", "rejection"):
+        if getattr(cfg, key) != getattr(base, key):
+            out[key] = getattr(cfg, key)
+    out |= cfg.descriptor_params | cfg.rejection_params
+    for section in ("matching", "ransac"):
+        now, ref = (dataclasses.asdict(getattr(c, section)) for c in (cfg, base))
+        for k, v in now.items():
+            if v != ref[k]:
+                out["ransac_threshold" if (section, k) == ("ransac", "threshold") else k] = v
+    if cfg.acceptance != base.acceptance:
+        out["acceptance"] = dataclasses.asdict(cfg.acceptance)
+    for k in ("class_weights", "robust_refit", "icp", "icp_max_distance"):
+        if getattr(cfg, k) != getattr(base, k):
+            out[k] = getattr(cfg, k)
+    return out
+
+
+def read_settings_file(path: Path) -> dict[str, Any]:
+    """Flat settings from a YAML file: either flat (`tau: 3`) or a whole LocalizerConfig as
+    `--out DIR/config.yaml` holds it (then the settings that differ from the defaults)."""
+    import yaml
+
+    path = Path(path)
+    if not path.is_file():
+        raise SglocError(f"{path}: no such config file; give a YAML file of settings.")
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as e:
+        raise SglocError(f"{path}: not valid YAML ({e}).") from None
+    if not isinstance(data, dict):
+        raise SglocError(f"{path}: expected a mapping of settings (NAME: value).")
+    if _NESTED & set(data):
+        return flat_settings(LocalizerConfig.from_dict(data))
+    return data
+
+
+def merged_settings(
+    preset: str | None = None,
+    config_file: Path | None = None,
+    settings: list[str] | None = None,
+    **named: Any,
+) -> dict[str, Any]:
+    """Flat settings in the order they apply: the YAML file, the preset, every --set, then the
+    named options that were given (not None)."""
+    from sgloc.presets import localizer_settings
+
+    out = read_settings_file(config_file) if config_file else {}
+    out |= localizer_settings(preset) if preset else {}
+    out |= parse_settings(settings or [])
+    return out | {k: v for k, v in named.items() if v is not None}
+
+
+def localizer_config(
+    preset: str | None = None,
+    config_file: Path | None = None,
+    settings: list[str] | None = None,
+    **named: Any,
+) -> LocalizerConfig:
+    """The LocalizerConfig a command runs with (`merged_settings` over the defaults)."""
+    return LocalizerConfig().with_overrides(
+        **merged_settings(preset, config_file, settings, **named)
+    )
+
+
+def load_graph(
+    path: Path,
+    edge_radius: float = 20.0,
+    label_field: str | None = None,
+    colour_table: Path | None = None,
+) -> SemanticGraph:
+    """A graph file with the reader options of the command line."""
+    from sgloc.io.inputs import read_graph_with
+
+    positions, labels = read_graph_with(path, label_field=label_field, colour_table=colour_table)
+    return SemanticGraph(positions, labels, edge_radius, name=Path(path).name)

@@ -1,0 +1,93 @@
+"""CSV / TXT graph tables: one object a row, x y z and a class.
+
+Columns are found by name when the first row is a header (`x,y,z,label`; class column named
+by `label_field`, else the first of label/class/class_id/semantic/category), else by position:
+x y z in columns 0-2 and the class in column 3 (or `label_field` as a 0-based index).
+Separators: commas, semicolons, tabs or spaces; `#` starts a comment.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+from sgloc.errors import GraphFileError
+from sgloc.io.ply import LABEL_FIELDS
+
+_SPLIT = re.compile(r"[,;\s]+")
+
+
+def read_table(path: str | Path, label_field: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Read object positions (n,3) and class ids (n,) from a CSV or whitespace table."""
+    path = Path(path)
+    rows = [
+        _SPLIT.split(ln.split("#", 1)[0].strip())
+        for ln in path.read_text().splitlines()
+        if ln.split("#", 1)[0].strip()
+    ]
+    if not rows:
+        raise GraphFileError(f"{path}: empty table; expected rows `x y z label`.")
+    header = None if _is_number(rows[0][0]) else [h.strip().lower() for h in rows[0]]
+    body = rows[1:] if header else rows
+    cx, cy, cz, cl = _columns(path, header, label_field, len(body[0]) if body else 0)
+    try:
+        vals = np.array([[r[cx], r[cy], r[cz], r[cl]] for r in body], dtype=np.float64)
+    except (IndexError, ValueError) as e:
+        raise GraphFileError(
+            f"{path}: every row needs numbers in the x y z and class columns ({e})."
+        ) from e
+    lab = vals[:, 3]
+    if np.any(~np.isfinite(lab)) or np.any(lab != np.round(lab)):
+        raise GraphFileError(f"{path}: the class column must hold integer class ids.")
+    return vals[:, :3].reshape(-1, 3), lab.astype(np.int64)
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _columns(
+    path: Path, header: list[str] | None, label_field: str | None, width: int
+) -> tuple[int, int, int, int]:
+    """Indices of x, y, z and the class column."""
+    if label_field is not None and label_field.strip().lstrip("-").isdigit():
+        label_index: int | None = int(label_field)
+    else:
+        label_index = None
+    if header is None:
+        if label_field is not None and label_index is None:
+            raise GraphFileError(
+                f"{path}: no header row, so --label-field must be a column index (0-based)."
+            )
+        return 0, 1, 2, 3 if label_index is None else label_index
+    missing = [c for c in "xyz" if c not in header]
+    if missing:
+        raise GraphFileError(f"{path}: header lacks column(s) {' '.join(missing)}: {header}.")
+    if label_index is None:
+        name = label_field.lower() if label_field else next(
+            (f for f in LABEL_FIELDS if f in header), None
+        )
+        if name is None or name not in header:
+            raise GraphFileError(
+                f"{path}: no class column {name or ''!r} in the header {header}; "
+                "name it with --label-field."
+            )
+        label_index = header.index(name)
+    return header.index("x"), header.index("y"), header.index("z"), label_index
+
+
+def write_table(path: str | Path, positions: np.ndarray, labels: np.ndarray) -> Path:
+    """Write objects as a table with a header `x y z label`: commas for .csv, spaces else."""
+    path = Path(path)
+    sep = "," if path.suffix.lower() == ".csv" else " "
+    path.parent.mkdir(parents=True, exist_ok=True)
+    rows = np.column_stack([np.asarray(positions, dtype=np.float64), labels])
+    np.savetxt(path, rows, fmt=["%.6f"] * 3 + ["%d"], delimiter=sep,
+               header=sep.join(("x", "y", "z", "label")), comments="")
+    return path
