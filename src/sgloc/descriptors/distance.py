@@ -1,0 +1,116 @@
+"""Distance-aware descriptors on the weighted graph (object-to-object distances)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import sparse
+from scipy.spatial import cKDTree
+
+from sgloc.descriptors.base import Descriptor
+from sgloc.graph import SemanticGraph
+
+
+def neighbour_pairs(positions: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """(pairs (e,2) int i<j, distances (e,) m) of the vertices closer than `radius` metres
+    (KD-tree; memory linear in the number of pairs)."""
+    if len(positions) < 2:
+        return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
+    pairs = cKDTree(positions).query_pairs(radius, output_type="ndarray")
+    if pairs.size == 0:
+        return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
+    d = np.linalg.norm(positions[pairs[:, 0]] - positions[pairs[:, 1]], axis=1)
+    keep = d < radius
+    return pairs[keep].astype(np.int64), d[keep]
+
+
+def soft_bins(values: np.ndarray, width: float, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
+    """Linear (tent) soft binning of `values` >= 0 into `n_bins` bins of `width`, bin b centred
+    at (b + 0.5) * width: (bins (v,2) int, weights (v,2)), weights summing to 1 per value.
+    Values below the first centre or beyond the last fall wholly in the end bin."""
+    u = np.clip(values / width - 0.5, 0.0, n_bins - 1.0)
+    lo = np.minimum(np.floor(u).astype(np.int64), n_bins - 1)
+    frac = u - lo
+    hi = np.minimum(lo + 1, n_bins - 1)
+    return np.stack([lo, hi], axis=1), np.stack([1.0 - frac, frac], axis=1)
+
+
+@dataclass
+class DistanceHistogramDescriptor(Descriptor):
+    """Per vertex, a soft-binned histogram over (neighbour class, distance to it) of every
+    other vertex within `radius` metres: n_classes * n_bins bins, bin width radius / n_bins,
+    linear interpolation between the two nearest bin centres (so a distance measured 1 m
+    differently in the other map moves weight between neighbouring bins instead of jumping).
+
+    Depends only on distances, so it is invariant to any rotation, translation and to the
+    direction the robot drove through the place. Uses the weighted graph (metric distances),
+    not only the adjacency; built from KD-tree pairs, memory linear in the pairs.
+    """
+
+    radius: float = 30.0
+    n_bins: int = 12
+    name = "distance_histogram"
+
+    def __call__(self, graph: SemanticGraph, n_classes: int, rng: np.random.Generator):
+        n, nb = len(graph), int(self.n_bins)
+        pairs, d = neighbour_pairs(graph.positions, float(self.radius))
+        bins, w = soft_bins(d, float(self.radius) / nb, nb)
+        lab = graph.labels
+        # Each pair counts in both endpoints' histograms, under the other endpoint's class.
+        rows = np.concatenate([pairs[:, 0], pairs[:, 1]])
+        other = np.concatenate([lab[pairs[:, 1]], lab[pairs[:, 0]]])
+        b2 = np.concatenate([bins, bins])
+        w2 = np.concatenate([w, w])
+        cols = other[:, None] * nb + b2
+        H = sparse.coo_array(
+            (w2.ravel(), (np.repeat(rows, 2), cols.ravel())), shape=(n, n_classes * nb)
+        ).tocsr()
+        H.sum_duplicates()
+        return H
+
+
+@dataclass
+class TriangleDescriptor(Descriptor):
+    """Per vertex, a histogram of the triangles it forms with pairs of its neighbours within
+    `radius` metres, binned by (class of the two others, sorted as a pair; the two sides at the
+    vertex, sorted, each in `n_bins` bins of radius / n_bins). At most `max_neighbours` nearest
+    neighbours per vertex enter (so the cost is bounded: n * max_neighbours^2 / 2 triangles).
+
+    A triangle's side lengths do not change with rotation or travel direction; adding the
+    classes makes a signature far rarer than a single distance.
+    """
+
+    radius: float = 30.0
+    n_bins: int = 6
+    max_neighbours: int = 12
+    name = "triangles"
+
+    def __call__(self, graph: SemanticGraph, n_classes: int, rng: np.random.Generator):
+        n, nb, L = len(graph), int(self.n_bins), n_classes
+        k = int(min(self.max_neighbours, max(n - 1, 0)))
+        n_cols = L * L * nb * nb
+        if n < 3 or k < 2:
+            return sparse.csr_array((n, n_cols))
+        d, j = cKDTree(graph.positions).query(
+            graph.positions, k + 1, distance_upper_bound=float(self.radius)
+        )
+        d, j = d[:, 1:], j[:, 1:]  # drop the vertex itself
+        valid = np.isfinite(d) & (d < self.radius)
+        a, b = np.triu_indices(k, 1)
+        ok = valid[:, a] & valid[:, b]
+        vi, pi = np.nonzero(ok)
+        ja, jb = j[vi, a[pi]], j[vi, b[pi]]
+        da, db = d[vi, a[pi]], d[vi, b[pi]]
+        la, lb = graph.labels[ja], graph.labels[jb]
+        # Canonical order: by class, then by side length, so the signature is symmetric.
+        swap = (la > lb) | ((la == lb) & (da > db))
+        la, lb = np.where(swap, lb, la), np.where(swap, la, lb)
+        da, db = np.where(swap, db, da), np.where(swap, da, db)
+        width = float(self.radius) / nb
+        ba = np.minimum((da / width).astype(np.int64), nb - 1)
+        bb = np.minimum((db / width).astype(np.int64), nb - 1)
+        cols = ((la * L + lb) * nb + ba) * nb + bb
+        H = sparse.coo_array((np.ones(vi.size), (vi, cols)), shape=(n, n_cols)).tocsr()
+        H.sum_duplicates()
+        return H
