@@ -33,10 +33,12 @@ def test_airsim_with_shared_area_cut_is_rejected(airsim_graphs, rng):
     q = cut_shared_area(c1, c2, np.eye(4), 25.0)
     assert len(q) > 100  # plenty of objects left, just none in the shared area
     T = random_rigid_transform(rng, 200.0, 5.0)
-    guo = localize(q, c2.transformed(T), seed=2, acceptance=False)
-    assert guo.success  # Guo's rule alone accepts this non-overlapping pair...
-    res = localize(q, c2.transformed(T), seed=2)
+    # Guo's rule alone (no acceptance test, no gravity gate) accepts this non-overlapping pair...
+    guo = localize(q, c2.transformed(T), seed=2, acceptance=False, max_tilt=None)
+    assert guo.success
+    res = localize(q, c2.transformed(T), seed=2, max_tilt=None)
     assert not res.success  # ...the acceptance test does not
+    assert not localize(q, c2.transformed(T), seed=2).success  # nor do the defaults
     assert res.transform is None and len(res.matches) == 0
     assert 0.0 <= res.confidence < 0.99
     assert res.reason

@@ -57,7 +57,13 @@ from scipy.special import gammaln, pdtrc
 from scipy.stats import poisson
 
 from sgloc.errors import SglocError
-from sgloc.estimation import non_collinear, rigid_from_triplets, squared_residuals
+from sgloc.estimation import (
+    non_collinear,
+    rigid_from_triplets,
+    squared_residuals,
+    tilt_deg,
+    yaw_from_pairs,
+)
 from sgloc.geometry import apply
 from sgloc.graph import SemanticGraph
 from sgloc.rejection.neighbor import consistency_matrix
@@ -235,6 +241,8 @@ def _runner_up(
     radius: float,
     cfg: AcceptanceConfig,
     rng: np.random.Generator,
+    dof: int = 6,
+    max_tilt: float | None = None,
 ) -> tuple[int, np.ndarray | None]:
     """Best distinct alternative to T: (its inlier count among the candidates, its 4x4 transform).
 
@@ -243,7 +251,8 @@ def _runner_up(
     T that keeps most of T's matches is not counted as a rival. Hypotheses come from triples of
     pairwise-consistent candidates (`consistency`: |D(q_i,q_j) - D(t_i,t_j)| <
     2 * radius), drawn at random and fitted in one batch; those within the distinctness bounds of T
-    are discarded.
+    are discarded. dof=4: hypotheses about the z axis from the consistent pairs themselves;
+    `max_tilt` (degrees): hypotheses tilting the up axis more are not alternatives.
     """
     free = ~exclude
     if free.sum() < 3 or cfg.runner_up_samples <= 0:
@@ -256,18 +265,13 @@ def _runner_up(
         return 0, None
     pick = rng.integers(0, ii.size, cfg.runner_up_samples)
     i, j = ii[pick], jj[pick]
-    common = consistency[i] & consistency[j] & free
-    has = common.any(axis=1)
-    if not has.any():
+    if dof == 4:
+        hyp = _yaw_hypotheses(src, dst, i, j)
+    else:
+        hyp = _triplet_hypotheses(src, dst, i, j, consistency, free, rng, max_tilt)
+    if hyp is None:
         return 0, None
-    keys = np.where(common, rng.random(common.shape, dtype=np.float32), -1.0)
-    k3 = np.argmax(keys, axis=1)
-    trip = np.column_stack([i, j, k3])[has]
-    S, D = src[trip], dst[trip]
-    ok = non_collinear(S, 1e-2) & non_collinear(D, 1e-2)
-    if not ok.any():
-        return 0, None
-    R, t = rigid_from_triplets(S[ok], D[ok])
+    R, t = hyp
     # Distinctness, measured where it matters: at the centroid of T's support (query frame).
     c = src[exclude].mean(axis=0) if exclude.any() else src.mean(axis=0)
     dtrans = np.linalg.norm(R @ c + t - (T[:3, :3] @ c + T[:3, 3]), axis=1)
@@ -282,6 +286,40 @@ def _runner_up(
     T2 = np.eye(4)
     T2[:3, :3], T2[:3, 3] = R[h], t[h]
     return int(counts[h]), T2
+
+
+def _yaw_hypotheses(src, dst, i, j) -> tuple[np.ndarray, np.ndarray] | None:
+    """4-dof hypotheses from consistent candidate pairs (i, j) apart in xy."""
+    pair = np.stack([i, j], axis=1)
+    S, D = src[pair], dst[pair]
+    ok = np.minimum(
+        np.linalg.norm(S[:, 1, :2] - S[:, 0, :2], axis=1),
+        np.linalg.norm(D[:, 1, :2] - D[:, 0, :2], axis=1),
+    ) > 1e-6
+    return yaw_from_pairs(S[ok], D[ok]) if ok.any() else None
+
+
+def _triplet_hypotheses(
+    src, dst, i, j, consistency, free, rng, max_tilt
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """6-dof hypotheses: each consistent pair (i, j) completed by a random candidate
+    consistent with both; tilted beyond `max_tilt` degrees dropped."""
+    common = consistency[i] & consistency[j] & free
+    has = common.any(axis=1)
+    if not has.any():
+        return None
+    keys = np.where(common, rng.random(common.shape, dtype=np.float32), -1.0)
+    k3 = np.argmax(keys, axis=1)
+    trip = np.column_stack([i, j, k3])[has]
+    S, D = src[trip], dst[trip]
+    ok = non_collinear(S, 1e-2) & non_collinear(D, 1e-2)
+    if not ok.any():
+        return None
+    R, t = rigid_from_triplets(S[ok], D[ok])
+    if max_tilt is not None:
+        up = tilt_deg(R) <= max_tilt
+        R, t = R[up], t[up]
+    return (R, t) if len(R) else None
 
 
 def inlier_spread(points: np.ndarray) -> float:
@@ -300,6 +338,8 @@ def assess(
     radius: float,
     config: AcceptanceConfig | None = None,
     rng: np.random.Generator | None = None,
+    dof: int = 6,
+    max_tilt: float | None = None,
 ) -> Assessment:
     """Score an estimated T_target_query against chance (module docstring).
 
@@ -308,6 +348,7 @@ def assess(
         candidates: (m,2) descriptor matches (query index, target index), before rejection.
         transform: the estimate T_target_query (4x4), or None when estimation failed.
         radius: inlier radius in metres (the RANSAC threshold unless config.radius is set).
+        dof, max_tilt: the motion model (as `RansacConfig`) of the runner-up hypotheses.
     """
     cfg = config or AcceptanceConfig()
     rng = rng if rng is not None else np.random.default_rng(0)
@@ -352,7 +393,9 @@ def assess(
     if hopeless:
         k2, T2 = 0, None
     else:
-        k2, T2 = _runner_up(src, dst, transform, explained, consistency, edges, r, cfg, rng)
+        k2, T2 = _runner_up(
+            src, dst, transform, explained, consistency, edges, r, cfg, rng, dof, max_tilt
+        )
     if T2 is not None:
         (counts2,) = chance.near_counts(apply(T2, query.positions))
         d2 = np.sum((apply(T2, src) - dst) ** 2, axis=1)[~explained]

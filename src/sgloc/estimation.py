@@ -56,6 +56,65 @@ def _kabsch(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> np.ndarray
     return make_transform(R, cd - R @ cs)
 
 
+def tilt_deg(R: np.ndarray) -> np.ndarray:
+    """Angle (degrees) between the up axis z and its image under R (3,3) or (B,3,3):
+    0 for a rotation about z, 180 for an upside-down map."""
+    return np.degrees(np.arccos(np.clip(np.asarray(R)[..., 2, 2], -1.0, 1.0)))
+
+
+def yaw_fit(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """T_dst_src (4x4) with a rotation about z only (x, y, z, yaw: 4 degrees of freedom)
+    minimising sum_i w_i ||R src_i + t - dst_i||^2, in closed form (the angle of the weighted
+    xy cross-covariance). Needs two points apart in xy; never a reflection."""
+    w = np.ones(len(src)) if weights is None else np.asarray(weights, dtype=np.float64)
+    w = w / w.sum()
+    cs, cd = w @ src, w @ dst
+    a, b = (src - cs)[:, :2] * w[:, None], (dst - cd)[:, :2]
+    theta = np.arctan2(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]), np.sum(a * b))
+    R = _rot_z(np.array([theta]))[0]
+    return make_transform(R, cd - R @ cs)
+
+
+def _rot_z(theta: np.ndarray) -> np.ndarray:
+    """(B,3,3) rotations about z by the angles theta (B,) radians."""
+    c, s = np.cos(theta), np.sin(theta)
+    R = np.zeros((len(theta), 3, 3))
+    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = c, -s, s, c, 1.0
+    return R
+
+
+def yaw_from_pairs(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """4-dof hypotheses from minimal samples: src, dst (B,2,3) point pairs -> R (B,3,3) about
+    z, t (B,3). The yaw turns the xy direction of the source pair onto the target pair's."""
+    es, ed = src[:, 1, :2] - src[:, 0, :2], dst[:, 1, :2] - dst[:, 0, :2]
+    theta = np.arctan2(ed[:, 1], ed[:, 0]) - np.arctan2(es[:, 1], es[:, 0])
+    R = _rot_z(theta)
+    t = dst.mean(axis=1) - np.einsum("bij,bj->bi", R, src.mean(axis=1))
+    return R, t
+
+
+def fit_rigid(
+    src: np.ndarray,
+    dst: np.ndarray,
+    weights: np.ndarray | None = None,
+    dof: int = 6,
+    max_tilt: float | None = None,
+) -> np.ndarray:
+    """The weighted least-squares T_dst_src under the motion model (no input checks).
+
+    dof=6: Kabsch. dof=4: the Kabsch if it tilts the up axis by at most `max_tilt` degrees
+    (the tilt tolerance: maps whose gravity agrees up to that), else the yaw-only fit.
+    """
+    w = np.ones(len(src)) if weights is None else weights
+    if dof == 4:
+        if max_tilt:
+            T = _kabsch(src, dst, w)
+            if tilt_deg(T[:3, :3]) <= max_tilt:
+                return T
+        return yaw_fit(src, dst, w)
+    return _kabsch(src, dst, w)
+
+
 def rigid_from_triplets(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Hypotheses from minimal samples: src, dst (B,3,3) point triplets -> R (B,3,3), t (B,3).
 
@@ -117,6 +176,11 @@ class RansacConfig:
         `iterations` (Guo's fixed 1000).
     batch: hypotheses generated and scored per block (the adaptive stop is checked per block).
     refit_rounds: refits on all inliers (inliers recomputed after each).
+    dof: 6 (any rigid motion; hypotheses from 3 matches) or 4 (ground vehicles: x, y, z and
+        yaw, roll and pitch fixed by gravity; hypotheses from 2 matches, about the z axis).
+    max_tilt: degrees; when set, the maps share gravity (z up) up to this tilt: hypotheses and
+        fits that tilt the up axis more (upside-down or mirrored alignments) are refused. With
+        dof=4 the refits may tilt up to this much (None or 0: yaw only). None: no assumption.
     """
 
     threshold: float = 5.0
@@ -127,6 +191,8 @@ class RansacConfig:
     confidence: float | None = 0.999
     batch: int = 100
     refit_rounds: int = 2
+    dof: int = 6
+    max_tilt: float | None = 45.0
 
     def get_params(self) -> dict:
         return asdict(self)
@@ -166,8 +232,8 @@ def ransac(
 ) -> RansacResult:
     """Robustly fit T_dst_src to correspondences src[i] <-> dst[i] (both (m,3), metres).
 
-    All hypotheses come from 3-match samples at once and are scored in blocks by matrix
-    products; the best is refit on its inliers with the weighted Kabsch.
+    All hypotheses come from minimal samples (3 matches; 2 with dof=4) at once and are scored
+    in blocks by matrix products; the best is refit on its inliers (`fit_rigid`).
     """
     cfg = config or RansacConfig()
     rng = rng or np.random.default_rng(0)
@@ -180,23 +246,24 @@ def ransac(
         )
     if cfg.scoring not in ("count", "msac"):
         raise ValueError(f"unknown RANSAC scoring {cfg.scoring!r}; use 'count' or 'msac'")
+    if cfg.dof not in (4, 6):
+        raise ValueError(f"RANSAC dof must be 4 (x, y, z, yaw) or 6, got {cfg.dof!r}")
     # Centre both sets: better conditioned residual expansion; undone at the end.
     cs, cd = src.mean(axis=0), dst.mean(axis=0)
     src_c, dst_c = src - cs, dst - cd
     thr2 = cfg.threshold**2
     best_key, best_T, drawn, needed = (np.inf, np.inf), None, 0, cfg.iterations
     batch = max(1, min(cfg.batch, _BLOCK // m))
+    sample_size = 2 if cfg.dof == 4 else 3
     while drawn < min(needed, cfg.iterations):
         # A small first block: after rejection the inlier ratio is often near 1 and a handful
         # of draws settles it.
         n = min(batch if drawn else min(batch, 16), cfg.iterations - drawn)
         drawn += n
-        samples = draw_triplets(m, n, rng)
-        S, D = src_c[samples], dst_c[samples]
-        ok = non_collinear(S) & non_collinear(D)
-        if not ok.any():
+        hyp = _hypotheses(src_c, dst_c, rng, n, cfg)
+        if hyp is None:
             continue
-        R, t = rigid_from_triplets(S[ok], D[ok])
+        R, t = hyp
         r2 = squared_residuals(R, t, src_c, dst_c)
         inl = r2 < thr2
         counts = inl.sum(axis=1)
@@ -214,30 +281,10 @@ def ransac(
             best_key, best_T = (primary[h], secondary[h]), make_transform(R[h], t[h])
         if cfg.confidence is not None:
             w = counts.max() / m
-            needed = min(needed, _needed_draws(w, cfg.confidence, cfg.iterations))
+            needed = min(needed, _needed_draws(w, cfg.confidence, cfg.iterations, sample_size))
     if best_T is None:
-        return RansacResult(
-            None,
-            reason="every RANSAC sample was collinear; the matched points lie (nearly) on a line",
-        )
-    T = best_T
-    inliers = _inliers(T, src_c, dst_c, thr2)
-    for _ in range(cfg.refit_rounds):
-        if len(inliers) < 3:
-            break
-        try:
-            T_new = weighted_kabsch(
-                src_c[inliers], dst_c[inliers], None if weights is None else weights[inliers]
-            )
-        except DegenerateGeometryError:
-            break
-        new_inliers = _inliers(T_new, src_c, dst_c, thr2)
-        if len(new_inliers) < len(inliers):
-            break
-        T, same = T_new, np.array_equal(new_inliers, inliers)
-        inliers = new_inliers
-        if same:
-            break
+        return RansacResult(None, reason=_no_hypothesis_reason(cfg))
+    T, inliers = _refit(best_T, src_c, dst_c, thr2, weights, cfg)
     # Undo the centring: T_dst_src = Tr(cd) @ T_c @ Tr(-cs).
     T = make_transform(T[:3, :3], T[:3, 3] + cd - T[:3, :3] @ cs)
     need = max(cfg.min_inliers, int(np.ceil(cfg.min_inlier_ratio * m)), 3)
@@ -248,11 +295,82 @@ def ransac(
             reason=f"best model has {len(inliers)} inliers of "
             f"{m} matches; at least {need} are needed",
         )
-    try:
-        check_not_degenerate(src[inliers], "inlier points")
-    except DegenerateGeometryError as e:
-        return RansacResult(None, inliers, reason=str(e))
+    if cfg.dof == 6:
+        try:
+            check_not_degenerate(src[inliers], "inlier points")
+        except DegenerateGeometryError as e:
+            return RansacResult(None, inliers, reason=str(e))
     return RansacResult(T, inliers)
+
+
+def _no_hypothesis_reason(cfg: RansacConfig) -> str:
+    if cfg.max_tilt is not None and cfg.dof == 6:
+        return (
+            "every RANSAC hypothesis was degenerate (collinear sample) or tilted the up axis "
+            f"beyond max_tilt={cfg.max_tilt} deg (an upside-down or mirrored map?)"
+        )
+    return "every RANSAC sample was collinear; the matched points lie (nearly) on a line"
+
+
+def _hypotheses(
+    src: np.ndarray, dst: np.ndarray, rng: np.random.Generator, n: int, cfg: RansacConfig
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Up to n hypotheses (R (B,3,3), t (B,3)) from random minimal samples; None if none."""
+    if cfg.dof == 4:
+        i = rng.integers(0, len(src), n)
+        j = rng.integers(0, len(src) - 1, n)
+        j += j >= i
+        S, D = src[np.stack([i, j], 1)], dst[np.stack([i, j], 1)]
+        ls = np.linalg.norm(S[:, 1, :2] - S[:, 0, :2], axis=1)
+        ld = np.linalg.norm(D[:, 1, :2] - D[:, 0, :2], axis=1)
+        # Pairs too close in xy fix no yaw; pairs whose lengths disagree cannot both be inliers.
+        ok = (np.minimum(ls, ld) > 1e-6) & (np.abs(ls - ld) < 2.0 * cfg.threshold)
+        return yaw_from_pairs(S[ok], D[ok]) if ok.any() else None
+    samples = draw_triplets(len(src), n, rng)
+    S, D = src[samples], dst[samples]
+    ok = non_collinear(S) & non_collinear(D)
+    if not ok.any():
+        return None
+    R, t = rigid_from_triplets(S[ok], D[ok])
+    if cfg.max_tilt is not None:
+        up = tilt_deg(R) <= cfg.max_tilt
+        if not up.any():
+            return None
+        R, t = R[up], t[up]
+    return R, t
+
+
+def _refit(
+    T: np.ndarray,
+    src: np.ndarray,
+    dst: np.ndarray,
+    thr2: float,
+    weights: np.ndarray | None,
+    cfg: RansacConfig,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Refit T on its inliers `refit_rounds` times (inliers recomputed after each) while the
+    inlier set does not shrink; (T, inliers)."""
+    inliers = _inliers(T, src, dst, thr2)
+    for _ in range(cfg.refit_rounds):
+        if len(inliers) < 3:
+            break
+        w = None if weights is None else weights[inliers]
+        try:
+            if cfg.dof == 6:
+                check_not_degenerate(src[inliers], "matched points")
+            T_new = fit_rigid(src[inliers], dst[inliers], w, cfg.dof, cfg.max_tilt)
+        except DegenerateGeometryError:
+            break
+        if cfg.dof == 6 and cfg.max_tilt is not None and tilt_deg(T_new[:3, :3]) > cfg.max_tilt:
+            break
+        new_inliers = _inliers(T_new, src, dst, thr2)
+        if len(new_inliers) < len(inliers):
+            break
+        T, same = T_new, np.array_equal(new_inliers, inliers)
+        inliers = new_inliers
+        if same:
+            break
+    return T, inliers
 
 
 def non_collinear(P: np.ndarray, ratio: float = COLLINEAR_RATIO) -> np.ndarray:
@@ -268,9 +386,9 @@ def non_collinear(P: np.ndarray, ratio: float = COLLINEAR_RATIO) -> np.ndarray:
     return area2 > ratio * np.maximum(longest, 1e-12)
 
 
-def _needed_draws(inlier_ratio: float, confidence: float, cap: int) -> int:
-    """Samples of 3 needed to draw one all-inlier sample with probability `confidence`."""
-    p = inlier_ratio**3
+def _needed_draws(inlier_ratio: float, confidence: float, cap: int, size: int = 3) -> int:
+    """Samples of `size` needed to draw one all-inlier sample with probability `confidence`."""
+    p = inlier_ratio**size
     if p >= 1.0:
         return 1
     if p <= 0.0:
@@ -289,6 +407,8 @@ def irls_refine(
     T: np.ndarray,
     weights: np.ndarray | None = None,
     iterations: int = 15,
+    dof: int = 6,
+    max_tilt: float | None = None,
 ) -> np.ndarray:
     """Refine T_dst_src on matched points (metres) by an M-estimator: iteratively reweighted
     least squares with Tukey's biweight, c = 4.685 * sigma, sigma re-estimated each round as
@@ -298,6 +418,7 @@ def irls_refine(
     threshold (repeated objects); the biweight gives them zero weight once they stand out from
     the residual spread, so exact correspondences give the exact transform back, while on
     uniformly noisy matches (all residuals alike) it stays close to least squares.
+    dof, max_tilt: the motion model of each fit (`fit_rigid`).
     """
     prior = np.ones(len(src)) if weights is None else np.asarray(weights, dtype=np.float64)
     w_prev = None
@@ -314,7 +435,7 @@ def irls_refine(
         if w_prev is not None and np.allclose(w, w_prev, rtol=0.0, atol=1e-6):
             break
         w_prev = w
-        T_new = _kabsch(src, dst, w)
+        T_new = fit_rigid(src, dst, w, dof, max_tilt)
         done = np.abs(T_new - T).max() < 1e-9
         T = T_new
         if done:

@@ -12,7 +12,14 @@ from sgloc.acceptance import assess
 from sgloc.config import LocalizerConfig
 from sgloc.descriptors import make_descriptor
 from sgloc.errors import DegenerateGeometryError, InvalidGraphError, SglocError
-from sgloc.estimation import icp_refine, irls_refine, ransac, weighted_kabsch
+from sgloc.estimation import (
+    check_not_degenerate,
+    fit_rigid,
+    icp_refine,
+    irls_refine,
+    ransac,
+    tilt_deg,
+)
 from sgloc.graph import SemanticGraph
 from sgloc.matching import match_descriptors
 from sgloc.rejection import make_rejector
@@ -131,30 +138,8 @@ class Localizer:
         transform, reason = None, rs.reason
         final = survivors[rs.inliers] if rs.inliers.size else np.zeros((0, 2), np.int64)
         if rs.transform is not None:
-            try:
-                transform = weighted_kabsch(
-                    query.positions[final[:, 0]],
-                    target.positions[final[:, 1]],
-                    None if weights is None else weights[rs.inliers],
-                )
-            except DegenerateGeometryError as e:
-                reason = str(e)
-            if transform is not None and cfg.robust_refit:
-                transform = irls_refine(
-                    query.positions[final[:, 0]],
-                    target.positions[final[:, 1]],
-                    transform,
-                    None if weights is None else weights[rs.inliers],
-                )
-            if transform is not None and cfg.icp:
-                transform = icp_refine(
-                    query.positions,
-                    query.labels,
-                    target.positions,
-                    target.labels,
-                    transform,
-                    cfg.icp_max_distance,
-                )
+            w_final = None if weights is None else weights[rs.inliers]
+            transform, reason = _final_fit(query, target, final, w_final, cfg)
         t5 = time.perf_counter()
         timings["estimation"] = t5 - t4
         timings["total"] = t5 - t0
@@ -163,7 +148,15 @@ class Localizer:
         confidence = None
         if transform is not None and cfg.acceptance.enabled:
             verdict = assess(
-                query, target, candidates, transform, cfg.ransac.threshold, cfg.acceptance, rng
+                query,
+                target,
+                candidates,
+                transform,
+                cfg.ransac.threshold,
+                cfg.acceptance,
+                rng,
+                dof=cfg.ransac.dof,
+                max_tilt=cfg.ransac.max_tilt,
             )
             confidence, reason = verdict.confidence, verdict.reason
             transform = transform if verdict.accepted else None
@@ -186,6 +179,43 @@ class Localizer:
             confidence=confidence,
             config=cfg.to_dict(),
         )
+
+
+def _final_fit(
+    query: SemanticGraph,
+    target: SemanticGraph,
+    final: np.ndarray,
+    weights: np.ndarray | None,
+    cfg: LocalizerConfig,
+) -> tuple[np.ndarray | None, str]:
+    """The fit on RANSAC's inliers `final` (weighted least squares, then the optional robust
+    and ICP refinements) under the motion model; (transform or None, reason)."""
+    src, dst = query.positions[final[:, 0]], target.positions[final[:, 1]]
+    dof, max_tilt = cfg.ransac.dof, cfg.ransac.max_tilt
+    if dof == 6:
+        try:
+            check_not_degenerate(src, "matched points")
+        except DegenerateGeometryError as e:
+            return None, str(e)
+    transform = fit_rigid(src, dst, weights, dof, max_tilt)
+    if cfg.robust_refit:
+        transform = irls_refine(src, dst, transform, weights, dof=dof, max_tilt=max_tilt)
+    if cfg.icp:
+        transform = icp_refine(
+            query.positions,
+            query.labels,
+            target.positions,
+            target.labels,
+            transform,
+            cfg.icp_max_distance,
+        )
+    if max_tilt is not None and tilt_deg(transform[:3, :3]) > max(max_tilt, 1e-6):
+        return None, (
+            f"the alignment tilts the up axis by {tilt_deg(transform[:3, :3]):.0f} deg "
+            f"(> max_tilt {max_tilt} deg): the maps do not share gravity, or one is mirrored "
+            "or upside down"
+        )
+    return transform, ""
 
 
 def localize(
