@@ -83,7 +83,8 @@ class AcceptanceConfig:
     min_confidence: accept when confidence >= this (the strictness; in [0, 1]).
     radius: inlier radius in metres for the test; None uses the RANSAC threshold.
     min_spread: metres; inliers whose standard deviation along their second principal axis is
-        below this are (nearly) collinear and give confidence 0.
+        below this are (nearly) collinear and give confidence 0 (with dof=4, where gravity
+        fixes the rotation about such a line: along the first principal axis of their xy).
     distinct_translation, distinct_rotation: metres / degrees; an alternative hypothesis is
         distinct when its transform differs from the best by more than either.
     runner_up_samples: hypotheses drawn when searching for the best distinct alternative.
@@ -322,10 +323,15 @@ def _triplet_hypotheses(
     return (R, t) if len(R) else None
 
 
-def inlier_spread(points: np.ndarray) -> float:
-    """Standard deviation (metres) of `points` (k,3) along their second principal axis."""
+def inlier_spread(points: np.ndarray, dof: int = 6) -> float:
+    """Standard deviation (metres) of `points` (k,3) along their second principal axis; with
+    dof=4 along the first principal axis of their xy (with gravity fixing roll and pitch, a
+    line of objects fixes the yaw: only its length matters)."""
     if len(points) < 3:
         return 0.0
+    if dof == 4:
+        s = np.linalg.svd(points[:, :2] - points[:, :2].mean(axis=0), compute_uv=False)
+        return float(s[0] / np.sqrt(len(points)))
     s = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
     return float(s[1] / np.sqrt(len(points)))
 
@@ -383,7 +389,7 @@ def assess(
     lg_geo, colocated, mu_geo = log10_colocation_p(query, counts > 0, cand[inl, 0])
     lg_perm = log10_nfa(k, m, lam_perm * shrink, n_tests) + min(lg_geo, 0.0)
     lg_best = max(lg_uniform, lg_perm)
-    spread = inlier_spread(dst[inl])
+    spread = inlier_spread(dst[inl], dof)
     explained = res2 < (2 * r) ** 2
     # The runner-up can only lower the confidence: skip its search when chance alone (or the
     # spread) already rejects; the reported confidence is then 1 / (1 + NFA_best).
@@ -430,6 +436,9 @@ def assess(
         reason = (
             f"the {k} inliers lie in a narrow strip (spread {spread:.1f} m < min_spread "
             f"{cfg.min_spread} m); the rotation about its line is not determined"
+            if dof == 6
+            else f"the {k} inliers lie within a few metres (spread {spread:.1f} m < min_spread "
+            f"{cfg.min_spread} m); the heading is not determined"
         )
     elif confidence < cfg.min_confidence:
         if ratio > nfa1:
