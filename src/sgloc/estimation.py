@@ -409,6 +409,7 @@ def irls_refine(
     iterations: int = 15,
     dof: int = 6,
     max_tilt: float | None = None,
+    classes: np.ndarray | None = None,
 ) -> np.ndarray:
     """Refine T_dst_src on matched points (metres) by an M-estimator: iteratively reweighted
     least squares with Tukey's biweight, c = 4.685 * sigma, sigma re-estimated each round as
@@ -419,15 +420,26 @@ def irls_refine(
     the residual spread, so exact correspondences give the exact transform back, while on
     uniformly noisy matches (all residuals alike) it stays close to least squares.
     dof, max_tilt: the motion model of each fit (`fit_rigid`).
+    classes: (m,) class id of each match: then each class gets its own residual scale,
+        horizontal and vertical apart (`class_scales`), re-estimated each round, and each
+        fit weighs a match's xy and z residuals by their inverse variances
+        (`anisotropic_fit`). The centres of tall or extended objects (buildings, fences) move
+        with the viewpoint, most in height; ground-level objects give precise heights: with
+        the scales apart, those fix roll and pitch and the others count less.
     """
     prior = np.ones(len(src)) if weights is None else np.asarray(weights, dtype=np.float64)
     w_prev = None
     for _ in range(iterations):
-        r = np.linalg.norm(src @ T[:3, :3].T + T[:3, 3] - dst, axis=1)
+        d = src @ T[:3, :3].T + T[:3, 3] - dst
+        r = np.linalg.norm(d, axis=1)
         sigma = 1.4826 * np.median(r)
         if sigma <= 1e-12:
             break
-        u = r / (4.685 * sigma)
+        if classes is not None:
+            s_xy, s_z = class_scales(d, classes, sigma)
+            u = np.sqrt((d[:, 0] ** 2 + d[:, 1] ** 2) / s_xy**2 + d[:, 2] ** 2 / s_z**2) / 4.685
+        else:
+            u = r / (4.685 * sigma)
         w = prior * np.where(u < 1.0, (1.0 - u**2) ** 2, 0.0)
         if np.count_nonzero(w) < 3:
             break
@@ -435,12 +447,98 @@ def irls_refine(
         if w_prev is not None and np.allclose(w, w_prev, rtol=0.0, atol=1e-6):
             break
         w_prev = w
-        T_new = fit_rigid(src, dst, w, dof, max_tilt)
+        if classes is not None:
+            T_new = anisotropic_fit(src, dst, T, w / s_xy**2, w / s_z**2, dof, max_tilt)
+        else:
+            T_new = fit_rigid(src, dst, w, dof, max_tilt)
         done = np.abs(T_new - T).max() < 1e-9
         T = T_new
         if done:
             break
     return T
+
+
+#: Matches of a class needed to estimate its own residual scales.
+MIN_CLASS_MATCHES = 5
+#: Floor of a residual scale relative to the overall one (no class outweighs the rest by more
+#: than its square on a few lucky residuals).
+MIN_SCALE_RATIO = 0.02
+
+
+def class_scales(
+    d: np.ndarray, classes: np.ndarray, sigma: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per match, the horizontal and vertical residual scales of its class: (s_xy, s_z), each
+    (m,), metres per axis, from the residual vectors d (m,3) as 1.4826 * median |residual| per
+    axis (xy: the 2D norm / sqrt 2). Classes with fewer than MIN_CLASS_MATCHES matches take the
+    scales of all matches together; every scale is at least MIN_SCALE_RATIO * sigma."""
+    h = np.linalg.norm(d[:, :2], axis=1) / np.sqrt(2.0)
+    v = np.abs(d[:, 2])
+    floor = max(MIN_SCALE_RATIO * sigma, 1e-9)
+    all_xy, all_z = 1.4826 * np.median(h), 1.4826 * np.median(v)
+    uniq, inv, cnt = np.unique(classes, return_inverse=True, return_counts=True)
+    order = np.argsort(inv, kind="stable")
+    bounds = np.concatenate([[0], np.cumsum(cnt)])
+    sxy, sz = np.empty(len(uniq)), np.empty(len(uniq))
+    for c in range(len(uniq)):
+        idx = order[bounds[c] : bounds[c + 1]]
+        few = cnt[c] < MIN_CLASS_MATCHES
+        sxy[c] = all_xy if few else 1.4826 * np.median(h[idx])
+        sz[c] = all_z if few else 1.4826 * np.median(v[idx])
+    return np.maximum(sxy, floor)[inv], np.maximum(sz, floor)[inv]
+
+
+def anisotropic_fit(
+    src: np.ndarray,
+    dst: np.ndarray,
+    T: np.ndarray,
+    w_xy: np.ndarray,
+    w_z: np.ndarray,
+    dof: int = 6,
+    max_tilt: float | None = None,
+    steps: int = 5,
+) -> np.ndarray:
+    """T_dst_src minimising sum_i w_xy_i |xy residual_i|^2 + w_z_i (z residual_i)^2, by
+    Gauss-Newton from T (a few steps; rotations updated on the manifold). dof=4 updates yaw
+    and translation only (roll and pitch stay as in T); with dof=6 and `max_tilt` set, a step
+    that would tilt the up axis beyond it is not taken."""
+    cols = [2, 3, 4, 5] if dof == 4 else [0, 1, 2, 3, 4, 5]
+    W = np.stack([w_xy, w_xy, w_z], axis=1)
+    for _ in range(steps):
+        p = src @ T[:3, :3].T + T[:3, 3]
+        c = (w_xy @ p) / max(w_xy.sum(), 1e-300)
+        q = p - c
+        J = np.zeros((len(p), 3, 6))  # d(p)/d(rotation vector, translation) about c
+        J[:, 0, 1], J[:, 0, 2] = q[:, 2], -q[:, 1]
+        J[:, 1, 0], J[:, 1, 2] = -q[:, 2], q[:, 0]
+        J[:, 2, 0], J[:, 2, 1] = q[:, 1], -q[:, 0]
+        J[:, 0, 3] = J[:, 1, 4] = J[:, 2, 5] = 1.0
+        J = J[:, :, cols]
+        H = np.einsum("nki,nk,nkj->ij", J, W, J)
+        g = np.einsum("nki,nk,nk->i", J, W, dst - p)
+        try:
+            x = np.zeros(6)
+            x[cols] = np.linalg.solve(H, g)
+        except np.linalg.LinAlgError:
+            break
+        dR = _rotvec_to_matrix(x[:3])
+        R = dR @ T[:3, :3]
+        if dof == 6 and max_tilt is not None and tilt_deg(R) > max_tilt:
+            break
+        T = make_transform(R, dR @ (T[:3, 3] - c) + c + x[3:])
+        if np.abs(x).max() < 1e-12:
+            break
+    return T
+
+
+def _rotvec_to_matrix(v: np.ndarray) -> np.ndarray:
+    """Rodrigues: the rotation (3,3) by angle |v| about v / |v|."""
+    a = float(np.linalg.norm(v))
+    if a < 1e-15:
+        return np.eye(3)
+    k = v / a
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + np.sin(a) * K + (1.0 - np.cos(a)) * (K @ K)
 
 
 def icp_refine(

@@ -199,7 +199,10 @@ def _final_fit(
             return None, str(e)
     transform = fit_rigid(src, dst, weights, dof, max_tilt)
     if cfg.robust_refit:
-        transform = irls_refine(src, dst, transform, weights, dof=dof, max_tilt=max_tilt)
+        classes = query.labels[final[:, 0]] if cfg.class_scale else None
+        transform = irls_refine(
+            src, dst, transform, weights, dof=dof, max_tilt=max_tilt, classes=classes
+        )
     if cfg.icp:
         transform = icp_refine(
             query.positions,
