@@ -96,7 +96,9 @@ def test_unknown_descriptor():
 
 def test_distance_histogram_hand_checked(path_graph, rng):
     # radius 40 m, 4 bins of 10 m centred at 5, 15, 25, 35 m; layout (class, bin) -> class*4+bin.
-    D = dense(make_descriptor("distance_histogram", radius=40.0, n_bins=4)(path_graph, 2, rng))
+    D = dense(
+        make_descriptor("distance_histogram", radius=40.0, n_bins=4, taper=0.0)(path_graph, 2, rng)
+    )
     expected = np.zeros((4, 8))
     expected[0, 4 + 1] = 1.0  # 0 sees 1 (class 1) at 15 m: exactly the centre of bin 1
     expected[0, 0 + 2] = 0.5  # 0 sees 2 (class 0) at 30 m: halfway between bins 2 and 3
@@ -106,10 +108,18 @@ def test_distance_histogram_hand_checked(path_graph, rng):
     np.testing.assert_allclose(D, expected)  # 3 is 70 m from everything: no descriptor
 
 
+def test_distance_histogram_taper_weighs_near_neighbours_more(path_graph, rng):
+    desc = make_descriptor("distance_histogram", radius=40.0, n_bins=4, taper=0.5)
+    D = dense(desc(path_graph, 2, rng))
+    # Vertex 0: the neighbour at 15 m weighs 1 - 0.5 * 15/40, the one at 30 m 1 - 0.5 * 30/40.
+    np.testing.assert_allclose(D[0, 4 + 1], 1 - 0.5 * 15 / 40)
+    np.testing.assert_allclose(D[0, 2:4], 0.5 * (1 - 0.5 * 30 / 40))
+
+
 def test_distance_histogram_soft_binning_is_continuous(rng):
     g = SemanticGraph([[0, 0, 0], [12.0, 0, 0]], [0, 0])
     h = SemanticGraph([[0, 0, 0], [12.5, 0, 0]], [0, 0])
-    desc = make_descriptor("distance_histogram", radius=40.0, n_bins=4)
+    desc = make_descriptor("distance_histogram", radius=40.0, n_bins=4, taper=0.0)
     a, b = dense(desc(g, 1, rng))[0], dense(desc(h, 1, rng))[0]
     np.testing.assert_allclose(a, [0.3, 0.7, 0, 0])  # 12 m: 30 % bin 0 (5 m), 70 % bin 1
     np.testing.assert_allclose(b, [0.25, 0.75, 0, 0])

@@ -193,14 +193,45 @@ def log10_colocation_p(
     return _log10_poisson_tail(C, mu), C, mu
 
 
-def log10_nfa(k: int, m: int, lam: float, n_tests: float | None = None) -> float:
-    """log10 of the number of false alarms n_tests * P(Poisson(lam) >= k - 3); n_tests
-    defaults to C(m, 3), every triple of the m candidates."""
+def log10_nfa(k: int, m: int, lam: float, n_tests: float | None = None, sample: int = 3) -> float:
+    """log10 of the number of false alarms n_tests * P(Poisson(lam) >= k - sample); n_tests
+    defaults to C(m, 3), every triple of the m candidates; `sample` matches fix a hypothesis
+    (3 for 6 dof, 2 for 4 dof) and are not evidence for it."""
     log_tests = _log_comb3(m) if n_tests is None else float(np.log(max(n_tests, 1.0)))
-    excess = k - 3
+    excess = k - sample
     if excess <= 0:
         return log_tests / _LN10
     return float(log_tests / _LN10 + _log10_poisson_tail(excess, lam))
+
+
+#: Inlier radii, as fractions of the acceptance radius, at which the NFA is evaluated (the
+#: smallest NFA counts, times their number: the tests multiply).
+RADIUS_FRACTIONS = (0.25, 0.5, 1.0)
+
+
+def nfa_over_radii(
+    res2: np.ndarray, radius: float, lam: float, m: int, n_tests: float, sample: int = 3
+) -> tuple[float, int, float]:
+    """The smallest log10 NFA over the inlier radii f * radius, f in RADIUS_FRACTIONS, of the
+    candidates with squared residuals `res2` (m^2); lam = chance inliers within `radius`.
+
+    At each radius the k_f candidates within it fit within their largest residual r_fit
+    (>= MIN_RADIUS_FRACTION * radius) and chance agreement scales with the area of that disc
+    (maps are nearly planar): lam * (r_fit / radius)^2, as AC-RANSAC adapts its radius to the
+    precision of the fit. The number of tests is multiplied by the number of radii tried.
+    Returns (log10 NFA, k_f, r_fit) of the best radius."""
+    best = (np.inf, 0, radius)
+    extra = np.log10(len(RADIUS_FRACTIONS))
+    for f in RADIUS_FRACTIONS:
+        within = res2[res2 < (f * radius) ** 2]
+        k = int(within.size)
+        r_fit = float(np.sqrt(within.max())) if k else f * radius
+        r_fit = max(r_fit, MIN_RADIUS_FRACTION * radius)
+        shrink = min(r_fit / radius, 1.0) ** 2
+        lg = log10_nfa(k, m, lam * shrink, n_tests, sample) + extra
+        if lg < best[0]:
+            best = (lg, k, r_fit)
+    return best
 
 
 def consistent_triples(src: np.ndarray, dst: np.ndarray, radius: float) -> float:
@@ -293,10 +324,13 @@ def _yaw_hypotheses(src, dst, i, j) -> tuple[np.ndarray, np.ndarray] | None:
     """4-dof hypotheses from consistent candidate pairs (i, j) apart in xy."""
     pair = np.stack([i, j], axis=1)
     S, D = src[pair], dst[pair]
-    ok = np.minimum(
-        np.linalg.norm(S[:, 1, :2] - S[:, 0, :2], axis=1),
-        np.linalg.norm(D[:, 1, :2] - D[:, 0, :2], axis=1),
-    ) > 1e-6
+    ok = (
+        np.minimum(
+            np.linalg.norm(S[:, 1, :2] - S[:, 0, :2], axis=1),
+            np.linalg.norm(D[:, 1, :2] - D[:, 0, :2], axis=1),
+        )
+        > 1e-6
+    )
     return yaw_from_pairs(S[ok], D[ok]) if ok.any() else None
 
 
@@ -370,10 +404,6 @@ def assess(
     res2 = np.sum((moved - dst) ** 2, axis=1)
     inl = res2 < r**2
     k = int(inl.sum())
-    # Precision: the inliers fit within their largest residual (>= MIN_RADIUS_FRACTION * r);
-    # chance agreement scales with the area of that disc (maps are nearly planar).
-    r_fit = max(float(np.sqrt(res2[inl].max())) if k else r, MIN_RADIUS_FRACTION * r)
-    shrink = min(r_fit / r, 1.0) ** 2
     n_classes = max(query.n_classes, target.n_classes)
     chance = _ChanceModel(target, r, n_classes)
     qi = cand[:, 0]
@@ -383,11 +413,16 @@ def assess(
     lam = chance.expected_inliers(counts, qi, tlab)
     consistency = _consistency(src, dst, r) if m >= 3 else np.zeros((m, m), dtype=bool)
     edges = np.nonzero(np.triu(consistency))
-    n_tests = _triangles(consistency, *edges) if m >= 3 else 0.0
-    lg_uniform = log10_nfa(k, m, lam * shrink, n_tests)
+    # The hypotheses RANSAC can form: consistent triples (6 dof) or consistent pairs (4 dof).
+    sample = 2 if dof == 4 else 3
+    if dof == 4:
+        n_tests = float(edges[0].size)
+    else:
+        n_tests = _triangles(consistency, *edges) if m >= 3 else 0.0
+    lg_uniform, k_fit, r_fit = nfa_over_radii(res2, r, lam, m, n_tests, sample)
     lam_perm = float(np.sum(used[qi, tlab] / np.bincount(tlab, minlength=n_classes)[tlab]))
     lg_geo, colocated, mu_geo = log10_colocation_p(query, counts > 0, cand[inl, 0])
-    lg_perm = log10_nfa(k, m, lam_perm * shrink, n_tests) + min(lg_geo, 0.0)
+    lg_perm = nfa_over_radii(res2, r, lam_perm, m, n_tests, sample)[0] + min(lg_geo, 0.0)
     lg_best = max(lg_uniform, lg_perm)
     spread = inlier_spread(dst[inl], dof)
     explained = res2 < (2 * r) ** 2
@@ -405,9 +440,8 @@ def assess(
     if T2 is not None:
         (counts2,) = chance.near_counts(apply(T2, query.positions))
         d2 = np.sum((apply(T2, src) - dst) ** 2, axis=1)[~explained]
-        fit2 = max(float(np.sqrt(d2[d2 < r**2].max())) if k2 else r, MIN_RADIUS_FRACTION * r)
-        lam2 = chance.expected_inliers(counts2, qi, tlab) * min(fit2 / r, 1.0) ** 2
-        lg_second = log10_nfa(k2, m, lam2, n_tests)
+        lam2 = chance.expected_inliers(counts2, qi, tlab)
+        lg_second = nfa_over_radii(d2, r, lam2, m, n_tests, sample)[0]
     else:
         lam2, lg_second = 0.0, np.inf
     details = {
@@ -417,6 +451,7 @@ def assess(
         "log10_tests": float(np.log10(max(n_tests, 1.0))),
         "log10_nfa": lg_best,
         "fit_radius_m": r_fit,
+        "fit_inliers": k_fit,
         "log10_nfa_uniform": lg_uniform,
         "expected_chance_inliers_permutation": lam_perm,
         "colocated_beyond_inliers": colocated,

@@ -465,9 +465,7 @@ MIN_CLASS_MATCHES = 5
 MIN_SCALE_RATIO = 0.02
 
 
-def class_scales(
-    d: np.ndarray, classes: np.ndarray, sigma: float
-) -> tuple[np.ndarray, np.ndarray]:
+def class_scales(d: np.ndarray, classes: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
     """Per match, the horizontal and vertical residual scales of its class: (s_xy, s_z), each
     (m,), metres per axis, from the residual vectors d (m,3) as 1.4826 * median |residual| per
     axis (xy: the 2D norm / sqrt 2). Classes with fewer than MIN_CLASS_MATCHES matches take the
