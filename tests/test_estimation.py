@@ -13,7 +13,7 @@ from sgloc.estimation import (
     squared_residuals,
     weighted_kabsch,
 )
-from sgloc.geometry import apply, invert, random_rigid_transform, transform_error
+from sgloc.geometry import apply, invert, make_transform, random_rigid_transform, transform_error
 
 
 def test_kabsch_recovers_exact_transform(rng):
@@ -95,8 +95,14 @@ def test_ransac_acceptance_rule(rng):
 
 def test_ransac_collinear_matches(rng):
     line = np.outer(np.linspace(0, 100, 20), [1.0, 0.5, 0.0])
-    res = ransac(line, line + 5.0, RansacConfig(), rng)
+    res = ransac(line, line + 5.0, RansacConfig(dof=6), rng)
     assert res.transform is None and "collinear" in res.reason
+    # With gravity fixing roll and pitch (dof=4) a horizontal line fixes the yaw...
+    res = ransac(line, line + 5.0, RansacConfig(dof=4), rng)
+    np.testing.assert_allclose(res.transform, make_transform(np.eye(3), np.full(3, 5.0)), atol=1e-9)
+    # ...a vertical one does not.
+    pole = np.outer(np.linspace(0, 30, 20), [0.0, 0.0, 1.0])
+    assert ransac(pole, pole + 5.0, RansacConfig(dof=4), rng).transform is None
 
 
 def test_icp_refines_a_perturbed_estimate(rng):

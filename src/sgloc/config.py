@@ -35,7 +35,7 @@ class LocalizerConfig:
     acceptance: the test behind `success` (sgloc.acceptance; strictness = min_confidence).
     """
 
-    descriptor: str = "histogram"
+    descriptor: str = "distance_histogram"
     descriptor_params: dict[str, Any] = field(default_factory=dict)
     matching: MatchingConfig = field(default_factory=MatchingConfig)
     rejection: str = "neighbor"

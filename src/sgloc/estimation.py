@@ -22,13 +22,20 @@ def check_not_degenerate(points: np.ndarray, what: str = "points") -> None:
             f"{len(points)} {what} cannot fix a rigid transform; at least 3 non-collinear are "
             "needed (lower min_similarity or use graphs that overlap more)."
         )
-    c = points - points.mean(axis=0)
-    ev = np.linalg.eigvalsh(c.T @ c)  # ascending; singular values squared
-    if ev[2] <= 0 or np.sqrt(max(ev[1], 0.0) / ev[2]) < COLLINEAR_RATIO:
+    if _collinear(points):
         raise DegenerateGeometryError(
             f"the {len(points)} {what} are (nearly) collinear, so the rotation about their line "
             "is undetermined; more spread-out matches are needed."
         )
+
+
+def _collinear(points: np.ndarray) -> bool:
+    """True when `points` (n,3) are fewer than 3 or (nearly) collinear (COLLINEAR_RATIO)."""
+    if len(points) < 3:
+        return True
+    c = points - points.mean(axis=0)
+    ev = np.linalg.eigvalsh(c.T @ c)
+    return bool(ev[2] <= 0 or np.sqrt(max(ev[1], 0.0) / ev[2]) < COLLINEAR_RATIO)
 
 
 def weighted_kabsch(
@@ -107,7 +114,8 @@ def fit_rigid(
     """
     w = np.ones(len(src)) if weights is None else weights
     if dof == 4:
-        if max_tilt:
+        # Collinear points leave the rotation about their line free: only the yaw is fixed.
+        if max_tilt and not _collinear(src):
             T = _kabsch(src, dst, w)
             if tilt_deg(T[:3, :3]) <= max_tilt:
                 return T
@@ -191,8 +199,8 @@ class RansacConfig:
     confidence: float | None = 0.999
     batch: int = 100
     refit_rounds: int = 2
-    dof: int = 6
-    max_tilt: float | None = 45.0
+    dof: int = 4
+    max_tilt: float | None = 15.0
 
     def get_params(self) -> dict:
         return asdict(self)

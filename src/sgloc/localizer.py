@@ -19,6 +19,7 @@ from sgloc.estimation import (
     irls_refine,
     ransac,
     tilt_deg,
+    weighted_kabsch,
 )
 from sgloc.graph import SemanticGraph
 from sgloc.matching import match_descriptors
@@ -197,6 +198,15 @@ def _final_fit(
             check_not_degenerate(src, "matched points")
         except DegenerateGeometryError as e:
             return None, str(e)
+    if dof == 4 and max_tilt is not None:
+        # The gravity assumption must hold: if the inliers, fitted freely, tilt beyond the
+        # tolerance, a yaw-only fit would be wrong by that tilt.
+        try:
+            free = weighted_kabsch(src, dst, weights)
+        except DegenerateGeometryError:
+            free = None  # (nearly) collinear: the tilt about their line is not observable
+        if free is not None and tilt_deg(free[:3, :3]) > max_tilt:
+            return None, _tilt_reason(tilt_deg(free[:3, :3]), max_tilt)
     transform = fit_rigid(src, dst, weights, dof, max_tilt)
     if cfg.robust_refit:
         classes = query.labels[final[:, 0]] if cfg.class_scale else None
@@ -213,12 +223,16 @@ def _final_fit(
             cfg.icp_max_distance,
         )
     if max_tilt is not None and tilt_deg(transform[:3, :3]) > max(max_tilt, 1e-6):
-        return None, (
-            f"the alignment tilts the up axis by {tilt_deg(transform[:3, :3]):.0f} deg "
-            f"(> max_tilt {max_tilt} deg): the maps do not share gravity, or one is mirrored "
-            "or upside down"
-        )
+        return None, _tilt_reason(tilt_deg(transform[:3, :3]), max_tilt)
     return transform, ""
+
+
+def _tilt_reason(tilt: float, max_tilt: float) -> str:
+    return (
+        f"the alignment tilts the up axis by {tilt:.0f} deg (> max_tilt {max_tilt} deg): the "
+        "maps do not share gravity (set max_tilt=None and dof=6 for any orientation), or one "
+        "is mirrored or upside down"
+    )
 
 
 def localize(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -10,6 +11,9 @@ from scipy.spatial import cKDTree
 
 from sgloc.descriptors.base import Descriptor
 from sgloc.graph import SemanticGraph
+
+#: Descriptors already computed, per graph (graphs are immutable; entries go with the graph).
+_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def neighbour_pairs(positions: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
@@ -58,6 +62,16 @@ class DistanceHistogramDescriptor(Descriptor):
     name = "distance_histogram"
 
     def __call__(self, graph: SemanticGraph, n_classes: int, rng: np.random.Generator):
+        # Deterministic: a map localized against several others is described once.
+        key = (n_classes, float(self.radius), int(self.n_bins), float(self.taper))
+        per_graph = _CACHE.setdefault(graph, {})
+        if key not in per_graph:
+            H = self._compute(graph, n_classes)
+            H.flags.writeable = False
+            per_graph[key] = H
+        return per_graph[key]
+
+    def _compute(self, graph: SemanticGraph, n_classes: int) -> np.ndarray:
         n, nb, R = len(graph), int(self.n_bins), float(self.radius)
         pairs, d = neighbour_pairs(graph.positions, R)
         bins, w = soft_bins(d, R / nb, nb)
