@@ -42,16 +42,17 @@ def test_top_k_and_mutual():
 
 
 def _copy_pair(n: int = 150, seed: int = 0):
-    """A random graph and a moved copy with 10 % of its objects dropped: (descriptors of both,
-    labels of both, index in the copy -> index in the original)."""
+    """A random graph and a moved copy with 30 % of its objects dropped and 1 m of noise:
+    (descriptors of both, labels of both, index in the copy -> index in the original)."""
     from sgloc import SemanticGraph
     from sgloc.descriptors import make_descriptor
     from sgloc.geometry import random_rigid_transform
 
     rng = np.random.default_rng(seed)
     g = SemanticGraph(rng.uniform(0, 150, (n, 3)) * [1, 1, 0.1], rng.integers(0, 3, n))
-    keep = np.sort(rng.choice(n, int(0.9 * n), replace=False))
-    h = g.subgraph(keep).transformed(random_rigid_transform(rng))
+    keep = np.sort(rng.choice(n, int(0.7 * n), replace=False))
+    noisy = g.positions[keep] + rng.normal(0.0, 1.0, (len(keep), 3))
+    h = SemanticGraph(noisy, g.labels[keep]).transformed(random_rigid_transform(rng))
     desc = make_descriptor("distance_histogram")
     return desc(g, 3, rng), desc(h, 3, rng), g.labels, h.labels, keep
 
@@ -63,9 +64,10 @@ def test_top_k_candidates_contain_the_true_pairs_of_a_copy():
         true & {tuple(p) for p in match_descriptors(dq, dt, lq, lt, MatchingConfig(top_k=k))[0]}
         for k in (1, 3)
     ]
-    # Dropping objects changes their neighbours' descriptors: top-1 misses some, top-3 fewer.
-    assert len(found[0]) >= 0.6 * len(true)
-    assert found[0] <= found[1] and len(found[1]) >= 0.9 * len(true)
+    # Dropped objects and noise change the descriptors: top-1 misses some, top-3 fewer (on this
+    # seed 94 and 103 of 105).
+    assert len(found[0]) >= 0.8 * len(true)
+    assert found[0] < found[1] and len(found[1]) >= 0.95 * len(true)
 
 
 def test_all_pairs_budget_keeps_the_most_similar():
