@@ -18,9 +18,12 @@ distances agree within 2 * radius in both graphs can all be inliers, so the numb
 the number of such triples (triangles of the pairwise-consistency graph; at most C(m, 3)), and
 the number of false alarms is NFA_u = N * P(Poisson(lambda) >= k - 3) (k inliers among the m
 candidates; Poisson has a heavier tail than the binomial of the same mean: conservative in p).
-As in AC-RANSAC the radius adapts to the precision of the fit: lambda is scaled by
-(r_fit / radius)^2, r_fit = the largest inlier residual (at least 10 % of the radius), so an
-exact fit is more significant than a sloppy one with the same count.
+As in AC-RANSAC the radius adapts to the precision of the fit: the NFA is evaluated with the
+inliers within 1/4, 1/2 and all of the radius (the smallest counts, the number of tests
+multiplied by 3), each with lambda scaled by (r_fit / radius)^2, r_fit = the largest residual
+of those inliers (at least 10 % of the radius), so an exact fit is more significant than a
+sloppy one with the same count. With the 4-dof model (`dof=4`) a hypothesis is fixed by 2
+matches: the tests are the consistent pairs and the excess is k - 2.
 
 H0p (permutation): the target of candidate i is drawn from the targets the candidates of its
 class actually matched (what permuting targets within a class does). Repeated street furniture
@@ -41,7 +44,8 @@ best alignment is far beyond chance *and* far better supported than any differen
 P(NFA <= e) <= e, so a non-overlapping pair reaches confidence >= c with probability at most
 about (1 - c) / c. The confidence is 0 when the inliers are nearly collinear (standard deviation
 along their second principal axis under `min_spread` metres): the evidence then does not fix
-the rotation about their line. A result is accepted when confidence >= `min_confidence` (the
+the rotation about their line (with dof=4 gravity fixes that rotation: their spread along the
+first principal axis of their xy counts instead). A result is accepted when confidence >= `min_confidence` (the
 one strictness setting; 0 gives back Guo's rule alone). When chance alone already puts the
 confidence below `min_confidence`, the runner-up search is skipped (it could only lower it) and
 the confidence reported is 1 / (1 + NFA_best).

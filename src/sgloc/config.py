@@ -19,7 +19,9 @@ from sgloc.rejection import REJECTORS, make_rejector
 
 @dataclass
 class LocalizerConfig:
-    """Settings of `localize`, with the paper's defaults.
+    """Settings of `localize`. Defaults: the paper's, except the descriptor
+    (`distance_histogram`) and the ground-vehicle motion model of `RansacConfig` (dof=4,
+    max_tilt=15), chosen by measurement (docs/acceptance.md, the hard-cases benchmark).
 
     descriptor / descriptor_params: name in DESCRIPTORS and its parameters.
     rejection / rejection_params: name in REJECTORS and its parameters.

@@ -251,14 +251,18 @@ def localize(
 
     Args:
         query, target: the two robots' semantic graphs (positions in metres).
-        descriptor: "histogram" (default) | "random_walk" | "fast".
+        descriptor: "distance_histogram" (default) | "triangles" | "histogram" (the paper's) |
+            "random_walk" | "fast".
         rejection: "neighbor" (default; the paper's Alg. 1) | "none" (RANSAC alone) | others
             registered in `sgloc.rejection.REJECTORS`.
         ransac_threshold: RANSAC inlier distance T_error, metres (default 5).
+            The motion model defaults to a ground vehicle's (dof=4: x, y, z, yaw; maps share
+            gravity up to max_tilt=15 deg); dof=6, max_tilt=None allows any rigid motion.
         seed: seed of the random generator (RANSAC, random walks); ignored when `rng` is given.
         config: a full LocalizerConfig to start from; arguments given here override it.
         **settings: any stage setting by name, e.g. tau=3.0, eta=0.5, min_similarity=0.6,
-            top_k=2, mutual=True, iterations=2000, n_walks=300, class_weights={3: 11.0}, icp=True,
+            top_k=2, mutual=True, strategy="all", iterations=2000, dof=6, max_tilt=None,
+            radius=40.0 (distance_histogram), class_weights={3: 11.0}, icp=True,
             min_confidence=0.9999 (acceptance strictness, sgloc.acceptance), acceptance=False.
     """
     named = {"descriptor": descriptor, "rejection": rejection, "ransac_threshold": ransac_threshold}
