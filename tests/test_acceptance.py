@@ -110,10 +110,12 @@ def test_nfa_grows_with_chance_and_shrinks_with_inliers():
 def test_strictness_zero_gives_guo_rule_back(airsim_graphs):
     c1, c2 = airsim_graphs
     q = cut_shared_area(c1, c2, np.eye(4), 25.0)
-    assert (
-        localize(q, c2, seed=0, min_confidence=0.0).success
-        == localize(q, c2, seed=0, acceptance=False).success
-    )
+    guo = localize(q, c2, seed=0, acceptance=False)
+    assert localize(q, c2, seed=0, min_confidence=0.0, distinct_ratio=None).success == guo.success
+    # With the default, only distinctive candidates are evidence: this negative has none among
+    # Guo's inliers, so even strictness 0 refuses it (the spread gate of no inliers).
+    zero = localize(q, c2, seed=0, min_confidence=0.0)
+    assert guo.success and not zero.success and "spread 0.0 m" in zero.reason
 
 
 def test_config_round_trip_and_overrides():

@@ -45,10 +45,10 @@ P(NFA <= e) <= e, so a non-overlapping pair reaches confidence >= c with probabi
 about (1 - c) / c. The confidence is 0 when the inliers are nearly collinear (standard deviation
 along their second principal axis under `min_spread` metres): the evidence then does not fix
 the rotation about their line (with dof=4 gravity fixes that rotation: their spread along the
-first principal axis of their xy counts instead). A result is accepted when confidence >= `min_confidence` (the
-one strictness setting; 0 gives back Guo's rule alone). When chance alone already puts the
-confidence below `min_confidence`, the runner-up search is skipped (it could only lower it) and
-the confidence reported is 1 / (1 + NFA_best).
+first principal axis of their xy counts instead). A result is accepted when confidence >=
+`min_confidence` (the one strictness setting; 0 gives back Guo's rule alone). When chance
+alone already puts the confidence below `min_confidence`, the runner-up search is skipped (it
+could only lower it) and the confidence reported is 1 / (1 + NFA_best).
 """
 
 from __future__ import annotations
@@ -92,6 +92,10 @@ class AcceptanceConfig:
     distinct_translation, distinct_rotation: metres / degrees; an alternative hypothesis is
         distinct when its transform differs from the best by more than either.
     runner_up_samples: hypotheses drawn when searching for the best distinct alternative.
+    distinct_ratio: the test weighs only the distinctive candidates, those whose best match passes
+        the ratio test (1 - s_1) / (1 - s_2) <= distinct_ratio (`MatchingConfig.max_ratio`): in a
+        repetitive place near-tied matches support a wrong alignment as readily as the right
+        one. None: every candidate.
     """
 
     enabled: bool = True
@@ -101,6 +105,7 @@ class AcceptanceConfig:
     distinct_translation: float = 10.0
     distinct_rotation: float = 10.0
     runner_up_samples: int = 128
+    distinct_ratio: float | None = 0.8
 
     def __post_init__(self) -> None:
         if not 0.0 <= float(self.min_confidence) <= 1.0:

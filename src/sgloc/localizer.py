@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -148,10 +149,16 @@ class Localizer:
             reason = "no model accepted"
         confidence = None
         if transform is not None and cfg.acceptance.enabled:
+            tested = candidates
+            if cfg.acceptance.distinct_ratio is not None:
+                # Only distinctive matches count as evidence: in a repetitive place near-tied
+                # matches line up with a wrong alignment as readily as with the right one.
+                strict = dataclasses.replace(cfg.matching, max_ratio=cfg.acceptance.distinct_ratio)
+                tested = match_descriptors(dq, dt, query.labels, target.labels, strict)[0]
             verdict = assess(
                 query,
                 target,
-                candidates,
+                tested,
                 transform,
                 cfg.ransac.threshold,
                 cfg.acceptance,

@@ -29,6 +29,9 @@ class MatchingConfig:
     strategy: "top_k" (per query vertex) or "all" (every same-class pair with similarity >=
         min_similarity, the most similar first, at most `max_candidates`).
     max_candidates: cap on the candidates of strategy "all" (rejection holds an m x m matrix).
+    max_ratio: strategy "top_k": keep a query object's candidates only when its best match is
+        distinctly better than its second best, (1 - s_1) / (1 - s_2) <= max_ratio (Lowe's
+        ratio test on cosine distances; a repetitive place gives near ties). None: no test.
     """
 
     min_similarity: float = 0.5
@@ -36,6 +39,7 @@ class MatchingConfig:
     mutual: bool = False
     strategy: str = "top_k"
     max_candidates: int = 3000
+    max_ratio: float | None = None
 
     def get_params(self) -> dict:
         return asdict(self)
@@ -78,9 +82,12 @@ def cosine_similarity(desc_q, desc_t, labels_q: np.ndarray, labels_t: np.ndarray
     return S
 
 
-def _top_k(Q, T, labels_q, labels_t, k: int, min_sim: float) -> tuple[np.ndarray, ...]:
-    """Per query row its k most similar same-class targets with similarity >= min_sim and > 0:
-    (query idx, target idx, score), ordered by query, then score descending."""
+def _top_k(
+    Q, T, labels_q, labels_t, k: int, min_sim: float, max_ratio: float | None = None
+) -> tuple[np.ndarray, ...]:
+    """Per query row its k most similar same-class targets with similarity >= min_sim and > 0
+    (and passing the ratio test when max_ratio is set): (query idx, target idx, score),
+    ordered by query, then score descending."""
     out_q, out_t, out_s = [], [], []
     for rows, it, S in _blocks(Q, T, labels_q, labels_t):
         kk = min(k, S.shape[1])
@@ -89,6 +96,10 @@ def _top_k(Q, T, labels_q, labels_t, k: int, min_sim: float) -> tuple[np.ndarray
         else:
             best = np.argpartition(-S, kk - 1, axis=1)[:, :kk]
         sc = np.take_along_axis(S, best, axis=1)
+        if max_ratio is not None and S.shape[1] > 1:
+            top2 = -np.partition(-S, 1, axis=1)[:, :2]
+            distinct = (1.0 - top2[:, 0]) <= max_ratio * (1.0 - top2[:, 1])
+            sc = np.where(distinct[:, None], sc, -np.inf)
         out_q.append(np.repeat(rows, kk))
         out_t.append(it[best.ravel()])
         out_s.append(sc.ravel())
@@ -147,7 +158,7 @@ def match_descriptors(
         q, t, s = _all_pairs(Q, T, labels_q, labels_t, max(int(cfg.max_candidates), 1), min_sim)
     else:
         k = max(int(cfg.top_k), 1)
-        q, t, s = _top_k(Q, T, labels_q, labels_t, k, min_sim)
+        q, t, s = _top_k(Q, T, labels_q, labels_t, k, min_sim, cfg.max_ratio)
         if cfg.mutual and q.size:
             # j's best k queries (any similarity), by the same blocks with the roles swapped.
             tq, qq, _ = _top_k(T, Q, labels_t, labels_q, k, -np.inf)
