@@ -70,7 +70,9 @@ one; without this filter the distance-aware descriptor's candidates gave 42 fals
 of 480 negatives at the default strictness (seeds 0-2 with the city).
 Spread = standard deviation of the inliers along their second principal axis (a narrow strip
 of inliers, e.g. one side of one street, does not fix the rotation about it; with the 4-dof
-model gravity fixes that rotation, and the spread along the first axis of their xy counts).
+model gravity fixes that rotation, and the spread along the first axis of their xy must reach
+twice min_spread: shorter clusters of exact coincidences in the rendered city's regular blocks
+passed as non-overlapping pairs).
 The strictness setting is `AcceptanceConfig.min_confidence` (`localize(..., min_confidence=)`,
 `LocalizerConfig.acceptance`); 0 keeps only the spread gate on top of Guo's rule. The default,
 0.9999, is the smallest tabulated threshold with no false accept on all three seeds' pair sets

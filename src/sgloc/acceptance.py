@@ -76,6 +76,10 @@ _LN10 = np.log(10.0)
 _TRIANGLE_EDGES = 2048
 #: The precision-adapted inlier radius is at least this fraction of the radius.
 MIN_RADIUS_FRACTION = 0.1
+#: With dof=4, inliers must extend this many times `min_spread` along their first xy axis
+#: (measured: at 1 x, clusters of a few exact coincidences in the rendered city's regular
+#: blocks, about 8 m long, passed as non-overlapping pairs).
+DOF4_SPREAD_FACTOR = 2.0
 _POPCOUNT = np.array([bin(b).count("1") for b in range(256)], dtype=np.uint8)
 
 
@@ -88,7 +92,8 @@ class AcceptanceConfig:
     radius: inlier radius in metres for the test; None uses the RANSAC threshold.
     min_spread: metres; inliers whose standard deviation along their second principal axis is
         below this are (nearly) collinear and give confidence 0 (with dof=4, where gravity
-        fixes the rotation about such a line: along the first principal axis of their xy).
+        fixes the rotation about such a line: along the first principal axis of their xy,
+        at least DOF4_SPREAD_FACTOR = 2 x min_spread).
     distinct_translation, distinct_rotation: metres / degrees; an alternative hypothesis is
         distinct when its transform differs from the best by more than either.
     runner_up_samples: hypotheses drawn when searching for the best distinct alternative.
@@ -437,7 +442,9 @@ def assess(
     explained = res2 < (2 * r) ** 2
     # The runner-up can only lower the confidence: skip its search when chance alone (or the
     # spread) already rejects; the reported confidence is then 1 / (1 + NFA_best).
-    hopeless = spread < cfg.min_spread or 1.0 / (1.0 + 10.0 ** min(lg_best, 300.0)) < (
+    # With dof=4 the spread is along the inliers' first xy axis: a line must be twice as long.
+    min_spread = cfg.min_spread * (DOF4_SPREAD_FACTOR if dof == 4 else 1.0)
+    hopeless = spread < min_spread or 1.0 / (1.0 + 10.0 ** min(lg_best, 300.0)) < (
         cfg.min_confidence
     )
     if hopeless:
@@ -475,14 +482,15 @@ def assess(
     ratio = 0.0 if not np.isfinite(lg_second) else 10.0 ** min(lg_best - lg_second, 300.0)
     confidence = float(np.clip(1.0 / (1.0 + nfa1 + ratio), 0.0, 1.0))
     reason = ""
-    if spread < cfg.min_spread:
+    if spread < min_spread:
         confidence = 0.0
         reason = (
             f"the {k} inliers lie in a narrow strip (spread {spread:.1f} m < min_spread "
-            f"{cfg.min_spread} m); the rotation about its line is not determined"
+            f"{min_spread} m); the rotation about its line is not determined"
             if dof == 6
-            else f"the {k} inliers lie within a few metres (spread {spread:.1f} m < min_spread "
-            f"{cfg.min_spread} m); the heading is not determined"
+            else f"the {k} inliers lie within a few metres (spread {spread:.1f} m along their "
+            f"line < {min_spread:g} m = {DOF4_SPREAD_FACTOR:g} x min_spread); too little of the "
+            "map agrees to fix the place"
         )
     elif confidence < cfg.min_confidence:
         if ratio > nfa1:
