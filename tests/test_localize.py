@@ -199,3 +199,4 @@ def test_mirrored_map_is_refused(airsim_graphs):
     free = localize(c1, mirrored, acceptance=False, **ANY_MOTION)
     if free.success:
         assert np.degrees(np.arccos(np.clip(free.transform[2, 2], -1, 1))) > 90
+

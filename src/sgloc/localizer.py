@@ -205,16 +205,11 @@ def _final_fit(
             check_not_degenerate(src, "matched points")
         except DegenerateGeometryError as e:
             return None, str(e)
-    if dof == 4 and max_tilt is not None:
-        # The gravity assumption must hold: if the inliers, fitted freely, tilt beyond the
-        # tolerance, a yaw-only fit would be wrong by that tilt.
-        try:
-            free = weighted_kabsch(src, dst, weights)
-        except DegenerateGeometryError:
-            free = None  # (nearly) collinear: the tilt about their line is not observable
-        if free is not None and tilt_deg(free[:3, :3]) > max_tilt:
-            return None, _tilt_reason(tilt_deg(free[:3, :3]), max_tilt)
     transform = fit_rigid(src, dst, weights, dof, max_tilt)
+    if dof == 4 and max_tilt is not None:
+        tilt = _demanded_tilt(src, dst, weights, transform, cfg.ransac.threshold)
+        if tilt > max_tilt:
+            return None, _tilt_reason(tilt, max_tilt)
     if cfg.robust_refit:
         classes = query.labels[final[:, 0]] if cfg.class_scale else None
         transform = irls_refine(
@@ -232,6 +227,30 @@ def _final_fit(
     if max_tilt is not None and tilt_deg(transform[:3, :3]) > max(max_tilt, 1e-6):
         return None, _tilt_reason(tilt_deg(transform[:3, :3]), max_tilt)
     return transform, ""
+
+
+def _demanded_tilt(
+    src: np.ndarray,
+    dst: np.ndarray,
+    weights: np.ndarray | None,
+    fit: np.ndarray,
+    threshold: float,
+) -> float:
+    """The tilt (degrees) the matches demand: that of their free rigid fit when it explains
+    them clearly better than the gravity-bound `fit` (RMS residual lower by more than a tenth
+    of the RANSAC threshold), else 0. A yaw-only fit of maps that do not share gravity is
+    wrong by their tilt; noisy heights on a narrow strip tilt the free fit without need."""
+    try:
+        free = weighted_kabsch(src, dst, weights)
+    except DegenerateGeometryError:
+        return 0.0  # (nearly) collinear: the tilt about their line is not observable
+
+    def rms(T: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(np.sum((src @ T[:3, :3].T + T[:3, 3] - dst) ** 2, 1))))
+
+    if rms(fit) - rms(free) <= 0.1 * threshold:
+        return 0.0
+    return float(tilt_deg(free[:3, :3]))
 
 
 def _tilt_reason(tilt: float, max_tilt: float) -> str:
