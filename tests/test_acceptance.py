@@ -33,10 +33,12 @@ def test_airsim_with_shared_area_cut_is_rejected(airsim_graphs, rng):
     q = cut_shared_area(c1, c2, np.eye(4), 25.0)
     assert len(q) > 100  # plenty of objects left, just none in the shared area
     T = random_rigid_transform(rng, 200.0, 5.0)
-    guo = localize(q, c2.transformed(T), seed=2, acceptance=False)
-    assert guo.success  # Guo's rule alone accepts this non-overlapping pair...
-    res = localize(q, c2.transformed(T), seed=2)
+    # Guo's rule alone (no acceptance test, no gravity gate) accepts this non-overlapping pair...
+    guo = localize(q, c2.transformed(T), seed=2, acceptance=False, max_tilt=None)
+    assert guo.success
+    res = localize(q, c2.transformed(T), seed=2, max_tilt=None)
     assert not res.success  # ...the acceptance test does not
+    assert not localize(q, c2.transformed(T), seed=2).success  # nor do the defaults
     assert res.transform is None and len(res.matches) == 0
     assert 0.0 <= res.confidence < 0.99
     assert res.reason
@@ -109,10 +111,12 @@ def test_nfa_grows_with_chance_and_shrinks_with_inliers():
 def test_strictness_zero_gives_guo_rule_back(airsim_graphs):
     c1, c2 = airsim_graphs
     q = cut_shared_area(c1, c2, np.eye(4), 25.0)
-    assert (
-        localize(q, c2, seed=0, min_confidence=0.0).success
-        == localize(q, c2, seed=0, acceptance=False).success
-    )
+    guo = localize(q, c2, seed=0, acceptance=False)
+    assert localize(q, c2, seed=0, min_confidence=0.0, distinct_ratio=None).success == guo.success
+    # With the default, only distinctive candidates are evidence: this negative has none among
+    # Guo's inliers, so even strictness 0 refuses it (the spread gate of no inliers).
+    zero = localize(q, c2, seed=0, min_confidence=0.0)
+    assert guo.success and not zero.success and "spread 0.0 m" in zero.reason
 
 
 def test_config_round_trip_and_overrides():

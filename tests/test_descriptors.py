@@ -70,7 +70,7 @@ def test_random_walk_is_seeded():
     np.testing.assert_array_equal(a.sum(axis=1)[has_nb], 200)
 
 
-@pytest.mark.parametrize("name", list(DESCRIPTORS))
+@pytest.mark.parametrize("name", [n for n in DESCRIPTORS if n != "triangles"])
 def test_isolated_vertex_has_no_descriptor(name, path_graph, rng):
     D = dense(make_descriptor(name)(path_graph, 2, rng))
     assert not D[3].any()
@@ -85,9 +85,55 @@ def test_descriptors_invariant_to_rigid_motion(name, rng):
     h = g.transformed(random_rigid_transform(rng))
     a = dense(make_descriptor(name)(g, 5, np.random.default_rng(1)))
     b = dense(make_descriptor(name)(h, 5, np.random.default_rng(1)))
-    np.testing.assert_array_equal(a, b)
+    # Soft binning is continuous in the distances: equal up to the rounding of the motion.
+    np.testing.assert_allclose(a, b, atol=1e-9)
 
 
 def test_unknown_descriptor():
     with pytest.raises(UnknownNameError, match="histogram"):
         make_descriptor("sift")
+
+
+def test_distance_histogram_hand_checked(path_graph, rng):
+    # radius 40 m, 4 bins of 10 m centred at 5, 15, 25, 35 m; layout (class, bin) -> class*4+bin.
+    D = dense(
+        make_descriptor("distance_histogram", radius=40.0, n_bins=4, taper=0.0)(path_graph, 2, rng)
+    )
+    expected = np.zeros((4, 8))
+    expected[0, 4 + 1] = 1.0  # 0 sees 1 (class 1) at 15 m: exactly the centre of bin 1
+    expected[0, 0 + 2] = 0.5  # 0 sees 2 (class 0) at 30 m: halfway between bins 2 and 3
+    expected[0, 0 + 3] = 0.5
+    expected[1, 0 + 1] = 2.0  # 1 sees 0 and 2 (class 0) at 15 m
+    expected[2] = expected[0]  # 2 mirrors 0
+    np.testing.assert_allclose(D, expected)  # 3 is 70 m from everything: no descriptor
+
+
+def test_distance_histogram_taper_weighs_near_neighbours_more(path_graph, rng):
+    desc = make_descriptor("distance_histogram", radius=40.0, n_bins=4, taper=0.5)
+    D = dense(desc(path_graph, 2, rng))
+    # Vertex 0: the neighbour at 15 m weighs 1 - 0.5 * 15/40, the one at 30 m 1 - 0.5 * 30/40.
+    np.testing.assert_allclose(D[0, 4 + 1], 1 - 0.5 * 15 / 40)
+    np.testing.assert_allclose(D[0, 2:4], 0.5 * (1 - 0.5 * 30 / 40))
+
+
+def test_distance_histogram_soft_binning_is_continuous(rng):
+    g = SemanticGraph([[0, 0, 0], [12.0, 0, 0]], [0, 0])
+    h = SemanticGraph([[0, 0, 0], [12.5, 0, 0]], [0, 0])
+    desc = make_descriptor("distance_histogram", radius=40.0, n_bins=4, taper=0.0)
+    a, b = dense(desc(g, 1, rng))[0], dense(desc(h, 1, rng))[0]
+    np.testing.assert_allclose(a, [0.3, 0.7, 0, 0])  # 12 m: 30 % bin 0 (5 m), 70 % bin 1
+    np.testing.assert_allclose(b, [0.25, 0.75, 0, 0])
+    assert a @ b / np.linalg.norm(a) / np.linalg.norm(b) > 0.99
+
+
+def test_triangles_hand_checked(rng):
+    # Vertex 0 (class 0) at the origin, 1 (class 1) at 5 m, 2 (class 0) at 15 m on the y axis.
+    g = SemanticGraph([[0, 0, 0], [5, 0, 0], [0, 15, 0]], [0, 1, 0])
+    D = dense(make_descriptor("triangles", radius=20.0, n_bins=2)(g, 2, rng)).reshape(3, 2, 2, 2, 2)
+    # Signature (class a <= class b, then side a <= side b): bins of 10 m.
+    # 0: others 1 (class 1, 5 m) and 2 (class 0, 15 m) -> classes (0, 1), sides (15, 5) -> (1, 0).
+    assert D[0, 0, 1, 1, 0] == 1 and D[0].sum() == 1
+    # 1: others 0 (class 0, 5 m) and 2 (class 0, 15.8 m) -> (0, 0), sides sorted (5, 15.8).
+    assert D[1, 0, 0, 0, 1] == 1 and D[1].sum() == 1
+    # 2: others 0 (class 0, 15 m) and 1 (class 1, 15.8 m) -> (0, 1), sides (15, 15.8).
+    assert D[2, 0, 1, 1, 1] == 1 and D[2].sum() == 1

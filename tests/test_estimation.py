@@ -6,14 +6,19 @@ import pytest
 from sgloc.errors import DegenerateGeometryError
 from sgloc.estimation import (
     RansacConfig,
+    anisotropic_fit,
+    class_scales,
     draw_triplets,
     icp_refine,
+    irls_refine,
     ransac,
     rigid_from_triplets,
     squared_residuals,
+    tilt_deg,
     weighted_kabsch,
+    yaw_fit,
 )
-from sgloc.geometry import apply, invert, random_rigid_transform, transform_error
+from sgloc.geometry import apply, invert, make_transform, random_rigid_transform, transform_error
 
 
 def test_kabsch_recovers_exact_transform(rng):
@@ -95,8 +100,14 @@ def test_ransac_acceptance_rule(rng):
 
 def test_ransac_collinear_matches(rng):
     line = np.outer(np.linspace(0, 100, 20), [1.0, 0.5, 0.0])
-    res = ransac(line, line + 5.0, RansacConfig(), rng)
+    res = ransac(line, line + 5.0, RansacConfig(dof=6), rng)
     assert res.transform is None and "collinear" in res.reason
+    # With gravity fixing roll and pitch (dof=4) a horizontal line fixes the yaw...
+    res = ransac(line, line + 5.0, RansacConfig(dof=4), rng)
+    np.testing.assert_allclose(res.transform, make_transform(np.eye(3), np.full(3, 5.0)), atol=1e-9)
+    # ...a vertical one does not.
+    pole = np.outer(np.linspace(0, 30, 20), [0.0, 0.0, 1.0])
+    assert ransac(pole, pole + 5.0, RansacConfig(dof=4), rng).transform is None
 
 
 def test_icp_refines_a_perturbed_estimate(rng):
@@ -110,3 +121,54 @@ def test_icp_refines_a_perturbed_estimate(rng):
     refined = icp_refine(src, labels, dst, labels, start, max_distance=5.0)
     assert transform_error(refined, T)[0] < 0.1 < transform_error(start, T)[0]
     assert np.allclose(invert(refined) @ refined, np.eye(4))
+
+
+def _yaw_motion(yaw_deg: float, t=(30.0, -12.0, 1.5)) -> np.ndarray:
+    c, s = np.cos(np.radians(yaw_deg)), np.sin(np.radians(yaw_deg))
+    return make_transform(np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]), np.array(t))
+
+
+def test_yaw_fit_and_dof4_ransac_recover_an_exact_yaw_motion(rng):
+    src = rng.uniform(-60, 60, (40, 3)) * [1, 1, 0.1]
+    T = _yaw_motion(137.0)
+    np.testing.assert_allclose(yaw_fit(src, apply(T, src)), T, atol=1e-9)
+    dst = apply(T, src)
+    dst[:15] = rng.uniform(-60, 60, (15, 3))  # outliers
+    res = ransac(src, dst, RansacConfig(dof=4, max_tilt=None), rng)
+    np.testing.assert_allclose(res.transform, T, atol=1e-9)
+    assert set(range(15, 40)) <= set(res.inliers.tolist())
+    assert tilt_deg(res.transform[:3, :3]) == 0.0
+
+
+def test_tilt_gate_refuses_upside_down_hypotheses(rng):
+    src = rng.uniform(-60, 60, (30, 3)) * [1, 1, 0.2]
+    flip = make_transform(np.diag([1.0, -1.0, -1.0]), np.zeros(3))  # upside down
+    dst = apply(flip, src)
+    assert tilt_deg(flip[:3, :3]) == 180.0
+    free = ransac(src, dst, RansacConfig(dof=6, max_tilt=None), rng)
+    np.testing.assert_allclose(free.transform, flip, atol=1e-9)
+    gated = ransac(src, dst, RansacConfig(dof=6, max_tilt=15.0), rng)
+    assert gated.transform is None and "max_tilt" in gated.reason
+
+
+def test_class_scales_and_anisotropic_fit(rng):
+    """Class 0 has precise heights, class 1 heights off by metres (a building's centre moves
+    with the viewpoint): with per-class, per-axis scales the tilt comes from class 0."""
+    n = 60
+    src = rng.uniform(-80, 80, (n, 3)) * [1, 1, 0.05]
+    classes = np.repeat([0, 1], n // 2)
+    T = _yaw_motion(40.0)
+    dst = apply(T, src)
+    dst[:, :2] += rng.normal(0, 1.0, (n, 2))
+    dst[:, 2] += np.where(classes == 0, rng.normal(0, 0.02, n), rng.normal(0, 3.0, n))
+    d = apply(T, src) - dst
+    s_xy, s_z = class_scales(d, classes, 1.4826 * np.median(np.linalg.norm(d, axis=1)))
+    assert np.all(s_z[classes == 1] > 20 * s_z[classes == 0])
+    assert np.allclose(s_xy[classes == 0], s_xy[classes == 0][0])  # one scale per class
+    # Exact data: the Gauss-Newton fit returns the exact transform from a perturbed start.
+    start = T @ _yaw_motion(2.0, (1.0, -1.0, 0.3))
+    exact = anisotropic_fit(src, apply(T, src), start, np.ones(n), np.ones(n))
+    np.testing.assert_allclose(exact, T, atol=1e-8)
+    plain = irls_refine(src, dst, weighted_kabsch(src, dst))
+    per_class = irls_refine(src, dst, weighted_kabsch(src, dst), classes=classes)
+    assert tilt_deg((per_class @ invert(T))[:3, :3]) < 0.5 * tilt_deg((plain @ invert(T))[:3, :3])

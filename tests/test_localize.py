@@ -12,24 +12,34 @@ from sgloc.geometry import invert, random_rigid_transform, transform_error
 STAGES = {"descriptors", "matching", "rejection", "ransac", "estimation", "total"}
 
 
-def _random_graph_and_motion(seed: int, n: int) -> tuple[SemanticGraph, np.ndarray]:
+#: Any rigid motion: the general 6-dof model, no shared gravity.
+ANY_MOTION = {"dof": 6, "max_tilt": None}
+DESCRIPTOR_NAMES = ["histogram", "random_walk", "fast", "distance_histogram", "triangles"]
+
+
+def _random_graph_and_motion(
+    seed: int, n: int, roll_pitch_deg: float = 30.0
+) -> tuple[SemanticGraph, np.ndarray]:
     rng = np.random.default_rng(seed)
     g = SemanticGraph(rng.uniform(0, 120, (n, 3)) * [1, 1, 0.1], rng.integers(0, 6, n))
-    return g, random_rigid_transform(rng, max_translation=500.0, max_roll_pitch_deg=30.0)
+    return g, random_rigid_transform(rng, max_translation=500.0, max_roll_pitch_deg=roll_pitch_deg)
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     seed=st.integers(0, 2**31 - 1),
     n=st.integers(25, 80),
-    descriptor=st.sampled_from(["histogram", "random_walk", "fast"]),
+    descriptor=st.sampled_from(DESCRIPTOR_NAMES),
     rejection=st.sampled_from(["neighbor", "none"]),
 )
 def test_pipeline_recovers_transform_of_a_moved_copy(seed, n, descriptor, rejection):
-    """A graph against its own rigidly moved copy: the pipeline (descriptors, matching,
-    rejection, RANSAC, robust fit; Guo's acceptance rule only) recovers the transform exactly."""
+    """A graph against its own rigidly moved copy (roll and pitch up to 30 deg; the 6-dof
+    model): the pipeline (descriptors, matching, rejection, RANSAC, robust fit; Guo's
+    acceptance rule only) recovers the transform exactly."""
     g, T = _random_graph_and_motion(seed, n)
-    res = localize(g, g.transformed(T), descriptor, rejection, seed=seed, acceptance=False)
+    res = localize(
+        g, g.transformed(T), descriptor, rejection, seed=seed, acceptance=False, **ANY_MOTION
+    )
     assert res.success, res.reason
     te, re = transform_error(res.transform, T)
     assert te < 1e-6 and re < 1e-6
@@ -41,15 +51,18 @@ def test_pipeline_recovers_transform_of_a_moved_copy(seed, n, descriptor, reject
 @given(
     seed=st.integers(0, 2**31 - 1),
     n=st.integers(40, 120),
-    descriptor=st.sampled_from(["histogram", "random_walk", "fast"]),
+    descriptor=st.sampled_from(DESCRIPTOR_NAMES),
     rejection=st.sampled_from(["neighbor", "none"]),
+    dof=st.sampled_from([4, 6]),
 )
-def test_localize_accepts_and_recovers_a_moved_copy(seed, n, descriptor, rejection):
+def test_localize_accepts_and_recovers_a_moved_copy(seed, n, descriptor, rejection, dof):
     """With the default acceptance test too, from 40 objects up (about 7 per class; below that
     the a-contrario test cannot rule out chance at its default strictness, see
-    test_small_copies_are_never_placed_wrongly)."""
-    g, T = _random_graph_and_motion(seed, n)
-    res = localize(g, g.transformed(T), descriptor, rejection, seed=seed)
+    test_small_copies_are_never_placed_wrongly). dof=6: roll and pitch up to 30 deg; dof=4
+    (the default): a yaw-only motion (gravity shared), recovered exactly."""
+    g, T = _random_graph_and_motion(seed, n, 30.0 if dof == 6 else 0.0)
+    model = ANY_MOTION if dof == 6 else {}
+    res = localize(g, g.transformed(T), descriptor, rejection, seed=seed, **model)
     assert res.success, res.reason
     te, re = transform_error(res.transform, T)
     assert te < 1e-6 and re < 1e-6
@@ -154,6 +167,36 @@ def test_collinear_matches_are_not_localized():
     x = np.linspace(0, 90, 10)
     line = np.column_stack([x, 0.5 * x, np.zeros(10)])
     g = SemanticGraph(line, np.arange(10) % 2)
-    res = localize(g, g.transformed(random_rigid_transform(np.random.default_rng(0))))
+    T = random_rigid_transform(np.random.default_rng(0))
+    res = localize(g, g.transformed(T), **ANY_MOTION)
     assert not res.success and res.transform is None
     assert "collinear" in res.reason
+
+
+def test_a_line_fixes_the_yaw_when_gravity_is_shared():
+    """dof=4: roll and pitch are fixed, so a (horizontal) line of objects fixes the pose."""
+    x = np.linspace(0, 90, 10)
+    line = np.column_stack([x, 0.5 * x, np.zeros(10)])
+    g = SemanticGraph(line, np.arange(10) % 2)
+    T = random_rigid_transform(np.random.default_rng(0), max_roll_pitch_deg=0.0)
+    res = localize(g, g.transformed(T), acceptance=False)
+    assert res.success, res.reason
+    te, re = transform_error(res.transform, T)
+    assert te < 1e-6 and re < 1e-6
+
+
+def test_mirrored_map_is_refused(airsim_graphs):
+    """A map whose x and y columns are swapped is a mirror image: no rigid motion aligns it.
+    The closest rotation turns the map upside down; the gravity gate refuses it, in the 4-dof
+    default and in 6-dof mode while the maps share gravity."""
+    c1, c2 = airsim_graphs
+    mirrored = SemanticGraph(c2.positions[:, [1, 0, 2]], c2.labels, name="mirrored")
+    for model in ({}, {"dof": 6}):
+        res = localize(c1, mirrored, **model)
+        assert not res.success and res.transform is None, model
+    # Without the gravity assumption the mirror image is "aligned" upside down; the tilt gate
+    # is what refuses it.
+    free = localize(c1, mirrored, acceptance=False, **ANY_MOTION)
+    if free.success:
+        assert np.degrees(np.arccos(np.clip(free.transform[2, 2], -1, 1))) > 90
+

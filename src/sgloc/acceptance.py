@@ -18,9 +18,12 @@ distances agree within 2 * radius in both graphs can all be inliers, so the numb
 the number of such triples (triangles of the pairwise-consistency graph; at most C(m, 3)), and
 the number of false alarms is NFA_u = N * P(Poisson(lambda) >= k - 3) (k inliers among the m
 candidates; Poisson has a heavier tail than the binomial of the same mean: conservative in p).
-As in AC-RANSAC the radius adapts to the precision of the fit: lambda is scaled by
-(r_fit / radius)^2, r_fit = the largest inlier residual (at least 10 % of the radius), so an
-exact fit is more significant than a sloppy one with the same count.
+As in AC-RANSAC the radius adapts to the precision of the fit: the NFA is evaluated with the
+inliers within 1/4, 1/2 and all of the radius (the smallest counts, the number of tests
+multiplied by 3), each with lambda scaled by (r_fit / radius)^2, r_fit = the largest residual
+of those inliers (at least 10 % of the radius), so an exact fit is more significant than a
+sloppy one with the same count. With the 4-dof model (`dof=4`) a hypothesis is fixed by 2
+matches: the tests are the consistent pairs and the excess is k - 2.
 
 H0p (permutation): the target of candidate i is drawn from the targets the candidates of its
 class actually matched (what permuting targets within a class does). Repeated street furniture
@@ -41,10 +44,11 @@ best alignment is far beyond chance *and* far better supported than any differen
 P(NFA <= e) <= e, so a non-overlapping pair reaches confidence >= c with probability at most
 about (1 - c) / c. The confidence is 0 when the inliers are nearly collinear (standard deviation
 along their second principal axis under `min_spread` metres): the evidence then does not fix
-the rotation about their line. A result is accepted when confidence >= `min_confidence` (the
-one strictness setting; 0 gives back Guo's rule alone). When chance alone already puts the
-confidence below `min_confidence`, the runner-up search is skipped (it could only lower it) and
-the confidence reported is 1 / (1 + NFA_best).
+the rotation about their line (with dof=4 gravity fixes that rotation: their spread along the
+first principal axis of their xy counts instead). A result is accepted when confidence >=
+`min_confidence` (the one strictness setting; 0 gives back Guo's rule alone). When chance
+alone already puts the confidence below `min_confidence`, the runner-up search is skipped (it
+could only lower it) and the confidence reported is 1 / (1 + NFA_best).
 """
 
 from __future__ import annotations
@@ -57,7 +61,13 @@ from scipy.special import gammaln, pdtrc
 from scipy.stats import poisson
 
 from sgloc.errors import SglocError
-from sgloc.estimation import non_collinear, rigid_from_triplets, squared_residuals
+from sgloc.estimation import (
+    non_collinear,
+    rigid_from_triplets,
+    squared_residuals,
+    tilt_deg,
+    yaw_from_pairs,
+)
 from sgloc.geometry import apply
 from sgloc.graph import SemanticGraph
 from sgloc.rejection.neighbor import consistency_matrix
@@ -66,6 +76,10 @@ _LN10 = np.log(10.0)
 _TRIANGLE_EDGES = 2048
 #: The precision-adapted inlier radius is at least this fraction of the radius.
 MIN_RADIUS_FRACTION = 0.1
+#: With dof=4, inliers must extend this many times `min_spread` along their first xy axis
+#: (measured: at 1 x, clusters of a few exact coincidences in the rendered city's regular
+#: blocks, about 8 m long, passed as non-overlapping pairs).
+DOF4_SPREAD_FACTOR = 2.0
 _POPCOUNT = np.array([bin(b).count("1") for b in range(256)], dtype=np.uint8)
 
 
@@ -77,10 +91,16 @@ class AcceptanceConfig:
     min_confidence: accept when confidence >= this (the strictness; in [0, 1]).
     radius: inlier radius in metres for the test; None uses the RANSAC threshold.
     min_spread: metres; inliers whose standard deviation along their second principal axis is
-        below this are (nearly) collinear and give confidence 0.
+        below this are (nearly) collinear and give confidence 0 (with dof=4, where gravity
+        fixes the rotation about such a line: along the first principal axis of their xy,
+        at least DOF4_SPREAD_FACTOR = 2 x min_spread).
     distinct_translation, distinct_rotation: metres / degrees; an alternative hypothesis is
         distinct when its transform differs from the best by more than either.
     runner_up_samples: hypotheses drawn when searching for the best distinct alternative.
+    distinct_ratio: the test weighs only the distinctive candidates, those whose best match passes
+        the ratio test (1 - s_1) / (1 - s_2) <= distinct_ratio (`MatchingConfig.max_ratio`): in a
+        repetitive place near-tied matches support a wrong alignment as readily as the right
+        one. None: every candidate.
     """
 
     enabled: bool = True
@@ -90,6 +110,7 @@ class AcceptanceConfig:
     distinct_translation: float = 10.0
     distinct_rotation: float = 10.0
     runner_up_samples: int = 128
+    distinct_ratio: float | None = 0.8
 
     def __post_init__(self) -> None:
         if not 0.0 <= float(self.min_confidence) <= 1.0:
@@ -186,14 +207,45 @@ def log10_colocation_p(
     return _log10_poisson_tail(C, mu), C, mu
 
 
-def log10_nfa(k: int, m: int, lam: float, n_tests: float | None = None) -> float:
-    """log10 of the number of false alarms n_tests * P(Poisson(lam) >= k - 3); n_tests
-    defaults to C(m, 3), every triple of the m candidates."""
+def log10_nfa(k: int, m: int, lam: float, n_tests: float | None = None, sample: int = 3) -> float:
+    """log10 of the number of false alarms n_tests * P(Poisson(lam) >= k - sample); n_tests
+    defaults to C(m, 3), every triple of the m candidates; `sample` matches fix a hypothesis
+    (3 for 6 dof, 2 for 4 dof) and are not evidence for it."""
     log_tests = _log_comb3(m) if n_tests is None else float(np.log(max(n_tests, 1.0)))
-    excess = k - 3
+    excess = k - sample
     if excess <= 0:
         return log_tests / _LN10
     return float(log_tests / _LN10 + _log10_poisson_tail(excess, lam))
+
+
+#: Inlier radii, as fractions of the acceptance radius, at which the NFA is evaluated (the
+#: smallest NFA counts, times their number: the tests multiply).
+RADIUS_FRACTIONS = (0.25, 0.5, 1.0)
+
+
+def nfa_over_radii(
+    res2: np.ndarray, radius: float, lam: float, m: int, n_tests: float, sample: int = 3
+) -> tuple[float, int, float]:
+    """The smallest log10 NFA over the inlier radii f * radius, f in RADIUS_FRACTIONS, of the
+    candidates with squared residuals `res2` (m^2); lam = chance inliers within `radius`.
+
+    At each radius the k_f candidates within it fit within their largest residual r_fit
+    (>= MIN_RADIUS_FRACTION * radius) and chance agreement scales with the area of that disc
+    (maps are nearly planar): lam * (r_fit / radius)^2, as AC-RANSAC adapts its radius to the
+    precision of the fit. The number of tests is multiplied by the number of radii tried.
+    Returns (log10 NFA, k_f, r_fit) of the best radius."""
+    best = (np.inf, 0, radius)
+    extra = np.log10(len(RADIUS_FRACTIONS))
+    for f in RADIUS_FRACTIONS:
+        within = res2[res2 < (f * radius) ** 2]
+        k = int(within.size)
+        r_fit = float(np.sqrt(within.max())) if k else f * radius
+        r_fit = max(r_fit, MIN_RADIUS_FRACTION * radius)
+        shrink = min(r_fit / radius, 1.0) ** 2
+        lg = log10_nfa(k, m, lam * shrink, n_tests, sample) + extra
+        if lg < best[0]:
+            best = (lg, k, r_fit)
+    return best
 
 
 def consistent_triples(src: np.ndarray, dst: np.ndarray, radius: float) -> float:
@@ -235,6 +287,8 @@ def _runner_up(
     radius: float,
     cfg: AcceptanceConfig,
     rng: np.random.Generator,
+    dof: int = 6,
+    max_tilt: float | None = None,
 ) -> tuple[int, np.ndarray | None]:
     """Best distinct alternative to T: (its inlier count among the candidates, its 4x4 transform).
 
@@ -243,7 +297,8 @@ def _runner_up(
     T that keeps most of T's matches is not counted as a rival. Hypotheses come from triples of
     pairwise-consistent candidates (`consistency`: |D(q_i,q_j) - D(t_i,t_j)| <
     2 * radius), drawn at random and fitted in one batch; those within the distinctness bounds of T
-    are discarded.
+    are discarded. dof=4: hypotheses about the z axis from the consistent pairs themselves;
+    `max_tilt` (degrees): hypotheses tilting the up axis more are not alternatives.
     """
     free = ~exclude
     if free.sum() < 3 or cfg.runner_up_samples <= 0:
@@ -256,18 +311,13 @@ def _runner_up(
         return 0, None
     pick = rng.integers(0, ii.size, cfg.runner_up_samples)
     i, j = ii[pick], jj[pick]
-    common = consistency[i] & consistency[j] & free
-    has = common.any(axis=1)
-    if not has.any():
+    if dof == 4:
+        hyp = _yaw_hypotheses(src, dst, i, j)
+    else:
+        hyp = _triplet_hypotheses(src, dst, i, j, consistency, free, rng, max_tilt)
+    if hyp is None:
         return 0, None
-    keys = np.where(common, rng.random(common.shape, dtype=np.float32), -1.0)
-    k3 = np.argmax(keys, axis=1)
-    trip = np.column_stack([i, j, k3])[has]
-    S, D = src[trip], dst[trip]
-    ok = non_collinear(S, 1e-2) & non_collinear(D, 1e-2)
-    if not ok.any():
-        return 0, None
-    R, t = rigid_from_triplets(S[ok], D[ok])
+    R, t = hyp
     # Distinctness, measured where it matters: at the centroid of T's support (query frame).
     c = src[exclude].mean(axis=0) if exclude.any() else src.mean(axis=0)
     dtrans = np.linalg.norm(R @ c + t - (T[:3, :3] @ c + T[:3, 3]), axis=1)
@@ -284,10 +334,52 @@ def _runner_up(
     return int(counts[h]), T2
 
 
-def inlier_spread(points: np.ndarray) -> float:
-    """Standard deviation (metres) of `points` (k,3) along their second principal axis."""
+def _yaw_hypotheses(src, dst, i, j) -> tuple[np.ndarray, np.ndarray] | None:
+    """4-dof hypotheses from consistent candidate pairs (i, j) apart in xy."""
+    pair = np.stack([i, j], axis=1)
+    S, D = src[pair], dst[pair]
+    ok = (
+        np.minimum(
+            np.linalg.norm(S[:, 1, :2] - S[:, 0, :2], axis=1),
+            np.linalg.norm(D[:, 1, :2] - D[:, 0, :2], axis=1),
+        )
+        > 1e-6
+    )
+    return yaw_from_pairs(S[ok], D[ok]) if ok.any() else None
+
+
+def _triplet_hypotheses(
+    src, dst, i, j, consistency, free, rng, max_tilt
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """6-dof hypotheses: each consistent pair (i, j) completed by a random candidate
+    consistent with both; tilted beyond `max_tilt` degrees dropped."""
+    common = consistency[i] & consistency[j] & free
+    has = common.any(axis=1)
+    if not has.any():
+        return None
+    keys = np.where(common, rng.random(common.shape, dtype=np.float32), -1.0)
+    k3 = np.argmax(keys, axis=1)
+    trip = np.column_stack([i, j, k3])[has]
+    S, D = src[trip], dst[trip]
+    ok = non_collinear(S, 1e-2) & non_collinear(D, 1e-2)
+    if not ok.any():
+        return None
+    R, t = rigid_from_triplets(S[ok], D[ok])
+    if max_tilt is not None:
+        up = tilt_deg(R) <= max_tilt
+        R, t = R[up], t[up]
+    return (R, t) if len(R) else None
+
+
+def inlier_spread(points: np.ndarray, dof: int = 6) -> float:
+    """Standard deviation (metres) of `points` (k,3) along their second principal axis; with
+    dof=4 along the first principal axis of their xy (with gravity fixing roll and pitch, a
+    line of objects fixes the yaw: only its length matters)."""
     if len(points) < 3:
         return 0.0
+    if dof == 4:
+        s = np.linalg.svd(points[:, :2] - points[:, :2].mean(axis=0), compute_uv=False)
+        return float(s[0] / np.sqrt(len(points)))
     s = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
     return float(s[1] / np.sqrt(len(points)))
 
@@ -300,6 +392,8 @@ def assess(
     radius: float,
     config: AcceptanceConfig | None = None,
     rng: np.random.Generator | None = None,
+    dof: int = 6,
+    max_tilt: float | None = None,
 ) -> Assessment:
     """Score an estimated T_target_query against chance (module docstring).
 
@@ -308,6 +402,7 @@ def assess(
         candidates: (m,2) descriptor matches (query index, target index), before rejection.
         transform: the estimate T_target_query (4x4), or None when estimation failed.
         radius: inlier radius in metres (the RANSAC threshold unless config.radius is set).
+        dof, max_tilt: the motion model (as `RansacConfig`) of the runner-up hypotheses.
     """
     cfg = config or AcceptanceConfig()
     rng = rng if rng is not None else np.random.default_rng(0)
@@ -323,10 +418,6 @@ def assess(
     res2 = np.sum((moved - dst) ** 2, axis=1)
     inl = res2 < r**2
     k = int(inl.sum())
-    # Precision: the inliers fit within their largest residual (>= MIN_RADIUS_FRACTION * r);
-    # chance agreement scales with the area of that disc (maps are nearly planar).
-    r_fit = max(float(np.sqrt(res2[inl].max())) if k else r, MIN_RADIUS_FRACTION * r)
-    shrink = min(r_fit / r, 1.0) ** 2
     n_classes = max(query.n_classes, target.n_classes)
     chance = _ChanceModel(target, r, n_classes)
     qi = cand[:, 0]
@@ -336,29 +427,37 @@ def assess(
     lam = chance.expected_inliers(counts, qi, tlab)
     consistency = _consistency(src, dst, r) if m >= 3 else np.zeros((m, m), dtype=bool)
     edges = np.nonzero(np.triu(consistency))
-    n_tests = _triangles(consistency, *edges) if m >= 3 else 0.0
-    lg_uniform = log10_nfa(k, m, lam * shrink, n_tests)
+    # The hypotheses RANSAC can form: consistent triples (6 dof) or consistent pairs (4 dof).
+    sample = 2 if dof == 4 else 3
+    if dof == 4:
+        n_tests = float(edges[0].size)
+    else:
+        n_tests = _triangles(consistency, *edges) if m >= 3 else 0.0
+    lg_uniform, k_fit, r_fit = nfa_over_radii(res2, r, lam, m, n_tests, sample)
     lam_perm = float(np.sum(used[qi, tlab] / np.bincount(tlab, minlength=n_classes)[tlab]))
     lg_geo, colocated, mu_geo = log10_colocation_p(query, counts > 0, cand[inl, 0])
-    lg_perm = log10_nfa(k, m, lam_perm * shrink, n_tests) + min(lg_geo, 0.0)
+    lg_perm = nfa_over_radii(res2, r, lam_perm, m, n_tests, sample)[0] + min(lg_geo, 0.0)
     lg_best = max(lg_uniform, lg_perm)
-    spread = inlier_spread(dst[inl])
+    spread = inlier_spread(dst[inl], dof)
     explained = res2 < (2 * r) ** 2
     # The runner-up can only lower the confidence: skip its search when chance alone (or the
     # spread) already rejects; the reported confidence is then 1 / (1 + NFA_best).
-    hopeless = spread < cfg.min_spread or 1.0 / (1.0 + 10.0 ** min(lg_best, 300.0)) < (
+    # With dof=4 the spread is along the inliers' first xy axis: a line must be twice as long.
+    min_spread = cfg.min_spread * (DOF4_SPREAD_FACTOR if dof == 4 else 1.0)
+    hopeless = spread < min_spread or 1.0 / (1.0 + 10.0 ** min(lg_best, 300.0)) < (
         cfg.min_confidence
     )
     if hopeless:
         k2, T2 = 0, None
     else:
-        k2, T2 = _runner_up(src, dst, transform, explained, consistency, edges, r, cfg, rng)
+        k2, T2 = _runner_up(
+            src, dst, transform, explained, consistency, edges, r, cfg, rng, dof, max_tilt
+        )
     if T2 is not None:
         (counts2,) = chance.near_counts(apply(T2, query.positions))
         d2 = np.sum((apply(T2, src) - dst) ** 2, axis=1)[~explained]
-        fit2 = max(float(np.sqrt(d2[d2 < r**2].max())) if k2 else r, MIN_RADIUS_FRACTION * r)
-        lam2 = chance.expected_inliers(counts2, qi, tlab) * min(fit2 / r, 1.0) ** 2
-        lg_second = log10_nfa(k2, m, lam2, n_tests)
+        lam2 = chance.expected_inliers(counts2, qi, tlab)
+        lg_second = nfa_over_radii(d2, r, lam2, m, n_tests, sample)[0]
     else:
         lam2, lg_second = 0.0, np.inf
     details = {
@@ -368,6 +467,7 @@ def assess(
         "log10_tests": float(np.log10(max(n_tests, 1.0))),
         "log10_nfa": lg_best,
         "fit_radius_m": r_fit,
+        "fit_inliers": k_fit,
         "log10_nfa_uniform": lg_uniform,
         "expected_chance_inliers_permutation": lam_perm,
         "colocated_beyond_inliers": colocated,
@@ -382,11 +482,15 @@ def assess(
     ratio = 0.0 if not np.isfinite(lg_second) else 10.0 ** min(lg_best - lg_second, 300.0)
     confidence = float(np.clip(1.0 / (1.0 + nfa1 + ratio), 0.0, 1.0))
     reason = ""
-    if spread < cfg.min_spread:
+    if spread < min_spread:
         confidence = 0.0
         reason = (
             f"the {k} inliers lie in a narrow strip (spread {spread:.1f} m < min_spread "
-            f"{cfg.min_spread} m); the rotation about its line is not determined"
+            f"{min_spread} m); the rotation about its line is not determined"
+            if dof == 6
+            else f"the {k} inliers lie within a few metres (spread {spread:.1f} m along their "
+            f"line < {min_spread:g} m = {DOF4_SPREAD_FACTOR:g} x min_spread); too little of the "
+            "map agrees to fix the place"
         )
     elif confidence < cfg.min_confidence:
         if ratio > nfa1:

@@ -19,20 +19,25 @@ from sgloc.rejection import REJECTORS, make_rejector
 
 @dataclass
 class LocalizerConfig:
-    """Settings of `localize`, with the paper's defaults.
+    """Settings of `localize`. Defaults: the paper's, except the descriptor
+    (`distance_histogram`) and the ground-vehicle motion model of `RansacConfig` (dof=4,
+    max_tilt=15), chosen by measurement (docs/acceptance.md, the hard-cases benchmark).
 
     descriptor / descriptor_params: name in DESCRIPTORS and its parameters.
     rejection / rejection_params: name in REJECTORS and its parameters.
     class_weights: {class id: weight} for the final weighted fit (others weigh 1).
     robust_refit: refine the final fit over RANSAC's inliers by an M-estimator (Tukey biweight
         IRLS, `sgloc.estimation.irls_refine`); False: the plain weighted least squares of Eq. 4.
+    class_scale: in the robust refit, weigh each class by the inverse variance of its own
+        residuals (`sgloc.estimation.class_precision`), so that objects whose centre moves with
+        the viewpoint count less.
     icp: refine the final transform by mutual-nearest-neighbour ICP on all objects of the two
         graphs (not in the paper's pipeline; see docs/core_benchmark.md for its effect).
     icp_max_distance: ICP pairing radius (metres).
     acceptance: the test behind `success` (sgloc.acceptance; strictness = min_confidence).
     """
 
-    descriptor: str = "histogram"
+    descriptor: str = "distance_histogram"
     descriptor_params: dict[str, Any] = field(default_factory=dict)
     matching: MatchingConfig = field(default_factory=MatchingConfig)
     rejection: str = "neighbor"
@@ -40,6 +45,7 @@ class LocalizerConfig:
     ransac: RansacConfig = field(default_factory=RansacConfig)
     class_weights: dict[int, float] | None = None
     robust_refit: bool = True
+    class_scale: bool = False
     icp: bool = False
     icp_max_distance: float = 5.0
     acceptance: AcceptanceConfig = field(default_factory=AcceptanceConfig)
@@ -82,7 +88,7 @@ class LocalizerConfig:
                 cfg.acceptance = dataclasses.replace(cfg.acceptance, **{key: value})
             elif key == "acceptance":
                 cfg.acceptance = _acceptance(value)
-            elif key in {"class_weights", "robust_refit", "icp", "icp_max_distance"}:
+            elif key in {"class_weights", "robust_refit", "class_scale", "icp", "icp_max_distance"}:
                 setattr(cfg, key, value)
             else:
                 raise UnknownNameError(

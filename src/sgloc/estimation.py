@@ -22,13 +22,20 @@ def check_not_degenerate(points: np.ndarray, what: str = "points") -> None:
             f"{len(points)} {what} cannot fix a rigid transform; at least 3 non-collinear are "
             "needed (lower min_similarity or use graphs that overlap more)."
         )
-    c = points - points.mean(axis=0)
-    ev = np.linalg.eigvalsh(c.T @ c)  # ascending; singular values squared
-    if ev[2] <= 0 or np.sqrt(max(ev[1], 0.0) / ev[2]) < COLLINEAR_RATIO:
+    if _collinear(points):
         raise DegenerateGeometryError(
             f"the {len(points)} {what} are (nearly) collinear, so the rotation about their line "
             "is undetermined; more spread-out matches are needed."
         )
+
+
+def _collinear(points: np.ndarray) -> bool:
+    """True when `points` (n,3) are fewer than 3 or (nearly) collinear (COLLINEAR_RATIO)."""
+    if len(points) < 3:
+        return True
+    c = points - points.mean(axis=0)
+    ev = np.linalg.eigvalsh(c.T @ c)
+    return bool(ev[2] <= 0 or np.sqrt(max(ev[1], 0.0) / ev[2]) < COLLINEAR_RATIO)
 
 
 def weighted_kabsch(
@@ -54,6 +61,66 @@ def _kabsch(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> np.ndarray
     d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
     R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
     return make_transform(R, cd - R @ cs)
+
+
+def tilt_deg(R: np.ndarray) -> np.ndarray:
+    """Angle (degrees) between the up axis z and its image under R (3,3) or (B,3,3):
+    0 for a rotation about z, 180 for an upside-down map."""
+    return np.degrees(np.arccos(np.clip(np.asarray(R)[..., 2, 2], -1.0, 1.0)))
+
+
+def yaw_fit(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """T_dst_src (4x4) with a rotation about z only (x, y, z, yaw: 4 degrees of freedom)
+    minimising sum_i w_i ||R src_i + t - dst_i||^2, in closed form (the angle of the weighted
+    xy cross-covariance). Needs two points apart in xy; never a reflection."""
+    w = np.ones(len(src)) if weights is None else np.asarray(weights, dtype=np.float64)
+    w = w / w.sum()
+    cs, cd = w @ src, w @ dst
+    a, b = (src - cs)[:, :2] * w[:, None], (dst - cd)[:, :2]
+    theta = np.arctan2(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]), np.sum(a * b))
+    R = _rot_z(np.array([theta]))[0]
+    return make_transform(R, cd - R @ cs)
+
+
+def _rot_z(theta: np.ndarray) -> np.ndarray:
+    """(B,3,3) rotations about z by the angles theta (B,) radians."""
+    c, s = np.cos(theta), np.sin(theta)
+    R = np.zeros((len(theta), 3, 3))
+    R[:, 0, 0], R[:, 0, 1], R[:, 1, 0], R[:, 1, 1], R[:, 2, 2] = c, -s, s, c, 1.0
+    return R
+
+
+def yaw_from_pairs(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """4-dof hypotheses from minimal samples: src, dst (B,2,3) point pairs -> R (B,3,3) about
+    z, t (B,3). The yaw turns the xy direction of the source pair onto the target pair's."""
+    es, ed = src[:, 1, :2] - src[:, 0, :2], dst[:, 1, :2] - dst[:, 0, :2]
+    theta = np.arctan2(ed[:, 1], ed[:, 0]) - np.arctan2(es[:, 1], es[:, 0])
+    R = _rot_z(theta)
+    t = dst.mean(axis=1) - np.einsum("bij,bj->bi", R, src.mean(axis=1))
+    return R, t
+
+
+def fit_rigid(
+    src: np.ndarray,
+    dst: np.ndarray,
+    weights: np.ndarray | None = None,
+    dof: int = 6,
+    max_tilt: float | None = None,
+) -> np.ndarray:
+    """The weighted least-squares T_dst_src under the motion model (no input checks).
+
+    dof=6: Kabsch. dof=4: the Kabsch if it tilts the up axis by at most `max_tilt` degrees
+    (the tilt tolerance: maps whose gravity agrees up to that), else the yaw-only fit.
+    """
+    w = np.ones(len(src)) if weights is None else weights
+    if dof == 4:
+        # Collinear points leave the rotation about their line free: only the yaw is fixed.
+        if max_tilt and not _collinear(src):
+            T = _kabsch(src, dst, w)
+            if tilt_deg(T[:3, :3]) <= max_tilt:
+                return T
+        return yaw_fit(src, dst, w)
+    return _kabsch(src, dst, w)
 
 
 def rigid_from_triplets(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -117,6 +184,11 @@ class RansacConfig:
         `iterations` (Guo's fixed 1000).
     batch: hypotheses generated and scored per block (the adaptive stop is checked per block).
     refit_rounds: refits on all inliers (inliers recomputed after each).
+    dof: 6 (any rigid motion; hypotheses from 3 matches) or 4 (ground vehicles: x, y, z and
+        yaw, roll and pitch fixed by gravity; hypotheses from 2 matches, about the z axis).
+    max_tilt: degrees; when set, the maps share gravity (z up) up to this tilt: hypotheses and
+        fits that tilt the up axis more (upside-down or mirrored alignments) are refused. With
+        dof=4 the refits may tilt up to this much (None or 0: yaw only). None: no assumption.
     """
 
     threshold: float = 5.0
@@ -127,6 +199,8 @@ class RansacConfig:
     confidence: float | None = 0.999
     batch: int = 100
     refit_rounds: int = 2
+    dof: int = 4
+    max_tilt: float | None = 15.0
 
     def get_params(self) -> dict:
         return asdict(self)
@@ -166,8 +240,8 @@ def ransac(
 ) -> RansacResult:
     """Robustly fit T_dst_src to correspondences src[i] <-> dst[i] (both (m,3), metres).
 
-    All hypotheses come from 3-match samples at once and are scored in blocks by matrix
-    products; the best is refit on its inliers with the weighted Kabsch.
+    All hypotheses come from minimal samples (3 matches; 2 with dof=4) at once and are scored
+    in blocks by matrix products; the best is refit on its inliers (`fit_rigid`).
     """
     cfg = config or RansacConfig()
     rng = rng or np.random.default_rng(0)
@@ -180,23 +254,24 @@ def ransac(
         )
     if cfg.scoring not in ("count", "msac"):
         raise ValueError(f"unknown RANSAC scoring {cfg.scoring!r}; use 'count' or 'msac'")
+    if cfg.dof not in (4, 6):
+        raise ValueError(f"RANSAC dof must be 4 (x, y, z, yaw) or 6, got {cfg.dof!r}")
     # Centre both sets: better conditioned residual expansion; undone at the end.
     cs, cd = src.mean(axis=0), dst.mean(axis=0)
     src_c, dst_c = src - cs, dst - cd
     thr2 = cfg.threshold**2
     best_key, best_T, drawn, needed = (np.inf, np.inf), None, 0, cfg.iterations
     batch = max(1, min(cfg.batch, _BLOCK // m))
+    sample_size = 2 if cfg.dof == 4 else 3
     while drawn < min(needed, cfg.iterations):
         # A small first block: after rejection the inlier ratio is often near 1 and a handful
         # of draws settles it.
         n = min(batch if drawn else min(batch, 16), cfg.iterations - drawn)
         drawn += n
-        samples = draw_triplets(m, n, rng)
-        S, D = src_c[samples], dst_c[samples]
-        ok = non_collinear(S) & non_collinear(D)
-        if not ok.any():
+        hyp = _hypotheses(src_c, dst_c, rng, n, cfg)
+        if hyp is None:
             continue
-        R, t = rigid_from_triplets(S[ok], D[ok])
+        R, t = hyp
         r2 = squared_residuals(R, t, src_c, dst_c)
         inl = r2 < thr2
         counts = inl.sum(axis=1)
@@ -214,30 +289,10 @@ def ransac(
             best_key, best_T = (primary[h], secondary[h]), make_transform(R[h], t[h])
         if cfg.confidence is not None:
             w = counts.max() / m
-            needed = min(needed, _needed_draws(w, cfg.confidence, cfg.iterations))
+            needed = min(needed, _needed_draws(w, cfg.confidence, cfg.iterations, sample_size))
     if best_T is None:
-        return RansacResult(
-            None,
-            reason="every RANSAC sample was collinear; the matched points lie (nearly) on a line",
-        )
-    T = best_T
-    inliers = _inliers(T, src_c, dst_c, thr2)
-    for _ in range(cfg.refit_rounds):
-        if len(inliers) < 3:
-            break
-        try:
-            T_new = weighted_kabsch(
-                src_c[inliers], dst_c[inliers], None if weights is None else weights[inliers]
-            )
-        except DegenerateGeometryError:
-            break
-        new_inliers = _inliers(T_new, src_c, dst_c, thr2)
-        if len(new_inliers) < len(inliers):
-            break
-        T, same = T_new, np.array_equal(new_inliers, inliers)
-        inliers = new_inliers
-        if same:
-            break
+        return RansacResult(None, reason=_no_hypothesis_reason(cfg))
+    T, inliers = _refit(best_T, src_c, dst_c, thr2, weights, cfg)
     # Undo the centring: T_dst_src = Tr(cd) @ T_c @ Tr(-cs).
     T = make_transform(T[:3, :3], T[:3, 3] + cd - T[:3, :3] @ cs)
     need = max(cfg.min_inliers, int(np.ceil(cfg.min_inlier_ratio * m)), 3)
@@ -248,11 +303,82 @@ def ransac(
             reason=f"best model has {len(inliers)} inliers of "
             f"{m} matches; at least {need} are needed",
         )
-    try:
-        check_not_degenerate(src[inliers], "inlier points")
-    except DegenerateGeometryError as e:
-        return RansacResult(None, inliers, reason=str(e))
+    if cfg.dof == 6:
+        try:
+            check_not_degenerate(src[inliers], "inlier points")
+        except DegenerateGeometryError as e:
+            return RansacResult(None, inliers, reason=str(e))
     return RansacResult(T, inliers)
+
+
+def _no_hypothesis_reason(cfg: RansacConfig) -> str:
+    if cfg.max_tilt is not None and cfg.dof == 6:
+        return (
+            "every RANSAC hypothesis was degenerate (collinear sample) or tilted the up axis "
+            f"beyond max_tilt={cfg.max_tilt} deg (an upside-down or mirrored map?)"
+        )
+    return "every RANSAC sample was collinear; the matched points lie (nearly) on a line"
+
+
+def _hypotheses(
+    src: np.ndarray, dst: np.ndarray, rng: np.random.Generator, n: int, cfg: RansacConfig
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Up to n hypotheses (R (B,3,3), t (B,3)) from random minimal samples; None if none."""
+    if cfg.dof == 4:
+        i = rng.integers(0, len(src), n)
+        j = rng.integers(0, len(src) - 1, n)
+        j += j >= i
+        S, D = src[np.stack([i, j], 1)], dst[np.stack([i, j], 1)]
+        ls = np.linalg.norm(S[:, 1, :2] - S[:, 0, :2], axis=1)
+        ld = np.linalg.norm(D[:, 1, :2] - D[:, 0, :2], axis=1)
+        # Pairs too close in xy fix no yaw; pairs whose lengths disagree cannot both be inliers.
+        ok = (np.minimum(ls, ld) > 1e-6) & (np.abs(ls - ld) < 2.0 * cfg.threshold)
+        return yaw_from_pairs(S[ok], D[ok]) if ok.any() else None
+    samples = draw_triplets(len(src), n, rng)
+    S, D = src[samples], dst[samples]
+    ok = non_collinear(S) & non_collinear(D)
+    if not ok.any():
+        return None
+    R, t = rigid_from_triplets(S[ok], D[ok])
+    if cfg.max_tilt is not None:
+        up = tilt_deg(R) <= cfg.max_tilt
+        if not up.any():
+            return None
+        R, t = R[up], t[up]
+    return R, t
+
+
+def _refit(
+    T: np.ndarray,
+    src: np.ndarray,
+    dst: np.ndarray,
+    thr2: float,
+    weights: np.ndarray | None,
+    cfg: RansacConfig,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Refit T on its inliers `refit_rounds` times (inliers recomputed after each) while the
+    inlier set does not shrink; (T, inliers)."""
+    inliers = _inliers(T, src, dst, thr2)
+    for _ in range(cfg.refit_rounds):
+        if len(inliers) < 3:
+            break
+        w = None if weights is None else weights[inliers]
+        try:
+            if cfg.dof == 6:
+                check_not_degenerate(src[inliers], "matched points")
+            T_new = fit_rigid(src[inliers], dst[inliers], w, cfg.dof, cfg.max_tilt)
+        except DegenerateGeometryError:
+            break
+        if cfg.dof == 6 and cfg.max_tilt is not None and tilt_deg(T_new[:3, :3]) > cfg.max_tilt:
+            break
+        new_inliers = _inliers(T_new, src, dst, thr2)
+        if len(new_inliers) < len(inliers):
+            break
+        T, same = T_new, np.array_equal(new_inliers, inliers)
+        inliers = new_inliers
+        if same:
+            break
+    return T, inliers
 
 
 def non_collinear(P: np.ndarray, ratio: float = COLLINEAR_RATIO) -> np.ndarray:
@@ -268,9 +394,9 @@ def non_collinear(P: np.ndarray, ratio: float = COLLINEAR_RATIO) -> np.ndarray:
     return area2 > ratio * np.maximum(longest, 1e-12)
 
 
-def _needed_draws(inlier_ratio: float, confidence: float, cap: int) -> int:
-    """Samples of 3 needed to draw one all-inlier sample with probability `confidence`."""
-    p = inlier_ratio**3
+def _needed_draws(inlier_ratio: float, confidence: float, cap: int, size: int = 3) -> int:
+    """Samples of `size` needed to draw one all-inlier sample with probability `confidence`."""
+    p = inlier_ratio**size
     if p >= 1.0:
         return 1
     if p <= 0.0:
@@ -289,6 +415,9 @@ def irls_refine(
     T: np.ndarray,
     weights: np.ndarray | None = None,
     iterations: int = 15,
+    dof: int = 6,
+    max_tilt: float | None = None,
+    classes: np.ndarray | None = None,
 ) -> np.ndarray:
     """Refine T_dst_src on matched points (metres) by an M-estimator: iteratively reweighted
     least squares with Tukey's biweight, c = 4.685 * sigma, sigma re-estimated each round as
@@ -298,15 +427,27 @@ def irls_refine(
     threshold (repeated objects); the biweight gives them zero weight once they stand out from
     the residual spread, so exact correspondences give the exact transform back, while on
     uniformly noisy matches (all residuals alike) it stays close to least squares.
+    dof, max_tilt: the motion model of each fit (`fit_rigid`).
+    classes: (m,) class id of each match: then each class gets its own residual scale,
+        horizontal and vertical apart (`class_scales`), re-estimated each round, and each
+        fit weighs a match's xy and z residuals by their inverse variances
+        (`anisotropic_fit`). The centres of tall or extended objects (buildings, fences) move
+        with the viewpoint, most in height; ground-level objects give precise heights: with
+        the scales apart, those fix roll and pitch and the others count less.
     """
     prior = np.ones(len(src)) if weights is None else np.asarray(weights, dtype=np.float64)
     w_prev = None
     for _ in range(iterations):
-        r = np.linalg.norm(src @ T[:3, :3].T + T[:3, 3] - dst, axis=1)
+        d = src @ T[:3, :3].T + T[:3, 3] - dst
+        r = np.linalg.norm(d, axis=1)
         sigma = 1.4826 * np.median(r)
         if sigma <= 1e-12:
             break
-        u = r / (4.685 * sigma)
+        if classes is not None:
+            s_xy, s_z = class_scales(d, classes, sigma)
+            u = np.sqrt((d[:, 0] ** 2 + d[:, 1] ** 2) / s_xy**2 + d[:, 2] ** 2 / s_z**2) / 4.685
+        else:
+            u = r / (4.685 * sigma)
         w = prior * np.where(u < 1.0, (1.0 - u**2) ** 2, 0.0)
         if np.count_nonzero(w) < 3:
             break
@@ -314,12 +455,96 @@ def irls_refine(
         if w_prev is not None and np.allclose(w, w_prev, rtol=0.0, atol=1e-6):
             break
         w_prev = w
-        T_new = _kabsch(src, dst, w)
+        if classes is not None:
+            T_new = anisotropic_fit(src, dst, T, w / s_xy**2, w / s_z**2, dof, max_tilt)
+        else:
+            T_new = fit_rigid(src, dst, w, dof, max_tilt)
         done = np.abs(T_new - T).max() < 1e-9
         T = T_new
         if done:
             break
     return T
+
+
+#: Matches of a class needed to estimate its own residual scales.
+MIN_CLASS_MATCHES = 5
+#: Floor of a residual scale relative to the overall one (no class outweighs the rest by more
+#: than its square on a few lucky residuals).
+MIN_SCALE_RATIO = 0.02
+
+
+def class_scales(d: np.ndarray, classes: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per match, the horizontal and vertical residual scales of its class: (s_xy, s_z), each
+    (m,), metres per axis, from the residual vectors d (m,3) as 1.4826 * median |residual| per
+    axis (xy: the 2D norm / sqrt 2). Classes with fewer than MIN_CLASS_MATCHES matches take the
+    scales of all matches together; every scale is at least MIN_SCALE_RATIO * sigma."""
+    h = np.linalg.norm(d[:, :2], axis=1) / np.sqrt(2.0)
+    v = np.abs(d[:, 2])
+    floor = max(MIN_SCALE_RATIO * sigma, 1e-9)
+    all_xy, all_z = 1.4826 * np.median(h), 1.4826 * np.median(v)
+    uniq, inv, cnt = np.unique(classes, return_inverse=True, return_counts=True)
+    order = np.argsort(inv, kind="stable")
+    bounds = np.concatenate([[0], np.cumsum(cnt)])
+    sxy, sz = np.empty(len(uniq)), np.empty(len(uniq))
+    for c in range(len(uniq)):
+        idx = order[bounds[c] : bounds[c + 1]]
+        few = cnt[c] < MIN_CLASS_MATCHES
+        sxy[c] = all_xy if few else 1.4826 * np.median(h[idx])
+        sz[c] = all_z if few else 1.4826 * np.median(v[idx])
+    return np.maximum(sxy, floor)[inv], np.maximum(sz, floor)[inv]
+
+
+def anisotropic_fit(
+    src: np.ndarray,
+    dst: np.ndarray,
+    T: np.ndarray,
+    w_xy: np.ndarray,
+    w_z: np.ndarray,
+    dof: int = 6,
+    max_tilt: float | None = None,
+    steps: int = 5,
+) -> np.ndarray:
+    """T_dst_src minimising sum_i w_xy_i |xy residual_i|^2 + w_z_i (z residual_i)^2, by
+    Gauss-Newton from T (a few steps; rotations updated on the manifold). dof=4 updates yaw
+    and translation only (roll and pitch stay as in T); with dof=6 and `max_tilt` set, a step
+    that would tilt the up axis beyond it is not taken."""
+    cols = [2, 3, 4, 5] if dof == 4 else [0, 1, 2, 3, 4, 5]
+    W = np.stack([w_xy, w_xy, w_z], axis=1)
+    for _ in range(steps):
+        p = src @ T[:3, :3].T + T[:3, 3]
+        c = (w_xy @ p) / max(w_xy.sum(), 1e-300)
+        q = p - c
+        J = np.zeros((len(p), 3, 6))  # d(p)/d(rotation vector, translation) about c
+        J[:, 0, 1], J[:, 0, 2] = q[:, 2], -q[:, 1]
+        J[:, 1, 0], J[:, 1, 2] = -q[:, 2], q[:, 0]
+        J[:, 2, 0], J[:, 2, 1] = q[:, 1], -q[:, 0]
+        J[:, 0, 3] = J[:, 1, 4] = J[:, 2, 5] = 1.0
+        J = J[:, :, cols]
+        H = np.einsum("nki,nk,nkj->ij", J, W, J)
+        g = np.einsum("nki,nk,nk->i", J, W, dst - p)
+        try:
+            x = np.zeros(6)
+            x[cols] = np.linalg.solve(H, g)
+        except np.linalg.LinAlgError:
+            break
+        dR = _rotvec_to_matrix(x[:3])
+        R = dR @ T[:3, :3]
+        if dof == 6 and max_tilt is not None and tilt_deg(R) > max_tilt:
+            break
+        T = make_transform(R, dR @ (T[:3, 3] - c) + c + x[3:])
+        if np.abs(x).max() < 1e-12:
+            break
+    return T
+
+
+def _rotvec_to_matrix(v: np.ndarray) -> np.ndarray:
+    """Rodrigues: the rotation (3,3) by angle |v| about v / |v|."""
+    a = float(np.linalg.norm(v))
+    if a < 1e-15:
+        return np.eye(3)
+    k = v / a
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + np.sin(a) * K + (1.0 - np.cos(a)) * (K @ K)
 
 
 def icp_refine(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -12,7 +13,15 @@ from sgloc.acceptance import assess
 from sgloc.config import LocalizerConfig
 from sgloc.descriptors import make_descriptor
 from sgloc.errors import DegenerateGeometryError, InvalidGraphError, SglocError
-from sgloc.estimation import icp_refine, irls_refine, ransac, weighted_kabsch
+from sgloc.estimation import (
+    check_not_degenerate,
+    fit_rigid,
+    icp_refine,
+    irls_refine,
+    ransac,
+    tilt_deg,
+    weighted_kabsch,
+)
 from sgloc.graph import SemanticGraph
 from sgloc.matching import match_descriptors
 from sgloc.rejection import make_rejector
@@ -131,30 +140,8 @@ class Localizer:
         transform, reason = None, rs.reason
         final = survivors[rs.inliers] if rs.inliers.size else np.zeros((0, 2), np.int64)
         if rs.transform is not None:
-            try:
-                transform = weighted_kabsch(
-                    query.positions[final[:, 0]],
-                    target.positions[final[:, 1]],
-                    None if weights is None else weights[rs.inliers],
-                )
-            except DegenerateGeometryError as e:
-                reason = str(e)
-            if transform is not None and cfg.robust_refit:
-                transform = irls_refine(
-                    query.positions[final[:, 0]],
-                    target.positions[final[:, 1]],
-                    transform,
-                    None if weights is None else weights[rs.inliers],
-                )
-            if transform is not None and cfg.icp:
-                transform = icp_refine(
-                    query.positions,
-                    query.labels,
-                    target.positions,
-                    target.labels,
-                    transform,
-                    cfg.icp_max_distance,
-                )
+            w_final = None if weights is None else weights[rs.inliers]
+            transform, reason = _final_fit(query, target, final, w_final, cfg)
         t5 = time.perf_counter()
         timings["estimation"] = t5 - t4
         timings["total"] = t5 - t0
@@ -162,8 +149,22 @@ class Localizer:
             reason = "no model accepted"
         confidence = None
         if transform is not None and cfg.acceptance.enabled:
+            tested = candidates
+            if cfg.acceptance.distinct_ratio is not None:
+                # Only distinctive matches count as evidence: in a repetitive place near-tied
+                # matches line up with a wrong alignment as readily as with the right one.
+                strict = dataclasses.replace(cfg.matching, max_ratio=cfg.acceptance.distinct_ratio)
+                tested = match_descriptors(dq, dt, query.labels, target.labels, strict)[0]
             verdict = assess(
-                query, target, candidates, transform, cfg.ransac.threshold, cfg.acceptance, rng
+                query,
+                target,
+                tested,
+                transform,
+                cfg.ransac.threshold,
+                cfg.acceptance,
+                rng,
+                dof=cfg.ransac.dof,
+                max_tilt=cfg.ransac.max_tilt,
             )
             confidence, reason = verdict.confidence, verdict.reason
             transform = transform if verdict.accepted else None
@@ -188,6 +189,78 @@ class Localizer:
         )
 
 
+def _final_fit(
+    query: SemanticGraph,
+    target: SemanticGraph,
+    final: np.ndarray,
+    weights: np.ndarray | None,
+    cfg: LocalizerConfig,
+) -> tuple[np.ndarray | None, str]:
+    """The fit on RANSAC's inliers `final` (weighted least squares, then the optional robust
+    and ICP refinements) under the motion model; (transform or None, reason)."""
+    src, dst = query.positions[final[:, 0]], target.positions[final[:, 1]]
+    dof, max_tilt = cfg.ransac.dof, cfg.ransac.max_tilt
+    if dof == 6:
+        try:
+            check_not_degenerate(src, "matched points")
+        except DegenerateGeometryError as e:
+            return None, str(e)
+    transform = fit_rigid(src, dst, weights, dof, max_tilt)
+    if dof == 4 and max_tilt is not None:
+        tilt = _demanded_tilt(src, dst, weights, transform, cfg.ransac.threshold)
+        if tilt > max_tilt:
+            return None, _tilt_reason(tilt, max_tilt)
+    if cfg.robust_refit:
+        classes = query.labels[final[:, 0]] if cfg.class_scale else None
+        transform = irls_refine(
+            src, dst, transform, weights, dof=dof, max_tilt=max_tilt, classes=classes
+        )
+    if cfg.icp:
+        transform = icp_refine(
+            query.positions,
+            query.labels,
+            target.positions,
+            target.labels,
+            transform,
+            cfg.icp_max_distance,
+        )
+    if max_tilt is not None and tilt_deg(transform[:3, :3]) > max(max_tilt, 1e-6):
+        return None, _tilt_reason(tilt_deg(transform[:3, :3]), max_tilt)
+    return transform, ""
+
+
+def _demanded_tilt(
+    src: np.ndarray,
+    dst: np.ndarray,
+    weights: np.ndarray | None,
+    fit: np.ndarray,
+    threshold: float,
+) -> float:
+    """The tilt (degrees) the matches demand: that of their free rigid fit when it explains
+    them clearly better than the gravity-bound `fit` (RMS residual lower by more than a tenth
+    of the RANSAC threshold), else 0. A yaw-only fit of maps that do not share gravity is
+    wrong by their tilt; noisy heights on a narrow strip tilt the free fit without need."""
+    try:
+        free = weighted_kabsch(src, dst, weights)
+    except DegenerateGeometryError:
+        return 0.0  # (nearly) collinear: the tilt about their line is not observable
+
+    def rms(T: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(np.sum((src @ T[:3, :3].T + T[:3, 3] - dst) ** 2, 1))))
+
+    if rms(fit) - rms(free) <= 0.1 * threshold:
+        return 0.0
+    return float(tilt_deg(free[:3, :3]))
+
+
+def _tilt_reason(tilt: float, max_tilt: float) -> str:
+    return (
+        f"the alignment tilts the up axis by {tilt:.0f} deg (> max_tilt {max_tilt} deg): the "
+        "maps do not share gravity (set max_tilt=None and dof=6 for any orientation), or one "
+        "is mirrored or upside down"
+    )
+
+
 def localize(
     query: SemanticGraph,
     target: SemanticGraph,
@@ -204,14 +277,18 @@ def localize(
 
     Args:
         query, target: the two robots' semantic graphs (positions in metres).
-        descriptor: "histogram" (default) | "random_walk" | "fast".
+        descriptor: "distance_histogram" (default) | "triangles" | "histogram" (the paper's) |
+            "random_walk" | "fast".
         rejection: "neighbor" (default; the paper's Alg. 1) | "none" (RANSAC alone) | others
             registered in `sgloc.rejection.REJECTORS`.
         ransac_threshold: RANSAC inlier distance T_error, metres (default 5).
+            The motion model defaults to a ground vehicle's (dof=4: x, y, z, yaw; maps share
+            gravity up to max_tilt=15 deg); dof=6, max_tilt=None allows any rigid motion.
         seed: seed of the random generator (RANSAC, random walks); ignored when `rng` is given.
         config: a full LocalizerConfig to start from; arguments given here override it.
         **settings: any stage setting by name, e.g. tau=3.0, eta=0.5, min_similarity=0.6,
-            top_k=2, mutual=True, iterations=2000, n_walks=300, class_weights={3: 11.0}, icp=True,
+            top_k=2, mutual=True, strategy="all", iterations=2000, dof=6, max_tilt=None,
+            radius=40.0 (distance_histogram), class_weights={3: 11.0}, icp=True,
             min_confidence=0.9999 (acceptance strictness, sgloc.acceptance), acceptance=False.
     """
     named = {"descriptor": descriptor, "rejection": rejection, "ransac_threshold": ransac_threshold}

@@ -1,25 +1,45 @@
-"""Candidate matches by cosine similarity of vertex descriptors (paper Eq. 1)."""
+"""Candidate matches by cosine similarity of vertex descriptors (paper Eq. 1).
+
+Memory is linear in the number of vertices: similarities are computed one class at a time and,
+within a class, for blocks of query rows (at most `_BLOCK_ENTRIES` similarities at once); only
+the kept candidates leave a block.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 
 import numpy as np
 from scipy import sparse
 
+#: Similarities held at once per block (8 MB of float64).
+_BLOCK_ENTRIES = 1 << 20
+
+STRATEGIES = ("top_k", "all")
+
 
 @dataclass
 class MatchingConfig:
-    """Best-per-query matching among same-class vertices.
+    """Which same-class vertex pairs become candidate matches.
 
     min_similarity: keep a candidate when its cosine similarity >= this (Guo: 0.5).
-    top_k: candidates kept per query vertex (1 = the paper's best match).
+    top_k: strategy "top_k": candidates kept per query vertex (1 = the paper's best match).
     mutual: keep (i, j) only when i is also among j's best `top_k` queries.
+    strategy: "top_k" (per query vertex) or "all" (every same-class pair with similarity >=
+        min_similarity, the most similar first, at most `max_candidates`).
+    max_candidates: cap on the candidates of strategy "all" (rejection holds an m x m matrix).
+    max_ratio: strategy "top_k": keep a query object's candidates only when its best match is
+        distinctly better than its second best, (1 - s_1) / (1 - s_2) <= max_ratio (Lowe's
+        ratio test on cosine distances; a repetitive place gives near ties). None: no test.
     """
 
     min_similarity: float = 0.5
     top_k: int = 1
     mutual: bool = False
+    strategy: str = "top_k"
+    max_candidates: int = 3000
+    max_ratio: float | None = None
 
     def get_params(self) -> dict:
         return asdict(self)
@@ -37,16 +57,80 @@ def _row_normalised(D) -> sparse.csr_array | np.ndarray:
     return D * inv[:, None]
 
 
-def cosine_similarity(desc_q, desc_t, labels_q: np.ndarray, labels_t: np.ndarray) -> np.ndarray:
-    """(n_q, n_t) cosine similarity; 0 between vertices of different classes or without a
-    descriptor (all-zero row). Computed one class block at a time (only same-class pairs)."""
-    Q, T = _row_normalised(desc_q), _row_normalised(desc_t)
-    S = np.zeros((Q.shape[0], T.shape[0]))
+def _blocks(Q, T, labels_q: np.ndarray, labels_t: np.ndarray) -> Iterator[tuple]:
+    """(query indices (b,), target indices (t,), similarities (b,t)) for every block of
+    same-class pairs; Q, T row-normalised descriptors."""
     for c in np.intersect1d(labels_q, labels_t):
         iq, it = np.flatnonzero(labels_q == c), np.flatnonzero(labels_t == c)
-        block = Q[iq] @ T[it].T
-        S[np.ix_(iq, it)] = block.toarray() if sparse.issparse(block) else block
+        Tc = T[it]
+        TcT = Tc.T.tocsr() if sparse.issparse(Tc) else np.ascontiguousarray(Tc.T)
+        step = max(1, _BLOCK_ENTRIES // max(len(it), 1))
+        for s in range(0, len(iq), step):
+            rows = iq[s : s + step]
+            block = Q[rows] @ TcT
+            yield rows, it, block.toarray() if sparse.issparse(block) else np.asarray(block)
+
+
+def cosine_similarity(desc_q, desc_t, labels_q: np.ndarray, labels_t: np.ndarray) -> np.ndarray:
+    """(n_q, n_t) dense cosine similarity; 0 between vertices of different classes or without
+    a descriptor (all-zero row). For inspection of small graphs: `match_descriptors` never
+    builds this matrix."""
+    Q, T = _row_normalised(desc_q), _row_normalised(desc_t)
+    S = np.zeros((Q.shape[0], T.shape[0]))
+    for rows, it, block in _blocks(Q, T, labels_q, labels_t):
+        S[np.ix_(rows, it)] = block
     return S
+
+
+def _top_k(
+    Q, T, labels_q, labels_t, k: int, min_sim: float, max_ratio: float | None = None
+) -> tuple[np.ndarray, ...]:
+    """Per query row its k most similar same-class targets with similarity >= min_sim and > 0
+    (and passing the ratio test when max_ratio is set): (query idx, target idx, score),
+    ordered by query, then score descending."""
+    out_q, out_t, out_s = [], [], []
+    for rows, it, S in _blocks(Q, T, labels_q, labels_t):
+        kk = min(k, S.shape[1])
+        if kk == 1:
+            best = np.argmax(S, axis=1)[:, None]
+        else:
+            best = np.argpartition(-S, kk - 1, axis=1)[:, :kk]
+        sc = np.take_along_axis(S, best, axis=1)
+        if max_ratio is not None and S.shape[1] > 1:
+            top2 = -np.partition(-S, 1, axis=1)[:, :2]
+            distinct = (1.0 - top2[:, 0]) <= max_ratio * (1.0 - top2[:, 1])
+            sc = np.where(distinct[:, None], sc, -np.inf)
+        out_q.append(np.repeat(rows, kk))
+        out_t.append(it[best.ravel()])
+        out_s.append(sc.ravel())
+    if not out_q:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    q, t, s = np.concatenate(out_q), np.concatenate(out_t), np.concatenate(out_s)
+    keep = (s >= min_sim) & (s > 0)  # zero similarity never counts as a match
+    q, t, s = q[keep], t[keep], s[keep]
+    order = np.lexsort((t, -s, q))
+    return q[order], t[order], s[order]
+
+
+def _all_pairs(Q, T, labels_q, labels_t, cap: int, min_sim: float) -> tuple[np.ndarray, ...]:
+    """Every same-class pair with similarity >= min_sim and > 0, the `cap` most similar,
+    ordered by query, then score descending. Holds at most 2 * cap pairs between blocks."""
+    q = np.zeros(0, np.int64)
+    t = np.zeros(0, np.int64)
+    s = np.zeros(0)
+    for rows, it, S in _blocks(Q, T, labels_q, labels_t):
+        ok = (S >= min_sim) & (S > 0)
+        if len(s) == cap:  # only pairs that beat the current worst kept one can enter
+            ok &= S > s.min()
+        r, c = np.nonzero(ok)
+        q = np.concatenate([q, rows[r]])
+        t = np.concatenate([t, it[c]])
+        s = np.concatenate([s, S[r, c]])
+        if len(s) > cap:
+            top = np.lexsort((t, q, -s))[:cap]
+            q, t, s = q[top], t[top], s[top]
+    order = np.lexsort((t, -s, q))
+    return q[order], t[order], s[order]
 
 
 def match_descriptors(
@@ -58,36 +142,27 @@ def match_descriptors(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Candidate matches (m,2) int (query index, target index) and their scores (m,).
 
-    For each query vertex its `top_k` most similar same-class target vertices with similarity
-    >= `min_similarity`, optionally mutually best. Ordered by query index, then score.
+    Strategy "top_k": for each query vertex its `top_k` most similar same-class target
+    vertices with similarity >= `min_similarity`, optionally mutually best. Strategy "all":
+    every same-class pair above `min_similarity`, the `max_candidates` most similar.
+    Ordered by query index, then score (descending).
     """
     cfg = config or MatchingConfig()
-    S = cosine_similarity(desc_q, desc_t, labels_q, labels_t)
-    n_q, n_t = S.shape
-    if n_q == 0 or n_t == 0:
+    if cfg.strategy not in STRATEGIES:
+        raise ValueError(f"unknown matching strategy {cfg.strategy!r}; use one of {STRATEGIES}")
+    Q, T = _row_normalised(desc_q), _row_normalised(desc_t)
+    if Q.shape[0] == 0 or T.shape[0] == 0:
         return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
-    k = int(min(max(cfg.top_k, 1), n_t))
-    if k == 1:
-        best = np.argmax(S, axis=1)[:, None]
+    min_sim = float(cfg.min_similarity)
+    if cfg.strategy == "all":
+        q, t, s = _all_pairs(Q, T, labels_q, labels_t, max(int(cfg.max_candidates), 1), min_sim)
     else:
-        best = np.argpartition(-S, k - 1, axis=1)[:, :k]
-        order = np.argsort(-np.take_along_axis(S, best, axis=1), axis=1, kind="stable")
-        best = np.take_along_axis(best, order, axis=1)
-    rows = np.repeat(np.arange(n_q), k)
-    cols = best.ravel()
-    scores = S[rows, cols]
-    keep = scores >= cfg.min_similarity
-    # Zero similarity never counts as a match, whatever the threshold.
-    keep &= scores > 0
-    if cfg.mutual:
-        kq = int(min(k, n_q))
-        best_q = (
-            np.argpartition(-S.T, kq - 1, axis=1)[:, :kq]
-            if kq > 1
-            else np.argmax(S, axis=0)[:, None]
-        )
-        is_best_q = np.zeros((n_t, n_q), dtype=bool)
-        np.put_along_axis(is_best_q, best_q, True, axis=1)
-        keep &= is_best_q[cols, rows]
-    matches = np.stack([rows[keep], cols[keep]], axis=1).astype(np.int64)
-    return matches, scores[keep]
+        k = max(int(cfg.top_k), 1)
+        q, t, s = _top_k(Q, T, labels_q, labels_t, k, min_sim, cfg.max_ratio)
+        if cfg.mutual and q.size:
+            # j's best k queries (any similarity), by the same blocks with the roles swapped.
+            tq, qq, _ = _top_k(T, Q, labels_t, labels_q, k, -np.inf)
+            n_q = Q.shape[0]
+            back = np.isin(t * n_q + q, tq * n_q + qq)
+            q, t, s = q[back], t[back], s[back]
+    return np.stack([q, t], axis=1).astype(np.int64), s

@@ -1,10 +1,12 @@
-"""Vertex descriptors by name: `histogram`, `random_walk`, `fast`."""
+"""Vertex descriptors by name: `histogram`, `random_walk`, `fast`, `distance_histogram`,
+`triangles`."""
 
 from __future__ import annotations
 
 from typing import Any
 
 from sgloc.descriptors.base import Descriptor, DescriptorMatrix
+from sgloc.descriptors.distance import DistanceHistogramDescriptor, TriangleDescriptor
 from sgloc.descriptors.fast import FastDescriptor
 from sgloc.descriptors.histogram import HistogramDescriptor
 from sgloc.descriptors.random_walk import RandomWalkDescriptor
@@ -14,11 +16,13 @@ DESCRIPTORS: dict[str, type[Descriptor]] = {
     "histogram": HistogramDescriptor,
     "random_walk": RandomWalkDescriptor,
     "fast": FastDescriptor,
+    "distance_histogram": DistanceHistogramDescriptor,
+    "triangles": TriangleDescriptor,
 }
 
 
 def make_descriptor(name: str | Descriptor, **params: Any) -> Descriptor:
-    """A descriptor by name (`histogram`, `random_walk`, `fast`) with optional parameters."""
+    """A descriptor by name (see DESCRIPTORS) with optional parameters."""
     if isinstance(name, Descriptor):
         return name
     return lookup(DESCRIPTORS, name, "descriptor")(**params)
@@ -28,8 +32,10 @@ __all__ = [
     "DESCRIPTORS",
     "Descriptor",
     "DescriptorMatrix",
+    "DistanceHistogramDescriptor",
     "FastDescriptor",
     "HistogramDescriptor",
     "RandomWalkDescriptor",
+    "TriangleDescriptor",
     "make_descriptor",
 ]
