@@ -29,7 +29,7 @@ def fleet_cmd(
     ),
     workers: int | None = typer.Option(None, help="Local processes (default: CPU count)."),
     edge_radius: float = typer.Option(20.0, help="Graph edge radius (m)."),
-    seed: int = typer.Option(0, help="Random seed."),
+    seed: int = typer.Option(0, min=0, help="Random seed."),
 ) -> None:
     """Place N robots' graphs in one common frame and merge their maps.
 

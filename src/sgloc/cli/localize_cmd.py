@@ -10,7 +10,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from sgloc.cli.app import app, fail
+from sgloc.cli.app import app, not_localized
 from sgloc.graph import SemanticGraph
 from sgloc.localizer import localize
 
@@ -23,7 +23,7 @@ def localize_cmd(
     rejection: str = typer.Option("neighbor", help="neighbor | none | any registered rejector"),
     ransac_threshold: float = typer.Option(5.0, help="RANSAC inlier distance T_error (m)."),
     edge_radius: float = typer.Option(20.0, help="Graph edge radius (m)."),
-    seed: int = typer.Option(0, help="Random seed."),
+    seed: int = typer.Option(0, min=0, help="Random seed."),
     json_out: Path | None = typer.Option(None, "--json", help="Write the result as JSON here."),
 ) -> None:
     """Find T_target_query, the rigid transform from QUERY's frame into TARGET's.
@@ -47,6 +47,6 @@ def localize_cmd(
         table.add_row(k, f"{v * 1e3:.2f}")
     console.print(table)
     if not res.success:
-        raise fail(f"not localized: {res.reason}")
+        raise not_localized(res.reason)
     with np.printoptions(precision=4, suppress=True):
         console.print(f"T_target_query =\n{res.transform}")
