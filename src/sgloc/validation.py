@@ -1,0 +1,170 @@
+"""Checks of user-given values: settings (type, range, finiteness) and graph arrays (shape,
+finiteness, documented size limits). Each failure is an SglocError naming the value and what is
+allowed. This module imports nothing of the pipeline, so every stage may use it."""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import numpy as np
+
+from sgloc.errors import InvalidGraphError, SglocError
+
+#: Most objects in one graph. The pipeline's similarity matrix is n_query x n_target floats and
+#: the histogram descriptor n x L^2, so this bounds memory by the input (about 3 GB at the limit).
+MAX_VERTICES = 20_000
+#: Most distinct classes in one graph (class ids themselves may be any integer in [0, MAX_LABEL]:
+#: the localizer renumbers the classes present to 0..L-1 before sizing anything by them).
+MAX_CLASSES = 64
+#: Largest class id.
+MAX_LABEL = 2**31 - 1
+#: Largest coordinate magnitude, metres: a map 10,000 km across. Beyond it float64 distances
+#: lose the millimetres the pipeline needs, and it is always a unit or file error.
+MAX_COORDINATE = 1e7
+
+
+class InvalidSettingError(SglocError):
+    """A setting has the wrong type or a value outside its allowed range."""
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+def check_real(
+    name: str,
+    value: Any,
+    low: float | None = None,
+    high: float | None = None,
+    *,
+    low_open: bool = False,
+    high_open: bool = False,
+    none_ok: bool = False,
+    unit: str = "",
+) -> float | None:
+    """`value` as a finite float within [low, high] (ends open when asked); else an
+    InvalidSettingError naming `name` and the allowed range."""
+    if value is None and none_ok:
+        return None
+    lo = "-inf" if low is None else f"{low:g}"
+    hi = "inf" if high is None else f"{high:g}"
+    allowed = f"{'(' if low_open else '['}{lo}, {hi}{')' if high_open else ']'}"
+    allowed = f"a finite number in {allowed}{' ' + unit if unit else ''}"
+    allowed += " or None" if none_ok else ""
+    if not _is_number(value) or not math.isfinite(float(value)):
+        raise InvalidSettingError(f"setting {name}={value!r}: must be {allowed}.")
+    v = float(value)
+    if low is not None and (v < low or (low_open and v == low)):
+        raise InvalidSettingError(f"setting {name}={value!r}: must be {allowed}.")
+    if high is not None and (v > high or (high_open and v == high)):
+        raise InvalidSettingError(f"setting {name}={value!r}: must be {allowed}.")
+    return v
+
+
+def check_int(
+    name: str, value: Any, low: int | None = None, high: int | None = None, *, none_ok=False
+) -> int | None:
+    """`value` as an int within [low, high]; bools and non-integral numbers are refused."""
+    if value is None and none_ok:
+        return None
+    lo = "-inf" if low is None else str(low)
+    hi = "inf" if high is None else str(high)
+    allowed = f"an integer in [{lo}, {hi}]" + (" or None" if none_ok else "")
+    integral = isinstance(value, numbers.Integral) and not isinstance(value, bool)
+    if not integral or (low is not None and value < low) or (high is not None and value > high):
+        raise InvalidSettingError(f"setting {name}={value!r}: must be {allowed}.")
+    return int(value)
+
+
+def check_bool(name: str, value: Any) -> bool:
+    """`value` if it is a bool (numpy bools too); 0/1 or strings are refused."""
+    if not isinstance(value, bool | np.bool_):
+        raise InvalidSettingError(f"setting {name}={value!r}: must be True or False.")
+    return bool(value)
+
+
+def check_choice(name: str, value: Any, choices: Iterable[str]) -> str:
+    """`value` if it is one of `choices` (strings)."""
+    options = sorted(choices)
+    if not isinstance(value, str) or value not in options:
+        raise InvalidSettingError(f"setting {name}={value!r}: must be one of {options}.")
+    return value
+
+
+def check_class_weights(name: str, value: Any) -> dict[int, float] | None:
+    """{class id (int >= 0): weight (finite, > 0)} or None."""
+    if value is None:
+        return None
+    if not isinstance(value, Mapping):
+        raise InvalidSettingError(
+            f"setting {name}={value!r}: must be a mapping {{class id: weight}} or None."
+        )
+    out = {}
+    for c, w in value.items():
+        cid = int(c) if isinstance(c, str) and c.strip().isdigit() else c
+        check_int(f"{name} class id", cid, 0, MAX_LABEL)
+        out[int(cid)] = check_real(f"{name}[{cid}]", w, 0.0, low_open=True)
+    return out
+
+
+def check_graph_arrays(
+    name: str, positions: np.ndarray, labels: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """positions (n,3) finite float64 within +-MAX_COORDINATE and labels (n,) int64 class ids in
+    [0, MAX_LABEL], n <= MAX_VERTICES, at most MAX_CLASSES distinct; InvalidGraphError else."""
+    pos = np.asarray(positions)
+    lab = np.asarray(labels)
+    if pos.ndim == 1 and pos.size == 0:
+        pos = pos.reshape(0, 3)
+    if pos.dtype.kind not in "fiu" or pos.ndim != 2 or pos.shape[1] != 3:
+        raise InvalidGraphError(
+            f"{name}: positions must be numbers of shape (n, 3), got {pos.dtype} {pos.shape}; "
+            "pass one x, y, z row per object."
+        )
+    if lab.ndim != 1 or lab.shape[0] != pos.shape[0]:
+        raise InvalidGraphError(
+            f"{name}: labels must have shape ({pos.shape[0]},) to match the positions, "
+            f"got {lab.shape}."
+        )
+    if len(pos) > MAX_VERTICES:
+        raise InvalidGraphError(
+            f"{name}: {len(pos)} objects, more than the limit of {MAX_VERTICES}; split the map "
+            "into submaps or merge nearby objects."
+        )
+    pos = pos.astype(np.float64)
+    finite = np.isfinite(pos).all(axis=1)
+    if not finite.all():
+        bad = np.flatnonzero(~finite)
+        raise InvalidGraphError(
+            f"{name}: {bad.size} position(s) are NaN or infinite (first at row {bad[0]}); "
+            "drop those objects before building the graph."
+        )
+    if pos.size and np.abs(pos).max() > MAX_COORDINATE:
+        row = int(np.argmax(np.abs(pos).max(axis=1)))
+        raise InvalidGraphError(
+            f"{name}: position {pos[row].tolist()} at row {row} is beyond +-{MAX_COORDINATE:g} "
+            "m; positions must be metres in a local map frame."
+        )
+    return pos, _check_labels(name, lab)
+
+
+def _check_labels(name: str, lab: np.ndarray) -> np.ndarray:
+    if lab.size and lab.dtype.kind not in "iu":
+        if lab.dtype.kind != "f" or not np.all(np.isfinite(lab)) or np.any(lab != np.round(lab)):
+            raise InvalidGraphError(f"{name}: labels must be integer class ids, got {lab.dtype}.")
+    if lab.size and (lab.min() < 0 or lab.max() > MAX_LABEL):
+        raise InvalidGraphError(
+            f"{name}: labels must be class ids >= 0 and <= {MAX_LABEL} (found {lab.min()} .. "
+            f"{lab.max()}); unknown classes must be removed or mapped to an id."
+        )
+    lab = lab.astype(np.int64)
+    n_classes = len(np.unique(lab))
+    if n_classes > MAX_CLASSES:
+        raise InvalidGraphError(
+            f"{name}: {n_classes} distinct classes, more than the limit of {MAX_CLASSES}; "
+            "is the label field really a class (not a colour or an instance id)?"
+        )
+    return lab
