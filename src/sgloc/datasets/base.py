@@ -86,8 +86,14 @@ def read_image(path: Path, what: str) -> np.ndarray:
     try:
         with Image.open(path) as im:
             return np.asarray(im)
-    except (UnidentifiedImageError, OSError) as e:
-        raise DatasetError(f"{path}: cannot read {what} ({e}).") from None
+    except (
+        UnidentifiedImageError,
+        OSError,
+        ValueError,
+        SyntaxError,
+        Image.DecompressionBombError,
+    ) as e:
+        raise DatasetError(f"{path}: cannot read {what} ({e}); re-export the image.") from None
 
 
 def intrinsics_matrix(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
