@@ -61,6 +61,7 @@ from sgloc.estimation import non_collinear, rigid_from_triplets, squared_residua
 from sgloc.geometry import apply
 from sgloc.graph import SemanticGraph
 from sgloc.rejection.neighbor import consistency_matrix
+from sgloc.validation import validate_settings
 
 _LN10 = np.log(10.0)
 _TRIANGLE_EDGES = 2048
@@ -92,6 +93,7 @@ class AcceptanceConfig:
     runner_up_samples: int = 128
 
     def __post_init__(self) -> None:
+        validate_settings(self)  # type, range, finiteness of every field (sgloc.validation)
         if not 0.0 <= float(self.min_confidence) <= 1.0:
             raise SglocError(
                 f"min_confidence must be in [0, 1], got {self.min_confidence}; 0 keeps Guo's "

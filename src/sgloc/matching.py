@@ -7,6 +7,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy import sparse
 
+from sgloc.validation import validate_settings
+
 
 @dataclass
 class MatchingConfig:
@@ -20,6 +22,9 @@ class MatchingConfig:
     min_similarity: float = 0.5
     top_k: int = 1
     mutual: bool = False
+
+    def __post_init__(self) -> None:
+        validate_settings(self)  # type, range, finiteness of every field (sgloc.validation)
 
     def get_params(self) -> dict:
         return asdict(self)

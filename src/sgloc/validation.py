@@ -86,11 +86,12 @@ def check_bool(name: str, value: Any) -> bool:
     return bool(value)
 
 
-def check_choice(name: str, value: Any, choices: Iterable[str]) -> str:
-    """`value` if it is one of `choices` (strings)."""
+def check_choice(name: str, value: Any, choices: Iterable[str], what: str = "") -> str:
+    """`value` if it is one of `choices` (strings); `what` describes the setting in errors."""
     options = sorted(choices)
     if not isinstance(value, str) or value not in options:
-        raise InvalidSettingError(f"setting {name}={value!r}: must be one of {options}.")
+        what = f" ({what})" if what else ""
+        raise InvalidSettingError(f"setting {name}={value!r}{what}: must be one of {options}.")
     return value
 
 
@@ -168,3 +169,126 @@ def _check_labels(name: str, lab: np.ndarray) -> np.ndarray:
             "is the label field really a class (not a colour or an instance id)?"
         )
     return lab
+
+
+# -- settings of the stage configs ------------------------------------------------------------
+def _real(low=None, high=None, *, low_open=False, high_open=False, none_ok=False, unit=""):
+    def check(name: str, value: Any) -> float | None:
+        return check_real(
+            name,
+            value,
+            low,
+            high,
+            low_open=low_open,
+            high_open=high_open,
+            none_ok=none_ok,
+            unit=unit,
+        )
+
+    return check
+
+
+def _int(low=None, high=None, *, none_ok=False):
+    return lambda name, value: check_int(name, value, low, high, none_ok=none_ok)
+
+
+def _choice(*choices: str, what: str = ""):
+    return lambda name, value: check_choice(name, value, choices, what)
+
+
+#: Largest number of RANSAC hypotheses, random walks per vertex, etc.: bounds run time.
+MAX_ITERATIONS = 10_000_000
+#: Longest random walk: the descriptor has L**walk_length bins (int64 codes; L <= 2 MAX_CLASSES).
+MAX_WALK_LENGTH = 8
+
+#: Allowed values of every setting, by config class name then field name. Fields not listed are
+#: only checked to be finite when they are numbers.
+SETTINGS: dict[str, dict[str, Any]] = {
+    "MatchingConfig": {
+        "min_similarity": _real(0.0, 1.0),
+        "top_k": _int(1, MAX_VERTICES),
+        "mutual": lambda name, value: check_bool(name, value),
+    },
+    "RansacConfig": {
+        "threshold": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
+        "iterations": _int(1, MAX_ITERATIONS),
+        "min_inliers": _int(0, MAX_VERTICES),
+        "min_inlier_ratio": _real(0.0, 1.0),
+        "scoring": _choice("msac", "count", what="how RANSAC scores a hypothesis"),
+        "confidence": _real(0.0, 1.0, low_open=True, high_open=True, none_ok=True),
+        "batch": _int(1, MAX_ITERATIONS),
+        "refit_rounds": _int(0, 100),
+    },
+    "AcceptanceConfig": {
+        "enabled": lambda name, value: check_bool(name, value),
+        "min_confidence": _real(0.0, 1.0),
+        "radius": _real(0.0, MAX_COORDINATE, low_open=True, none_ok=True, unit="m"),
+        "min_spread": _real(0.0, MAX_COORDINATE, unit="m"),
+        "distinct_translation": _real(0.0, MAX_COORDINATE, unit="m"),
+        "distinct_rotation": _real(0.0, 180.0, unit="degrees"),
+        "runner_up_samples": _int(0, MAX_ITERATIONS),
+    },
+    "RandomWalkDescriptor": {
+        "n_walks": _int(1, 100_000),
+        "walk_length": _int(1, MAX_WALK_LENGTH),
+    },
+    "NeighborRejector": {
+        "tau": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
+        "eta": _real(0.0, 1.0),
+        "form": _choice("distance", "neighbor", what="the consistency form"),
+    },
+    "CliqueRejector": {
+        "tau": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
+        "exact_limit": _int(0, MAX_VERTICES),
+        "max_nodes": _int(1, MAX_ITERATIONS),
+        "n_seeds": _int(1, MAX_VERTICES),
+    },
+    "SpectralRejector": {
+        "tau": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
+        "sigma": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
+        "min_ratio": _real(0.0, 1.0),
+        "min_agreement": _real(0.0, 1.0),
+    },
+}
+
+
+_PREFIXES = {
+    "MatchingConfig": "matching",
+    "RansacConfig": "ransac",
+    "AcceptanceConfig": "acceptance",
+}
+
+
+def validate_settings(config: Any, prefix: str | None = None) -> None:
+    """Check (and normalise: 5 -> 5.0 for metres) every field of a stage config dataclass
+    against SETTINGS; InvalidSettingError naming `prefix.field` and what is allowed."""
+    import dataclasses
+
+    kind = type(config).__name__
+    spec = SETTINGS.get(kind, {})
+    if prefix is None:
+        prefix = _PREFIXES.get(kind) or getattr(config, "name", None) or kind
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        name = f"{prefix}.{f.name}" if prefix else f.name
+        if f.name in spec:
+            object.__setattr__(config, f.name, spec[f.name](name, value))
+        elif _is_number(value) and not math.isfinite(float(value)):
+            raise InvalidSettingError(f"setting {name}={value!r}: must be a finite number.")
+
+
+def validate_localizer_settings(config: Any) -> None:
+    """Check LocalizerConfig's own fields (the stage configs check themselves)."""
+    for name in ("descriptor", "rejection"):
+        value = getattr(config, name)
+        if not isinstance(value, str) and not callable(value):
+            raise InvalidSettingError(f"setting {name}={value!r}: must be a registered name.")
+    for name in ("descriptor_params", "rejection_params"):
+        if not isinstance(getattr(config, name), Mapping):
+            raise InvalidSettingError(f"setting {name}: must be a mapping of parameters.")
+    config.class_weights = check_class_weights("class_weights", config.class_weights)
+    config.robust_refit = check_bool("robust_refit", config.robust_refit)
+    config.icp = check_bool("icp", config.icp)
+    config.icp_max_distance = check_real(
+        "icp_max_distance", config.icp_max_distance, 0.0, MAX_COORDINATE, low_open=True, unit="m"
+    )
