@@ -78,11 +78,19 @@ class Dataset(ABC):
         return f"{type(self).__name__}(frames={len(self)})"
 
 
+_PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"
+
+
 def read_image(path: Path, what: str) -> np.ndarray:
     """Read a PNG (or any Pillow format) as a numpy array, DatasetError if missing/unreadable."""
     from PIL import Image, UnidentifiedImageError
 
     require_file(path, what)
+    if path.suffix.lower() == ".png":
+        with open(path, "rb") as f:  # a PNG ends with its IEND chunk; else it was cut short
+            f.seek(max(0, path.stat().st_size - 12))
+            if f.read() != _PNG_END:
+                raise DatasetError(f"{path}: truncated PNG ({what}); re-export the image.")
     try:
         with Image.open(path) as im:
             return np.asarray(im)

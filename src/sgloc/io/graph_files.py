@@ -119,6 +119,7 @@ def _read_npz(path: Path) -> GraphArrays:
         )
     if not raw.startswith((b"PK\x03\x04", b"PK\x05\x06")):
         raise GraphFileError(f"{path}: not an .npz (zip) archive; is the file damaged?")
+    _check_zip_end(raw, path)
     try:
         with zipfile.ZipFile(path) as zf:
             total = sum(info.file_size for info in zf.infolist())
@@ -151,6 +152,19 @@ def _read_npz(path: Path) -> GraphArrays:
             f"{labels.dtype} {labels.shape}."
         )
     return positions.astype(np.float64), labels.astype(np.int64)
+
+
+def _check_zip_end(raw: bytes, path: Path) -> None:
+    """The zip's end record (plus its comment) must end the file: no trailing bytes."""
+    end = raw.rfind(b"PK\x05\x06", max(0, len(raw) - 22 - 0xFFFF))
+    if end < 0 or len(raw) - end < 22:
+        raise GraphFileError(f"{path}: damaged .npz archive (no end record); re-save it.")
+    comment = int.from_bytes(raw[end + 20 : end + 22], "little")
+    if end + 22 + comment != len(raw):
+        raise GraphFileError(
+            f"{path}: {len(raw) - end - 22 - comment} unexpected bytes after the .npz archive; "
+            "the file is damaged or was appended to; re-save it."
+        )
 
 
 #: Graph readers by lower-case suffix.
