@@ -436,15 +436,17 @@ def make_case(seeds: dict[str, Path], work: Path, rng: np.random.Generator, k: i
             ["build-graph", "airsim", str(robot), "-o", str(out), "-q"],
         )
     roll = rng.random()
-    if roll < 0.04:
+    if roll < 0.08:
+        return option_case(seeds, case_dir, rng, command)
+    if roll < 0.12:
         path = case_dir / str(rng.choice(["pipe.pcd", "pipe.json", "pipe.npz"]))
         os.mkfifo(path)
         name, expect = "fifo", "fail"
-    elif roll < 0.07:
+    elif roll < 0.15:
         path = case_dir / str(rng.choice(["dir.pcd", "dir.json", "dir.npz"]))
         path.mkdir()
         name, expect = "folder", "fail"
-    elif roll < 0.09:
+    elif roll < 0.17:
         path = case_dir / str(rng.choice(["empty.pcd", "empty.json", "empty.npz", "g.ply"]))
         path.write_bytes(b"")
         name, expect = "empty", "fail"
@@ -465,6 +467,40 @@ def make_case(seeds: dict[str, Path], work: Path, rng: np.random.Generator, k: i
             else ["localize", target, str(path)]
         )
     return Case(f"{command} {name}", expect, argv)
+
+
+BAD_OPTIONS = {
+    "localize": [
+        ("--ransac-threshold", "nan"), ("--ransac-threshold", "-5"), ("--ransac-threshold", "inf"),
+        ("--ransac-threshold", "abc"), ("--edge-radius", "0"), ("--edge-radius", "-1e308"),
+        ("--seed", "-1"), ("--seed", "1.5"), ("--descriptor", "nope"), ("--rejection", "nope"),
+        ("--bogus", "1"),
+    ],
+    "fleet": [
+        ("--min-confidence", "1.5"), ("--min-confidence", "nan"), ("--edge-radius", "inf"),
+        ("--seed", "-3"), ("--workers", "two"), ("--scheduler", "nonsense"), ("--bogus", "1"),
+    ],
+}  # fmt: skip
+GOOD_OPTIONS = {
+    "localize": [
+        ("--ransac-threshold", "3"), ("--descriptor", "random_walk"), ("--rejection", "none"),
+        ("--descriptor", "fast"), ("--edge-radius", "25"), ("--seed", "7"),
+    ],
+    "fleet": [("--min-confidence", "0.5"), ("--seed", "2")],
+}  # fmt: skip
+
+
+def option_case(seeds: dict[str, Path], case_dir: Path, rng: np.random.Generator, command: str):
+    """Valid files with one bad (or one valid) option value."""
+    query, target = str(seeds["query.json"]), str(seeds["target.json"])
+    valid = rng.random() < 0.3
+    options = (GOOD_OPTIONS if valid else BAD_OPTIONS)[command]
+    option, value = options[int(rng.integers(0, len(options)))]
+    argv = [command, query, target]
+    if command == "fleet":
+        argv += ["--workers", "1", "--out", str(case_dir / "out")]
+    argv += [option, value]  # last, so that it wins over the defaults above
+    return Case(f"{command} option {option} {value}", "valid" if valid else "fail", argv)
 
 
 def run_fuzz(

@@ -168,7 +168,7 @@ def _run_tasks(tasks: list[tuple], scheduler: str | None, workers: int | None) -
             ) from e
         try:
             client = Client(scheduler, timeout=10)
-        except OSError as e:
+        except (OSError, ValueError, TypeError) as e:  # unreachable or malformed address
             raise SglocError(
                 f"cannot reach the Dask scheduler at {scheduler!r} ({e}); start one with "
                 "`dask scheduler` or omit --scheduler to use local processes."

@@ -110,6 +110,12 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         typer.echo("aborted", err=True)
         rc = EXIT_INTERRUPTED
+    except OSError as e:  # the file system refused an input or output path
+        where = f"{e.filename}: " if e.filename else ""
+        typer.echo(
+            f"error: {where}{e.strerror or e}; check the path and its permissions.", err=True
+        )
+        rc = EXIT_USER_ERROR
     except Exception as e:
         if not _is_framework_exception(e):
             raise

@@ -9,7 +9,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from sgloc.cli.app import app
+from sgloc.cli.app import app, not_localized
 from sgloc.config import LocalizerConfig
 from sgloc.fleet import FleetConfig, localize_fleet
 from sgloc.graph import SemanticGraph
@@ -65,3 +65,6 @@ def fleet_cmd(
         f"({res.timings['pairs']:.2f} s pairs)"
     )
     console.print(f"wrote {out / 'merged.json'}, {out / 'fleet.json'}, {out / 'fleet.png'}")
+    if len(res.T_world_robot) < len(res.names):
+        unplaced = len(res.names) - len(res.T_world_robot)
+        raise not_localized(f"{unplaced} of {len(res.names)} robots could not be placed.")
