@@ -125,3 +125,19 @@ def test_click_is_not_imported_by_sgloc():
     pattern = re.compile(r"^\s*(import|from) click\b", re.M)
     offenders = [p.name for p in src.rglob("*.py") if pattern.search(p.read_text())]
     assert offenders == []
+
+
+def test_unwritable_output_is_one_line_exit_2(data_dir, capsys):
+    d = data_dir / "airsim_guo"
+    args = [str(d / "cloud1.pcd"), str(d / "cloud2.pcd"), "--json", "/dev/null/out.json"]
+    assert main(["localize", *args]) == 2
+    assert "/dev/null" in one_line_error(capsys)
+
+
+def test_fifo_graph_is_refused_without_blocking(tmp_path, data_dir, capsys):
+    import os
+
+    fifo = tmp_path / "pipe.pcd"
+    os.mkfifo(fifo)
+    assert main(["localize", str(fifo), str(data_dir / "airsim_guo" / "cloud2.pcd")]) == 2
+    assert "not a regular file" in one_line_error(capsys)

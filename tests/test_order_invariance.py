@@ -64,3 +64,21 @@ def test_class_weights_follow_the_renumbered_classes():
 def test_canonical_order_sorts_by_class_then_position():
     g = SemanticGraph([[5, 0, 0], [1, 0, 0], [3, 0, 0], [0, 9, 0]], [2, 2, 1, 2])
     assert canonical_order(g).tolist() == [2, 3, 1, 0]
+
+
+def test_memory_is_bounded_by_the_classes_present(airsim_graphs):
+    """One class id of 1000 (or 2**31 - 1) must not size arrays by the id."""
+    import tracemalloc
+
+    q, t = airsim_graphs
+    labels = q.labels.copy()
+    labels[0] = 2**31 - 1
+    q_big = SemanticGraph(q.positions, labels, q.edge_radius)
+    tracemalloc.start()
+    try:
+        localize(q_big, t, "histogram", seed=0)
+        localize(q_big, t, "random_walk", seed=0)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 100 * 2**20
