@@ -504,9 +504,14 @@ def option_case(seeds: dict[str, Path], case_dir: Path, rng: np.random.Generator
 
 
 def run_fuzz(
-    cases: int, seed: int = 0, timeout: float = 20.0, progress: bool = False
+    cases: int,
+    seed: int = 0,
+    timeout: float = 20.0,
+    progress: bool = False,
+    by_kind: Counter | None = None,
 ) -> tuple[Counter, list[tuple[str, str, str]]]:
-    """Run `cases` fuzz cases; (counts per outcome class, [(case, outcome, detail)] of the bad)."""
+    """Run `cases` fuzz cases; (counts per outcome class, [(case, outcome, detail)] of the bad).
+    `by_kind`, when given, is filled with counts per (input kind, outcome)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -521,11 +526,41 @@ def run_fuzz(
             rc, _out, err, exc = run_case(case.argv, timeout)
             outcome = classify(case.expect, rc, err, exc)
             counts[outcome] += 1
+            if by_kind is not None:
+                by_kind[(case_kind(case.name), outcome)] += 1
             if outcome in BAD_OUTCOMES:
                 bad.append((case.name, outcome, (exc + " " + err.strip())[:300]))
             if progress and (k + 1) % 500 == 0:
                 print(f"  {k + 1}/{cases} cases", file=sys.stderr)
     return counts, bad
+
+
+def case_kind(name: str) -> str:
+    """The input kind of a case name: the mutated file type and mutation, or the option."""
+    words = name.split()
+    if words[1] == "option":
+        return f"{words[0]} option value"
+    if words[0] == "build-graph":
+        return f"build-graph {words[1]} file"
+    return (
+        " ".join(words[1:3])
+        .replace("query_bin.pcd", "binary .pcd")
+        .replace("query_cmp.pcd", "compressed .pcd")
+        .replace("query.pcd", "ascii .pcd")
+        .replace("query.", ".")
+    )
+
+
+def kind_table(by_kind: Counter) -> str:
+    """Cases per input kind: clean errors, read as data (exit 0/1), bad outcomes."""
+    rows = ["| input | cases | clean error | read as data | bad |", "|---|---|---|---|---|"]
+    for kind in sorted({k for k, _ in by_kind}):
+        got = {o: n for (k, o), n in by_kind.items() if k == kind}
+        data = sum(n for o, n in got.items() if o.startswith("read as data"))
+        bad = sum(n for o, n in got.items() if o in BAD_OUTCOMES)
+        clean = got.get("clean error, exit 2", 0)
+        rows.append(f"| {kind} | {sum(got.values())} | {clean} | {data} | {bad} |")
+    return "\n".join(rows)
 
 
 def table(counts: Counter) -> str:
@@ -548,24 +583,27 @@ def main() -> int:
     ap.add_argument("--update-docs", action="store_true", help="write docs/robustness.md's table")
     args = ap.parse_args()
     t0 = time.perf_counter()
-    counts, bad = run_fuzz(args.cases, args.seed, args.timeout, progress=True)
+    by_kind: Counter = Counter()
+    counts, bad = run_fuzz(args.cases, args.seed, args.timeout, progress=True, by_kind=by_kind)
     elapsed = time.perf_counter() - t0
     print(table(counts))
+    print()
+    print(kind_table(by_kind))
     print(f"\n{args.cases} cases, seed {args.seed}, {elapsed:.0f} s")
     for name, outcome, detail in bad[:30]:
         print(f"BAD {outcome}: {name}: {detail}")
     if args.update_docs:
-        write_docs(counts, args.cases, args.seed, elapsed)
+        write_docs(counts, by_kind, args.cases, args.seed, elapsed)
     return 1 if bad else 0
 
 
-def write_docs(counts: Counter, cases: int, seed: int, elapsed: float) -> None:
+def write_docs(counts: Counter, by_kind: Counter, cases: int, seed: int, elapsed: float) -> None:
     doc = Path(__file__).resolve().parent.parent / "docs" / "robustness.md"
     text = doc.read_text() if doc.exists() else ""
     begin, end = "<!-- fuzz-table:begin -->", "<!-- fuzz-table:end -->"
     block = (
         f"{begin}\n`python benchmarks/fuzz.py --cases {cases} --seed {seed}` "
-        f"({elapsed:.0f} s):\n\n{table(counts)}\n{end}"
+        f"({elapsed:.0f} s):\n\n{table(counts)}\n\nBy input kind:\n\n{kind_table(by_kind)}\n{end}"
     )
     if begin in text and end in text:
         text = text[: text.index(begin)] + block + text[text.index(end) + len(end) :]
