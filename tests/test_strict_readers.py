@@ -171,6 +171,19 @@ def test_json_numbers_must_be_finite_reals(tmp_path, position, message):
         read_graph(write_json(tmp_path, text))
 
 
+def test_json_duplicate_keys_are_refused(tmp_path):
+    text = '{"positions": [[0,0,0]], "labels": [1], "labels": [2]}'
+    with pytest.raises(GraphFileError, match="appears twice"):
+        read_graph(write_json(tmp_path, text))
+
+
+def test_nan_detection_centroids_are_refused():
+    from sgloc.datasets.kitti_objects import _parse_centroids
+
+    with pytest.raises(DatasetError, match="NaN or infinite"):
+        _parse_centroids(b"1 2 3\nnan 0 0\n", "centroids/000001.txt")
+
+
 def test_json_depth_is_bounded(tmp_path):
     with pytest.raises(GraphFileError, match="nested deeper"):
         read_graph(write_json(tmp_path, "[" * 100_000 + "]" * 100_000))

@@ -59,6 +59,14 @@ def _json_number(kind: str) -> Callable[[str], float | int]:
     return parse
 
 
+def _unique_keys(pairs: list[tuple[str, object]]) -> dict:
+    keys = [k for k, _ in pairs]
+    if len(set(keys)) != len(keys):
+        twice = sorted({k for k in keys if keys.count(k) > 1})
+        raise ValueError(f"key {twice[0]!r} appears twice in one object")
+    return dict(pairs)
+
+
 def _reject_constant(token: str) -> float:
     raise ValueError(f"{token} is not a finite number")
 
@@ -82,6 +90,7 @@ def _read_json(path: Path) -> GraphArrays:
             parse_int=_json_number("int"),
             parse_float=_json_number("float"),
             parse_constant=_reject_constant,
+            object_pairs_hook=_unique_keys,
         )
     except ValueError as e:  # JSONDecodeError is a ValueError, so are our number checks
         raise GraphFileError(f"{path}: invalid JSON graph ({e}).") from None
