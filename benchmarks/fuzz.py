@@ -244,7 +244,12 @@ def json_valid_edit(raw: bytes, rng: np.random.Generator) -> tuple[bytes, str]:
 
 def json_structure(raw: bytes, rng: np.random.Generator) -> tuple[bytes, str]:
     data = json.loads(raw)
-    kind = int(rng.integers(0, 6))
+    kind = int(rng.integers(0, 7))
+    if kind == 6:  # a key given twice
+        text = json.dumps(data)
+        return text[:-1].encode() + b', "labels": ' + json.dumps(
+            data["labels"]
+        ).encode() + b"}", "fail"
     if kind == 0:
         depth = int(rng.choice([50, 5000, 200000]))
         return ("[" * depth + json.dumps(data) + "]" * depth).encode(), "fail"
