@@ -82,3 +82,12 @@ def test_memory_is_bounded_by_the_classes_present(airsim_graphs):
     finally:
         tracemalloc.stop()
     assert peak < 100 * 2**20
+
+
+def test_cached_adjacency_is_carried_over_permuted(airsim_graphs):
+    q, t = airsim_graphs
+    _ = q.adjacency, t.adjacency, q.distances
+    pair = CanonicalPair(q, t, LocalizerConfig())
+    fresh = SemanticGraph(pair.query.positions, pair.query.labels, q.edge_radius)
+    assert (pair.query.adjacency != fresh.adjacency).nnz == 0
+    np.testing.assert_array_equal(pair.query.distances, fresh.distances)

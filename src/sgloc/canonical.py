@@ -9,6 +9,7 @@ import dataclasses
 from typing import Any
 
 import numpy as np
+from scipy import sparse
 
 from sgloc.graph import SemanticGraph
 
@@ -41,7 +42,18 @@ class CanonicalPair:
 
     def _rebuilt(self, graph: SemanticGraph, order: np.ndarray) -> SemanticGraph:
         labels = np.searchsorted(self.classes, graph.labels[order])
-        return SemanticGraph(graph.positions[order], labels, graph.edge_radius, graph.name)
+        out = SemanticGraph(graph.positions[order], labels, graph.edge_radius, graph.name)
+        # Carry over what the caller's graph has already computed, permuted (cheaper than anew).
+        cache = graph.__dict__
+        if "adjacency" in cache:
+            adjacency = sparse.csr_array(cache["adjacency"][order][:, order])
+            adjacency.sort_indices()
+            out.__dict__["adjacency"] = adjacency
+        if "distances" in cache:
+            distances = cache["distances"][np.ix_(order, order)]
+            distances.flags.writeable = False
+            out.__dict__["distances"] = distances
+        return out
 
     def restore(self, result: Any) -> Any:
         """The result with every (query index, target index) array in the caller's indices,
