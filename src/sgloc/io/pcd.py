@@ -152,7 +152,9 @@ def _ascii_columns(raw: bytes, h: PcdHeader, path: Path) -> dict[str, np.ndarray
     try:
         text = raw[h.offset :].decode("ascii")
     except UnicodeDecodeError:
-        raise GraphFileError(f"{path}: non-ASCII bytes in ASCII PCD data.") from None
+        raise GraphFileError(
+            f"{path}: non-ASCII bytes in ASCII PCD data; the file is damaged or not DATA ascii."
+        ) from None
     rows = [r for r in (line.split() for line in text.splitlines()) if r]
     if len(rows) != h.n:
         raise GraphFileError(
@@ -168,7 +170,9 @@ def _ascii_columns(raw: bytes, h: PcdHeader, path: Path) -> dict[str, np.ndarray
     try:
         table = np.array(rows, dtype=np.float64).reshape(h.n, width)
     except ValueError:
-        raise GraphFileError(f"{path}: non-numeric value in the PCD data.") from None
+        raise GraphFileError(
+            f"{path}: non-numeric value in the PCD data; every value must be a number."
+        ) from None
     cols, start = {}, 0
     for f, t, s, c in zip(h.fields, h.types, h.sizes, h.counts, strict=True):
         col = table[:, start : start + c]
@@ -201,7 +205,9 @@ def _binary_columns(raw: bytes, h: PcdHeader, path: Path) -> dict[str, np.ndarra
         rec = np.frombuffer(data, dtype=dtype, count=h.n)
         return {f: rec[f].reshape(h.n, -1) for f in h.fields}
     if len(data) < 8:
-        raise GraphFileError(f"{path}: binary_compressed PCD data is truncated (no sizes).")
+        raise GraphFileError(
+            f"{path}: binary_compressed PCD data is truncated (no sizes); re-save the file."
+        )
     packed, unpacked = np.frombuffer(data[:8], dtype="<u4").tolist()
     if unpacked != need:
         raise GraphFileError(
@@ -247,7 +253,9 @@ def read_pcd(path: str | Path, colors: np.ndarray = AIRSIM_COLORS) -> tuple[np.n
     if "label" in cols:
         labels = _column(cols, "label", path).astype(np.float64)
         if not np.all(np.isfinite(labels)) or np.any(labels != np.round(labels)):
-            raise GraphFileError(f"{path}: the label field must hold integer class ids.")
+            raise GraphFileError(
+                f"{path}: the label field must hold integer class ids >= 0; fix the labels."
+            )
         return positions, labels.astype(np.int64)
     name = "rgb" if "rgb" in cols else "rgba"
     col = _column(cols, name, path)
