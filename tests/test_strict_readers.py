@@ -270,3 +270,26 @@ def test_coordinate_limit(tmp_path):
     )
     with pytest.raises(InvalidGraphError, match="beyond"):
         read_graph(p)
+
+
+def test_signalling_nan_is_an_error_without_warnings(tmp_path, recwarn):
+    pos = np.array([[0, 0, 0], [10, 0, 0], [0, 10, 0]], float)
+    p = tmp_path / "snan.pcd"
+    write_pcd(p, pos, [1, 2, 3], data="binary")
+    raw = bytearray(p.read_bytes())
+    start = len(raw) - 3 * 20  # first record; x is its first 4 bytes
+    raw[start : start + 4] = np.array([0x7F800001], "<u4").tobytes()
+    p.write_bytes(bytes(raw))
+    with pytest.raises(InvalidGraphError, match="NaN or infinite"):
+        read_graph(p)
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
+
+
+def test_encrypted_flag_in_npz_is_an_error(tmp_path):
+    p = npz(tmp_path, positions=POS, labels=np.arange(3))
+    raw = bytearray(p.read_bytes())
+    central = bytes(raw).index(b"PK\x01\x02")
+    raw[central + 8] |= 1  # the first member's general-purpose flag: "encrypted"
+    p.write_bytes(bytes(raw))
+    with pytest.raises(GraphFileError, match="damaged .npz"):
+        read_graph(p)

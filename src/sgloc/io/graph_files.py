@@ -148,6 +148,10 @@ def _read_npz(path: Path) -> GraphArrays:
         raise GraphFileError(
             f"{path}: damaged .npz archive ({type(e).__name__}); re-save it."
         ) from None
+    except RuntimeError as e:  # zipfile: a (flipped) flag bit says the member is encrypted
+        raise GraphFileError(
+            f"{path}: damaged .npz archive ({type(e).__name__}); re-save it."
+        ) from None
     except (ValueError, OSError) as e:
         raise GraphFileError(f"{path}: cannot read .npz arrays ({e}); re-save them.") from None
     if positions.dtype.kind not in "fiu" or positions.ndim != 2 or positions.shape[1] != 3:

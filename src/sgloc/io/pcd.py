@@ -237,6 +237,9 @@ def _column(cols: dict[str, np.ndarray], name: str, path: Path) -> np.ndarray:
     return col[:, 0]
 
 
+# Damaged data may hold signalling NaNs or out-of-range floats: casting them must not print
+# warnings (the values are checked here and by sgloc.validation).
+@np.errstate(invalid="ignore", over="ignore")
 def read_pcd(path: str | Path, colors: np.ndarray = AIRSIM_COLORS) -> tuple[np.ndarray, np.ndarray]:
     """Read object positions (n,3) and class ids (n,) from a PCD file; GraphFileError if bad."""
     path = Path(path)
