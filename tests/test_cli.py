@@ -1,12 +1,15 @@
 """The command line: results, one-line errors with exit code 2, help with examples."""
 
 import json
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from sgloc import SemanticGraph
 from sgloc.cli import app, main
+from sgloc.cli.app import EXIT_NOT_LOCALIZED
 
 
 def test_localize_writes_json(airsim_dir, tmp_path, capsys):
@@ -49,13 +52,14 @@ def test_unknown_descriptor_is_one_line_exit_2(airsim_dir, capsys):
     assert "unknown descriptor" in one_line_error(capsys)
 
 
-def test_not_localized_is_one_line_exit_2(tmp_path, capsys):
+def test_not_localized_is_its_own_exit_code(tmp_path, capsys):
     rng = np.random.default_rng(0)
     SemanticGraph(rng.uniform(0, 60, (12, 3)), np.zeros(12, int)).save(tmp_path / "q.json")
     SemanticGraph(rng.uniform(0, 60, (12, 3)), np.ones(12, int)).save(tmp_path / "t.json")
     rc = main(["localize", str(tmp_path / "q.json"), str(tmp_path / "t.json")])
-    assert rc == 2
-    assert "not localized" in one_line_error(capsys)
+    assert rc == EXIT_NOT_LOCALIZED == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("not localized: ")
 
 
 def test_nan_in_file_is_one_line_exit_2(tmp_path, capsys):
@@ -74,3 +78,66 @@ def test_nan_in_file_is_one_line_exit_2(tmp_path, capsys):
 def test_every_command_help_has_an_example(command, capsys):
     assert main([command, "--help"]) == 0
     assert "Example" in capsys.readouterr().out
+
+
+def usage_error(capsys) -> str:
+    """Assert the usage line plus one error line on stderr; return the error line."""
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert len(err) == 2, captured.err
+    assert err[0].startswith("Usage: sgloc") and err[1].startswith("error: ")
+    assert "Traceback" not in captured.err + captured.out
+    return err[1]
+
+
+@pytest.mark.parametrize(
+    "args, expected",
+    [
+        (["localize", "{d}/cloud1.pcd"], "Missing argument"),
+        (["localize"], "Missing argument"),
+        (["localize", "--bogus", "{d}/cloud1.pcd", "{d}/cloud2.pcd"], "--bogus"),
+        (["localize", "{d}/cloud1.pcd", "{d}/cloud2.pcd", "--seed", "-1"], "--seed"),
+        (["localize", "{d}/cloud1.pcd", "{d}/cloud2.pcd", "--ransac-threshold", "x"], "--ransac"),
+        (["fleet", "{d}/cloud1.pcd", "{d}/cloud2.pcd", "--workers", "two"], "--workers"),
+        (["experiment", "table", "--trials", "abc"], "--trials"),
+        (["build-graph", "airsim"], "Missing"),
+        (["no-such-command"], "no-such-command"),
+    ],
+)
+def test_usage_errors_are_usage_plus_one_line_exit_2(data_dir, capsys, args, expected):
+    d = str(data_dir / "airsim_guo")
+    rc = main([a.replace("{d}", d) for a in args])
+    assert rc == 2
+    assert expected in usage_error(capsys)
+
+
+def test_version(capsys):
+    assert main(["--version"]) == 0
+    out = capsys.readouterr().out.strip()
+    assert out.startswith("sgloc ") and len(out.splitlines()) == 1
+
+
+def test_click_is_not_imported_by_sgloc():
+    """click is not a declared dependency (typer may bundle its own copy)."""
+    import sgloc
+
+    src = Path(sgloc.__file__).parent
+    pattern = re.compile(r"^\s*(import|from) click\b", re.M)
+    offenders = [p.name for p in src.rglob("*.py") if pattern.search(p.read_text())]
+    assert offenders == []
+
+
+def test_unwritable_output_is_one_line_exit_2(data_dir, capsys):
+    d = data_dir / "airsim_guo"
+    args = [str(d / "cloud1.pcd"), str(d / "cloud2.pcd"), "--json", "/dev/null/out.json"]
+    assert main(["localize", *args]) == 2
+    assert "/dev/null" in one_line_error(capsys)
+
+
+def test_fifo_graph_is_refused_without_blocking(tmp_path, data_dir, capsys):
+    import os
+
+    fifo = tmp_path / "pipe.pcd"
+    os.mkfifo(fifo)
+    assert main(["localize", str(fifo), str(data_dir / "airsim_guo" / "cloud2.pcd")]) == 2
+    assert "not a regular file" in one_line_error(capsys)

@@ -128,7 +128,7 @@ def test_malformed_json(tmp_path):
     with pytest.raises(GraphFileError, match="needs keys 'positions'"):
         SemanticGraph.load(p)
     p.write_text("{not json")
-    with pytest.raises(GraphFileError, match="cannot read graph"):
+    with pytest.raises(GraphFileError, match="invalid JSON graph"):
         SemanticGraph.load(p)
 
 

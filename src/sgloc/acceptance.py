@@ -71,6 +71,7 @@ from sgloc.estimation import (
 from sgloc.geometry import apply
 from sgloc.graph import SemanticGraph
 from sgloc.rejection.neighbor import consistency_matrix
+from sgloc.validation import validate_settings
 
 _LN10 = np.log(10.0)
 _TRIANGLE_EDGES = 2048
@@ -113,6 +114,7 @@ class AcceptanceConfig:
     distinct_ratio: float | None = 0.8
 
     def __post_init__(self) -> None:
+        validate_settings(self)  # type, range, finiteness of every field (sgloc.validation)
         if not 0.0 <= float(self.min_confidence) <= 1.0:
             raise SglocError(
                 f"min_confidence must be in [0, 1], got {self.min_confidence}; 0 keeps Guo's "

@@ -9,6 +9,7 @@ from scipy.spatial import cKDTree
 
 from sgloc.errors import DegenerateGeometryError
 from sgloc.geometry import make_transform
+from sgloc.validation import validate_settings
 
 #: Relative size under which a point set counts as collinear (second principal extent over the
 #: first). Objects of a city map are metres apart; 1e-3 is a line to within a millimetre per metre.
@@ -201,6 +202,9 @@ class RansacConfig:
     refit_rounds: int = 2
     dof: int = 4
     max_tilt: float | None = 15.0
+
+    def __post_init__(self) -> None:
+        validate_settings(self)  # type, range, finiteness of every field (sgloc.validation)
 
     def get_params(self) -> dict:
         return asdict(self)

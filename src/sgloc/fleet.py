@@ -165,7 +165,7 @@ def _run_tasks(tasks: list[tuple], scheduler: str | None, workers: int | None) -
         Client = require("distributed", "dask", "--scheduler (a Dask cluster)").Client
         try:
             client = Client(scheduler, timeout=10)
-        except OSError as e:
+        except (OSError, ValueError, TypeError) as e:  # unreachable or malformed address
             raise SglocError(
                 f"cannot reach the Dask scheduler at {scheduler!r} ({e}); start one with "
                 "`dask scheduler` or omit --scheduler to use local processes."

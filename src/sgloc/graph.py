@@ -9,7 +9,8 @@ import numpy as np
 from scipy import sparse
 from scipy.spatial.distance import cdist
 
-from sgloc.errors import InvalidGraphError
+from sgloc.errors import InvalidGraphError, SglocError
+from sgloc.validation import check_graph_arrays, check_real
 
 DEFAULT_EDGE_RADIUS = 20.0
 
@@ -20,6 +21,8 @@ class SemanticGraph:
     Args:
         positions: (n,3) object centres in metres, in the robot's map frame.
         labels: (n,) non-negative integer class ids.
+        Limits (sgloc.validation): at most MAX_VERTICES objects and MAX_CLASSES distinct classes,
+        coordinates within +-MAX_COORDINATE metres; InvalidGraphError beyond them.
         edge_radius: two vertices are neighbours when closer than this (metres, Guo: 20 m).
         name: optional name used in messages.
 
@@ -35,37 +38,11 @@ class SemanticGraph:
         name: str | None = None,
     ) -> None:
         self.name = name or "graph"
-        pos = np.asarray(positions, dtype=np.float64)
-        lab = np.asarray(labels)
-        if pos.ndim == 1 and pos.size == 0:
-            pos = pos.reshape(0, 3)
-        if pos.ndim != 2 or pos.shape[1] != 3:
-            raise InvalidGraphError(
-                f"{self.name}: positions must have shape (n, 3), got {pos.shape}; "
-                "pass one x, y, z row per object."
-            )
-        if lab.ndim != 1 or lab.shape[0] != pos.shape[0]:
-            raise InvalidGraphError(
-                f"{self.name}: labels must have shape ({pos.shape[0]},) to match the positions, "
-                f"got {lab.shape}."
-            )
-        if lab.size and not np.issubdtype(lab.dtype, np.integer):
-            if not np.all(np.isfinite(lab)) or np.any(lab != np.round(lab)):
-                raise InvalidGraphError(f"{self.name}: labels must be integer class ids.")
-        lab = lab.astype(np.int64)
-        if not np.all(np.isfinite(pos)):
-            bad = np.flatnonzero(~np.all(np.isfinite(pos), axis=1))
-            raise InvalidGraphError(
-                f"{self.name}: {bad.size} position(s) are NaN or infinite (first at row {bad[0]}); "
-                "drop those objects before building the graph."
-            )
-        if lab.size and lab.min() < 0:
-            raise InvalidGraphError(
-                f"{self.name}: labels must be >= 0 (found {lab.min()}); "
-                "unknown classes must be removed or mapped to an id."
-            )
-        if not (np.isfinite(edge_radius) and edge_radius > 0):
-            raise InvalidGraphError(f"{self.name}: edge_radius must be > 0 m, got {edge_radius}.")
+        pos, lab = check_graph_arrays(self.name, positions, labels)
+        try:
+            edge_radius = check_real("edge_radius", edge_radius, 0.0, low_open=True, unit="m")
+        except SglocError as e:
+            raise InvalidGraphError(f"{self.name}: {e}") from None
         pos.flags.writeable = False
         lab.flags.writeable = False
         self.positions = pos

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from sgloc.acceptance import assess
+from sgloc.canonical import CanonicalPair
 from sgloc.config import LocalizerConfig
 from sgloc.descriptors import make_descriptor
 from sgloc.errors import DegenerateGeometryError, InvalidGraphError, SglocError
@@ -104,8 +105,10 @@ class Localizer:
     ) -> LocalizationResult:
         _check_graph(query, "query")
         _check_graph(target, "target")
+        # Canonical vertex order and class ids 0..L-1 (sgloc.canonical); undone by restore().
+        canonical = CanonicalPair(query, target, self.config)
+        query, target, cfg = canonical.query, canonical.target, canonical.config
         rng = np.random.default_rng(rng)
-        cfg = self.config
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
 
@@ -175,7 +178,7 @@ class Localizer:
                 f"only {len(candidates)} candidate match(es) between the graphs (fewer than "
                 "3); the maps may not overlap, or lower min_similarity"
             )
-        return LocalizationResult(
+        result = LocalizationResult(
             success=transform is not None,
             transform=transform,
             matches=final if transform is not None else np.zeros((0, 2), np.int64),
@@ -187,6 +190,7 @@ class Localizer:
             confidence=confidence,
             config=cfg.to_dict(),
         )
+        return canonical.restore(result)  # the caller's vertex indices and config
 
 
 def _final_fit(

@@ -13,6 +13,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy import sparse
 
+from sgloc.validation import validate_settings
+
 #: Similarities held at once per block (8 MB of float64).
 _BLOCK_ENTRIES = 1 << 20
 
@@ -40,6 +42,9 @@ class MatchingConfig:
     strategy: str = "top_k"
     max_candidates: int = 3000
     max_ratio: float | None = None
+
+    def __post_init__(self) -> None:
+        validate_settings(self)  # type, range, finiteness of every field (sgloc.validation)
 
     def get_params(self) -> dict:
         return asdict(self)

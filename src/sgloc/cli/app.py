@@ -1,10 +1,15 @@
-"""The typer app and the entry point that turns user errors into one line and exit code 2."""
+"""The typer app and the entry point that turns every user error into one line and an exit code.
+
+Exit codes: 0 localized (or the command did its work); 1 ran correctly but not localized (a valid
+answer: the maps gave too little evidence); 2 bad input or usage (one `error:` line, no
+traceback); 130 interrupted.
+"""
 
 from __future__ import annotations
 
 import sys
+from importlib.metadata import PackageNotFoundError, version
 
-import click
 import typer
 
 from sgloc.errors import SglocError
@@ -12,36 +17,110 @@ from sgloc.errors import SglocError
 app = typer.Typer(
     name="sgloc",
     help="Multi-robot global localization on semantic graphs.\n\n"
-    "Example: sgloc demo   |   sgloc localize cloud1.pcd cloud2.pcd --json result.json",
+    "Examples: sgloc localize --example --out results/example   |   sgloc demo\n\n"
+    "Exit codes: 0 done, 1 not localized, 2 bad input or usage.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
 )
 
+EXIT_OK = 0
+EXIT_NOT_LOCALIZED = 1
 EXIT_USER_ERROR = 2
+EXIT_INTERRUPTED = 130
+
+
+def _package_version() -> str:
+    try:
+        return version("sgloc")
+    except PackageNotFoundError:  # running from a source tree that is not installed
+        return "unknown"
+
+
+def _version_callback(value: bool) -> None:
+    if value:
+        typer.echo(f"sgloc {_package_version()}")
+        raise typer.Exit(EXIT_OK)
+
+
+@app.callback()
+def _root(
+    show_version: bool = typer.Option(
+        False,
+        "--version",
+        callback=_version_callback,
+        is_eager=True,
+        help="Print the version and exit.",
+    ),
+) -> None:
+    """Multi-robot global localization on semantic graphs."""
 
 
 def fail(message: str) -> typer.Exit:
     """Print `error: message` on one line to stderr; return the Exit to raise (code 2)."""
-    typer.echo(f"error: {message}", err=True)
+    typer.echo(f"error: {_one_line(message)}", err=True)
     return typer.Exit(EXIT_USER_ERROR)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Console entry point: run the CLI; an SglocError becomes one line on stderr and exit 2."""
-    try:
-        rc = app(args=argv, standalone_mode=False)
-    except SglocError as e:
-        typer.echo(f"error: {e}", err=True)
-        rc = EXIT_USER_ERROR
-    except click.exceptions.Abort:
+def not_localized(message: str) -> typer.Exit:
+    """Print `not localized: message` to stderr; return the Exit to raise (code 1)."""
+    typer.echo(f"not localized: {_one_line(message)}", err=True)
+    return typer.Exit(EXIT_NOT_LOCALIZED)
+
+
+def _one_line(message: str) -> str:
+    return " ".join(str(message).split())
+
+
+def _is_framework_exception(e: BaseException) -> bool:
+    """True for the exceptions of click or of typer's bundled click copy (matched by module, so
+    that any typer/click version pairing works without importing click here)."""
+    module = type(e).__module__ or ""
+    return module.split(".")[0] in {"click", "typer"}
+
+
+def _framework_exit(e: BaseException) -> int:
+    """Print a click/typer exception the one-line way; return its exit code."""
+    name = type(e).__name__
+    if name == "Abort":
         typer.echo("aborted", err=True)
-        rc = 130
-    except click.exceptions.ClickException as e:
-        e.show()
-        rc = e.exit_code
-    except click.exceptions.Exit as e:
-        rc = e.exit_code
+        return EXIT_INTERRUPTED
+    if name == "NoArgsIsHelpError":  # bare `sgloc` or `sgloc CMD`: the help is the message
+        typer.echo(e.format_message(), err=True)
+        return EXIT_USER_ERROR
+    code = getattr(e, "exit_code", None)
+    if not hasattr(e, "format_message"):  # Exit: a plain exit code
+        return int(code or 0)
+    ctx = getattr(e, "ctx", None)
+    if ctx is not None:
+        typer.echo(ctx.get_usage(), err=True)
+    hint = f" (see '{ctx.command_path} --help')" if ctx is not None else ""
+    typer.echo(f"error: {_one_line(e.format_message())}{hint}", err=True)
+    return int(code if code is not None else EXIT_USER_ERROR)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console entry point. A user error (SglocError, bad usage) becomes one line on stderr and
+    exit 2; "not localized" exits 1; no traceback reaches the user for either."""
+    try:
+        rc = app(args=argv, prog_name="sgloc", standalone_mode=False)
+    except SglocError as e:
+        typer.echo(f"error: {_one_line(e)}", err=True)
+        rc = EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        typer.echo("aborted", err=True)
+        rc = EXIT_INTERRUPTED
+    except OSError as e:  # the file system refused an input or output path
+        where = f"{e.filename}: " if e.filename else ""
+        typer.echo(
+            f"error: {where}{e.strerror or e}; check the path and its permissions.", err=True
+        )
+        rc = EXIT_USER_ERROR
+    except Exception as e:
+        if not _is_framework_exception(e):
+            raise
+        rc = _framework_exit(e)
+    rc = int(rc) if isinstance(rc, int) else EXIT_OK
     if argv is None:
-        sys.exit(rc or 0)
-    return int(rc or 0)
+        sys.exit(rc)
+    return rc

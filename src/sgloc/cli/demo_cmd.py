@@ -56,7 +56,7 @@ def _progress(console: Console) -> Progress:
 
 @app.command("demo")
 def demo_cmd(
-    seed: int = typer.Option(0, help="Seed of the city, the routes and RANSAC."),
+    seed: int = typer.Option(0, min=0, help="Seed of the city, the routes and RANSAC."),
     overlap: float = typer.Option(0.5, help="Fraction of the two robots' routes they share."),
     width: int = typer.Option(320, help="Image width (px); fx = width / 2."),
     height: int = typer.Option(180, help="Image height (px)."),

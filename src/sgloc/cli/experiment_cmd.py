@@ -54,7 +54,7 @@ def experiment_cmd(
     workers: int | None = typer.Option(
         None, help="Local worker processes (default: all CPUs; 1 = in this process)."
     ),
-    seed: int = typer.Option(0, help="Seed of the first trial (trial i uses seed + i)."),
+    seed: int = typer.Option(0, min=0, help="Seed of the first trial (trial i uses seed + i)."),
     threshold: float | None = typer.Option(
         None,
         help="RANSAC threshold T_error (m) of table/overlap/matches (default: 5, or the "

@@ -9,7 +9,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from sgloc.cli.app import app
+from sgloc.cli.app import app, not_localized
 from sgloc.cli.options import (
     COLOURS_HELP,
     LABEL_HELP,
@@ -42,7 +42,7 @@ def fleet_cmd(
     ),
     workers: int | None = typer.Option(None, help="Local processes (default: CPU count)."),
     edge_radius: float = typer.Option(20.0, help="Graph edge radius (m)."),
-    seed: int = typer.Option(0, help="Random seed."),
+    seed: int = typer.Option(0, min=0, help="Random seed."),
     preset: str | None = preset_option(),
     config: Path | None = config_option(),
     setting: list[str] = set_option(),
@@ -86,3 +86,6 @@ def fleet_cmd(
         f"results in {out}/: merged.json, fleet.json, poses.tum, poses.kitti, poses/, "
         "config.yaml, fleet.png"
     )
+    if len(res.T_world_robot) < len(res.names):
+        unplaced = len(res.names) - len(res.T_world_robot)
+        raise not_localized(f"{unplaced} of {len(res.names)} robots could not be placed.")

@@ -10,7 +10,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from sgloc.cli.app import app, fail
+from sgloc.cli.app import app, fail, not_localized
 from sgloc.cli.options import (
     COLOURS_HELP,
     LABEL_HELP,
@@ -40,7 +40,7 @@ def localize_cmd(
     config: Path | None = config_option(),
     setting: list[str] = set_option(),
     edge_radius: float = typer.Option(20.0, help="Graph edge radius (m)."),
-    seed: int = typer.Option(0, help="Random seed."),
+    seed: int = typer.Option(0, min=0, help="Random seed."),
     label_field: str | None = typer.Option(None, help=LABEL_HELP),
     colour_table: Path | None = typer.Option(None, help=COLOURS_HELP),
     out: Path | None = typer.Option(
@@ -106,7 +106,7 @@ def localize_cmd(
     if fmt is not None and (res.success or fmt == "json"):
         typer.echo(render(res, fmt, **info), nl=False)
     if not res.success:
-        raise fail(f"not localized: {res.reason}")
+        raise not_localized(res.reason)
 
 
 def _report(console: Console, q, t, res, example: bool) -> None:

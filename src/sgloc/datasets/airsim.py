@@ -28,7 +28,7 @@ from sgloc.datasets.base import (
     read_image,
 )
 from sgloc.errors import DatasetError
-from sgloc.io.text import read_numbers, require_file
+from sgloc.io.text import read_numbers, read_text_file
 
 #: Columns of R_body_optical are the optical axes in body coordinates.
 R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
@@ -61,8 +61,8 @@ def find_robot_folder(path: Path, robot: str | None) -> Path:
 
 def read_airsim_poses(path: Path) -> np.ndarray:
     """(N,4,4) T_map_body from an airsim.txt (first line N, rows x y z qw qx qy qz)."""
-    require_file(path, "Airsim pose file (first line N, then rows x y z qw qx qy qz)")
-    lines = [s.strip() for s in path.read_text().splitlines() if s.strip()]
+    text = read_text_file(path, "Airsim pose file (first line N, then rows x y z qw qx qy qz)")
+    lines = [s.strip() for s in text.splitlines() if s.strip()]
     try:
         n = int(float(lines[0].split()[0]))
     except (IndexError, ValueError):

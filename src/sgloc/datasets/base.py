@@ -78,16 +78,30 @@ class Dataset(ABC):
         return f"{type(self).__name__}(frames={len(self)})"
 
 
+_PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"
+
+
 def read_image(path: Path, what: str) -> np.ndarray:
     """Read a PNG (or any Pillow format) as a numpy array, DatasetError if missing/unreadable."""
     from PIL import Image, UnidentifiedImageError
 
     require_file(path, what)
+    if path.suffix.lower() == ".png":
+        with open(path, "rb") as f:  # a PNG ends with its IEND chunk; else it was cut short
+            f.seek(max(0, path.stat().st_size - 12))
+            if f.read() != _PNG_END:
+                raise DatasetError(f"{path}: truncated PNG ({what}); re-export the image.")
     try:
         with Image.open(path) as im:
             return np.asarray(im)
-    except (UnidentifiedImageError, OSError) as e:
-        raise DatasetError(f"{path}: cannot read {what} ({e}).") from None
+    except (
+        UnidentifiedImageError,
+        OSError,
+        ValueError,
+        SyntaxError,
+        Image.DecompressionBombError,
+    ) as e:
+        raise DatasetError(f"{path}: cannot read {what} ({e}); re-export the image.") from None
 
 
 def intrinsics_matrix(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:

@@ -23,14 +23,14 @@ from sgloc.datasets.base import Dataset, Frame, parse_range, read_image
 from sgloc.errors import DatasetError
 from sgloc.geometry import invert
 from sgloc.io.poses import read_kitti_poses
-from sgloc.io.text import require_file
+from sgloc.io.text import read_text_file
 
 
 def read_kitti_calib(path: Path) -> dict[str, np.ndarray]:
     """{key: (3,4) matrix} from a KITTI odometry calib.txt (`P0: 12 values` lines)."""
-    require_file(path, "KITTI calibration (lines `P0: ...`, `P2: ...`, `Tr: ...`)")
+    text = read_text_file(path, "KITTI calibration (lines `P0: ...`, `P2: ...`, `Tr: ...`)")
     out: dict[str, np.ndarray] = {}
-    for lineno, line in enumerate(path.read_text().splitlines(), 1):
+    for lineno, line in enumerate(text.splitlines(), 1):
         if ":" not in line:
             continue
         key, rest = line.split(":", 1)
@@ -38,6 +38,8 @@ def read_kitti_calib(path: Path) -> dict[str, np.ndarray]:
             vals = np.array([float(v) for v in rest.split()])
         except ValueError:
             raise DatasetError(f"{path}:{lineno}: non-numeric value in {key}.") from None
+        if not np.all(np.isfinite(vals)):
+            raise DatasetError(f"{path}:{lineno}: NaN or infinite value in {key}.")
         if vals.size != 12:
             raise DatasetError(f"{path}:{lineno}: {key} must have 12 values, got {vals.size}.")
         out[key.strip()] = vals.reshape(3, 4)

@@ -23,6 +23,7 @@ import numpy as np
 
 from sgloc.datasets.base import Dataset, Frame, parse_range, require_file
 from sgloc.errors import DatasetError
+from sgloc.io.files import MAX_TEXT_FILE_BYTES, read_regular_file
 from sgloc.io.poses import read_kitti_poses
 
 #: Class ids of the detections (the column order of bow.txt).
@@ -38,6 +39,12 @@ TR_KITTI_00 = np.array(
 )
 
 _CENTROID_NAME = re.compile(r"(?:^|/)centroids/(\d+)\.txt$")
+
+
+def _read_text_bytes(path: Path, what: str) -> bytes:
+    """The bytes of a regular file of bounded size (a FIFO or folder is refused unopened)."""
+    require_file(path, what)
+    return read_regular_file(path, what, MAX_TEXT_FILE_BYTES, DatasetError)
 
 
 def _parse_bow(data: bytes, where: str) -> np.ndarray:
@@ -58,6 +65,8 @@ def _parse_centroids(data: bytes, where: str) -> np.ndarray:
         raise DatasetError(f"{where}: non-numeric value in the centroid rows.") from None
     if vals.size % 3:
         raise DatasetError(f"{where}: centroid rows must have 3 values `x y z`.")
+    if not np.all(np.isfinite(vals)):
+        raise DatasetError(f"{where}: NaN or infinite centroid values; fix or drop those rows.")
     return vals.reshape(-1, 3)
 
 
@@ -153,7 +162,7 @@ class KittiObjectsDataset(Dataset):
         else:
             self._folder = source
             self._bow = _parse_bow(
-                require_file(source / "bow.txt", "per-scan class counts").read_bytes(),
+                _read_text_bytes(source / "bow.txt", "per-scan class counts"),
                 str(source / "bow.txt"),
             )
             self._centroids = None
@@ -187,7 +196,7 @@ class KittiObjectsDataset(Dataset):
             pts = self._centroids[k]
         else:
             p = self._folder / "centroids" / f"{k:06d}.txt"
-            pts = _parse_centroids(require_file(p, "scan centroids").read_bytes(), str(p))
+            pts = _parse_centroids(_read_text_bytes(p, "scan centroids"), str(p))
             if len(pts) != self._bow[k].sum():
                 raise DatasetError(
                     f"{p}: {len(pts)} rows but bow.txt counts {self._bow[k].sum()} objects."

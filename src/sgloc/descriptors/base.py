@@ -9,6 +9,7 @@ import numpy as np
 from scipy import sparse
 
 from sgloc.graph import SemanticGraph
+from sgloc.validation import validate_settings
 
 DescriptorMatrix = np.ndarray | sparse.csr_array
 
@@ -23,6 +24,9 @@ class Descriptor:
     """
 
     name = "base"
+
+    def __post_init__(self) -> None:
+        validate_settings(self)  # type, range, finiteness of every field (sgloc.validation)
 
     def __call__(
         self, graph: SemanticGraph, n_classes: int, rng: np.random.Generator

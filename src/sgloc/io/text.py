@@ -2,18 +2,21 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
 
 from sgloc.errors import DatasetError
+from sgloc.io.files import MAX_TEXT_FILE_BYTES, check_regular_file, read_regular_file
 
 
 def require_file(path: Path, what: str) -> Path:
-    """Return `path`, or raise DatasetError naming it and what it should hold."""
-    if not path.is_file():
+    """Return `path` if it is a regular file, or raise DatasetError naming it and what it should
+    hold (a folder, pipe or device is refused before it is opened)."""
+    if not Path(path).exists():
         raise DatasetError(f"{path}: missing {what}.")
-    return path
+    return check_regular_file(path, what, DatasetError)
 
 
 def read_numbers(path: Path, what: str, per_row: int | None = None) -> np.ndarray:
@@ -22,17 +25,19 @@ def read_numbers(path: Path, what: str, per_row: int | None = None) -> np.ndarra
     per_row: the number of values each row must have (error otherwise). Blank lines and lines
     starting with '#' are skipped.
     """
-    require_file(path, what)
+    text = read_text_file(path, what)
     rows = []
-    for lineno, line in enumerate(path.read_text().splitlines(), 1):
+    for lineno, line in enumerate(text.splitlines(), 1):
         s = line.strip()
         if not s or s.startswith("#"):
             continue
         try:
             vals = [float(v) for v in s.replace(",", " ").split()]
+            if not all(math.isfinite(v) for v in vals):
+                raise ValueError
         except ValueError:
             raise DatasetError(
-                f"{path}:{lineno}: {what}: non-numeric value in {s[:60]!r}."
+                f"{path}:{lineno}: {what}: non-numeric or non-finite value in {s[:60]!r}."
             ) from None
         if per_row is not None and len(vals) != per_row:
             raise DatasetError(
@@ -47,3 +52,12 @@ def read_numbers(path: Path, what: str, per_row: int | None = None) -> np.ndarra
     if not np.all(np.isfinite(arr)):
         raise DatasetError(f"{path}: {what}: NaN or infinite values.")
     return arr
+
+
+def read_text_file(path: Path, what: str) -> str:
+    """The UTF-8 text of a regular file of bounded size; DatasetError naming it otherwise."""
+    raw = read_regular_file(require_file(path, what), what, MAX_TEXT_FILE_BYTES, DatasetError)
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise DatasetError(f"{path}: {what}: not a UTF-8 text file.") from None

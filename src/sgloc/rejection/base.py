@@ -7,6 +7,8 @@ from typing import Any
 
 import numpy as np
 
+from sgloc.validation import validate_settings
+
 
 @dataclass
 class Rejector:
@@ -18,6 +20,9 @@ class Rejector:
     """
 
     name = "base"
+
+    def __post_init__(self) -> None:
+        validate_settings(self)  # type, range, finiteness of every field (sgloc.validation)
 
     def __call__(
         self, src: np.ndarray, dst: np.ndarray, scores: np.ndarray | None = None

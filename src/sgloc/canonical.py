@@ -1,0 +1,74 @@
+"""Canonical form of a graph pair at the localizer's entry: vertices sorted by (class, x, y, z)
+and the classes present renumbered 0..L-1. The pipeline then gives the same answer for any
+vertex order of either graph, and no array is sized by a large class id. `restore` maps the
+result's vertex indices back to the caller's order."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+from scipy import sparse
+
+from sgloc.graph import SemanticGraph
+
+
+def canonical_order(graph: SemanticGraph) -> np.ndarray:
+    """Vertex indices sorted by (label, x, y, z); ties (duplicate objects) keep input order."""
+    p = graph.positions
+    return np.lexsort((p[:, 2], p[:, 1], p[:, 0], graph.labels))
+
+
+class CanonicalPair:
+    """(query, target) in canonical form, the config with class weights renumbered to match,
+    and the maps back to the caller's vertex indices and class ids."""
+
+    def __init__(self, query: SemanticGraph, target: SemanticGraph, config: Any) -> None:
+        self.classes = np.union1d(query.labels, target.labels)  # original id of each new id
+        self.query_order = canonical_order(query)
+        self.target_order = canonical_order(target)
+        self.query = self._rebuilt(query, self.query_order)
+        self.target = self._rebuilt(target, self.target_order)
+        self.original_config = config
+        self.config = config
+        if getattr(config, "class_weights", None):
+            weights = {
+                int(np.searchsorted(self.classes, c)): w
+                for c, w in config.class_weights.items()
+                if np.isin(int(c), self.classes)
+            }
+            self.config = dataclasses.replace(config, class_weights=weights)
+
+    def _rebuilt(self, graph: SemanticGraph, order: np.ndarray) -> SemanticGraph:
+        labels = np.searchsorted(self.classes, graph.labels[order])
+        out = SemanticGraph(graph.positions[order], labels, graph.edge_radius, graph.name)
+        # Carry over what the caller's graph has already computed, permuted (cheaper than anew).
+        cache = graph.__dict__
+        if "adjacency" in cache:
+            adjacency = sparse.csr_array(cache["adjacency"][order][:, order])
+            adjacency.sort_indices()
+            out.__dict__["adjacency"] = adjacency
+        if "distances" in cache:
+            distances = cache["distances"][np.ix_(order, order)]
+            distances.flags.writeable = False
+            out.__dict__["distances"] = distances
+        return out
+
+    def restore(self, result: Any) -> Any:
+        """The result with every (query index, target index) array in the caller's indices,
+        rows sorted by them (candidates keep their scores), and the caller's config."""
+        qo, to = self.query_order, self.target_order
+
+        def back(pairs: np.ndarray) -> np.ndarray:
+            pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+            return np.stack([qo[pairs[:, 0]], to[pairs[:, 1]]], axis=1)
+
+        candidates, scores = back(result.candidates), np.asarray(result.scores)
+        order = np.lexsort((candidates[:, 1], -scores, candidates[:, 0]))
+        result.candidates, result.scores = candidates[order], scores[order]
+        for name in ("survivors", "matches"):
+            pairs = back(getattr(result, name))
+            setattr(result, name, pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))])
+        result.config = self.original_config.to_dict()
+        return result

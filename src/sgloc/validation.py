@@ -1,0 +1,320 @@
+"""Checks of user-given values: settings (type, range, finiteness) and graph arrays (shape,
+finiteness, documented size limits). Each failure is an SglocError naming the value and what is
+allowed. This module imports nothing of the pipeline, so every stage may use it."""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import numpy as np
+
+from sgloc.errors import InvalidGraphError, SglocError
+
+#: Most objects in one graph. The pipeline's similarity matrix is n_query x n_target floats and
+#: the histogram descriptor n x L^2, so this bounds memory by the input (about 3 GB at the limit).
+MAX_VERTICES = 20_000
+#: Most distinct classes in one graph (class ids themselves may be any integer in [0, MAX_LABEL]:
+#: the localizer renumbers the classes present to 0..L-1 before sizing anything by them).
+MAX_CLASSES = 64
+#: Largest class id.
+MAX_LABEL = 2**31 - 1
+#: Largest coordinate magnitude, metres: a map 10,000 km across. Beyond it float64 distances
+#: lose the millimetres the pipeline needs, and it is always a unit or file error.
+MAX_COORDINATE = 1e7
+
+
+class InvalidSettingError(SglocError):
+    """A setting has the wrong type or a value outside its allowed range."""
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+def check_real(
+    name: str,
+    value: Any,
+    low: float | None = None,
+    high: float | None = None,
+    *,
+    low_open: bool = False,
+    high_open: bool = False,
+    none_ok: bool = False,
+    unit: str = "",
+) -> float | None:
+    """`value` as a finite float within [low, high] (ends open when asked); else an
+    InvalidSettingError naming `name` and the allowed range."""
+    if value is None and none_ok:
+        return None
+    lo = "-inf" if low is None else f"{low:g}"
+    hi = "inf" if high is None else f"{high:g}"
+    allowed = f"{'(' if low_open else '['}{lo}, {hi}{')' if high_open else ']'}"
+    allowed = f"a finite number in {allowed}{' ' + unit if unit else ''}"
+    allowed += " or None" if none_ok else ""
+    if not _is_number(value) or not math.isfinite(float(value)):
+        raise InvalidSettingError(f"setting {name}={value!r}: must be {allowed}.")
+    v = float(value)
+    if low is not None and (v < low or (low_open and v == low)):
+        raise InvalidSettingError(f"setting {name}={value!r}: must be {allowed}.")
+    if high is not None and (v > high or (high_open and v == high)):
+        raise InvalidSettingError(f"setting {name}={value!r}: must be {allowed}.")
+    return v
+
+
+def check_int(
+    name: str, value: Any, low: int | None = None, high: int | None = None, *, none_ok=False
+) -> int | None:
+    """`value` as an int within [low, high]; bools and non-integral numbers are refused."""
+    if value is None and none_ok:
+        return None
+    lo = "-inf" if low is None else str(low)
+    hi = "inf" if high is None else str(high)
+    allowed = f"an integer in [{lo}, {hi}]" + (" or None" if none_ok else "")
+    integral = isinstance(value, numbers.Integral) and not isinstance(value, bool)
+    if not integral or (low is not None and value < low) or (high is not None and value > high):
+        raise InvalidSettingError(f"setting {name}={value!r}: must be {allowed}.")
+    return int(value)
+
+
+def check_bool(name: str, value: Any) -> bool:
+    """`value` if it is a bool (numpy bools too); 0/1 or strings are refused."""
+    if not isinstance(value, bool | np.bool_):
+        raise InvalidSettingError(f"setting {name}={value!r}: must be True or False.")
+    return bool(value)
+
+
+def check_choice(name: str, value: Any, choices: Iterable[str], what: str = "") -> str:
+    """`value` if it is one of `choices` (strings); `what` describes the setting in errors."""
+    options = sorted(choices)
+    if not isinstance(value, str) or value not in options:
+        what = f" ({what})" if what else ""
+        raise InvalidSettingError(f"setting {name}={value!r}{what}: must be one of {options}.")
+    return value
+
+
+def check_class_weights(name: str, value: Any) -> dict[int, float] | None:
+    """{class id (int >= 0): weight (finite, > 0)} or None."""
+    if value is None:
+        return None
+    if not isinstance(value, Mapping):
+        raise InvalidSettingError(
+            f"setting {name}={value!r}: must be a mapping {{class id: weight}} or None."
+        )
+    out = {}
+    for c, w in value.items():
+        cid = int(c) if isinstance(c, str) and c.strip().isdigit() else c
+        check_int(f"{name} class id", cid, 0, MAX_LABEL)
+        out[int(cid)] = check_real(f"{name}[{cid}]", w, 0.0, low_open=True)
+    return out
+
+
+def check_graph_arrays(
+    name: str, positions: np.ndarray, labels: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """positions (n,3) finite float64 within +-MAX_COORDINATE and labels (n,) int64 class ids in
+    [0, MAX_LABEL], n <= MAX_VERTICES, at most MAX_CLASSES distinct; InvalidGraphError else."""
+    pos = np.asarray(positions)
+    lab = np.asarray(labels)
+    if pos.ndim == 1 and pos.size == 0:
+        pos = pos.reshape(0, 3)
+    if pos.dtype.kind not in "fiu" or pos.ndim != 2 or pos.shape[1] != 3:
+        raise InvalidGraphError(
+            f"{name}: positions must be numbers of shape (n, 3), got {pos.dtype} {pos.shape}; "
+            "pass one x, y, z row per object."
+        )
+    if lab.ndim != 1 or lab.shape[0] != pos.shape[0]:
+        raise InvalidGraphError(
+            f"{name}: labels must have shape ({pos.shape[0]},) to match the positions, "
+            f"got {lab.shape}."
+        )
+    if len(pos) > MAX_VERTICES:
+        raise InvalidGraphError(
+            f"{name}: {len(pos)} objects, more than the limit of {MAX_VERTICES}; split the map "
+            "into submaps or merge nearby objects."
+        )
+    pos = pos.astype(np.float64)
+    finite = np.isfinite(pos).all(axis=1)
+    if not finite.all():
+        bad = np.flatnonzero(~finite)
+        raise InvalidGraphError(
+            f"{name}: {bad.size} position(s) are NaN or infinite (first at row {bad[0]}); "
+            "drop those objects before building the graph."
+        )
+    if pos.size and np.abs(pos).max() > MAX_COORDINATE:
+        row = int(np.argmax(np.abs(pos).max(axis=1)))
+        raise InvalidGraphError(
+            f"{name}: position {pos[row].tolist()} at row {row} is beyond +-{MAX_COORDINATE:g} "
+            "m; positions must be metres in a local map frame."
+        )
+    return pos, _check_labels(name, lab)
+
+
+def _check_labels(name: str, lab: np.ndarray) -> np.ndarray:
+    if lab.size and lab.dtype.kind not in "iu":
+        if lab.dtype.kind != "f" or not np.all(np.isfinite(lab)) or np.any(lab != np.round(lab)):
+            raise InvalidGraphError(f"{name}: labels must be integer class ids, got {lab.dtype}.")
+    if lab.size and (lab.min() < 0 or lab.max() > MAX_LABEL):
+        raise InvalidGraphError(
+            f"{name}: labels must be class ids >= 0 and <= {MAX_LABEL} (found {lab.min()} .. "
+            f"{lab.max()}); unknown classes must be removed or mapped to an id."
+        )
+    lab = lab.astype(np.int64)
+    n_classes = len(np.unique(lab))
+    if n_classes > MAX_CLASSES:
+        raise InvalidGraphError(
+            f"{name}: {n_classes} distinct classes, more than the limit of {MAX_CLASSES}; "
+            "is the label field really a class (not a colour or an instance id)?"
+        )
+    return lab
+
+
+# -- settings of the stage configs ------------------------------------------------------------
+def _real(low=None, high=None, *, low_open=False, high_open=False, none_ok=False, unit=""):
+    def check(name: str, value: Any) -> float | None:
+        return check_real(
+            name,
+            value,
+            low,
+            high,
+            low_open=low_open,
+            high_open=high_open,
+            none_ok=none_ok,
+            unit=unit,
+        )
+
+    return check
+
+
+def _int(low=None, high=None, *, none_ok=False):
+    return lambda name, value: check_int(name, value, low, high, none_ok=none_ok)
+
+
+def _int_choice(*choices: int):
+    def check(name: str, value: Any) -> int:
+        if isinstance(value, bool) or value not in choices:
+            raise InvalidSettingError(f"setting {name}={value!r}: must be one of {list(choices)}.")
+        return int(value)
+
+    return check
+
+
+def _choice(*choices: str, what: str = ""):
+    return lambda name, value: check_choice(name, value, choices, what)
+
+
+#: Largest number of RANSAC hypotheses, random walks per vertex, etc.: bounds run time.
+MAX_ITERATIONS = 10_000_000
+#: Longest random walk: the descriptor has L**walk_length bins (int64 codes; L <= 2 MAX_CLASSES).
+MAX_WALK_LENGTH = 8
+
+#: Allowed values of every setting, by config class name then field name. Fields not listed are
+#: only checked to be finite when they are numbers.
+SETTINGS: dict[str, dict[str, Any]] = {
+    "MatchingConfig": {
+        "min_similarity": _real(0.0, 1.0),
+        "top_k": _int(1, MAX_VERTICES),
+        "mutual": lambda name, value: check_bool(name, value),
+        "strategy": _choice("top_k", "all", what="which candidates matching keeps"),
+        "max_candidates": _int(1, MAX_ITERATIONS),
+        "max_ratio": _real(0.0, 1.0, low_open=True, none_ok=True),
+    },
+    "RansacConfig": {
+        "threshold": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
+        "iterations": _int(1, MAX_ITERATIONS),
+        "min_inliers": _int(0, MAX_VERTICES),
+        "min_inlier_ratio": _real(0.0, 1.0),
+        "scoring": _choice("msac", "count", what="how RANSAC scores a hypothesis"),
+        "confidence": _real(0.0, 1.0, low_open=True, high_open=True, none_ok=True),
+        "batch": _int(1, MAX_ITERATIONS),
+        "refit_rounds": _int(0, 100),
+        "dof": _int_choice(4, 6),
+        "max_tilt": _real(0.0, 180.0, low_open=True, none_ok=True, unit="degrees"),
+    },
+    "AcceptanceConfig": {
+        "enabled": lambda name, value: check_bool(name, value),
+        "min_confidence": _real(0.0, 1.0),
+        "radius": _real(0.0, MAX_COORDINATE, low_open=True, none_ok=True, unit="m"),
+        "min_spread": _real(0.0, MAX_COORDINATE, unit="m"),
+        "distinct_translation": _real(0.0, MAX_COORDINATE, unit="m"),
+        "distinct_rotation": _real(0.0, 180.0, unit="degrees"),
+        "runner_up_samples": _int(0, MAX_ITERATIONS),
+        "distinct_ratio": _real(0.0, 1.0, low_open=True, none_ok=True),
+    },
+    "DistanceHistogramDescriptor": {
+        "radius": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
+        "n_bins": _int(1, 1024),
+        "taper": _real(0.0, 1.0),
+    },
+    "TriangleDescriptor": {
+        "radius": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
+        "n_bins": _int(1, 64),
+        "max_neighbours": _int(2, 1000),
+    },
+    "RandomWalkDescriptor": {
+        "n_walks": _int(1, 100_000),
+        "walk_length": _int(1, MAX_WALK_LENGTH),
+    },
+    "NeighborRejector": {
+        "tau": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
+        "eta": _real(0.0, 1.0),
+        "form": _choice("distance", "neighbor", what="the consistency form"),
+    },
+    "CliqueRejector": {
+        "tau": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
+        "exact_limit": _int(0, MAX_VERTICES),
+        "max_nodes": _int(1, MAX_ITERATIONS),
+        "n_seeds": _int(1, MAX_VERTICES),
+    },
+    "SpectralRejector": {
+        "tau": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
+        "sigma": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
+        "min_ratio": _real(0.0, 1.0),
+        "min_agreement": _real(0.0, 1.0),
+    },
+}
+
+
+_PREFIXES = {
+    "MatchingConfig": "matching",
+    "RansacConfig": "ransac",
+    "AcceptanceConfig": "acceptance",
+}
+
+
+def validate_settings(config: Any, prefix: str | None = None) -> None:
+    """Check (and normalise: 5 -> 5.0 for metres) every field of a stage config dataclass
+    against SETTINGS; InvalidSettingError naming `prefix.field` and what is allowed."""
+    import dataclasses
+
+    kind = type(config).__name__
+    spec = SETTINGS.get(kind, {})
+    if prefix is None:
+        prefix = _PREFIXES.get(kind) or getattr(config, "name", None) or kind
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        name = f"{prefix}.{f.name}" if prefix else f.name
+        if f.name in spec:
+            object.__setattr__(config, f.name, spec[f.name](name, value))
+        elif _is_number(value) and not math.isfinite(float(value)):
+            raise InvalidSettingError(f"setting {name}={value!r}: must be a finite number.")
+
+
+def validate_localizer_settings(config: Any) -> None:
+    """Check LocalizerConfig's own fields (the stage configs check themselves)."""
+    for name in ("descriptor", "rejection"):
+        value = getattr(config, name)
+        if not isinstance(value, str) and not callable(value):
+            raise InvalidSettingError(f"setting {name}={value!r}: must be a registered name.")
+    for name in ("descriptor_params", "rejection_params"):
+        if not isinstance(getattr(config, name), Mapping):
+            raise InvalidSettingError(f"setting {name}: must be a mapping of parameters.")
+    config.class_weights = check_class_weights("class_weights", config.class_weights)
+    config.robust_refit = check_bool("robust_refit", config.robust_refit)
+    config.class_scale = check_bool("class_scale", config.class_scale)
+    config.icp = check_bool("icp", config.icp)
+    config.icp_max_distance = check_real(
+        "icp_max_distance", config.icp_max_distance, 0.0, MAX_COORDINATE, low_open=True, unit="m"
+    )
