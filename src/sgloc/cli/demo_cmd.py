@@ -26,7 +26,7 @@ from rich.progress import (
 )
 from rich.table import Table
 
-from sgloc.cli.app import app, fail
+from sgloc.cli.app import app, fail, not_localized
 from sgloc.geometry import transform_error
 from sgloc.graph import SemanticGraph
 from sgloc.localizer import LocalizationResult, localize
@@ -144,7 +144,7 @@ def demo_cmd(
     )
     console.print(f"saved {path}")
     if not res.success:
-        raise fail(f"not localized: {res.reason}")
+        raise not_localized(res.reason)
 
 
 def _report(console, query, target, res: LocalizationResult, T_gt: np.ndarray) -> None:
@@ -204,6 +204,6 @@ def _objects_only(console: Console, seed: int, overlap: float, descriptor: str, 
         f"final matches {len(res.matches)}  in {res.timings['total'] * 1e3:.1f} ms"
     )
     if not res.success:
-        raise fail(f"not localized: {res.reason}")
+        raise not_localized(res.reason)
     te, re = transform_error(res.transform, scene.T_target_query)
     console.print(f"error against ground truth: translation {te:.2f} m, rotation {re:.2f} deg")

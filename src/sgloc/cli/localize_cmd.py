@@ -10,7 +10,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from sgloc.cli.app import app, fail, not_localized
+from sgloc.cli.app import app, not_localized
 from sgloc.cli.options import (
     COLOURS_HELP,
     LABEL_HELP,
@@ -26,6 +26,7 @@ from sgloc.localizer import Localizer
 
 @app.command("localize")
 def localize_cmd(
+    ctx: typer.Context,
     query: Path | None = typer.Argument(
         None, help="Query graph (.pcd .ply .csv .txt .json .npz): the map to place."
     ),
@@ -67,19 +68,22 @@ def localize_cmd(
     sgloc localize cloud1.pcd cloud2.pcd --format kitti > T.txt
     """
     if fmt is not None and fmt not in FORMATS:
-        raise fail(f"--format must be one of {', '.join(FORMATS)}, got {fmt!r}.")
+        ctx.fail(f"Invalid value for '--format': {fmt!r} is not one of {', '.join(FORMATS)}.")
     if rerun is not None:
         from sgloc.optional import require
 
         require("rerun", "rerun", "--rerun (a Rerun recording)")  # fail before the work
     if example:
         if query is not None or target is not None:
-            raise fail("give either two graph files or --example, not both.")
+            ctx.fail("give either two graph files (QUERY TARGET) or --example, not both.")
         from sgloc.data import airsim_guo_paths
 
         query, target = airsim_guo_paths()
     elif query is None or target is None:
-        raise fail("give two graph files (QUERY TARGET), or --example for the shipped maps.")
+        ctx.fail(
+            "Missing argument 'QUERY TARGET': give two graph files, or --example for the "
+            "shipped maps."
+        )
     cfg = localizer_config(
         preset, config, setting,
         descriptor=descriptor, rejection=rejection, ransac_threshold=ransac_threshold,
