@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
 
-from sgloc.rejection import NeighborRejector, consistency_matrix, pairwise, prune_by_support
+from sgloc import consistency as pairwise
+from sgloc.rejection import NeighborRejector, consistency_matrix, prune_by_support
 from sgloc.rejection.clique import core_numbers, exact_clique
 from sgloc.rejection.spectral import leading_eigenvector
 from sgloc.sim.correspondences import make_correspondences
@@ -62,7 +63,7 @@ def test_many_small_tiles_equal_reference(monkeypatch):
     cs = make_correspondences(250, 0.7, np.random.default_rng(5), "structured")
     for form in ("distance", "neighbor"):
         M_ref = naive_consistency(cs.src, cs.dst, 4.0, form)
-        assert np.array_equal(consistency_matrix(cs.src, cs.dst, 4.0, form), M_ref)
+        assert np.array_equal(pairwise.consistency_bool(cs.src, cs.dst, 4.0, form), M_ref)
 
 
 def test_exact_near_threshold_and_with_coincident_points():

@@ -56,11 +56,11 @@ from scipy.spatial import cKDTree
 from scipy.special import gammaln, pdtrc
 from scipy.stats import poisson
 
+from sgloc.consistency import consistency_matrix
 from sgloc.errors import SglocError
 from sgloc.estimation import non_collinear, rigid_from_triplets, squared_residuals
 from sgloc.geometry import apply
 from sgloc.graph import SemanticGraph
-from sgloc.rejection.neighbor import consistency_matrix
 
 _LN10 = np.log(10.0)
 _TRIANGLE_EDGES = 2048

@@ -1,7 +1,7 @@
 """Maximum-clique outlier rejection, as TEASER++ and CLIPPER do.
 
 Matches are vertices of a consistency graph (an edge when the two matches agree on their pair's
-distance within tau, `sgloc.rejection.pairwise`); correct matches agree with each other, so they
+distance within tau, `sgloc.consistency`); correct matches agree with each other, so they
 form a clique, and the largest clique is kept. Finding it is NP-hard, so:
 1. a fast heuristic (greedy growth from the best-connected seeds, in core-number order) gives a
    clique of size LB;
@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sgloc.consistency import consistency_matrix
 from sgloc.rejection.base import Rejector
-from sgloc.rejection.pairwise import consistency_bool
 
 
 def core_numbers(M: np.ndarray) -> np.ndarray:
@@ -148,7 +148,7 @@ class CliqueRejector(Rejector):
         m = len(src)
         if m == 0:
             return np.zeros(0, dtype=np.int64)
-        M = consistency_bool(src, dst, self.tau, "distance")
+        M = consistency_matrix(src, dst, self.tau, "distance")
         return self.max_clique(M)
 
     def max_clique(self, M: np.ndarray) -> np.ndarray:

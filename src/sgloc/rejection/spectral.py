@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 
+from sgloc.consistency import consistent_blocks
 from sgloc.rejection.base import Rejector
-from sgloc.rejection.pairwise import consistent_blocks
 
 #: Above this many matches the affinity is held as a sparse matrix instead of a dense float32.
 DENSE_LIMIT = 3000
