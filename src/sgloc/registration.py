@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from sgloc.errors import SglocError, UnknownNameError
-from sgloc.estimation import RansacConfig, irls_refine, ransac, weighted_kabsch
+from sgloc.estimation import RansacConfig, ransac
 from sgloc.registry import lookup
 from sgloc.rejection import REJECTORS, Rejector, make_rejector
 
@@ -90,6 +90,16 @@ def _stage_settings(
     return rej, cfg
 
 
+def _final_fit(src: np.ndarray, dst: np.ndarray, refine: str) -> np.ndarray:
+    """Least squares on the inliers, then the Tukey IRLS when refine == "irls" (the rule of
+    `sgloc.estimation.weighted_kabsch` / `irls_refine`, compiled: `sgloc.kernels.fit`)."""
+    from sgloc.kernels.fit import irls, kabsch
+
+    ones = np.ones(len(src))
+    T = kabsch(src, dst, ones)
+    return irls(src, dst, T, ones, 15) if refine == "irls" else T
+
+
 def register(
     src: np.ndarray,
     dst: np.ndarray,
@@ -136,10 +146,7 @@ def register(
     inliers = kept[rs.inliers]
     T = rs.transform
     if T is not None and refine != "none":
-        s, d = src[inliers], dst[inliers]
-        T = weighted_kabsch(s, d)
-        if refine == "irls":
-            T = irls_refine(s, d, T)
+        T = _final_fit(src[inliers], dst[inliers], refine)
     t4 = time.perf_counter()
     timings["refine"] = t4 - t3
     timings["total"] = t4 - t0
