@@ -42,11 +42,16 @@ def _non_collinear(p: np.ndarray, ratio: float) -> bool:
 def _frame(p: np.ndarray) -> np.ndarray:
     """Orthonormal frame of a triplet (columns: first edge, normal x edge, normal)."""
     e1 = p[1] - p[0]
-    e3 = np.cross(e1, p[2] - p[0])
+    e2 = p[2] - p[0]
+    e3 = np.array([e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+                   e1[0] * e2[1] - e1[1] * e2[0]])  # fmt: skip
     e1 = e1 / np.sqrt(np.sum(e1 * e1))
     e3 = e3 / np.sqrt(np.sum(e3 * e3))
     F = np.empty((3, 3))
-    F[:, 0], F[:, 1], F[:, 2] = e1, np.cross(e3, e1), e3
+    F[:, 0], F[:, 2] = e1, e3
+    F[0, 1] = e3[1] * e1[2] - e3[2] * e1[1]
+    F[1, 1] = e3[2] * e1[0] - e3[0] * e1[2]
+    F[2, 1] = e3[0] * e1[1] - e3[1] * e1[0]
     return F
 
 
@@ -70,9 +75,15 @@ def score_block(
             S[k], D[k] = src[samples[b, k]], dst[samples[b, k]]
         if not (_non_collinear(S, COLLINEAR_RATIO) and _non_collinear(D, COLLINEAR_RATIO)):
             continue
-        R = _frame(D) @ _frame(S).T
+        Fd, Fs = _frame(D), _frame(S)
+        R = np.empty((3, 3))
+        for a in range(3):
+            for c in range(3):
+                R[a, c] = Fd[a, 0] * Fs[c, 0] + Fd[a, 1] * Fs[c, 1] + Fd[a, 2] * Fs[c, 2]
         cs, cd = (S[0] + S[1] + S[2]) / 3.0, (D[0] + D[1] + D[2]) / 3.0
-        t = cd - R @ cs
+        t = np.empty(3)
+        for a in range(3):
+            t[a] = cd[a] - (R[a, 0] * cs[0] + R[a, 1] * cs[1] + R[a, 2] * cs[2])
         count, cost, inlier_sum = 0, 0.0, 0.0
         for i in range(m):
             r2 = 0.0
