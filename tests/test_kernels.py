@@ -100,3 +100,20 @@ def test_neighbor_rejector_same_survivors_as_numpy_pipeline(m, ratio, form):
     tau, eta = 5.0, 0.5
     ref = prune_by_support_reference(consistency_bool(cs.src, cs.dst, tau, form), eta)
     assert np.array_equal(NeighborRejector(tau, eta, form)(cs.src, cs.dst), ref)
+
+
+def test_edges_and_triangles_equal_numpy():
+    from sgloc.kernels.triangles import common_counts, upper_edges
+
+    rng = np.random.default_rng(4)
+    for m, p in [(1, 0.5), (5, 0.5), (64, 0.3), (130, 0.1), (300, 0.6)]:
+        R = np.triu(rng.random((m, m)) < p, 1)
+        R = R | R.T
+        bits = pack_rows(R)
+        ii, jj = upper_edges(bits, R.sum(axis=1))
+        ref_i, ref_j = np.nonzero(np.triu(R))
+        assert np.array_equal(ii, ref_i) and np.array_equal(jj, ref_j)
+        common = (R[ref_i] & R[ref_j]).sum()
+        assert common_counts(bits, ii, jj) == common
+        assert common % 3 == 0 and common // 3 == np.trace(
+            np.linalg.matrix_power(R.astype(np.int64), 3)) // 6
