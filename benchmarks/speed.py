@@ -137,10 +137,13 @@ def run_threads(reps: int, load: bool) -> list[dict]:
     d = data_path("airsim_guo")
     q, t = SemanticGraph.load(d / "cloud1.pcd"), SemanticGraph.load(d / "cloud2.pcd")
     cases = {}
+    kernel_ransac = methods()["sgloc.register + RANSAC kernel"][0]
     for m, ratio, _ in GOALS[:2]:
         cs = make_correspondences(m, ratio, np.random.default_rng(m), "random")
         cases[f"register m={m}, {ratio:.0%}"] = (
             lambda cs=cs: register(cs.src, cs.dst, noise_bound=TAU / 2))
+        cases[f"register + RANSAC kernel m={m}, {ratio:.0%}"] = (
+            lambda cs=cs: kernel_ransac(cs.src, cs.dst, np.random.default_rng(0)))
     cases["localize, Airsim maps"] = lambda: localize(q, t, seed=0)
     ctl = ThreadpoolController()
     busy = subprocess.Popen([sys.executable, "-c", _LOAD]) if load else None

@@ -107,3 +107,28 @@ def test_compiled_fits_equal_numpy():
         T0 = weighted_kabsch(cs.src, cs.dst)
         ref = irls_refine(cs.src, cs.dst, T0, w)
         assert np.abs(fit.irls(cs.src, cs.dst, T0, w, 15) - ref).max() < 1e-9
+
+
+def test_compiled_fit_reflection_guard_planar_and_median():
+    rng = np.random.default_rng(7)
+    src = rng.normal(size=(30, 3)) * [50.0, 20.0, 5.0]
+    for dst in (src * [1.0, 1.0, -1.0], src * [1.0, 1.0, 0.0] + 3.0, src[:, [1, 0, 2]]):
+        ref = weighted_kabsch(src, dst)
+        T = fit.kabsch(src, dst, np.ones(len(src)))
+        assert np.abs(T - ref).max() < 1e-9
+        assert np.linalg.det(T[:3, :3]) > 0
+    for n in (1, 2, 3, 4, 9, 10, 101):
+        x = rng.normal(size=n)
+        x[: n // 3] = x[0]  # ties
+        assert fit.median(x) == np.median(x)
+
+
+def test_import_sgloc_stays_light():
+    """numba, the kernels and scipy.stats load on first use, not on `import sgloc`."""
+    import subprocess
+    import sys
+
+    code = ("import sys, sgloc; heavy = [m for m in ('numba', 'sgloc.kernels.consistency', "
+            "'scipy.stats', 'matplotlib', 'dask') if m in sys.modules]; print(heavy)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
