@@ -117,3 +117,24 @@ def test_edges_and_triangles_equal_numpy():
         assert common_counts(bits, ii, jj) == common
         assert common % 3 == 0 and common // 3 == np.trace(
             np.linalg.matrix_power(R.astype(np.int64), 3)) // 6
+
+
+@pytest.mark.parametrize("m, ratio", [(1, 0.0), (3, 0.0), (300, 0.8), (1000, 0.5), (2000, 0.9)])
+@pytest.mark.parametrize("kind", ["random", "structured"])
+def test_spectral_kernels_same_survivors_as_numpy(m, ratio, kind):
+    from sgloc.kernels import spectral as kernels
+    from sgloc.rejection import SpectralRejector
+    from sgloc.rejection.spectral import affinity_and_consistency
+
+    rej = SpectralRejector()
+    for seed in range(2):
+        cs = make_correspondences(m, ratio, np.random.default_rng([m, seed]), kind)
+        assert np.array_equal(rej(cs.src, cs.dst), rej.reference(cs.src, cs.dst))
+    if m >= 300:  # affinities: float64 here, float32 tiles in the reference
+        A_ref, _ = affinity_and_consistency(cs.src, cs.dst, rej.tau, rej.sigma)
+        bits, degree = consistency_bits(cs.src, cs.dst, rej.tau, "distance")
+        indptr, indices, data = kernels.affinity_csr(cs.src, cs.dst, bits, degree, rej.sigma)
+        A = np.zeros((m, m), dtype=np.float32)
+        A[np.repeat(np.arange(m), np.diff(indptr)), indices] = data
+        assert np.abs(A - A_ref).max() < 1e-3
+        assert np.array_equal(A > 0, A_ref > 0)
