@@ -138,3 +138,26 @@ def test_spectral_kernels_same_survivors_as_numpy(m, ratio, kind):
         A[np.repeat(np.arange(m), np.diff(indptr)), indices] = data
         assert np.abs(A - A_ref).max() < 1e-3
         assert np.array_equal(A > 0, A_ref > 0)
+
+
+def test_clique_kernels_equal_numpy():
+    from sgloc.kernels import clique as kernels
+    from sgloc.rejection import CliqueRejector
+    from sgloc.rejection.clique import core_numbers, greedy_clique
+
+    rng = np.random.default_rng(6)
+    for m, p in [(1, 0.5), (5, 0.5), (70, 0.3), (300, 0.05), (300, 0.9)]:
+        R = np.triu(rng.random((m, m)) < p, 1)
+        R = R | R.T
+        bits, degree = pack_rows(R), R.sum(axis=1)
+        core = kernels.core_numbers(bits, degree)
+        assert np.array_equal(core, core_numbers(R))
+        rank = core * (m + 1) + degree
+        seeds = np.argsort(-rank, kind="stable")[:16]
+        assert np.array_equal(kernels.greedy_clique(bits, rank, seeds),
+                              greedy_clique(R, rank, seeds))  # fmt: skip
+    rej = CliqueRejector()
+    for m, ratio, kind in [(300, 0.8, "random"), (1000, 0.5, "structured"), (2000, 0.9, "random")]:
+        cs = make_correspondences(m, ratio, np.random.default_rng(m), kind)
+        ref = rej.max_clique(consistency_bool(cs.src, cs.dst, rej.tau, "distance"))
+        assert np.array_equal(rej(cs.src, cs.dst), ref)
