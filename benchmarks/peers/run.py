@@ -384,7 +384,12 @@ def main(argv: list[str] | None = None) -> None:
         f"with other jobs (load average {os.getloadavg()[0]:.1f} at the end); every method "
         f"single-threaded (OMP/OpenBLAS threads = 1); wall time {wall:.0f} s. Times (ms) are "
         "CPU time of the process per call (time.process_time, robust to the other jobs on the "
-        "machine), correspondences in, transform out (for sgloc: rejection + RANSAC + refit).",
+        "machine), correspondences in, transform out (for sgloc: `sgloc.register`, i.e. "
+        "rejection + RANSAC + refit).",
+        "",
+        "Wall-clock timings of `sgloc.register` against KISS-Matcher at the goal sizes, with "
+        "default threads and interleaved calls: [speed_benchmark.md](speed_benchmark.md) "
+        "(`python -m benchmarks.speed`).",
         "",
         "## Definitions",
         "- Sets: airsim-guo = histogram-descriptor matches of Guo's cloud1 against cloud2, the "
