@@ -60,8 +60,7 @@ def consistency_bits(
     tx, ty, tz, Rt = _columns32(dst)
     band = np.float32(_BAND * (Rs + Rt + tau) + 1e-6)
     tau32 = np.float32(tau)
-    upper = np.zeros((m, n_words), dtype=np.uint64)  # pairs (i, j > i) in row i
-    lower = np.zeros((n_words, m), dtype=np.uint64)  # pairs (j, i < j) in row j, transposed
+    bits = np.zeros((m, n_words), dtype=np.uint64)  # pairs (i, j > i) first, then mirrored
     degree = np.zeros(m, dtype=np.int64)
     ok = np.zeros(m, dtype=np.int32)
     amb = np.zeros(m, dtype=np.int32)
@@ -91,13 +90,10 @@ def consistency_bits(
                 if amb[j]:
                     es, et = _exact(src, i, j), _exact(dst, i, j)
                     ok[j] = ((es < tau) == (et < tau)) if neighbor else (abs(es - et) < tau)
-        word, bit = i // WORD, np.uint64(i % WORD)
         count = 0
         for k in range(m - i - 1):
-            j = i + 1 + k
-            c = np.uint64(ok[j])
-            lower[word, j] |= c << bit
-            degree[j] += c
+            c = np.int64(ok[i + 1 + k])
+            degree[i + 1 + k] += c
             count += c
         degree[i] += count
         for w in range((i + 1) // WORD, n_words):  # pack ok[i+1:] into row i
@@ -105,8 +101,41 @@ def consistency_bits(
             acc = np.uint64(0)
             for k in range(hi - lo):
                 acc |= np.uint64(ok[lo + k]) << np.uint64(lo + k - w * WORD)
-            upper[i, w] = acc
-    for i in range(m):
-        for w in range(i // WORD + 1):
-            upper[i, w] |= lower[w, i]
-    return upper, degree
+            bits[i, w] = acc
+    _mirror(bits, m)
+    return bits, degree
+
+
+@njit(cache=True, nogil=True)
+def _mirror(bits: np.ndarray, m: int) -> None:
+    """Complete the strictly upper triangle of packed rows into the symmetric matrix, one 64 x 64
+    block at a time (bit transposes): no second m^2 / 8 buffer. A diagonal block holds only
+    bits above its diagonal, so its transpose ORs in exactly the part below."""
+    n_words = bits.shape[1]
+    a = np.empty(WORD, dtype=np.uint64)
+    for I in range(n_words):  # noqa: E741 (block row, block column)
+        for J in range(I, n_words):
+            for r in range(WORD):
+                row = I * WORD + r
+                a[r] = bits[row, J] if row < m else np.uint64(0)
+            _transpose64(a)
+            for c in range(WORD):
+                row = J * WORD + c
+                if row < m:
+                    bits[row, I] |= a[c]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _transpose64(a: np.ndarray) -> None:
+    """In place: bit c of a[r] <-> bit r of a[c] (a 64 x 64 bit matrix, row r = a[r])."""
+    j = 32
+    mask = np.uint64(0x00000000FFFFFFFF)
+    while j:
+        sj = np.uint64(j)
+        for k in range(WORD):
+            if (k & j) == 0:
+                t = ((a[k] >> sj) ^ a[k | j]) & mask
+                a[k] ^= t << sj
+                a[k | j] ^= t
+        j >>= 1
+        mask ^= mask << np.uint64(j)
