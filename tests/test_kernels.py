@@ -7,9 +7,11 @@ import pytest
 from scipy.spatial.distance import cdist
 
 from sgloc.consistency import (
+    common_partner_count,
     consistency_bits,
     consistency_bool,
     consistency_matrix,
+    consistent_pairs,
     pack_rows,
     unpack_rows,
 )
@@ -115,6 +117,9 @@ def test_edges_and_triangles_equal_numpy():
         assert np.array_equal(ii, ref_i) and np.array_equal(jj, ref_j)
         common = (R[ref_i] & R[ref_j]).sum()
         assert common_counts(bits, ii, jj) == common
+        pi, pj = consistent_pairs(bits, R.sum(axis=1))
+        assert np.array_equal(pi, ref_i) and np.array_equal(pj, ref_j)
+        assert common_partner_count(bits, pi, pj) == common
         assert common % 3 == 0 and common // 3 == np.trace(
             np.linalg.matrix_power(R.astype(np.int64), 3)) // 6
 

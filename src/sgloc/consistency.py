@@ -175,3 +175,19 @@ def consistency_bool(
         M[cols, rows] = ok.T
     np.fill_diagonal(M, False)
     return M
+
+
+def consistent_pairs(bits: np.ndarray, degree: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(ii, jj) int64: every consistent pair with ii < jj, row-major (np.nonzero(np.triu(M)))
+    from packed rows and degrees (`consistency_bits`). Compiled."""
+    from sgloc.kernels.triangles import upper_edges
+
+    return upper_edges(bits, np.asarray(degree, dtype=np.int64))
+
+
+def common_partner_count(bits: np.ndarray, ii: np.ndarray, jj: np.ndarray) -> int:
+    """Sum over the pairs (ii[k], jj[k]) of the number of matches consistent with both; over all
+    consistent pairs i < j it is 3 x the number of triangles of the consistency graph."""
+    from sgloc.kernels.triangles import common_counts
+
+    return int(common_counts(bits, np.asarray(ii, dtype=np.int64), np.asarray(jj, dtype=np.int64)))
