@@ -15,9 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from sgloc.config import LocalizerConfig
-from sgloc.estimation import RansacConfig, irls_refine, ransac, weighted_kabsch
+from sgloc.estimation import weighted_kabsch
 from sgloc.geometry import make_transform
-from sgloc.rejection import make_rejector
+from sgloc.registration import register
 
 Solver = Callable[[np.ndarray, np.ndarray, float, float, np.random.Generator], np.ndarray | None]
 
@@ -33,22 +33,19 @@ class Method:
 
 
 def sgloc_method(rejection: str, **ransac_settings) -> Method:
-    """sgloc's estimation stage as `localize` runs it: rejector `rejection` (tau from the set),
-    RANSAC (defaults, threshold from the set, overridden by `ransac_settings`), then the final
-    fit on its inliers (weighted Kabsch, plus the IRLS robust refit when the default
-    LocalizerConfig has it on)."""
-    robust = LocalizerConfig().robust_refit
+    """sgloc's correspondence-level API, `sgloc.register`: rejector `rejection` (tau from the
+    set), RANSAC (threshold from the set, other settings overridden by `ransac_settings`), then
+    the final fit on its inliers (weighted Kabsch, plus the IRLS robust refit when the default
+    LocalizerConfig has it on, as `localize` runs it)."""
+    refine = "irls" if LocalizerConfig().robust_refit else "kabsch"
 
     def solve(src, dst, tau, threshold, rng):
-        rej = make_rejector(rejection) if rejection == "none" else make_rejector(rejection, tau=tau)
-        kept = rej(src, dst, None)
-        cfg = RansacConfig(threshold=threshold, **ransac_settings)
-        rs = ransac(src[kept], dst[kept], cfg, rng)
-        if rs.transform is None:
-            return None
-        s, d = src[kept][rs.inliers], dst[kept][rs.inliers]
-        T = weighted_kabsch(s, d)
-        return irls_refine(s, d, T) if robust else T
+        tau_setting = {} if rejection == "none" else {"tau": tau}
+        res = register(
+            src, dst, rejection, noise_bound=threshold / 2, refine=refine, rng=rng,
+            threshold=threshold, **tau_setting, **ransac_settings,
+        )  # fmt: skip
+        return res.transform
 
     label = "RANSAC alone" if rejection == "none" else f"{rejection} + RANSAC"
     if ransac_settings:

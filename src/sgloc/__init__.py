@@ -3,6 +3,10 @@
 from sgloc import SemanticGraph, localize
 res = localize(query_graph, target_graph, descriptor="histogram", rejection="neighbor")
 res.transform  # T_target_query (4x4) or None when not localized
+
+from sgloc import register
+reg = register(src, dst, rejection="neighbor", noise_bound=2.5)  # matched points (m,3) each
+reg.transform  # T_dst_src (4x4) or None when reg.success is False
 """
 
 from sgloc.config import LocalizerConfig
@@ -10,6 +14,7 @@ from sgloc.errors import SglocError
 from sgloc.fleet import localize_fleet as localize_fleet  # re-exported beside localize
 from sgloc.graph import SemanticGraph
 from sgloc.localizer import LocalizationResult, Localizer, NotLocalizedError, localize
+from sgloc.registration import RegistrationResult, register
 
 __version__ = "0.1.0"
 
@@ -18,8 +23,10 @@ __all__ = [
     "Localizer",
     "LocalizerConfig",
     "NotLocalizedError",
+    "RegistrationResult",
     "SemanticGraph",
     "SglocError",
     "__version__",
     "localize",
+    "register",
 ]

@@ -58,8 +58,8 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 from scipy.special import gammaln, pdtrc
-from scipy.stats import poisson
 
+from sgloc.consistency import consistency_matrix
 from sgloc.errors import SglocError
 from sgloc.estimation import (
     non_collinear,
@@ -70,7 +70,6 @@ from sgloc.estimation import (
 )
 from sgloc.geometry import apply
 from sgloc.graph import SemanticGraph
-from sgloc.rejection.neighbor import consistency_matrix
 from sgloc.validation import validate_settings
 
 _LN10 = np.log(10.0)
@@ -187,6 +186,8 @@ def _log10_poisson_tail(k: int, lam: float) -> float:
     p = pdtrc(k - 1, max(lam, 1e-12))
     if p > 1e-280:
         return float(np.log10(p))
+    from scipy.stats import poisson  # deferred: importing scipy.stats costs ~0.3 s
+
     return float(poisson.logsf(k - 1, max(lam, 1e-12)) / _LN10)
 
 

@@ -21,7 +21,6 @@ from typing import Any
 import numpy as np
 
 from sgloc.errors import UnknownNameError
-from sgloc.evaluation import plots
 from sgloc.evaluation.metrics import T_P, correct_matches, pose_errors
 from sgloc.evaluation.pairs import make_pair_source
 from sgloc.evaluation.report import (
@@ -200,6 +199,8 @@ def _cell_name(settings: dict[str, Any], params: dict[str, Any]) -> str:
 def _outputs(
     name: str, dataset: str, rows: list[dict[str, Any]], folder: Path, opt: ExperimentOptions
 ) -> tuple[str, list[Path]]:
+    from sgloc.evaluation import plots  # deferred: matplotlib costs ~0.25 s at import
+
     figs: list[Path] = []
     if name == "table":
         summary = summarize(rows, ["descriptor", "rejection"])
@@ -232,6 +233,8 @@ def _outputs(
 def _matches(dataset: str, folder: Path, opt: ExperimentOptions) -> ExperimentOutput:
     """Fig. 7: one pair (seed `first_seed`), the matches of each stage with neighbor rejection,
     and the final matches of the baseline on the same pair."""
+    from sgloc.evaluation import plots  # deferred: matplotlib costs ~0.25 s at import
+
     seed = opt.first_seed
     pair = make_pair_source(dataset, **opt.dataset_params)(seed)
     base = {"descriptor": opt.descriptor, "ransac_threshold": opt.threshold, **opt.settings}

@@ -1,7 +1,7 @@
 """Maximum-clique outlier rejection, as TEASER++ and CLIPPER do.
 
 Matches are vertices of a consistency graph (an edge when the two matches agree on their pair's
-distance within tau, `sgloc.rejection.pairwise`); correct matches agree with each other, so they
+distance within tau, `sgloc.consistency`); correct matches agree with each other, so they
 form a clique, and the largest clique is kept. Finding it is NP-hard, so:
 1. a fast heuristic (greedy growth from the best-connected seeds, in core-number order) gives a
    clique of size LB;
@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sgloc.consistency import consistency_bits, unpack_rows
 from sgloc.rejection.base import Rejector
-from sgloc.rejection.pairwise import consistency_bool
 
 
 def core_numbers(M: np.ndarray) -> np.ndarray:
@@ -145,11 +145,25 @@ class CliqueRejector(Rejector):
     name = "clique"
 
     def __call__(self, src, dst, scores=None):
+        """Compiled on packed rows (`sgloc.kernels.clique`); the exact search unpacks only the
+        k-core pool. `max_clique(consistency_matrix(...))` is the numpy reference."""
         m = len(src)
         if m == 0:
             return np.zeros(0, dtype=np.int64)
-        M = consistency_bool(src, dst, self.tau, "distance")
-        return self.max_clique(M)
+        from sgloc.kernels import clique as kernels
+
+        bits, degree = consistency_bits(src, dst, self.tau, "distance")
+        core = kernels.core_numbers(bits, degree)
+        rank = core * (m + 1) + degree
+        seeds = np.argsort(-rank, kind="stable")[: self.n_seeds]
+        best = kernels.greedy_clique(bits, rank, seeds)
+        pool = np.flatnonzero(core >= len(best))
+        if 0 < len(pool) <= self.exact_limit:
+            sub = unpack_rows(bits[pool], m)[:, pool]
+            found, _ = exact_clique(sub, len(best), self.max_nodes)
+            if len(found) > len(best):
+                best = np.sort(pool[found])
+        return best
 
     def max_clique(self, M: np.ndarray) -> np.ndarray:
         """Sorted vertex indices of the (near-)maximum clique of consistency graph M."""

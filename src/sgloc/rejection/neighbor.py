@@ -7,21 +7,16 @@ from typing import Literal
 
 import numpy as np
 
+from sgloc.consistency import consistency_bits, consistency_matrix, pack_rows
 from sgloc.rejection.base import Rejector
-from sgloc.rejection.pairwise import consistency_bool
 
-
-def consistency_matrix(
-    src: np.ndarray, dst: np.ndarray, tau: float, form: str = "distance"
-) -> np.ndarray:
-    """(m,m) bool pairwise consistency of matches, diagonal False.
-
-    form="distance" (Alg. 1): M_ij = |D(q_i,q_j) - D(t_i,t_j)| < tau.
-    form="neighbor" (Eq. 2-3): M_ij = Nei(q_i,q_j) == Nei(t_i,t_j), Nei = distance < tau.
-    Computed tile by tile (float32 with an exact float64 recheck near tau, see
-    `sgloc.rejection.pairwise`): m^2 bytes of memory, no (m,m) float matrix.
-    """
-    return consistency_bool(src, dst, tau, form)
+__all__ = [
+    "NeighborRejector",
+    "consistency_matrix",
+    "prune_bits",
+    "prune_by_support",
+    "prune_by_support_reference",
+]
 
 
 #: Removed matches get this support, far above any real count (V_i <= m - 1) and immune to
@@ -35,7 +30,25 @@ _WIDE_LIMIT = 4096
 
 
 def prune_by_support(M: np.ndarray, eta: float) -> np.ndarray:
-    """Alg. 1 step 2 on a consistency matrix M (m,m) with a False diagonal.
+    """Alg. 1 step 2 on a consistency matrix M (m,m) bool with a False diagonal: the sorted
+    indices of the survivors (compiled, `sgloc.kernels.prune`; the rule is that of
+    `prune_by_support_reference`)."""
+    M = np.asarray(M)
+    if M.shape[0] == 0:
+        return np.zeros(0, dtype=np.int64)
+    M = M if M.dtype == np.bool_ else M != 0
+    return prune_bits(pack_rows(M), M.sum(axis=1, dtype=np.int64), eta)
+
+
+def prune_bits(bits: np.ndarray, degree: np.ndarray, eta: float) -> np.ndarray:
+    """`prune_by_support` on bit-packed rows and their counts (`consistency_bits` output)."""
+    from sgloc.kernels.prune import prune_bits as kernel
+
+    return kernel(bits, degree, float(eta))
+
+
+def prune_by_support_reference(M: np.ndarray, eta: float) -> np.ndarray:
+    """Alg. 1 step 2 in numpy on a consistency matrix M (m,m) with a False diagonal.
 
     While the remaining match with the least support V_i (number of other remaining matches it
     agrees with) has V_i < eta * (r - 1), r the number of matches still remaining, remove it and
@@ -107,4 +120,4 @@ class NeighborRejector(Rejector):
     def __call__(self, src, dst, scores=None):
         if len(src) == 0:
             return np.zeros(0, dtype=np.int64)
-        return prune_by_support(consistency_matrix(src, dst, self.tau, self.form), self.eta)
+        return prune_bits(*consistency_bits(src, dst, self.tau, self.form), self.eta)

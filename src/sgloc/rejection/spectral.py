@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 
+from sgloc.consistency import consistency_bits, consistent_blocks
 from sgloc.rejection.base import Rejector
-from sgloc.rejection.pairwise import consistent_blocks
 
 #: Above this many matches the affinity is held as a sparse matrix instead of a dense float32.
 DENSE_LIMIT = 3000
@@ -122,6 +122,21 @@ class SpectralRejector(Rejector):
     name = "spectral"
 
     def __call__(self, src, dst, scores=None):
+        """Compiled (`sgloc.kernels.spectral`); `reference` is the plain numpy version."""
+        if len(src) == 0:
+            return np.zeros(0, dtype=np.int64)
+        from sgloc.kernels import spectral as kernels
+
+        src = np.ascontiguousarray(src, dtype=np.float64)
+        dst = np.ascontiguousarray(dst, dtype=np.float64)
+        bits, degree = consistency_bits(src, dst, self.tau, "distance")
+        csr = kernels.affinity_csr(src, dst, bits, degree, float(self.sigma))
+        x = kernels.leading_eigenvector(*csr, 200, 1e-6)
+        order = np.argsort(-x, kind="stable")
+        return kernels.greedy_select(x, order, bits, self.min_ratio, self.min_agreement)
+
+    def reference(self, src, dst, scores=None):
+        """The same selection in numpy (float32 affinities from the tiles)."""
         if len(src) == 0:
             return np.zeros(0, dtype=np.int64)
         A, M = affinity_and_consistency(src, dst, self.tau, self.sigma)

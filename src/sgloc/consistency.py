@@ -1,0 +1,193 @@
+"""Pairwise consistency of two match sets: the graph behind rejection and acceptance.
+
+Two matches i, j (src_i <-> dst_i, src_j <-> dst_j) are consistent when the rigid motion that
+maps one graph onto the other could preserve their relation:
+- form "distance" (Alg. 1): |D(q_i,q_j) - D(t_i,t_j)| < tau;
+- form "neighbor" (Eq. 2-3): (D(q_i,q_j) < tau) == (D(t_i,t_j) < tau).
+Every decision equals the dense float64 computation (`scipy.spatial.distance.cdist`).
+
+`consistency_bits` / `consistency_matrix` run the compiled one-pass kernel
+(`sgloc.kernels.consistency`): bit-packed rows, m^2 / 8 bytes. `consistent_blocks` is the plain
+numpy computation, tile by tile (float32 Gram products with an exact float64 recheck near tau);
+it also yields the distance differences (the spectral rejector's affinities) and serves as the
+reference in tests.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+
+from sgloc.errors import UnknownNameError
+
+#: Side of the square tiles computed at once: 512 x 512 float32 = 1 MB per temporary (L2-sized).
+TILE = 512
+
+#: Bound, relative to R^2 (R the largest norm of a centred point set), on the float32 rounding
+#: error of a squared distance from the 5-term Gram product: the inputs' rounding and a 5-term
+#: dot product each cost at most a few units of 2^-24 times sum |a_k b_k| <= 4 R^2, i.e. about
+#: 14 eps R^2 in all; twice that here for margin.
+_GRAM_REL_ERROR = 32 * np.finfo(np.float32).eps
+
+FORMS = ("distance", "neighbor")
+
+
+def _augmented(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """(A, B, R) with A_i . B_j = |p_i - p_j|^2 (float32, centred) and R the largest norm."""
+    p = points - points.mean(axis=0)
+    n = np.einsum("ij,ij->i", p, p)
+    ones = np.ones(len(p))
+    A = np.column_stack([p, n, ones]).astype(np.float32)
+    B = np.column_stack([-2.0 * p, ones, n]).astype(np.float32)
+    return A, B, float(np.sqrt(n.max())) if len(n) else 0.0
+
+
+def _exact_distances(columns: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """Float64 |p_i - p_j| for index arrays i, j, summed in cdist's order; `columns` (3,m)."""
+    x, y, z = columns
+    dx, dy, dz = x[i] - x[j], y[i] - y[j], z[i] - z[j]
+    return np.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+def consistent_blocks(
+    src: np.ndarray, dst: np.ndarray, tau: float, form: str = "distance"
+) -> Iterator[tuple[slice, slice, np.ndarray, np.ndarray | None]]:
+    """Yield (rows, cols, ok, diff) over square tiles of the upper triangle (cols.start >=
+    rows.start), so that every unordered pair i != j is covered once (pairs within a diagonal
+    tile appear twice, as (i,j) and (j,i), with equal values).
+
+    ok (len(rows), len(cols)) bool: the pair is consistent, exact up to float64 rounding (equal
+    to the dense float64 computation); diagonal entries i == j come as computed, callers clear
+    them.
+    diff (same shape) float32: |D(src_i,src_j) - D(dst_i,dst_j)| in metres, approximate (within
+    ~2e-3 of the point sets' extent), for soft affinities; None for form "neighbor".
+    form "distance": ok = diff < tau (Alg. 1); "neighbor": ok = (D_src < tau) == (D_dst < tau).
+    """
+    check_form(form)
+    src = np.asarray(src, dtype=np.float64)
+    dst = np.asarray(dst, dtype=np.float64)
+    m = len(src)
+    if m == 0:
+        return
+    cols_s, cols_t = np.ascontiguousarray(src.T), np.ascontiguousarray(dst.T)
+    As, Bs, Rs = _augmented(src)
+    At, Bt, Rt = _augmented(dst)
+    # |sqrt(a) - sqrt(b)| <= sqrt(|a - b|): each distance is off by at most sqrt(err).
+    err_s = float(np.sqrt(_GRAM_REL_ERROR)) * Rs + 1e-6
+    err_t = float(np.sqrt(_GRAM_REL_ERROR)) * Rt + 1e-6
+    tau32 = np.float32(tau)
+    band_s, band_t = np.float32(err_s), np.float32(err_t)
+    band = np.float32(err_s + err_t)
+    for i0 in range(0, m, TILE):
+        rows = slice(i0, min(m, i0 + TILE))
+        for j0 in range(i0, m, TILE):
+            cols = slice(j0, min(m, j0 + TILE))
+            dq = As[rows] @ Bs[cols].T
+            np.maximum(dq, 0.0, out=dq)  # rounding can make a tiny square negative
+            np.sqrt(dq, out=dq)
+            dt = At[rows] @ Bt[cols].T
+            np.maximum(dt, 0.0, out=dt)
+            np.sqrt(dt, out=dt)
+            if form == "distance":
+                diff = np.subtract(dq, dt, out=dq)
+                np.abs(diff, out=diff)
+                np.subtract(diff, tau32, out=dt)  # dt now holds diff - tau
+                ok = dt < 0
+                np.abs(dt, out=dt)
+                amb = dt < band  # not certainly on one side of tau: recompute in float64
+            else:
+                ok = (dq < tau32) == (dt < tau32)
+                np.subtract(dq, tau32, out=dq)
+                np.abs(dq, out=dq)
+                amb = dq < band_s
+                np.subtract(dt, tau32, out=dt)
+                np.abs(dt, out=dt)
+                amb |= dt < band_t
+                diff = None
+            flat = np.flatnonzero(amb)
+            if len(flat):
+                bi, bj = np.divmod(flat, cols.stop - j0)
+                gi, gj = bi + i0, bj + j0
+                eq = _exact_distances(cols_s, gi, gj)
+                et = _exact_distances(cols_t, gi, gj)
+                if form == "distance":
+                    ok.ravel()[flat] = np.abs(eq - et) < tau
+                    diff.ravel()[flat] = np.abs(eq - et)
+                else:
+                    ok.ravel()[flat] = (eq < tau) == (et < tau)
+            yield rows, cols, ok, diff
+
+
+def check_form(form: str) -> None:
+    """Raise UnknownNameError unless `form` is a consistency form."""
+    if form not in FORMS:
+        raise UnknownNameError(f"unknown consistency form {form!r}; use 'distance' or 'neighbor'.")
+
+
+def consistency_bits(
+    src: np.ndarray, dst: np.ndarray, tau: float, form: str = "distance"
+) -> tuple[np.ndarray, np.ndarray]:
+    """(bits, degree): bit-packed consistency rows (m, ceil(m/64)) uint64 (bit j % 64 of word
+    j // 64 of row i: matches i != j consistent) and each match's count of consistent partners
+    (m,) int64. src, dst: (m,3) metres. Compiled, one pass over the pairs."""
+    check_form(form)
+    from sgloc.kernels.consistency import consistency_bits as kernel
+
+    src = np.ascontiguousarray(src, dtype=np.float64)
+    dst = np.ascontiguousarray(dst, dtype=np.float64)
+    return kernel(src, dst, float(tau), form == "neighbor")
+
+
+def pack_rows(M: np.ndarray) -> np.ndarray:
+    """Bool (n,m) rows as uint64 words (n, ceil(m/64)), the layout of `consistency_bits`."""
+    n, m = M.shape
+    packed = np.packbits(M, axis=1, bitorder="little")
+    out = np.zeros((n, 8 * ((m + 63) // 64)), dtype=np.uint8)
+    out[:, : packed.shape[1]] = packed
+    return out.view("<u8").astype(np.uint64, copy=False)
+
+
+def unpack_rows(bits: np.ndarray, m: int) -> np.ndarray:
+    """Bool (n,m) from uint64 rows (n, ceil(m/64)) (the inverse of `pack_rows`)."""
+    as_bytes = np.ascontiguousarray(bits).astype("<u8", copy=False).view(np.uint8)
+    return np.unpackbits(as_bytes, axis=1, count=m, bitorder="little").view(bool)
+
+
+def consistency_matrix(
+    src: np.ndarray, dst: np.ndarray, tau: float, form: str = "distance"
+) -> np.ndarray:
+    """(m,m) bool pairwise consistency of matches (symmetric, diagonal False); see the module
+    docstring for the forms. Compiled; m^2 bytes."""
+    bits, _ = consistency_bits(src, dst, tau, form)
+    return unpack_rows(bits, len(src))
+
+
+def consistency_bool(
+    src: np.ndarray, dst: np.ndarray, tau: float, form: str = "distance"
+) -> np.ndarray:
+    """(m,m) bool consistency matrix (symmetric, diagonal False), filled tile by tile in numpy
+    (the reference of `consistency_matrix`)."""
+    m = len(src)
+    M = np.empty((m, m), dtype=bool)
+    for rows, cols, ok, _ in consistent_blocks(src, dst, tau, form):
+        M[rows, cols] = ok
+        M[cols, rows] = ok.T
+    np.fill_diagonal(M, False)
+    return M
+
+
+def consistent_pairs(bits: np.ndarray, degree: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(ii, jj) int64: every consistent pair with ii < jj, row-major (np.nonzero(np.triu(M)))
+    from packed rows and degrees (`consistency_bits`). Compiled."""
+    from sgloc.kernels.triangles import upper_edges
+
+    return upper_edges(bits, np.asarray(degree, dtype=np.int64))
+
+
+def common_partner_count(bits: np.ndarray, ii: np.ndarray, jj: np.ndarray) -> int:
+    """Sum over the pairs (ii[k], jj[k]) of the number of matches consistent with both; over all
+    consistent pairs i < j it is 3 x the number of triangles of the consistency graph."""
+    from sgloc.kernels.triangles import common_counts
+
+    return int(common_counts(bits, np.asarray(ii, dtype=np.int64), np.asarray(jj, dtype=np.int64)))

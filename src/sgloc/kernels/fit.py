@@ -1,0 +1,213 @@
+"""Small rigid fits without BLAS or LAPACK calls (numba): weighted Kabsch and the Tukey IRLS.
+
+They compute what `sgloc.estimation.weighted_kabsch` (less its input checks) and
+`sgloc.estimation.irls_refine` compute, with the same decisions, in compiled loops: no numpy
+dispatch per step, no BLAS thread pool for 3-column products. The 3x3 SVD is a cyclic Jacobi
+eigen-decomposition of H^T H (fast to compile, unlike numba's LAPACK bindings).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                     a[0] * b[1] - a[1] * b[0]])  # fmt: skip
+
+
+@njit(cache=True, nogil=True)
+def median(x: np.ndarray) -> float:
+    """np.median of a 1-d float64 array (Hoare quickselect on a copy)."""
+    a = x.copy()
+    n = a.shape[0]
+    hi_k = n // 2
+    _select(a, hi_k)
+    if n % 2:
+        return a[hi_k]
+    lo = a[0]
+    for i in range(hi_k):  # the lower middle: the largest of the left part
+        lo = max(lo, a[i])
+    return (lo + a[hi_k]) / 2.0
+
+
+@njit(cache=True, nogil=True)
+def _select(a: np.ndarray, k: int) -> None:
+    """Reorder a so that a[k] is its k-th smallest, smaller ones before, larger after."""
+    lo, hi = 0, a.shape[0] - 1
+    while lo < hi:
+        pivot = a[(lo + hi) // 2]
+        i, j = lo, hi
+        while i <= j:
+            while a[i] < pivot:
+                i += 1
+            while a[j] > pivot:
+                j -= 1
+            if i <= j:
+                a[i], a[j] = a[j], a[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            return
+
+
+@njit(cache=True, nogil=True)
+def _symmetric_eigen(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues (descending) and eigenvectors (columns) of a symmetric 3x3 A (cyclic
+    Jacobi rotations until the off-diagonal vanishes to rounding)."""
+    A = A.copy()
+    V = np.eye(3)
+    for _ in range(50):
+        off = A[0, 1] ** 2 + A[0, 2] ** 2 + A[1, 2] ** 2
+        if off <= 1e-36 * (A[0, 0] ** 2 + A[1, 1] ** 2 + A[2, 2] ** 2) or off == 0.0:
+            break
+        for p, q in ((0, 1), (0, 2), (1, 2)):
+            if A[p, q] == 0.0:
+                continue
+            theta = (A[q, q] - A[p, p]) / (2.0 * A[p, q])
+            t = np.sign(theta) / (abs(theta) + np.sqrt(theta * theta + 1.0))
+            if theta == 0.0:
+                t = 1.0
+            c = 1.0 / np.sqrt(t * t + 1.0)
+            s = t * c
+            for k in range(3):  # A <- J^T A J, V <- V J
+                akp, akq = A[k, p], A[k, q]
+                A[k, p], A[k, q] = c * akp - s * akq, s * akp + c * akq
+            for k in range(3):
+                apk, aqk = A[p, k], A[q, k]
+                A[p, k], A[q, k] = c * apk - s * aqk, s * apk + c * aqk
+            for k in range(3):
+                vkp, vkq = V[k, p], V[k, q]
+                V[k, p], V[k, q] = c * vkp - s * vkq, s * vkp + c * vkq
+    w = np.array([A[0, 0], A[1, 1], A[2, 2]])
+    order = np.array([0, 1, 2])
+    for a, b in ((0, 1), (1, 2), (0, 1)):  # sort 3 values, descending
+        if w[order[b]] > w[order[a]]:
+            order[a], order[b] = order[b], order[a]
+    return w[order], V[:, order]
+
+
+@njit(cache=True, nogil=True)
+def rotation_from_covariance(H: np.ndarray) -> np.ndarray:
+    """The rotation R maximising trace(R H) (Kabsch: H = sum w (s - cs)(d - cd)^T), as
+    V diag(1, 1, det) U^T from H = U S V^T; H must have rank >= 2 (non-collinear points).
+
+    With proper bases (third columns the cross products of the first two) the reflection
+    guard is implicit: R = V' U'^T."""
+    HtH = np.zeros((3, 3))
+    for a in range(3):
+        for b in range(3):
+            HtH[a, b] = H[0, a] * H[0, b] + H[1, a] * H[1, b] + H[2, a] * H[2, b]
+    _, V = _symmetric_eigen(HtH)
+    v1, v2 = V[:, 0].copy(), V[:, 1].copy()
+    u1, u2 = np.zeros(3), np.zeros(3)
+    for a in range(3):
+        u1[a] = H[a, 0] * v1[0] + H[a, 1] * v1[1] + H[a, 2] * v1[2]
+        u2[a] = H[a, 0] * v2[0] + H[a, 1] * v2[1] + H[a, 2] * v2[2]
+    u1 /= np.sqrt(np.sum(u1 * u1))
+    u2 -= np.sum(u1 * u2) * u1
+    u2 /= np.sqrt(np.sum(u2 * u2))
+    v2 -= np.sum(v1 * v2) * v1
+    v2 /= np.sqrt(np.sum(v2 * v2))
+    v3, u3 = _cross(v1, v2), _cross(u1, u2)
+    R = np.empty((3, 3))
+    for a in range(3):
+        for b in range(3):
+            R[a, b] = v1[a] * u1[b] + v2[a] * u2[b] + v3[a] * u3[b]
+    return R
+
+
+@njit(cache=True, nogil=True)
+def kabsch(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """T_dst_src (4x4) minimising sum_i w_i ||R src_i + t - dst_i||^2 (reflection guarded);
+    src, dst (m,3) float64, weights (m,) with a positive sum."""
+    m = src.shape[0]
+    total = 0.0
+    for i in range(m):
+        total += weights[i]
+    cs, cd = np.zeros(3), np.zeros(3)
+    for i in range(m):
+        wi = weights[i] / total
+        for a in range(3):
+            cs[a] += wi * src[i, a]
+            cd[a] += wi * dst[i, a]
+    H = np.zeros((3, 3))
+    for i in range(m):
+        wi = weights[i] / total
+        for a in range(3):
+            sa = (src[i, a] - cs[a]) * wi
+            for b in range(3):
+                H[a, b] += sa * (dst[i, b] - cd[b])
+    R = rotation_from_covariance(H)
+    T = np.zeros((4, 4))
+    for a in range(3):
+        for b in range(3):
+            T[a, b] = R[a, b]
+        T[a, 3] = cd[a] - (R[a, 0] * cs[0] + R[a, 1] * cs[1] + R[a, 2] * cs[2])
+    T[3, 3] = 1.0
+    return T
+
+
+@njit(cache=True, nogil=True)
+def residual_norms(src: np.ndarray, dst: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """(m,) ||R src_i + t - dst_i|| in metres."""
+    m = src.shape[0]
+    r = np.empty(m)
+    for i in range(m):
+        s = 0.0
+        for a in range(3):
+            e = T[a, 0] * src[i, 0] + T[a, 1] * src[i, 1] + T[a, 2] * src[i, 2] + T[a, 3]
+            e -= dst[i, a]
+            s += e * e
+        r[i] = np.sqrt(s)
+    return r
+
+
+@njit(cache=True, nogil=True)
+def irls(
+    src: np.ndarray, dst: np.ndarray, T: np.ndarray, prior: np.ndarray, iterations: int
+) -> np.ndarray:
+    """Tukey-biweight IRLS refit of T_dst_src from T (the rule of
+    `sgloc.estimation.irls_refine`: c = 4.685 sigma, sigma = 1.4826 median residual)."""
+    m = src.shape[0]
+    w_prev = np.zeros(m)
+    have_prev = False
+    for _ in range(iterations):
+        r = residual_norms(src, dst, T)
+        sigma = 1.4826 * median(r)
+        if sigma <= 1e-12:
+            break
+        c = 4.685 * sigma
+        w = np.empty(m)
+        n_pos = 0
+        for i in range(m):
+            u = r[i] / c
+            w[i] = prior[i] * ((1.0 - u * u) ** 2 if u < 1.0 else 0.0)
+            n_pos += w[i] != 0.0
+        if n_pos < 3:
+            break
+        if have_prev:
+            same = True
+            for i in range(m):
+                if not abs(w[i] - w_prev[i]) <= 1e-6:
+                    same = False
+                    break
+            if same:
+                break
+        w_prev, have_prev = w, True
+        T_new = kabsch(src, dst, w)
+        change = 0.0
+        for a in range(4):
+            for b in range(4):
+                change = max(change, abs(T_new[a, b] - T[a, b]))
+        T = T_new
+        done = change < 1e-9
+        if done:
+            break
+    return T

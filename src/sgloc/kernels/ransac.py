@@ -1,0 +1,192 @@
+"""RANSAC's hot loops (numba): hypotheses from triplets, scoring, inliers, refits.
+
+`ransac` takes the same arguments, draws the same samples from the same generator and makes
+the same decisions as `sgloc.estimation.ransac`; each block of hypotheses is fitted and scored
+in one compiled call (no (B,m) residual matrix, no BLAS), and the refits use `kernels.fit`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from sgloc.errors import DegenerateGeometryError
+from sgloc.estimation import (
+    COLLINEAR_RATIO,
+    RansacConfig,
+    RansacResult,
+    _needed_draws,
+    check_not_degenerate,
+    draw_triplets,
+)
+from sgloc.geometry import make_transform
+from sgloc.kernels.fit import kabsch
+
+_BLOCK = 2_000_000  # as sgloc.estimation: hypotheses x matches per block
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _non_collinear(p: np.ndarray, ratio: float) -> bool:
+    """`sgloc.estimation.non_collinear` for one triplet p (3,3)."""
+    e1, e2 = p[1] - p[0], p[2] - p[0]
+    c0 = e1[1] * e2[2] - e1[2] * e2[1]
+    c1 = e1[2] * e2[0] - e1[0] * e2[2]
+    c2 = e1[0] * e2[1] - e1[1] * e2[0]
+    area2 = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+    longest = max(e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2],
+                  e2[0] * e2[0] + e2[1] * e2[1] + e2[2] * e2[2])  # fmt: skip
+    return area2 > ratio * max(longest, 1e-12)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _frame(p: np.ndarray) -> np.ndarray:
+    """Orthonormal frame of a triplet (columns: first edge, normal x edge, normal)."""
+    e1 = p[1] - p[0]
+    e2 = p[2] - p[0]
+    e3 = np.array([e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+                   e1[0] * e2[1] - e1[1] * e2[0]])  # fmt: skip
+    e1 = e1 / np.sqrt(np.sum(e1 * e1))
+    e3 = e3 / np.sqrt(np.sum(e3 * e3))
+    F = np.empty((3, 3))
+    F[:, 0], F[:, 2] = e1, e3
+    F[0, 1] = e3[1] * e1[2] - e3[2] * e1[1]
+    F[1, 1] = e3[2] * e1[0] - e3[0] * e1[2]
+    F[2, 1] = e3[0] * e1[1] - e3[1] * e1[0]
+    return F
+
+
+@njit(cache=True, nogil=True)
+def score_block(
+    src: np.ndarray, dst: np.ndarray, samples: np.ndarray, thr2: float, msac: bool
+) -> tuple[bool, float, float, np.ndarray, int]:
+    """Fit and score the hypotheses of `samples` (n,3) on centred src, dst (m,3).
+
+    Returns (found, primary, secondary, T, max_count): the best hypothesis by (primary,
+    secondary), first on ties, as `sgloc.estimation.ransac` orders them (msac: truncated cost,
+    then -count; count: -count, then inlier residual), its 4x4 T, and the largest inlier count
+    of the block (for the adaptive stop); found=False when every sample is collinear.
+    """
+    m = src.shape[0]
+    best_p, best_s, found, max_count = np.inf, np.inf, False, 0
+    best_T = np.eye(4)
+    S, D = np.empty((3, 3)), np.empty((3, 3))
+    for b in range(samples.shape[0]):
+        for k in range(3):
+            S[k], D[k] = src[samples[b, k]], dst[samples[b, k]]
+        if not (_non_collinear(S, COLLINEAR_RATIO) and _non_collinear(D, COLLINEAR_RATIO)):
+            continue
+        Fd, Fs = _frame(D), _frame(S)
+        R = np.empty((3, 3))
+        for a in range(3):
+            for c in range(3):
+                R[a, c] = Fd[a, 0] * Fs[c, 0] + Fd[a, 1] * Fs[c, 1] + Fd[a, 2] * Fs[c, 2]
+        cs, cd = (S[0] + S[1] + S[2]) / 3.0, (D[0] + D[1] + D[2]) / 3.0
+        t = np.empty(3)
+        for a in range(3):
+            t[a] = cd[a] - (R[a, 0] * cs[0] + R[a, 1] * cs[1] + R[a, 2] * cs[2])
+        count, cost, inlier_sum = 0, 0.0, 0.0
+        for i in range(m):
+            r2 = 0.0
+            for a in range(3):
+                e = R[a, 0] * src[i, 0] + R[a, 1] * src[i, 1] + R[a, 2] * src[i, 2] + t[a]
+                e -= dst[i, a]
+                r2 += e * e
+            if r2 < thr2:
+                count += 1
+                cost += r2
+                inlier_sum += r2
+            else:
+                cost += thr2
+        primary, secondary = (cost, -count) if msac else (-count, inlier_sum)
+        max_count = max(max_count, count)
+        if not found or primary < best_p or (primary == best_p and secondary < best_s):
+            best_p, best_s, found = primary, secondary, True
+            best_T[:3, :3], best_T[:3, 3] = R, t
+    return found, best_p, best_s, best_T, max_count
+
+
+@njit(cache=True, nogil=True)
+def inliers(T: np.ndarray, src: np.ndarray, dst: np.ndarray, thr2: float) -> np.ndarray:
+    """Sorted indices i with ||R src_i + t - dst_i||^2 < thr2."""
+    keep = np.zeros(src.shape[0], dtype=np.bool_)
+    for i in range(src.shape[0]):
+        r2 = 0.0
+        for a in range(3):
+            e = T[a, 0] * src[i, 0] + T[a, 1] * src[i, 1] + T[a, 2] * src[i, 2] + T[a, 3]
+            e -= dst[i, a]
+            r2 += e * e
+        keep[i] = r2 < thr2
+    return np.flatnonzero(keep)
+
+
+def ransac(
+    src: np.ndarray,
+    dst: np.ndarray,
+    config: RansacConfig | None = None,
+    rng: np.random.Generator | None = None,
+    weights: np.ndarray | None = None,
+) -> RansacResult:
+    """`sgloc.estimation.ransac` with compiled blocks: same arguments, samples and result."""
+    cfg = config or RansacConfig()
+    rng = rng or np.random.default_rng(0)
+    src = np.asarray(src, dtype=np.float64)
+    dst = np.asarray(dst, dtype=np.float64)
+    m = len(src)
+    if m < 3:
+        return RansacResult(
+            None, reason=f"only {m} match(es) reached RANSAC; at least 3 are needed"
+        )
+    if cfg.scoring not in ("count", "msac"):
+        raise ValueError(f"unknown RANSAC scoring {cfg.scoring!r}; use 'count' or 'msac'")
+    cs, cd = src.mean(axis=0), dst.mean(axis=0)
+    src_c, dst_c = np.ascontiguousarray(src - cs), np.ascontiguousarray(dst - cd)
+    thr2 = cfg.threshold**2
+    best_key, best_T, drawn, needed = (np.inf, np.inf), None, 0, cfg.iterations
+    batch = max(1, min(cfg.batch, _BLOCK // m))
+    while drawn < min(needed, cfg.iterations):
+        n = min(batch if drawn else min(batch, 16), cfg.iterations - drawn)
+        drawn += n
+        samples = draw_triplets(m, n, rng)
+        found, p, s, T, max_count = score_block(src_c, dst_c, samples, thr2,
+                                                cfg.scoring == "msac")  # fmt: skip
+        if not found:
+            continue
+        if (p, s) < best_key:
+            best_key, best_T = (p, s), T
+        if cfg.confidence is not None:
+            needed = min(needed, _needed_draws(max_count / m, cfg.confidence, cfg.iterations))
+    if best_T is None:
+        return RansacResult(
+            None,
+            reason="every RANSAC sample was collinear; the matched points lie (nearly) on a line",
+        )
+    T = best_T
+    inl = inliers(T, src_c, dst_c, thr2)
+    w_all = np.ones(m) if weights is None else np.asarray(weights, dtype=np.float64)
+    for _ in range(cfg.refit_rounds):
+        if len(inl) < 3:
+            break
+        try:
+            check_not_degenerate(src_c[inl], "matched points")
+        except DegenerateGeometryError:
+            break
+        T_new = kabsch(src_c[inl], dst_c[inl], w_all[inl])
+        new_inl = inliers(T_new, src_c, dst_c, thr2)
+        if len(new_inl) < len(inl):
+            break
+        T, same = T_new, np.array_equal(new_inl, inl)
+        inl = new_inl
+        if same:
+            break
+    T = make_transform(T[:3, :3], T[:3, 3] + cd - T[:3, :3] @ cs)
+    need = max(cfg.min_inliers, int(np.ceil(cfg.min_inlier_ratio * m)), 3)
+    if len(inl) < need:
+        return RansacResult(
+            None, inl, reason=f"best model has {len(inl)} inliers of {m} matches; at least "
+            f"{need} are needed",
+        )  # fmt: skip
+    try:
+        check_not_degenerate(src[inl], "inlier points")
+    except DegenerateGeometryError as e:
+        return RansacResult(None, inl, reason=str(e))
+    return RansacResult(T, inl)

@@ -1,0 +1,168 @@
+"""Compiled kernels equal their plain numpy references exactly."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.distance import cdist
+
+from sgloc.consistency import (
+    common_partner_count,
+    consistency_bits,
+    consistency_bool,
+    consistency_matrix,
+    consistent_pairs,
+    pack_rows,
+    unpack_rows,
+)
+from sgloc.errors import UnknownNameError
+from sgloc.rejection import NeighborRejector
+from sgloc.rejection.neighbor import prune_bits, prune_by_support, prune_by_support_reference
+from sgloc.sim.correspondences import make_correspondences
+
+
+def dense_reference(src, dst, tau, form):
+    dq, dt = cdist(src, src), cdist(dst, dst)
+    M = np.abs(dq - dt) < tau if form == "distance" else (dq < tau) == (dt < tau)
+    np.fill_diagonal(M, False)
+    return M
+
+
+@pytest.mark.parametrize("m", [0, 1, 2, 63, 64, 65, 129, 700])
+@pytest.mark.parametrize("form", ["distance", "neighbor"])
+def test_consistency_bits_equal_dense_float64(m, form):
+    rng = np.random.default_rng(m)
+    cs = make_correspondences(m, 0.8, rng, "structured" if m % 2 else "random")
+    tau = 4.0
+    bits, degree = consistency_bits(cs.src, cs.dst, tau, form)
+    ref = dense_reference(cs.src, cs.dst, tau, form)
+    assert bits.shape == (m, (m + 63) // 64) and bits.dtype == np.uint64
+    assert np.array_equal(unpack_rows(bits, m), ref)
+    assert np.array_equal(degree, ref.sum(axis=1))
+    assert np.array_equal(consistency_matrix(cs.src, cs.dst, tau, form), ref)
+    assert np.array_equal(consistency_bool(cs.src, cs.dst, tau, form), ref)
+
+
+@pytest.mark.parametrize("form", ["distance", "neighbor"])
+def test_consistency_at_tau_equal_to_actual_distances(form):
+    """tau set to distances (or differences) that occur: the strict < decides as float64 does,
+    also with duplicate points and a large offset (float32 rounding of the coordinates)."""
+    rng = np.random.default_rng(3)
+    src = rng.uniform(-500, 500, (300, 3)) + 1e4
+    src[200:] = src[:100]
+    dst = src + rng.normal(0, 1.0, src.shape)
+    dq, dt = cdist(src, src), cdist(dst, dst)
+    values = np.abs(dq - dt) if form == "distance" else dq
+    for tau in values[np.triu_indices(300, 1)][:: 4001][:6]:
+        ref = dense_reference(src, dst, tau, form)
+        assert np.array_equal(consistency_matrix(src, dst, tau, form), ref)
+
+
+def test_unknown_form():
+    with pytest.raises(UnknownNameError, match="consistency form"):
+        consistency_bits(np.zeros((3, 3)), np.zeros((3, 3)), 1.0, "angle")
+
+
+def test_pack_unpack_round_trip():
+    rng = np.random.default_rng(0)
+    for shape in [(5, 1), (7, 64), (3, 65), (4, 200)]:
+        M = rng.random(shape) < 0.3
+        assert np.array_equal(unpack_rows(pack_rows(M), shape[1]), M)
+
+
+@pytest.mark.parametrize("density", [0.02, 0.3, 0.9])
+def test_prune_equals_reference_on_random_graphs(density):
+    rng = np.random.default_rng(int(density * 100))
+    for m in (1, 2, 3, 64, 65, 300):
+        R = rng.random((m, m)) < density
+        R = np.triu(R, 1)
+        R = R | R.T
+        for eta in (0.2, 0.5, 0.8):
+            ref = prune_by_support_reference(R, eta)
+            assert np.array_equal(prune_by_support(R, eta), ref)
+            assert np.array_equal(prune_bits(pack_rows(R), R.sum(axis=1), eta), ref)
+
+
+def test_prune_ties_go_to_the_lowest_index():
+    # A 4-cycle plus an isolated vertex: after the isolated one, all supports tie at 2 -> then
+    # at eta = 0.9 the lowest index goes first, each time.
+    R = np.zeros((5, 5), dtype=bool)
+    for a, b in [(0, 1), (1, 2), (2, 3), (3, 0)]:
+        R[a, b] = R[b, a] = True
+    assert np.array_equal(prune_by_support(R, 0.9), prune_by_support_reference(R, 0.9))
+    assert np.array_equal(prune_by_support(R, 0.6), [0, 1, 2, 3])
+
+
+@pytest.mark.parametrize("m", [300, 2000])
+@pytest.mark.parametrize("ratio", [0.5, 0.8, 0.95])
+@pytest.mark.parametrize("form", ["distance", "neighbor"])
+def test_neighbor_rejector_same_survivors_as_numpy_pipeline(m, ratio, form):
+    rng = np.random.default_rng([m, int(ratio * 100)])
+    cs = make_correspondences(m, ratio, rng, "structured")
+    tau, eta = 5.0, 0.5
+    ref = prune_by_support_reference(consistency_bool(cs.src, cs.dst, tau, form), eta)
+    assert np.array_equal(NeighborRejector(tau, eta, form)(cs.src, cs.dst), ref)
+
+
+def test_edges_and_triangles_equal_numpy():
+    from sgloc.kernels.triangles import common_counts, upper_edges
+
+    rng = np.random.default_rng(4)
+    for m, p in [(1, 0.5), (5, 0.5), (64, 0.3), (130, 0.1), (300, 0.6)]:
+        R = np.triu(rng.random((m, m)) < p, 1)
+        R = R | R.T
+        bits = pack_rows(R)
+        ii, jj = upper_edges(bits, R.sum(axis=1))
+        ref_i, ref_j = np.nonzero(np.triu(R))
+        assert np.array_equal(ii, ref_i) and np.array_equal(jj, ref_j)
+        common = (R[ref_i] & R[ref_j]).sum()
+        assert common_counts(bits, ii, jj) == common
+        pi, pj = consistent_pairs(bits, R.sum(axis=1))
+        assert np.array_equal(pi, ref_i) and np.array_equal(pj, ref_j)
+        assert common_partner_count(bits, pi, pj) == common
+        assert common % 3 == 0 and common // 3 == np.trace(
+            np.linalg.matrix_power(R.astype(np.int64), 3)) // 6
+
+
+@pytest.mark.parametrize("m, ratio", [(1, 0.0), (3, 0.0), (300, 0.8), (1000, 0.5), (2000, 0.9)])
+@pytest.mark.parametrize("kind", ["random", "structured"])
+def test_spectral_kernels_same_survivors_as_numpy(m, ratio, kind):
+    from sgloc.kernels import spectral as kernels
+    from sgloc.rejection import SpectralRejector
+    from sgloc.rejection.spectral import affinity_and_consistency
+
+    rej = SpectralRejector()
+    for seed in range(2):
+        cs = make_correspondences(m, ratio, np.random.default_rng([m, seed]), kind)
+        assert np.array_equal(rej(cs.src, cs.dst), rej.reference(cs.src, cs.dst))
+    if m >= 300:  # affinities: float64 here, float32 tiles in the reference
+        A_ref, _ = affinity_and_consistency(cs.src, cs.dst, rej.tau, rej.sigma)
+        bits, degree = consistency_bits(cs.src, cs.dst, rej.tau, "distance")
+        indptr, indices, data = kernels.affinity_csr(cs.src, cs.dst, bits, degree, rej.sigma)
+        A = np.zeros((m, m), dtype=np.float32)
+        A[np.repeat(np.arange(m), np.diff(indptr)), indices] = data
+        assert np.abs(A - A_ref).max() < 1e-3
+        assert np.array_equal(A > 0, A_ref > 0)
+
+
+def test_clique_kernels_equal_numpy():
+    from sgloc.kernels import clique as kernels
+    from sgloc.rejection import CliqueRejector
+    from sgloc.rejection.clique import core_numbers, greedy_clique
+
+    rng = np.random.default_rng(6)
+    for m, p in [(1, 0.5), (5, 0.5), (70, 0.3), (300, 0.05), (300, 0.9)]:
+        R = np.triu(rng.random((m, m)) < p, 1)
+        R = R | R.T
+        bits, degree = pack_rows(R), R.sum(axis=1)
+        core = kernels.core_numbers(bits, degree)
+        assert np.array_equal(core, core_numbers(R))
+        rank = core * (m + 1) + degree
+        seeds = np.argsort(-rank, kind="stable")[:16]
+        assert np.array_equal(kernels.greedy_clique(bits, rank, seeds),
+                              greedy_clique(R, rank, seeds))  # fmt: skip
+    rej = CliqueRejector()
+    for m, ratio, kind in [(300, 0.8, "random"), (1000, 0.5, "structured"), (2000, 0.9, "random")]:
+        cs = make_correspondences(m, ratio, np.random.default_rng(m), kind)
+        ref = rej.max_clique(consistency_bool(cs.src, cs.dst, rej.tau, "distance"))
+        assert np.array_equal(rej(cs.src, cs.dst), ref)
