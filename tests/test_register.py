@@ -8,7 +8,7 @@ import pytest
 import sgloc
 from sgloc.consistency import consistency_bool
 from sgloc.errors import SglocError, UnknownNameError
-from sgloc.estimation import RansacConfig, irls_refine, ransac, weighted_kabsch
+from sgloc.estimation import RansacConfig, irls_refine, ransac, ransac_reference, weighted_kabsch
 from sgloc.geometry import transform_error
 from sgloc.kernels import fit
 from sgloc.kernels import ransac as compiled_ransac
@@ -18,7 +18,7 @@ from sgloc.sim.correspondences import make_correspondences
 
 def numpy_pipeline(src, dst, tau, threshold, seed):
     kept = prune_by_support_reference(consistency_bool(src, dst, tau, "distance"), 0.5)
-    rs = ransac(src[kept], dst[kept], RansacConfig(threshold=threshold),
+    rs = ransac(src[kept], dst[kept], RansacConfig(threshold=threshold, dof=6, max_tilt=None),
                 np.random.default_rng(seed))  # fmt: skip
     if rs.transform is None:
         return None, kept[rs.inliers]
@@ -79,10 +79,10 @@ def test_bad_input_names_the_input(src, dst, kwargs, error, match):
 @pytest.mark.parametrize("ratio", [0.0, 0.5, 0.9])
 @pytest.mark.parametrize("scoring", ["msac", "count"])
 def test_compiled_ransac_equals_numpy(ratio, scoring):
-    cfg = RansacConfig(threshold=5.0, scoring=scoring)
+    cfg = RansacConfig(threshold=5.0, scoring=scoring, dof=6, max_tilt=None)
     for seed in range(8):
         cs = make_correspondences(120, ratio, np.random.default_rng(seed))
-        a = ransac(cs.src, cs.dst, cfg, np.random.default_rng(seed))
+        a = ransac_reference(cs.src, cs.dst, cfg, np.random.default_rng(seed))
         b = compiled_ransac.ransac(cs.src, cs.dst, cfg, np.random.default_rng(seed))
         assert np.array_equal(a.inliers, b.inliers)
         assert (a.transform is None) == (b.transform is None)
@@ -93,8 +93,9 @@ def test_compiled_ransac_equals_numpy(ratio, scoring):
 def test_compiled_ransac_degenerate_inputs_as_numpy():
     line = np.column_stack([np.arange(10.0), np.zeros(10), np.zeros(10)])
     for src in (line, line[:2]):
-        a = ransac(src, src, RansacConfig())
-        b = compiled_ransac.ransac(src, src, RansacConfig())
+        cfg = RansacConfig(dof=6, max_tilt=None)
+        a = ransac_reference(src, src, cfg)
+        b = compiled_ransac.ransac(src, src, cfg)
         assert a.transform is None and b.transform is None and a.reason == b.reason
 
 

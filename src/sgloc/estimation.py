@@ -244,9 +244,28 @@ def ransac(
 ) -> RansacResult:
     """Robustly fit T_dst_src to correspondences src[i] <-> dst[i] (both (m,3), metres).
 
-    All hypotheses come from minimal samples (3 matches; 2 with dof=4) at once and are scored
-    in blocks by matrix products; the best is refit on its inliers (`fit_rigid`).
+    Any rigid motion without a gravity gate (dof=6, max_tilt=None) runs the compiled loop of
+    `sgloc.kernels.ransac` (same samples, same result as `ransac_reference`); the other motion
+    models run `ransac_reference`.
     """
+    cfg = config or RansacConfig()
+    if cfg.dof == 6 and cfg.max_tilt is None:
+        from sgloc.kernels.ransac import ransac as compiled_ransac
+
+        return compiled_ransac(src, dst, cfg, rng, weights)
+    return ransac_reference(src, dst, cfg, rng, weights)
+
+
+def ransac_reference(
+    src: np.ndarray,
+    dst: np.ndarray,
+    config: RansacConfig | None = None,
+    rng: np.random.Generator | None = None,
+    weights: np.ndarray | None = None,
+) -> RansacResult:
+    """`ransac` in numpy, every motion model: all hypotheses come from minimal samples
+    (3 matches; 2 with dof=4) at once and are scored in blocks by matrix products; the best is
+    refit on its inliers (`fit_rigid`)."""
     cfg = config or RansacConfig()
     rng = rng or np.random.default_rng(0)
     src = np.asarray(src, dtype=np.float64)

@@ -83,11 +83,10 @@ def _stage_settings(
         if "tau" in rej_fields:
             params.setdefault("tau", 2.0 * noise_bound)
         rej = make_rejector(rej_cls.name, **params)
-    cfg = RansacConfig(threshold=2.0 * noise_bound)
-    for k, v in settings.items():
-        if k in ransac_fields:
-            setattr(cfg, k, v)
-    return rej, cfg
+    # Correspondences may come in any orientation: any rigid motion unless told otherwise.
+    fields = {"threshold": 2.0 * noise_bound, "dof": 6, "max_tilt": None}
+    fields |= {k: v for k, v in settings.items() if k in ransac_fields}
+    return rej, RansacConfig(**fields)
 
 
 def _final_fit(src: np.ndarray, dst: np.ndarray, refine: str) -> np.ndarray:
