@@ -59,7 +59,12 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.special import gammaln, pdtrc
 
-from sgloc.consistency import consistency_matrix
+from sgloc.consistency import (
+    common_partner_count,
+    consistency_bits,
+    consistent_pairs,
+    unpack_rows,
+)
 from sgloc.errors import SglocError
 from sgloc.estimation import (
     non_collinear,
@@ -80,7 +85,6 @@ MIN_RADIUS_FRACTION = 0.1
 #: (measured: at 1 x, clusters of a few exact coincidences in the rendered city's regular
 #: blocks, about 8 m long, passed as non-overlapping pairs).
 DOF4_SPREAD_FACTOR = 2.0
-_POPCOUNT = np.array([bin(b).count("1") for b in range(256)], dtype=np.uint8)
 
 
 @dataclass
@@ -257,27 +261,26 @@ def consistent_triples(src: np.ndarray, dst: np.ndarray, radius: float) -> float
     hypotheses RANSAC can form (triangles of the pairwise-consistency graph: trace(M^3) / 6)."""
     if len(src) < 3:
         return 0.0
-    M = _consistency(src, dst, radius)
-    return _triangles(M, *np.nonzero(np.triu(M)))
+    bits, degree = _consistency(src, dst, radius)
+    return _triangles(bits, *consistent_pairs(bits, degree))
 
 
-def _consistency(src: np.ndarray, dst: np.ndarray, radius: float) -> np.ndarray:
-    """(m,m) bool: pairs whose distances agree within 2 * radius in both graphs (no diagonal)."""
-    return consistency_matrix(src, dst, 2.0 * radius, "distance")
+def _consistency(src: np.ndarray, dst: np.ndarray, radius: float) -> tuple[np.ndarray, ...]:
+    """Bit-packed rows and degrees (`sgloc.consistency.consistency_bits`) of the pairs whose
+    distances agree within 2 * radius in both graphs (no diagonal)."""
+    return consistency_bits(src, dst, 2.0 * radius, "distance")
 
 
-def _triangles(M: np.ndarray, ii: np.ndarray, jj: np.ndarray) -> float:
-    """Number of triangles of the consistency graph M with edges (ii, jj), ii < jj."""
-    # Triangles = sum over consistent pairs (i < j) of |common neighbours| / 3, on bit-packed
-    # rows (no BLAS: a byte popcount table keeps it fast on a busy machine). Only log10 of the
-    # count matters, so beyond _TRIANGLE_EDGES pairs an evenly spaced subset is scaled up.
+def _triangles(bits: np.ndarray, ii: np.ndarray, jj: np.ndarray) -> float:
+    """Number of triangles of the consistency graph (packed rows `bits`) with edges (ii, jj),
+    ii < jj: the sum over edges of their common neighbours / 3. Only log10 of the count
+    matters, so beyond _TRIANGLE_EDGES edges an evenly spaced subset is scaled up."""
     if ii.size > _TRIANGLE_EDGES:
         pick = np.linspace(0, ii.size - 1, _TRIANGLE_EDGES).astype(np.int64)
         scale, ii, jj = ii.size / _TRIANGLE_EDGES, ii[pick], jj[pick]
     else:
         scale = 1.0
-    packed = np.packbits(M, axis=1)
-    return float(scale * _POPCOUNT[packed[ii] & packed[jj]].sum(dtype=np.int64) / 3.0)
+    return float(scale * common_partner_count(bits, ii, jj) / 3.0)
 
 
 def _runner_up(
@@ -298,7 +301,7 @@ def _runner_up(
     The alternative must stand on its own evidence: it is drawn from, and scored on, only the
     candidates outside `exclude` (those T explains within twice the radius), so a slight tilt of
     T that keeps most of T's matches is not counted as a rival. Hypotheses come from triples of
-    pairwise-consistent candidates (`consistency`: |D(q_i,q_j) - D(t_i,t_j)| <
+    pairwise-consistent candidates (`consistency`, packed rows: |D(q_i,q_j) - D(t_i,t_j)| <
     2 * radius), drawn at random and fitted in one batch; those within the distinctness bounds of T
     are discarded. dof=4: hypotheses about the z axis from the consistent pairs themselves;
     `max_tilt` (degrees): hypotheses tilting the up axis more are not alternatives.
@@ -356,7 +359,7 @@ def _triplet_hypotheses(
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """6-dof hypotheses: each consistent pair (i, j) completed by a random candidate
     consistent with both; tilted beyond `max_tilt` degrees dropped."""
-    common = consistency[i] & consistency[j] & free
+    common = unpack_rows(consistency[i] & consistency[j], len(free)) & free
     has = common.any(axis=1)
     if not has.any():
         return None
@@ -428,8 +431,12 @@ def assess(
     usage = np.bincount(cand[:, 1], minlength=len(target)).astype(np.float64)
     counts, used = chance.near_counts(apply(transform, query.positions), (None, usage))
     lam = chance.expected_inliers(counts, qi, tlab)
-    consistency = _consistency(src, dst, r) if m >= 3 else np.zeros((m, m), dtype=bool)
-    edges = np.nonzero(np.triu(consistency))
+    if m >= 3:
+        consistency, degree = _consistency(src, dst, r)  # packed rows (m, ceil(m / 64))
+        edges = consistent_pairs(consistency, degree)
+    else:
+        consistency = np.zeros((m, 1), dtype=np.uint64)
+        edges = (np.zeros(0, np.int64), np.zeros(0, np.int64))
     # The hypotheses RANSAC can form: consistent triples (6 dof) or consistent pairs (4 dof).
     sample = 2 if dof == 4 else 3
     if dof == 4:
