@@ -138,6 +138,20 @@ def _all_pairs(Q, T, labels_q, labels_t, cap: int, min_sim: float) -> tuple[np.n
     return q[order], t[order], s[order]
 
 
+_BLAS_CONTROLLER = None
+
+
+def _one_blas_thread():
+    """A context holding BLAS to one thread: the block products here are small, and a second
+    BLAS thread on a busy machine costs more than it gives (threadpoolctl, set up once)."""
+    global _BLAS_CONTROLLER
+    if _BLAS_CONTROLLER is None:
+        from threadpoolctl import ThreadpoolController
+
+        _BLAS_CONTROLLER = ThreadpoolController()
+    return _BLAS_CONTROLLER.limit(limits=1, user_api="blas")
+
+
 def match_descriptors(
     desc_q,
     desc_t,
@@ -155,6 +169,11 @@ def match_descriptors(
     cfg = config or MatchingConfig()
     if cfg.strategy not in STRATEGIES:
         raise ValueError(f"unknown matching strategy {cfg.strategy!r}; use one of {STRATEGIES}")
+    with _one_blas_thread():
+        return _match(desc_q, desc_t, labels_q, labels_t, cfg)
+
+
+def _match(desc_q, desc_t, labels_q, labels_t, cfg: MatchingConfig) -> tuple[np.ndarray, ...]:
     Q, T = _row_normalised(desc_q), _row_normalised(desc_t)
     if Q.shape[0] == 0 or T.shape[0] == 0:
         return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
