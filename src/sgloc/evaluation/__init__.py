@@ -14,14 +14,9 @@ from sgloc.evaluation.metrics import (
     pose_errors,
     recall_precision,
 )
-from sgloc.evaluation.pairs import (
-    PAIR_SOURCES,
-    Pair,
-    dataset_names,
-    make_pair_source,
-    register_pair_source,
-)
+from sgloc.evaluation.pairs import dataset_names, make_pair_source
 from sgloc.evaluation.report import summarize, write_csv
+from sgloc.evaluation.scenes import PAIR_SOURCES, Pair, register_pair_source
 from sgloc.evaluation.sweeps import (
     Sweep,
     descriptor_rejection_sweep,

@@ -10,8 +10,13 @@ from pathlib import Path
 
 import numpy as np
 
-from sgloc.evaluation.pairs import Pair, _moved_target, register_pair_source
-from sgloc.evaluation.pairs_kitti import route_overlap
+from sgloc.evaluation.scenes import (
+    Pair,
+    move_target,
+    pair_rng,
+    register_pair_source,
+    route_overlap,
+)
 from sgloc.geometry import invert
 
 CAMERAS = ("Omni_F", "Omni_B")
@@ -95,8 +100,8 @@ class SynthiaPairs:
         target = _synthia_graph(src.root, CAMERAS[0], *a, src.edge_radius)
         query = _synthia_graph(src.root, CAMERAS[1], *b, src.edge_radius)
         T_A_B = invert(PA[a[0]]) @ PB[b[0]]
-        pair = _moved_target(
-            query, target, T_A_B, seed, src.max_translation, src.max_roll_pitch_deg
+        pair = move_target(
+            query, target, T_A_B, pair_rng(seed), src.max_translation, src.max_roll_pitch_deg
         )
         pair.info.update(
             {"overlap": round(ov, 4), "frames_a": f"{a[0]}-{a[1]}", "frames_b": f"{b[0]}-{b[1]}"}
