@@ -23,7 +23,7 @@ from sgloc.evaluation.sweeps import (
     overlap_sweep,
     threshold_sweep,
 )
-from sgloc.evaluation.trials import TrialRow, TrialTask, reproducible_part, run_task, run_tasks
+from sgloc.evaluation.trials import TrialTask, reproducible_part, run_task, run_tasks
 
 __all__ = [
     "FAILURE_M",
@@ -32,7 +32,6 @@ __all__ = [
     "MatchStats",
     "Pair",
     "Sweep",
-    "TrialRow",
     "TrialTask",
     "correct_matches",
     "dataset_names",

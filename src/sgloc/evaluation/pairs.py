@@ -22,11 +22,11 @@ from sgloc.evaluation.pairs_sim import AirsimRunPairs
 from sgloc.evaluation.pairs_synthia import SynthiaPairs
 from sgloc.evaluation.scenes import (
     PAIR_SOURCES,
+    MovedTargetSource,
     Pair,
     PairSource,
+    data_root,
     load_graph_cached,
-    move_target,
-    pair_rng,
     register_pair_source,
 )
 from sgloc.graph import DEFAULT_EDGE_RADIUS, SemanticGraph
@@ -42,9 +42,7 @@ def airsim_guo_maps(
 ) -> tuple[SemanticGraph, SemanticGraph]:
     """Guo's Airsim object maps (query cloud1, target cloud2), both in the Airsim world frame;
     root: their folder (default: the `airsim_guo` data set under SGLOC_DATA)."""
-    from sgloc.data import data_path
-
-    folder = Path(root) if root else data_path("airsim_guo")
+    folder = Path(data_root(root, "airsim_guo"))
     return (
         load_graph_cached(str(folder / query_file), edge_radius),
         load_graph_cached(str(folder / target_file), edge_radius),
@@ -53,7 +51,7 @@ def airsim_guo_maps(
 
 @register_pair_source("airsim-guo")
 @dataclass(frozen=True)
-class AirsimGuoPairs:
+class AirsimGuoPairs(MovedTargetSource):
     """Guo's Airsim object maps: cloud1 (query) against cloud2 moved by a random rigid transform
     (any yaw, roll/pitch up to `max_roll_pitch_deg`, translation up to `max_translation` m).
     Both maps are in the Airsim world frame, so the ground truth is that transform."""
@@ -61,22 +59,16 @@ class AirsimGuoPairs:
     root: str | None = None
     query_file: str = "cloud1.pcd"
     target_file: str = "cloud2.pcd"
-    max_translation: float = 200.0
-    max_roll_pitch_deg: float = 5.0
-    edge_radius: float = 20.0
+    edge_radius: float = DEFAULT_EDGE_RADIUS
 
     def resolved(self) -> AirsimGuoPairs:
         """A copy with `root` made absolute (so remote workers need no SGLOC_DATA)."""
-        from sgloc.data import data_path
-
-        root = Path(self.root) if self.root else data_path("airsim_guo")
-        return dataclasses.replace(self, root=str(root.resolve()))
+        return dataclasses.replace(self, root=data_root(self.root, "airsim_guo"))
 
     def __call__(self, seed: int) -> Pair:
         src = self if self.root else self.resolved()
         q, t = airsim_guo_maps(src.root, src.query_file, src.target_file, src.edge_radius)
-        T = np.eye(4)
-        return move_target(q, t, T, pair_rng(seed), src.max_translation, src.max_roll_pitch_deg)
+        return src.moved(q, t, np.eye(4), seed)
 
 
 @register_pair_source("object-world")
@@ -105,7 +97,7 @@ class ObjectWorldPairs:
 
 @register_pair_source("graph-files")
 @dataclass(frozen=True)
-class GraphFilePairs:
+class GraphFilePairs(MovedTargetSource):
     """Two graph files in a folder (query and target; `.pcd`, `.json` or `.npz`), the target
     moved by a random rigid transform per trial. The maps' own relative pose is the identity,
     or the 4x4 matrix in `T_target_query.txt` in the same folder (p_target = T p_query)."""
@@ -113,9 +105,7 @@ class GraphFilePairs:
     root: str = "."
     query_file: str | None = None
     target_file: str | None = None
-    max_translation: float = 200.0
-    max_roll_pitch_deg: float = 5.0
-    edge_radius: float = 20.0
+    edge_radius: float = DEFAULT_EDGE_RADIUS
 
     def files(self) -> tuple[Path, Path]:
         root = Path(self.root)
@@ -144,7 +134,7 @@ class GraphFilePairs:
         t = load_graph_cached(str(t_path.resolve()), self.edge_radius)
         gt_file = Path(self.root) / "T_target_query.txt"
         T0 = np.loadtxt(gt_file).reshape(4, 4) if gt_file.is_file() else np.eye(4)
-        return move_target(q, t, T0, pair_rng(seed), self.max_translation, self.max_roll_pitch_deg)
+        return self.moved(q, t, T0, seed)
 
 
 #: Dataset names that stand for another source with set parameters (filled in as modules land).

@@ -14,9 +14,9 @@ import numpy as np
 
 from sgloc.errors import DatasetError
 from sgloc.evaluation.scenes import (
+    MovedTargetSource,
     Pair,
-    move_target,
-    pair_rng,
+    data_root,
     register_pair_source,
     route_overlap,
 )
@@ -30,9 +30,7 @@ KITTI_LC_FILES = ("kitti_lc_test_0_10.txt", "kitti_lc_test_10_20.txt", "kitti_lc
 
 def kitti_root() -> str:
     """The absolute KITTI 00 folder (the `kitti00` data set under SGLOC_DATA)."""
-    from sgloc.data import data_path
-
-    return str(data_path("kitti00").resolve())
+    return data_root(None, "kitti00")
 
 
 @functools.lru_cache(maxsize=2)
@@ -114,7 +112,7 @@ def _kitti_places(src: Kitti00Pairs) -> np.ndarray:
 
 @register_pair_source("kitti00")
 @dataclass(frozen=True)
-class Kitti00Pairs:
+class Kitti00Pairs(MovedTargetSource):
     """KITTI 00 LiDAR objects (GOSMatch) as two robots, each mapping a scan range in its own
     first-scan frame; the target is also moved by a random rigid transform per trial.
 
@@ -143,14 +141,11 @@ class Kitti00Pairs:
     n_places: int = 10
     min_max_overlap: float = 0.5
     split: tuple[int, int, int, int] = (0, 800, 3900, 4540)
-    max_translation: float = 200.0
-    max_roll_pitch_deg: float = 5.0
-    edge_radius: float = 20.0
+    edge_radius: float = DEFAULT_EDGE_RADIUS
 
     def resolved(self) -> Kitti00Pairs:
         """A copy with `root` made absolute (so remote workers need no SGLOC_DATA)."""
-        root = str(Path(self.root).resolve()) if self.root else kitti_root()
-        return dataclasses.replace(self, root=root)
+        return dataclasses.replace(self, root=data_root(self.root, "kitti00"))
 
     def sliding_windows(self, k: int) -> tuple[tuple[int, int], np.ndarray, np.ndarray]:
         """For revisit k: robot A's scans, the candidate first scans of robot B's window, and
@@ -202,9 +197,7 @@ class Kitti00Pairs:
         target = kitti_graph(src.root, a[0], a[1], src.edge_radius)
         query = kitti_graph(src.root, b[0], b[1], src.edge_radius)
         T_A_B = kitti_ground_truth(src.root, a, b, k)
-        pair = move_target(
-            query, target, T_A_B, pair_rng(seed), src.max_translation, src.max_roll_pitch_deg
-        )
+        pair = src.moved(query, target, T_A_B, seed)
         pair.info.update(
             {"overlap": round(ov, 4), "scans_a": f"{a[0]}-{a[1]}", "scans_b": f"{b[0]}-{b[1]}"}
         )

@@ -10,7 +10,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from sgloc.evaluation.scenes import Pair, move_target, pair_rng, register_pair_source
+from sgloc.evaluation.scenes import MovedTargetSource, Pair, register_pair_source
 from sgloc.graph import SemanticGraph
 from sgloc.presets import localizer_settings as preset_settings
 
@@ -89,7 +89,7 @@ def _city_graphs(
 
 @register_pair_source("city")
 @dataclass(frozen=True)
-class CityPairs:
+class CityPairs(MovedTargetSource):
     """The rendered synthetic city (`sgloc.sim`): two robots drive opposite ways sharing
     `overlap` of their routes; each map is extracted from its rendered semantic + depth frames
     and lies in the robot's own start frame. Trial seed s uses city `s % n_worlds` (rendering
@@ -104,8 +104,6 @@ class CityPairs:
     width: int = 320
     height: int = 180
     length: float = 400.0
-    max_translation: float = 200.0
-    max_roll_pitch_deg: float = 5.0
 
     def world(self, seed: int) -> int:
         return int(seed) % self.n_worlds
@@ -118,7 +116,7 @@ class CityPairs:
     def __call__(self, seed: int) -> Pair:
         w = self.world(seed)
         q, t, T0 = city_graphs(w, self.overlap, self.width, self.height, self.length)
-        pair = move_target(q, t, T0, pair_rng(seed), self.max_translation, self.max_roll_pitch_deg)
+        pair = self.moved(q, t, T0, seed)
         pair.info.update({"overlap": self.overlap, "world": w})
         return pair
 
@@ -138,7 +136,7 @@ def _airsim_run_graphs(root: str, target: str, query: str) -> tuple[SemanticGrap
 
 @register_pair_source("airsim-run")
 @dataclass(frozen=True)
-class AirsimRunPairs:
+class AirsimRunPairs(MovedTargetSource):
     """A two-robot run in Guo's Airsim layout (e.g. written by `sgloc.sim`): the folders
     `target` and `query` (frames + airsim.txt) and `ground_truth.txt` (T_target_query). Both
     graphs are extracted from the images once per process; the target is moved by a random
@@ -147,12 +145,10 @@ class AirsimRunPairs:
     root: str = "."
     target: str = "forwardCar"
     query: str = "backwardCar"
-    max_translation: float = 200.0
-    max_roll_pitch_deg: float = 5.0
 
     def __call__(self, seed: int) -> Pair:
         from sgloc.sim.airsim_writer import read_ground_truth
 
         q, t = _airsim_run_graphs(str(Path(self.root).resolve()), self.target, self.query)
         T0 = read_ground_truth(self.root)
-        return move_target(q, t, T0, pair_rng(seed), self.max_translation, self.max_roll_pitch_deg)
+        return self.moved(q, t, T0, seed)

@@ -6,18 +6,18 @@ from __future__ import annotations
 import dataclasses
 import functools
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from sgloc.evaluation.scenes import (
+    MovedTargetSource,
     Pair,
-    move_target,
-    pair_rng,
+    data_root,
     register_pair_source,
     route_overlap,
 )
 from sgloc.geometry import invert
+from sgloc.graph import DEFAULT_EDGE_RADIUS
 
 CAMERAS = ("Omni_F", "Omni_B")
 
@@ -53,7 +53,7 @@ def _synthia_graph(root: str, camera: str, first: int, last: int, edge_radius: f
 
 @register_pair_source("synthia")
 @dataclass(frozen=True)
-class SynthiaPairs:
+class SynthiaPairs(MovedTargetSource):
     """A SYNTHIA sequence folder (e.g. SYNTHIA-SEQS-04-SUMMER, or one written by
     `sgloc.sim.synthia_writer`): robot A (target) = Omni_F, robot B (query) = Omni_B, each map in
     its first frame's camera frame; the target is moved by a random rigid transform per trial.
@@ -69,15 +69,11 @@ class SynthiaPairs:
     overlap: float | None = None
     length: int = 200
     radius: float = 10.0
-    max_translation: float = 200.0
-    max_roll_pitch_deg: float = 5.0
-    edge_radius: float = 20.0
+    edge_radius: float = DEFAULT_EDGE_RADIUS
 
     def resolved(self) -> SynthiaPairs:
-        from sgloc.data import data_path
-
-        root = Path(self.root) if self.root else data_path("synthia")
-        return dataclasses.replace(self, root=str(root.resolve()))
+        """A copy with `root` made absolute (so remote workers need no SGLOC_DATA)."""
+        return dataclasses.replace(self, root=data_root(self.root, "synthia"))
 
     def windows(self) -> tuple[tuple[int, int], tuple[int, int], float]:
         """(A frames, B frames, achieved route overlap), inclusive ranges."""
@@ -100,9 +96,7 @@ class SynthiaPairs:
         target = _synthia_graph(src.root, CAMERAS[0], *a, src.edge_radius)
         query = _synthia_graph(src.root, CAMERAS[1], *b, src.edge_radius)
         T_A_B = invert(PA[a[0]]) @ PB[b[0]]
-        pair = move_target(
-            query, target, T_A_B, pair_rng(seed), src.max_translation, src.max_roll_pitch_deg
-        )
+        pair = src.moved(query, target, T_A_B, seed)
         pair.info.update(
             {"overlap": round(ov, 4), "frames_a": f"{a[0]}-{a[1]}", "frames_b": f"{b[0]}-{b[1]}"}
         )

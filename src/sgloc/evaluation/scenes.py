@@ -94,6 +94,34 @@ def move_target(
     )
 
 
+@dataclass(frozen=True)
+class MovedTargetSource:
+    """Base of the pair sources that hand the target map over moved by a random rigid transform
+    per trial (see `move_target`)."""
+
+    max_translation: float = MAX_TRANSLATION
+    max_roll_pitch_deg: float = MAX_ROLL_PITCH_DEG
+
+    def moved(
+        self, query: SemanticGraph, target: SemanticGraph, T_target_query0: np.ndarray, seed: int
+    ) -> Pair:
+        """The pair of trial `seed`: the target moved by its random transform (`pair_rng`)."""
+        rng = pair_rng(seed)
+        return move_target(
+            query, target, T_target_query0, rng, self.max_translation, self.max_roll_pitch_deg
+        )
+
+
+def data_root(root: str | None, data_set: str) -> str:
+    """`root` made absolute, or the folder of `data_set` under SGLOC_DATA when it is unset (so
+    remote workers need no SGLOC_DATA)."""
+    from pathlib import Path
+
+    from sgloc.data import data_path
+
+    return str((Path(root) if root else data_path(data_set)).resolve())
+
+
 def route_overlap(xy_query: np.ndarray, xy_target: np.ndarray, radius: float) -> float:
     """Fraction of the query route's length (positions (n,2) or (n,3) along the route, metres)
     that passes within `radius` of the target route's positions. The one overlap definition of
