@@ -18,17 +18,9 @@ from sgloc.evaluation.scenes import (
 )
 from sgloc.geometry import invert
 from sgloc.graph import DEFAULT_EDGE_RADIUS
+from sgloc.presets import extraction_preset
 
 CAMERAS = ("Omni_F", "Omni_B")
-
-
-def synthia_extraction_config():
-    """Extraction settings for SYNTHIA: the paper's defaults without its non-object classes
-    (sky, road, sidewalk, lane marking)."""
-    from sgloc.datasets.synthia import SYNTHIA_STUFF_CLASSES
-    from sgloc.extraction import ExtractionConfig
-
-    return ExtractionConfig(ignore_classes=SYNTHIA_STUFF_CLASSES)
 
 
 @functools.lru_cache(maxsize=4)
@@ -42,12 +34,12 @@ def _camera_poses(root: str, camera: str) -> np.ndarray:
 @functools.lru_cache(maxsize=64)
 def _synthia_graph(root: str, camera: str, first: int, last: int, edge_radius: float):
     """One camera's graph from frames first..last (inclusive), in its first frame's optical
-    frame."""
+    frame (the `synthia` extraction preset: objects only)."""
     from sgloc.datasets import make_dataset
     from sgloc.extraction import build_graph
 
     ds = make_dataset("synthia", root, camera=camera, frames=(first, last), start_frame=True)
-    g = build_graph(ds, synthia_extraction_config(), name=f"{camera}[{first}-{last}]")
+    g = build_graph(ds, extraction_preset("synthia"), name=f"{camera}[{first}-{last}]")
     return g.with_edge_radius(edge_radius)
 
 
