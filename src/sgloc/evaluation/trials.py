@@ -9,6 +9,7 @@ Trials run serially, on local processes (`workers`), or on a Dask cluster (`sche
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import time
 import types
@@ -77,20 +78,15 @@ def _source(dataset: str, params: dict[str, Any]):
     return _SOURCES[key]
 
 
-_THREADS_LIMITED = False
-
-
+@functools.cache
 def limit_blas_threads() -> None:
     """Limit BLAS/OpenMP to one thread in this process (once). Trials are small matrix work:
     a multi-threaded OpenBLAS only spins on a loaded machine (measured here: matching 2 ms
     single-threaded, ~170 ms with OpenBLAS threads while other processes ran), and parallel
     trial workers would oversubscribe the cores."""
-    global _THREADS_LIMITED
-    if not _THREADS_LIMITED:
-        from threadpoolctl import threadpool_limits
+    from threadpoolctl import threadpool_limits
 
-        threadpool_limits(limits=1)
-        _THREADS_LIMITED = True
+    threadpool_limits(limits=1)
 
 
 @contextlib.contextmanager
