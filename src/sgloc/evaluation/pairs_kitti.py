@@ -92,24 +92,6 @@ def kitti_ground_truth(
     return invert(L[a[0]]) @ L[i] @ invert(M[k]) @ invert(L[j]) @ L[b[0]]
 
 
-@functools.lru_cache(maxsize=8)
-def _kitti_places(src: Kitti00Pairs) -> np.ndarray:
-    _, ij, _ = kitti_sequence(src.root)
-    ok = np.flatnonzero(ij[:, 1] - ij[:, 0] >= src.min_gap)
-    ok = ok[np.lexsort((ij[ok, 1], ij[ok, 0]))]
-    chosen: list[int] = []
-    for k in ok:
-        if any(abs(ij[k, 0] - ij[c, 0]) < src.length // 2 for c in chosen):
-            continue
-        _, _, ovs = src.sliding_windows(int(k))
-        if ovs.size and ovs.max() >= src.min_max_overlap and ovs.min() <= 0.1:
-            chosen.append(int(k))
-    if not chosen:
-        raise DatasetError(f"{src.root}: no revisit with a long enough shared stretch.")
-    picks = np.linspace(0, len(chosen) - 1, min(src.n_places, len(chosen)))
-    return np.array(chosen)[np.round(picks).astype(int)]
-
-
 @register_pair_source("kitti00")
 @dataclass(frozen=True)
 class Kitti00Pairs(MovedTargetSource):
@@ -167,11 +149,25 @@ class Kitti00Pairs(MovedTargetSource):
         ovs = (c_near[e] - c_near[starts]) / np.maximum(c_all[e] - c_all[starts], 1e-9)
         return a, starts, ovs
 
+    @functools.lru_cache(maxsize=8)  # noqa: B019 (a few small frozen sources per process)
     def places(self) -> np.ndarray:
         """Indices of up to `n_places` distinct revisits (j - i >= min_gap) spread over the
         sequence, each on a shared stretch of road long enough that robot B's window can be
         slid from overlap <= 0.1 to >= `min_max_overlap` with robot A's."""
-        return _kitti_places(self)
+        _, ij, _ = kitti_sequence(self.root)
+        ok = np.flatnonzero(ij[:, 1] - ij[:, 0] >= self.min_gap)
+        ok = ok[np.lexsort((ij[ok, 1], ij[ok, 0]))]
+        chosen: list[int] = []
+        for k in ok:
+            if any(abs(ij[k, 0] - ij[c, 0]) < self.length // 2 for c in chosen):
+                continue
+            _, _, ovs = self.sliding_windows(int(k))
+            if ovs.size and ovs.max() >= self.min_max_overlap and ovs.min() <= 0.1:
+                chosen.append(int(k))
+        if not chosen:
+            raise DatasetError(f"{self.root}: no revisit with a long enough shared stretch.")
+        picks = np.linspace(0, len(chosen) - 1, min(self.n_places, len(chosen)))
+        return np.array(chosen)[np.round(picks).astype(int)]
 
     def windows(self, seed: int) -> tuple[tuple[int, int], tuple[int, int], int, float]:
         """(A scans, B scans, revisit index, achieved overlap) for a trial seed."""

@@ -159,18 +159,10 @@ def run_task(task: TrialTask) -> dict[str, Any]:
 Progress = Callable[[int], None]
 
 
-@dataclass
-class PrepareTask:
-    """Warm a pair source's cache for one seed (e.g. render a synthetic world once)."""
-
-    dataset: str
-    dataset_params: dict[str, Any]
-    seed: int
-
-
-def prepare_tasks(tasks: Sequence[TrialTask]) -> list[PrepareTask]:
-    """One PrepareTask per distinct world the trials need, for sources with a `prepare(seed)`
-    method and a `world(seed)` naming the cached item; empty for the others."""
+def prepare_tasks(tasks: Sequence[TrialTask]) -> list[TrialTask]:
+    """The first trial of each distinct world the trials need, for sources with a
+    `prepare(seed)` method (e.g. render a synthetic world once) and a `world(seed)` naming the
+    cached item; empty for the others. Run them with `run_tasks(..., fn=run_prepare)`."""
     out, seen = [], set()
     for t in tasks:
         src = _source(t.dataset, t.dataset_params)
@@ -179,12 +171,12 @@ def prepare_tasks(tasks: Sequence[TrialTask]) -> list[PrepareTask]:
         key = (t.dataset, repr(sorted(t.dataset_params.items())), src.world(t.seed))
         if key not in seen:
             seen.add(key)
-            out.append(PrepareTask(t.dataset, t.dataset_params, t.seed))
+            out.append(t)
     return out
 
 
-def run_prepare(task: PrepareTask) -> str:
-    """Run one PrepareTask (picklable entry point)."""
+def run_prepare(task: TrialTask) -> str:
+    """Warm the pair source's cache for the task's seed (picklable entry point)."""
     return _source(task.dataset, task.dataset_params).prepare(task.seed)
 
 
