@@ -23,23 +23,20 @@ class FleetScene:
     notes: list[str]
 
 
+#: Default object-world fleet: stretches of the main street (m); a chain of four overlapping by
+#: 100 m per neighbour, and two that see parts of the street nobody else does.
+WORLD_FLEET = ((0, 250), (150, 400), (300, 550), (450, 700), (1000, 1250), (1500, 1700))
+
+
 def world_fleet(
     seed: int = 0,
-    stretches: tuple[tuple[float, float], ...] = (
-        (0, 250),
-        (150, 400),
-        (300, 550),
-        (450, 700),
-        (1000, 1250),
-        (1500, 1700),
-    ),
+    stretches: tuple[tuple[float, float], ...] = WORLD_FLEET,
     view_radius: float = 40.0,
     noise: float = 0.5,
     keep_probability: float = 0.85,
 ) -> FleetScene:
     """Robots driving stretches [x0, x1] (metres) of the main street of one object world
-    (`sgloc.sim.object_world.make_object_world`); the default chain overlaps by 100 m per
-    neighbour for the first four, and the last two see parts of the street nobody else does."""
+    (`sgloc.sim.object_world.make_object_world`)."""
     from sgloc.sim.object_world import make_object_world
 
     rng = np.random.default_rng([seed, 61])
