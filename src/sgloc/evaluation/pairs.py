@@ -18,7 +18,7 @@ import numpy as np
 
 from sgloc.errors import DatasetError, UnknownNameError
 from sgloc.evaluation import pairs_kitti  # noqa: F401  (registers kitti00)
-from sgloc.evaluation.pairs_sim import AirsimRunPairs
+from sgloc.evaluation.pairs_sim import AirsimRunPairs  # (also registers city)
 from sgloc.evaluation.pairs_synthia import SynthiaPairs
 from sgloc.evaluation.scenes import (
     PAIR_SOURCES,
@@ -137,7 +137,7 @@ class GraphFilePairs(MovedTargetSource):
         return self.moved(q, t, T0, seed)
 
 
-#: Dataset names that stand for another source with set parameters (filled in as modules land).
+#: Dataset names that stand for another source.
 ALIASES: dict[str, str] = {"synthetic": "city"}
 
 
@@ -173,7 +173,6 @@ def make_pair_source(name: str, **params: Any) -> PairSource:
 def dataset_names() -> list[str]:
     """Every name `make_pair_source` accepts (registered sources and aliases)."""
     return sorted(set(PAIR_SOURCES) | set(ALIASES))
-
 
 
 __all__ = [
