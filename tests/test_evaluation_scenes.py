@@ -55,6 +55,17 @@ def test_no_private_names_exported():
         assert not [n for n in getattr(mod, "__all__", []) if n.startswith("_")], module
 
 
+def test_no_private_evaluation_name_is_used_outside_its_module():
+    root = Path(__file__).resolve().parents[1]
+    files = [*PACKAGE.glob("*.py"), *(root / "benchmarks").rglob("*.py"), *root.glob("tests/*.py")]
+    for path in files:
+        for node in ast.walk(ast.parse(path.read_text())):
+            module = node.module or "" if isinstance(node, ast.ImportFrom) else ""
+            if module.startswith("sgloc.evaluation"):
+                private = [a.name for a in node.names if a.name.startswith("_")]
+                assert not private, f"{path.name} imports {private} from {node.module}"
+
+
 def test_route_overlap_is_the_shared_length_fraction():
     x = np.linspace(0.0, 100.0, 101)
     query = np.column_stack([x, np.zeros_like(x)])
