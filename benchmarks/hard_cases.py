@@ -53,8 +53,6 @@ from sgloc.graph import SemanticGraph  # noqa: E402
 
 #: Last scan of the tuning part of KITTI 00; pairs with any scan after it are held out.
 TUNING_LAST_SCAN = 3000
-EDGE_RADIUS = 20.0
-MAX_TRANSLATION, MAX_ROLL_PITCH_DEG = 200.0, 5.0
 #: Heading difference (deg) at the revisit: reverse above, same-direction below, crossing between.
 REVERSE_DEG, SAME_DEG = 135.0, 45.0
 NEGATIVE_GAP_M = 150.0
@@ -415,7 +413,7 @@ def category_specs(category: str, quick: bool = False, heldout: bool = False) ->
 
 def scan_graph(root: str, scan: int) -> SemanticGraph:
     """The objects of one scan, LiDAR frame (`kitti_graph` of a one-scan range)."""
-    return kitti_graph(root, scan, scan, EDGE_RADIUS)
+    return kitti_graph(root, scan, scan)
 
 
 def make_pair(spec: PairSpec) -> Pair:
@@ -425,11 +423,10 @@ def make_pair(spec: PairSpec) -> Pair:
     if spec.kind == "airsim":
         return AirsimGuoPairs().resolved()(spec.seed)
     root = kitti_root()
-    target = kitti_graph(root, spec.a[0], spec.a[1], EDGE_RADIUS)
-    query = kitti_graph(root, spec.b[0], spec.b[1], EDGE_RADIUS)
+    target = kitti_graph(root, spec.a[0], spec.a[1])
+    query = kitti_graph(root, spec.b[0], spec.b[1])
     T0 = kitti_ground_truth(root, spec.a, spec.b, spec.k, spec.swap)
-    rng = pair_rng(spec.seed)
-    return move_target(query, target, T0, rng, MAX_TRANSLATION, MAX_ROLL_PITCH_DEG)
+    return move_target(query, target, T0, pair_rng(spec.seed))
 
 
 def gt_residuals(pair: Pair) -> np.ndarray:
