@@ -20,11 +20,10 @@ import time
 import warnings
 from pathlib import Path
 
-import numpy as np
-
 from sgloc.config import LocalizerConfig
 from sgloc.evaluation.fleet_scenes import (
     FleetScene,
+    city_fleet,
     expected_placeable,
     fleet_errors,
     kitti_fleet,
@@ -33,36 +32,6 @@ from sgloc.evaluation.fleet_scenes import (
 from sgloc.fleet import FleetConfig, localize_fleet
 
 MAX_M, MAX_DEG = 3.0, 3.0
-
-
-def city_fleet(seed: int = 0, overlap: float = 0.5, pieces: int = 3) -> FleetScene:
-    """Robots cut from a rendered synthetic city run (graphs extracted from rendered frames):
-    each of the two robots' maps is split into `pieces` chunks along its principal direction,
-    neighbouring chunks sharing 15 % of the map's length, each chunk in its own random frame."""
-    from sgloc.evaluation.acceptance_pairs import city_graphs
-    from sgloc.geometry import apply, invert, random_rigid_transform
-    from sgloc.graph import SemanticGraph
-
-    q, t, T_t_q = city_graphs(seed, overlap)
-    rng = np.random.default_rng([seed, 62])
-    graphs, Ts, notes = [], [], []
-    for name, g, T_gt in (("A", t, np.eye(4)), ("B", q, T_t_q)):
-        # Progress along the route: arc position of each object on the map's main axis.
-        c = g.positions - g.positions.mean(axis=0)
-        axis = np.linalg.svd(c, full_matrices=False)[2][0]
-        s = c @ axis
-        edges = np.quantile(s, np.linspace(0, 1, pieces + 1))
-        margin = 0.15 * (edges[-1] - edges[0])
-        for k in range(pieces):
-            sel = np.flatnonzero((s >= edges[k] - margin) & (s <= edges[k + 1] + margin))
-            T_gt_r = T_gt @ random_rigid_transform(rng, 100.0, 3.0)
-            # Chunk positions in its own frame r: p_r = inv(T_map_r) p_map.
-            T_map_r = invert(T_gt) @ T_gt_r
-            pos = apply(invert(T_map_r), g.positions[sel])
-            graphs.append(SemanticGraph(pos, g.labels[sel], name=f"city{name}{k}"))
-            Ts.append(T_gt_r)
-            notes.append(f"robot {name} piece {k}")
-    return FleetScene(graphs, Ts, notes)
 
 
 def run_fleet(

@@ -38,20 +38,21 @@ from typing import Any, NoReturn  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from sgloc.evaluation.pairs import Pair, _moved_target  # noqa: E402
+from sgloc.evaluation.pairs import AirsimGuoPairs  # noqa: E402
 from sgloc.evaluation.pairs_kitti import (  # noqa: E402
     Kitti00Pairs,
-    _kitti_graph,
-    _kitti_sequence,
-    route_overlap,
+    kitti_graph,
+    kitti_ground_truth,
+    kitti_root,
+    kitti_sequence,
 )
+from sgloc.evaluation.pairs_sim import CityPairs  # noqa: E402
+from sgloc.evaluation.scenes import Pair, move_target, pair_rng, route_overlap  # noqa: E402
 from sgloc.geometry import invert, transform_error  # noqa: E402
 from sgloc.graph import SemanticGraph  # noqa: E402
 
 #: Last scan of the tuning part of KITTI 00; pairs with any scan after it are held out.
 TUNING_LAST_SCAN = 3000
-EDGE_RADIUS = 20.0
-MAX_TRANSLATION, MAX_ROLL_PITCH_DEG = 200.0, 5.0
 #: Heading difference (deg) at the revisit: reverse above, same-direction below, crossing between.
 REVERSE_DEG, SAME_DEG = 135.0, 45.0
 NEGATIVE_GAP_M = 150.0
@@ -222,16 +223,10 @@ class PairSpec:
         return f"seed {self.seed}"
 
 
-def kitti_root() -> str:
-    from sgloc.data import data_path
-
-    return str(data_path("kitti00").resolve())
-
-
 @functools.lru_cache(maxsize=1)
 def headings_deg(root: str) -> np.ndarray:
     """(N,) heading of each scan's LiDAR x axis on the ground plane (camera x-z), degrees."""
-    L, _, _ = _kitti_sequence(root)
+    L, _, _ = kitti_sequence(root)
     return np.degrees(np.arctan2(L[:, 2, 0], L[:, 0, 0]))
 
 
@@ -261,7 +256,7 @@ def _spread(items: Sequence[Any], n: int) -> list[Any]:
 def _distinct_revisits(root: str, ks: np.ndarray, min_step: int = 5) -> list[int]:
     """Revisit indices sorted by (i, j), dropping one whose i and j both lie within `min_step`
     scans of an already kept one (near-duplicate entries of the revisit files)."""
-    _, ij, _ = _kitti_sequence(root)
+    _, ij, _ = kitti_sequence(root)
     kept: list[int] = []
     for k in ks[np.lexsort((ij[ks, 1], ij[ks, 0]))]:
         if all(np.abs(ij[k] - ij[c]).max() >= min_step for c in kept):
@@ -271,7 +266,7 @@ def _distinct_revisits(root: str, ks: np.ndarray, min_step: int = 5) -> list[int
 
 def revisit_candidates(root: str, category: str) -> list[int]:
     """Indices of the refined revisits (i, j) usable for a map-to-map category."""
-    _, ij, _ = _kitti_sequence(root)
+    _, ij, _ = kitti_sequence(root)
     d = np.array([heading_difference(root, i, j) for i, j in ij])
     sel = {
         "reverse": d > REVERSE_DEG,
@@ -284,7 +279,7 @@ def revisit_candidates(root: str, category: str) -> list[int]:
 def _revisit_spec(root, category, index, k, a, b, heldout, swap) -> PairSpec | None:
     if not _in_split((*a, *b), heldout) or max(a[0], b[0]) <= min(a[1], b[1]):
         return None  # outside the split, or the two windows share scans
-    L, ij, _ = _kitti_sequence(root)
+    L, ij, _ = kitti_sequence(root)
     i, j = (int(x) for x in ij[k])
     xy = L[:, [0, 2], 3]
     ov = 1.0
@@ -319,7 +314,7 @@ def _windows(category: str, i: int, j: int, index: int, n: int, swap: bool):
 def kitti_positive_specs(category: str, n: int, heldout: bool) -> list[PairSpec]:
     """Up to n positive pairs of a KITTI category, spread over its distinct revisits."""
     root = kitti_root()
-    L, ij, _ = _kitti_sequence(root)
+    L, ij, _ = kitti_sequence(root)
     specs: list[PairSpec] = []
     for k in revisit_candidates(root, category):
         i, j = (int(x) for x in ij[k])
@@ -349,7 +344,7 @@ def _low_overlap_windows(root: str, k: int, heldout: bool, specs: list[PairSpec]
     closest to its middle that is distinct from `specs`), using the `kitti00` pair source's
     sliding windows."""
     src = Kitti00Pairs(root=root)
-    a, starts, ovs = src._sliding(k)
+    a, starts, ovs = src.sliding_windows(k)
     ends = starts + src.length - 1
     ok = (ovs >= LOW_OVERLAP[0]) & (ovs <= LOW_OVERLAP[1])
     ok &= np.array(
@@ -369,7 +364,7 @@ def negative_specs(n: int, heldout: bool, seed: int = 7) -> list[PairSpec]:
     from scipy.spatial.distance import cdist
 
     root = kitti_root()
-    L, _, _ = _kitti_sequence(root)
+    L, _, _ = kitti_sequence(root)
     xy, N = L[:, [0, 2], 3], len(L)
     rng = np.random.default_rng(seed)
     specs: list[PairSpec] = []
@@ -416,50 +411,22 @@ def category_specs(category: str, quick: bool = False, heldout: bool = False) ->
     usage_error(f"unknown category {category!r}; choose from {', '.join(CATEGORIES)}")
 
 
-@functools.lru_cache(maxsize=512)
 def scan_graph(root: str, scan: int) -> SemanticGraph:
-    """The objects of one scan (each seen once, so no minimum observation count), LiDAR frame."""
-    from sgloc.datasets import make_dataset
-    from sgloc.extraction import build_graph, kitti_objects_extraction_config
-
-    cfg = dataclasses.replace(kitti_objects_extraction_config(), min_observations=1)
-    ds = make_dataset("kitti_objects", root, scans=(scan, scan), start_frame=True)
-    return build_graph(ds, cfg, name=f"kitti00[{scan}]").with_edge_radius(EDGE_RADIUS)
-
-
-def kitti_ground_truth(
-    root: str, a: tuple[int, int], b: tuple[int, int], k: int, swap: bool = False
-) -> np.ndarray:
-    """T_A_B (query = scans b's first-scan frame -> target = scans a's): the poses chained
-    through the refined revisit transform k (p_j = M p_i; a holds i and b holds j, or the
-    other way round with swap), or the raw poses when k < 0."""
-    L, ij, M = _kitti_sequence(root)
-    if k < 0:
-        return invert(L[a[0]]) @ L[b[0]]
-    i, j = ij[k]
-    if swap:
-        return invert(L[a[0]]) @ L[j] @ M[k] @ invert(L[i]) @ L[b[0]]
-    return invert(L[a[0]]) @ L[i] @ invert(M[k]) @ invert(L[j]) @ L[b[0]]
+    """The objects of one scan, LiDAR frame (`kitti_graph` of a one-scan range)."""
+    return kitti_graph(root, scan, scan)
 
 
 def make_pair(spec: PairSpec) -> Pair:
     """Build the pair of a spec (graphs cached per process; target moved by a random motion)."""
     if spec.kind == "city":
-        from sgloc.evaluation.pairs_sim import CityPairs
-
         return CityPairs(overlap=spec.city_overlap, n_worlds=spec.n_worlds)(spec.seed)
     if spec.kind == "airsim":
-        from sgloc.evaluation.pairs import AirsimGuoPairs
-
         return AirsimGuoPairs().resolved()(spec.seed)
     root = kitti_root()
-    target = _kitti_graph(root, spec.a[0], spec.a[1], EDGE_RADIUS)
-    if spec.b[0] == spec.b[1]:
-        query = scan_graph(root, spec.b[0])
-    else:
-        query = _kitti_graph(root, spec.b[0], spec.b[1], EDGE_RADIUS)
+    target = kitti_graph(root, spec.a[0], spec.a[1])
+    query = kitti_graph(root, spec.b[0], spec.b[1])
     T0 = kitti_ground_truth(root, spec.a, spec.b, spec.k, spec.swap)
-    return _moved_target(query, target, T0, spec.seed, MAX_TRANSLATION, MAX_ROLL_PITCH_DEG)
+    return move_target(query, target, T0, pair_rng(spec.seed))
 
 
 def gt_residuals(pair: Pair) -> np.ndarray:

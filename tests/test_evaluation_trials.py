@@ -166,7 +166,7 @@ def test_kitti00_pairs_ground_truth_and_overlap(data_dir):
 
 
 def test_airsim_layout_run_folder_is_a_pair_source(tmp_path):
-    from sgloc.evaluation.pairs import AirsimRunPairs
+    from sgloc.evaluation.pairs_sim import AirsimRunPairs
     from sgloc.sim.run import make_synthetic_run
 
     make_synthetic_run(seed=1, overlap=0.8, width=96, height=54, length=80.0).write(tmp_path)

@@ -27,9 +27,9 @@ def hc(data_dir):
 
 @pytest.fixture(scope="module")
 def sequence(hc):
-    from sgloc.evaluation.pairs_kitti import _kitti_sequence
+    from sgloc.evaluation.pairs_kitti import kitti_sequence
 
-    return _kitti_sequence(hc.kitti_root())
+    return kitti_sequence(hc.kitti_root())
 
 
 def _forward_angle_deg(L: np.ndarray, i: int, j: int) -> float:

@@ -15,6 +15,8 @@ Extraction presets (`ExtractionConfig` fields):
 - `kitti-objects`: consecutive scans are ~1 m apart and poles and trunks stand a few metres
   apart, so Guo's 5 m merge radius fuses distinct objects; 3 m keeps them apart while still
   merging one object's repeated detections; objects seen only once (mostly noise) are dropped.
+- `synthia`: the paper's defaults without SYNTHIA's classes that are not objects (sky, road,
+  sidewalk, lane marking: `sgloc.datasets.synthia.SYNTHIA_STUFF_CLASSES`).
 Measured in docs/extraction.md and docs/reproduction.md.
 """
 
@@ -39,6 +41,7 @@ LOCALIZER_PRESETS: dict[str, dict[str, Any]] = {
 EXTRACTION_PRESETS: dict[str, dict[str, Any]] = {
     "paper": {},
     "kitti-objects": {"merge_distance": 3.0, "min_observations": 2},
+    "synthia": {"ignore_classes": (1, 3, 4, 12)},
 }
 
 

@@ -14,21 +14,16 @@ from sgloc.evaluation.metrics import (
     pose_errors,
     recall_precision,
 )
-from sgloc.evaluation.pairs import (
-    PAIR_SOURCES,
-    Pair,
-    dataset_names,
-    make_pair_source,
-    register_pair_source,
-)
+from sgloc.evaluation.pairs import dataset_names, make_pair_source
 from sgloc.evaluation.report import summarize, write_csv
+from sgloc.evaluation.scenes import PAIR_SOURCES, Pair, register_pair_source
 from sgloc.evaluation.sweeps import (
     Sweep,
     descriptor_rejection_sweep,
     overlap_sweep,
     threshold_sweep,
 )
-from sgloc.evaluation.trials import TrialRow, TrialTask, reproducible_part, run_task, run_tasks
+from sgloc.evaluation.trials import TrialTask, reproducible_part, run_task, run_tasks
 
 __all__ = [
     "FAILURE_M",
@@ -37,7 +32,6 @@ __all__ = [
     "MatchStats",
     "Pair",
     "Sweep",
-    "TrialRow",
     "TrialTask",
     "correct_matches",
     "dataset_names",

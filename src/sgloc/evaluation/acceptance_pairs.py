@@ -1,5 +1,6 @@
 """Labelled map pairs for the acceptance test: positives (the maps overlap) and negatives (they
-do not), from Guo's Airsim maps, KITTI 00 scan ranges, and the code-generated object world.
+do not), from Guo's Airsim maps, KITTI 00 scan ranges, the code-generated object world and the
+rendered city, built by the same map builders and target motion as the trials' pair sources.
 
 Every builder is a pure function of its arguments and seed. Negatives are made non-overlapping by
 a *cut*: every query object within `cut` metres (ground truth) of any target object is removed,
@@ -8,14 +9,16 @@ so no true correspondence can exist.
 
 from __future__ import annotations
 
-import functools
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from sgloc.geometry import apply, invert, random_rigid_transform
+from sgloc.evaluation.pairs import ObjectWorldPairs, airsim_guo_maps
+from sgloc.evaluation.pairs_kitti import kitti_graph, kitti_ground_truth, kitti_root, kitti_sequence
+from sgloc.evaluation.pairs_sim import city_graphs
+from sgloc.evaluation.scenes import Pair, move_target, route_overlap
+from sgloc.geometry import apply
 from sgloc.graph import SemanticGraph
 
 #: Metres: a negative's query keeps only objects farther than this from every target object.
@@ -23,15 +26,18 @@ NEGATIVE_CUT = 25.0
 
 
 @dataclass
-class LabeledPair:
-    """query/target graphs, ground truth T_target_query, `positive` (do the maps overlap)."""
+class LabeledPair(Pair):
+    """A `Pair` labelled `positive` (do the maps overlap) and with the name of its `source`."""
 
-    query: SemanticGraph
-    target: SemanticGraph
-    T_target_query: np.ndarray
-    positive: bool
-    source: str
-    info: dict[str, Any] = field(default_factory=dict)
+    positive: bool = True
+    source: str = ""
+
+
+def _labeled(pair: Pair, positive: bool, source: str, info: dict) -> LabeledPair:
+    return LabeledPair(
+        pair.query, pair.target, pair.T_target_query, {**info, **pair.info}, pair.T_moved_own,
+        positive, source,
+    )  # fmt: skip
 
 
 def cut_shared_area(
@@ -47,21 +53,7 @@ def _dropout(g: SemanticGraph, keep: float, rng: np.random.Generator) -> Semanti
     return g.subgraph(np.flatnonzero(rng.random(len(g)) < keep), name=g.name)
 
 
-def _moved(pair_q, pair_t, T0, rng, positive, source, info) -> LabeledPair:
-    """Move the target by a random rigid transform (any yaw, roll/pitch <= 5 deg, <= 200 m)."""
-    T = random_rigid_transform(rng, 200.0, 5.0)
-    return LabeledPair(pair_q, pair_t.transformed(T), T @ T0, positive, source, info)
-
-
 # -- Airsim (Guo's maps; ground truth identity) ---------------------------------------------
-@functools.lru_cache(maxsize=2)
-def _airsim() -> tuple[SemanticGraph, SemanticGraph]:
-    from sgloc.data import data_path
-
-    d = data_path("airsim_guo")
-    return SemanticGraph.load(d / "cloud1.pcd"), SemanticGraph.load(d / "cloud2.pcd")
-
-
 def airsim_pairs(
     n: int, positive: bool, seed: int = 0, keep: float = 1.0, cut: float = NEGATIVE_CUT
 ) -> list[LabeledPair]:
@@ -70,7 +62,7 @@ def airsim_pairs(
     Negatives alternate the direction (cloud1 with cloud2's area cut out, against cloud2; and
     cloud2 with cloud1's area cut out, against cloud1). `keep` < 1 drops each object with
     probability 1 - keep (a different detection run), so the n pairs differ."""
-    c1, c2 = _airsim()
+    c1, c2 = airsim_guo_maps()
     out = []
     for i in range(n):
         rng = np.random.default_rng([seed, i, 6])
@@ -80,11 +72,11 @@ def airsim_pairs(
         if keep < 1.0:
             q, t = _dropout(q, keep, rng), _dropout(t, keep, rng)
         info = {"query": q.name, "keep": keep, "cut": None if positive else cut}
-        out.append(_moved(q, t, np.eye(4), rng, positive, "airsim", info))
+        out.append(_labeled(move_target(q, t, np.eye(4), rng), positive, "airsim", info))
     return out
 
 
-# -- Object world (sgloc.sim.object_world) ---------------------------------------------------
+# -- Object world (sgloc.sim.object_world, through the `object-world` pair source) -------------
 def world_pairs(
     n: int,
     positive: bool,
@@ -95,72 +87,24 @@ def world_pairs(
     """Two robots in the code-generated city. Positives: overlap cycling through `overlaps`.
     Negatives: overlap 0 with the shared fringe cut out (even pairs), or robot B of one world
     against robot A of another world of the same kind (odd pairs)."""
-    from sgloc.sim.object_world import make_two_robot_scene
-
     out = []
     for i in range(n):
         s = seed * 100_000 + i
         if positive:
             ov = overlaps[i % len(overlaps)]
-            sc = make_two_robot_scene(s, ov)
-            out.append(
-                LabeledPair(sc.query, sc.target, sc.T_target_query, True, "world", {"overlap": ov})
-            )
+            out.append(_labeled(ObjectWorldPairs(ov)(s), True, "world", {}))
         elif i % 2 == 0:
-            sc = make_two_robot_scene(s, 0.0)
-            q = cut_shared_area(sc.query, sc.target, sc.T_target_query, cut)
-            out.append(
-                LabeledPair(q, sc.target, sc.T_target_query, False, "world", {"overlap": 0.0})
-            )
+            p = ObjectWorldPairs(0.0)(s)
+            p.query = cut_shared_area(p.query, p.target, p.T_target_query, cut)
+            out.append(_labeled(p, False, "world", {}))
         else:
-            a = make_two_robot_scene(s, 0.5)
-            b = make_two_robot_scene(s + 50_000, 0.5)
-            out.append(
-                LabeledPair(b.query, a.target, np.eye(4), False, "world", {"other_world": True})
-            )
+            a, b = ObjectWorldPairs(0.5)(s), ObjectWorldPairs(0.5)(s + 50_000)
+            pair = Pair(b.query, a.target, np.eye(4))
+            out.append(_labeled(pair, False, "world", {"other_world": True}))
     return out
 
 
 # -- KITTI 00 scan ranges --------------------------------------------------------------------
-@functools.lru_cache(maxsize=1)
-def _kitti_poses() -> np.ndarray:
-    from sgloc.data import data_path
-    from sgloc.datasets import make_dataset
-
-    return make_dataset("kitti_objects", data_path("kitti00")).poses
-
-
-@functools.lru_cache(maxsize=256)
-def kitti_graph(first: int, last: int) -> SemanticGraph:
-    """Robot graph of KITTI 00 scans first..last (inclusive) in its own start frame."""
-    from sgloc.data import data_path
-    from sgloc.datasets import make_dataset
-    from sgloc.extraction import build_graph
-
-    ds = make_dataset("kitti_objects", data_path("kitti00"), scans=(first, last), start_frame=True)
-    return build_graph(ds, name=f"kitti00[{first}-{last}]")
-
-
-def kitti_ground_truth(a: tuple[int, int], b: tuple[int, int]) -> np.ndarray:
-    """T_A_B between the start frames (LiDAR) of scan ranges a and b."""
-    P = _kitti_poses()
-    return invert(P[a[0]]) @ P[b[0]]
-
-
-def trajectory_overlap(a: tuple[int, int], b: tuple[int, int], radius: float = 10.0) -> float:
-    """Fraction of range b's scan positions within `radius` m of range a's trajectory."""
-    xyz = _kitti_poses()[:, :3, 3]
-    pa, pb = xyz[a[0] : a[1] + 1], xyz[b[0] : b[1] + 1]
-    d, _ = cKDTree(pa).query(pb)
-    return float(np.mean(d < radius))
-
-
-def _trajectory_gap(a: tuple[int, int], b: tuple[int, int]) -> float:
-    xyz = _kitti_poses()[:, :3, 3]
-    d, _ = cKDTree(xyz[a[0] : a[1] + 1]).query(xyz[b[0] : b[1] + 1])
-    return float(d.min())
-
-
 def kitti_pairs(
     n: int,
     positive: bool,
@@ -169,64 +113,43 @@ def kitti_pairs(
     min_overlap: float = 0.2,
     cut: float = NEGATIVE_CUT,
     max_draws: int = 20_000,
+    radius: float = 10.0,
 ) -> list[LabeledPair]:
     """Two robots = two KITTI 00 scan ranges (lengths drawn in `length`), each in its own start
-    frame. Positives: trajectory overlap (`trajectory_overlap`, 10 m) >= `min_overlap`, from
-    revisits or from ranges sharing scans. Negatives: trajectories at least 2 * cut apart,
-    and the query cut as for every negative."""
-    n_scans = len(_kitti_poses())
+    frame (`kitti_graph`). Positives: route overlap (`route_overlap` of the query's route with
+    the target's, `radius` m) >= `min_overlap`, from revisits or from ranges sharing scans.
+    Negatives: routes at least 2 * cut apart, and the query cut as for every negative."""
+    root = kitti_root()
+    xy = kitti_sequence(root)[0][:, [0, 2], 3]  # the ground plane of the sequence frame
     rng = np.random.default_rng([seed, 600 + int(positive)])
     out, seen = [], set()
     for _ in range(max_draws):
         if len(out) >= n:
             break
         la, lb = rng.integers(length[0], length[1] + 1, 2)
-        a0 = int(rng.integers(0, n_scans - la))
-        b0 = int(rng.integers(0, n_scans - lb))
+        a0 = int(rng.integers(0, len(xy) - la))
+        b0 = int(rng.integers(0, len(xy) - lb))
         a, b = (a0 // 50 * 50, a0 // 50 * 50 + int(la)), (b0 // 50 * 50, b0 // 50 * 50 + int(lb))
         if (a, b) in seen:
             continue
-        ov = trajectory_overlap(a, b)
+        xa, xb = xy[a[0] : a[1] + 1], xy[b[0] : b[1] + 1]
+        ov = route_overlap(xb, xa, radius)
         if positive and ov < min_overlap:
             continue
-        if not positive and _trajectory_gap(a, b) < 2 * cut:
+        if not positive and cKDTree(xa).query(xb)[0].min() < 2 * cut:
             continue
         seen.add((a, b))
-        T = kitti_ground_truth(a, b)
-        q, t = kitti_graph(*b), kitti_graph(*a)
+        T = kitti_ground_truth(root, a, b)
+        q, t = kitti_graph(root, *b), kitti_graph(root, *a)
         if not positive:
             q = cut_shared_area(q, t, T, cut)
         shared = max(a[0], b[0]) <= min(a[1], b[1])
         info = {"target_scans": a, "query_scans": b, "overlap": ov, "shares_scans": shared}
-        out.append(LabeledPair(q, t, T, positive, "kitti00", info))
+        out.append(_labeled(Pair(q, t, T), positive, "kitti00", info))
     return out
 
 
-# -- Rendered synthetic city (sgloc.sim, through the evaluation harness' cached runs) --------
-def city_graphs(world: int, overlap: float) -> tuple[SemanticGraph, SemanticGraph, np.ndarray]:
-    """(query, target, T_target_query) of city run `world` at `overlap` (320x180, 400 m).
-
-    Uses the newest graphs in the evaluation harness' disk cache for that run, even when they
-    were rendered by an earlier version of the sim code (the cache key names it); renders and
-    caches the run (`sgloc.evaluation.pairs._city_graphs`) only when none is cached."""
-    from sgloc.evaluation.pairs import _city_graphs
-    from sgloc.evaluation.pairs_sim import evaluation_cache_dir
-
-    found = sorted(
-        evaluation_cache_dir().glob(f"city-w{world}-o{overlap:g}-320x180-L400-*.npz"),
-        key=lambda p: p.stat().st_mtime,
-    )
-    if not found:
-        return _city_graphs(world, overlap, 320, 180, 400.0)
-    z = np.load(found[-1])
-    name = found[-1].stem
-    return (
-        SemanticGraph(z["q_pos"], z["q_lab"], name=f"{name}:query"),
-        SemanticGraph(z["t_pos"], z["t_lab"], name=f"{name}:target"),
-        z["T"],
-    )
-
-
+# -- Rendered synthetic city (sgloc.sim, the `city` pair source's cached runs) ----------------
 def city_pairs(
     n: int,
     positive: bool,
@@ -235,13 +158,14 @@ def city_pairs(
     overlaps: tuple[float, ...] = (0.2, 0.5, 0.8),
     cut: float = NEGATIVE_CUT,
 ) -> list[LabeledPair]:
-    """Robots of the rendered city (graphs extracted from rendered frames, cached on disk).
-    Positives: the runs of `worlds` x `overlaps`; negatives: the same worlds at overlap 0 with
-    the shared area cut, and robot B of one world against robot A of another. Each pair gets
-    its own random rigid motion of the target and a 90 % object dropout of both maps."""
+    """Robots of the rendered city (graphs extracted from rendered frames, cached on disk; the
+    newest cached run is used even if older code rendered it). Positives: the runs of `worlds`
+    x `overlaps`; negatives: the same worlds at overlap 0 with the shared area cut, and robot B
+    of one world against robot A of another. Each pair gets its own random rigid motion of the
+    target and a 90 % object dropout of both maps."""
 
     def graphs(world: int, ov: float):
-        return city_graphs(world, ov)
+        return city_graphs(world, ov, any_code_version=True)
 
     out = []
     for i in range(n):
@@ -262,7 +186,7 @@ def city_pairs(
             T0 = np.eye(4)
             info = {"world": w, "query_world": w2}
         q, t = _dropout(q, 0.9, rng), _dropout(t, 0.9, rng)
-        out.append(_moved(q, t, T0, rng, positive, "city", info))
+        out.append(_labeled(move_target(q, t, T0, rng), positive, "city", info))
     return out
 
 

@@ -1,6 +1,6 @@
-"""Fleets with ground truth for `localize_fleet`: N robots cut from one object world, or from
-KITTI 00 scan ranges; each robot's graph is in its own frame, and `T_gt_robot` places it in a
-common ground-truth frame."""
+"""Fleets with ground truth for `localize_fleet`: N robots cut from one object world, from
+KITTI 00 scan ranges, or from a rendered city run (maps from the pair sources' builders); each
+robot's graph is in its own frame, and `T_gt_robot` places it in a common ground-truth frame."""
 
 from __future__ import annotations
 
@@ -8,6 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sgloc.evaluation.pairs_kitti import kitti_graph, kitti_root, kitti_sequence
+from sgloc.evaluation.pairs_sim import city_graphs
 from sgloc.geometry import apply, invert, random_rigid_transform, transform_error
 from sgloc.graph import SemanticGraph
 
@@ -21,23 +23,20 @@ class FleetScene:
     notes: list[str]
 
 
+#: Default object-world fleet: stretches of the main street (m); a chain of four overlapping by
+#: 100 m per neighbour, and two that see parts of the street nobody else does.
+WORLD_FLEET = ((0, 250), (150, 400), (300, 550), (450, 700), (1000, 1250), (1500, 1700))
+
+
 def world_fleet(
     seed: int = 0,
-    stretches: tuple[tuple[float, float], ...] = (
-        (0, 250),
-        (150, 400),
-        (300, 550),
-        (450, 700),
-        (1000, 1250),
-        (1500, 1700),
-    ),
+    stretches: tuple[tuple[float, float], ...] = WORLD_FLEET,
     view_radius: float = 40.0,
     noise: float = 0.5,
     keep_probability: float = 0.85,
 ) -> FleetScene:
     """Robots driving stretches [x0, x1] (metres) of the main street of one object world
-    (`sgloc.sim.object_world.make_object_world`); the default chain overlaps by 100 m per
-    neighbour for the first four, and the last two see parts of the street nobody else does."""
+    (`sgloc.sim.object_world.make_object_world`)."""
     from sgloc.sim.object_world import make_object_world
 
     rng = np.random.default_rng([seed, 61])
@@ -63,13 +62,38 @@ KITTI_FLEET = ((0, 800), (600, 1200), (1000, 1500), (3900, 4540), (2100, 2500), 
 
 
 def kitti_fleet(ranges: tuple[tuple[int, int], ...] = KITTI_FLEET) -> FleetScene:
-    """Robots = KITTI 00 scan ranges, each graph in its own start (LiDAR) frame; ground truth
-    from the KITTI poses (sequence frame)."""
-    from sgloc.evaluation.acceptance_pairs import _kitti_poses, kitti_graph
+    """Robots = KITTI 00 scan ranges, each graph in its own start (LiDAR) frame (`kitti_graph`);
+    ground truth from the KITTI poses (sequence frame)."""
+    root = kitti_root()
+    L = kitti_sequence(root)[0]
+    graphs = [kitti_graph(root, a, b) for a, b in ranges]
+    return FleetScene(graphs, [L[a] for a, _ in ranges], [f"scans {a}-{b}" for a, b in ranges])
 
-    P = _kitti_poses()
-    graphs = [kitti_graph(a, b) for a, b in ranges]
-    return FleetScene(graphs, [P[a] for a, _ in ranges], [f"scans {a}-{b}" for a, b in ranges])
+
+def city_fleet(seed: int = 0, overlap: float = 0.5, pieces: int = 3) -> FleetScene:
+    """Robots cut from a rendered synthetic city run (`city_graphs`, the newest cached run):
+    each of the two robots' maps is split into `pieces` chunks along its principal direction,
+    neighbouring chunks sharing 15 % of the map's length, each chunk in its own random frame."""
+    q, t, T_t_q = city_graphs(seed, overlap, any_code_version=True)
+    rng = np.random.default_rng([seed, 62])
+    graphs, Ts, notes = [], [], []
+    for name, g, T_gt in (("A", t, np.eye(4)), ("B", q, T_t_q)):
+        # Progress along the route: arc position of each object on the map's main axis.
+        c = g.positions - g.positions.mean(axis=0)
+        axis = np.linalg.svd(c, full_matrices=False)[2][0]
+        s = c @ axis
+        edges = np.quantile(s, np.linspace(0, 1, pieces + 1))
+        margin = 0.15 * (edges[-1] - edges[0])
+        for k in range(pieces):
+            sel = np.flatnonzero((s >= edges[k] - margin) & (s <= edges[k + 1] + margin))
+            T_gt_r = T_gt @ random_rigid_transform(rng, 100.0, 3.0)
+            # Chunk positions in its own frame r: p_r = inv(T_map_r) p_map.
+            T_map_r = invert(T_gt) @ T_gt_r
+            pos = apply(invert(T_map_r), g.positions[sel])
+            graphs.append(SemanticGraph(pos, g.labels[sel], name=f"city{name}{k}"))
+            Ts.append(T_gt_r)
+            notes.append(f"robot {name} piece {k}")
+    return FleetScene(graphs, Ts, notes)
 
 
 def fleet_errors(

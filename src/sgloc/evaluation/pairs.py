@@ -1,102 +1,57 @@
-"""Pair sources: a trial seed -> (query graph, target graph, ground-truth T_target_query).
+"""The pair factory: `make_pair_source(name or folder, **params)` -> a pair source, a small
+picklable object (a frozen dataclass of its parameters) with `__call__(seed) -> Pair`.
 
-A pair source is a small picklable object (a frozen dataclass of its parameters) with
-`__call__(seed) -> Pair`; it is registered by name in `PAIR_SOURCES`, so any dataset plugs into
-the trial runner. Everything random in a pair comes from the seed, so a trial is a pure function
-of (source, parameters, seed) and gives the same pair on any process or Dask worker.
-
-Seeds: the pair's randomness uses `np.random.default_rng([seed, PAIR_STREAM])`; the localizer in
-a trial uses another stream of the same seed (see `sgloc.evaluation.trials`).
+Sources register by name in `sgloc.evaluation.scenes.PAIR_SOURCES`: the file-based and
+code-generated ones here, `kitti00` (pairs_kitti), `city` and `airsim-run` (pairs_sim),
+`synthia` (pairs_synthia). Everything random in a pair comes from the seed, so a trial is a pure
+function of (source, parameters, seed) and gives the same pair on any process or Dask worker.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import functools
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from sgloc.errors import DatasetError, UnknownNameError
-from sgloc.geometry import random_rigid_transform
-from sgloc.graph import SemanticGraph
+from sgloc.evaluation import pairs_kitti  # noqa: F401  (registers kitti00)
+from sgloc.evaluation.pairs_sim import AirsimRunPairs  # (also registers city)
+from sgloc.evaluation.pairs_synthia import SynthiaPairs
+from sgloc.evaluation.scenes import (
+    PAIR_SOURCES,
+    MovedTargetSource,
+    Pair,
+    PairSource,
+    data_root,
+    load_graph_cached,
+    register_pair_source,
+)
+from sgloc.graph import DEFAULT_EDGE_RADIUS, SemanticGraph
 
-#: Stream index of the pair's random numbers within a trial seed.
-PAIR_STREAM = 0
 GRAPH_SUFFIXES = (".pcd", ".json", ".npz")
 
 
-@dataclass
-class Pair:
-    """Two robots' graphs and the ground truth: p_target = T_target_query @ p_query.
-
-    T_moved_own: the random rigid motion applied to the target map in this trial (its map
-    frame "own" -> the frame it is handed to the localizer in, "moved"); identity when none.
-    Pose errors are reported in the target map's own frame (undoing that motion), so that a
-    random 200 m shift of the frame's origin does not turn rotation error into translation
-    error; the error in the moved frame is reported beside it.
-    """
-
-    query: SemanticGraph
-    target: SemanticGraph
-    T_target_query: np.ndarray
-    info: dict[str, Any] = field(default_factory=dict)
-    T_moved_own: np.ndarray = field(default_factory=lambda: np.eye(4))
-
-
-PairSource = Callable[[int], Pair]
-
-#: name -> class of pair source (called with its parameters, then with a seed).
-PAIR_SOURCES: dict[str, type] = {}
-
-
-def register_pair_source(name: str) -> Callable[[type], type]:
-    """Class decorator: register a pair source class under `name`."""
-
-    def deco(cls: type) -> type:
-        PAIR_SOURCES[name] = cls
-        cls.source_name = name
-        return cls
-
-    return deco
-
-
-def pair_rng(seed: int) -> np.random.Generator:
-    """The generator of a trial's pair randomness (initial transform, world, split)."""
-    return np.random.default_rng([int(seed), PAIR_STREAM])
-
-
-@functools.lru_cache(maxsize=16)
-def load_graph_cached(path: str, edge_radius: float) -> SemanticGraph:
-    """Load a graph file once per process (graphs are immutable, so sharing is safe)."""
-    return SemanticGraph.load(path, edge_radius=edge_radius)
-
-
-def _moved_target(
-    query: SemanticGraph,
-    target_same_frame: SemanticGraph,
-    T_target_query0: np.ndarray,
-    seed: int,
-    max_translation: float,
-    max_roll_pitch_deg: float,
-) -> Pair:
-    """Apply a random rigid transform T to the target map; GT becomes T @ T_target_query0."""
-    T = random_rigid_transform(pair_rng(seed), max_translation, max_roll_pitch_deg)
-    return Pair(
-        query=query,
-        target=target_same_frame.transformed(T),
-        T_target_query=T @ T_target_query0,
-        T_moved_own=T,
-        info={"initial_translation_m": float(np.linalg.norm(T[:3, 3]))},
+def airsim_guo_maps(
+    root: str | None = None,
+    query_file: str = "cloud1.pcd",
+    target_file: str = "cloud2.pcd",
+    edge_radius: float = DEFAULT_EDGE_RADIUS,
+) -> tuple[SemanticGraph, SemanticGraph]:
+    """Guo's Airsim object maps (query cloud1, target cloud2), both in the Airsim world frame;
+    root: their folder (default: the `airsim_guo` data set under SGLOC_DATA)."""
+    folder = Path(data_root(root, "airsim_guo"))
+    return (
+        load_graph_cached(str(folder / query_file), edge_radius),
+        load_graph_cached(str(folder / target_file), edge_radius),
     )
 
 
 @register_pair_source("airsim-guo")
 @dataclass(frozen=True)
-class AirsimGuoPairs:
+class AirsimGuoPairs(MovedTargetSource):
     """Guo's Airsim object maps: cloud1 (query) against cloud2 moved by a random rigid transform
     (any yaw, roll/pitch up to `max_roll_pitch_deg`, translation up to `max_translation` m).
     Both maps are in the Airsim world frame, so the ground truth is that transform."""
@@ -104,23 +59,16 @@ class AirsimGuoPairs:
     root: str | None = None
     query_file: str = "cloud1.pcd"
     target_file: str = "cloud2.pcd"
-    max_translation: float = 200.0
-    max_roll_pitch_deg: float = 5.0
-    edge_radius: float = 20.0
+    edge_radius: float = DEFAULT_EDGE_RADIUS
 
     def resolved(self) -> AirsimGuoPairs:
         """A copy with `root` made absolute (so remote workers need no SGLOC_DATA)."""
-        from sgloc.data import data_path
-
-        root = Path(self.root) if self.root else data_path("airsim_guo")
-        return dataclasses.replace(self, root=str(root.resolve()))
+        return dataclasses.replace(self, root=data_root(self.root, "airsim_guo"))
 
     def __call__(self, seed: int) -> Pair:
         src = self if self.root else self.resolved()
-        root = Path(src.root)
-        q = load_graph_cached(str(root / src.query_file), src.edge_radius)
-        t = load_graph_cached(str(root / src.target_file), src.edge_radius)
-        return _moved_target(q, t, np.eye(4), seed, src.max_translation, src.max_roll_pitch_deg)
+        q, t = airsim_guo_maps(src.root, src.query_file, src.target_file, src.edge_radius)
+        return src.moved(q, t, np.eye(4), seed)
 
 
 @register_pair_source("object-world")
@@ -149,7 +97,7 @@ class ObjectWorldPairs:
 
 @register_pair_source("graph-files")
 @dataclass(frozen=True)
-class GraphFilePairs:
+class GraphFilePairs(MovedTargetSource):
     """Two graph files in a folder (query and target; `.pcd`, `.json` or `.npz`), the target
     moved by a random rigid transform per trial. The maps' own relative pose is the identity,
     or the 4x4 matrix in `T_target_query.txt` in the same folder (p_target = T p_query)."""
@@ -157,9 +105,7 @@ class GraphFilePairs:
     root: str = "."
     query_file: str | None = None
     target_file: str | None = None
-    max_translation: float = 200.0
-    max_roll_pitch_deg: float = 5.0
-    edge_radius: float = 20.0
+    edge_radius: float = DEFAULT_EDGE_RADIUS
 
     def files(self) -> tuple[Path, Path]:
         root = Path(self.root)
@@ -188,25 +134,17 @@ class GraphFilePairs:
         t = load_graph_cached(str(t_path.resolve()), self.edge_radius)
         gt_file = Path(self.root) / "T_target_query.txt"
         T0 = np.loadtxt(gt_file).reshape(4, 4) if gt_file.is_file() else np.eye(4)
-        return _moved_target(q, t, T0, seed, self.max_translation, self.max_roll_pitch_deg)
+        return self.moved(q, t, T0, seed)
 
 
-#: Dataset names that stand for another source with set parameters (filled in as modules land).
+#: Dataset names that stand for another source.
 ALIASES: dict[str, str] = {"synthetic": "city"}
-
-
-def _register_all() -> None:
-    """Import the modules that register the heavier pair sources (KITTI, rendered runs)."""
-    import sgloc.evaluation.pairs_kitti  # noqa: F401
-    import sgloc.evaluation.pairs_sim  # noqa: F401
-    import sgloc.evaluation.pairs_synthia  # noqa: F401
 
 
 def make_pair_source(name: str, **params: Any) -> PairSource:
     """A pair source by registered name (or alias), or by a folder: a SYNTHIA sequence (with
     CameraParams/), an Airsim-layout two-robot run (with ground_truth.txt), or a folder holding
     two graph files."""
-    _register_all()
     key = ALIASES.get(name, name)
     if key in PAIR_SOURCES:
         cls = PAIR_SOURCES[key]
@@ -221,9 +159,9 @@ def make_pair_source(name: str, **params: Any) -> PairSource:
         return src.resolved() if hasattr(src, "resolved") else src
     path = Path(name)
     if path.is_dir() and (path / "CameraParams").is_dir():
-        return PAIR_SOURCES["synthia"](root=str(path.resolve()), **params)
+        return SynthiaPairs(root=str(path.resolve()), **params)
     if path.is_dir() and (path / "ground_truth.txt").is_file():
-        return PAIR_SOURCES["airsim-run"](root=str(path.resolve()), **params)
+        return AirsimRunPairs(root=str(path.resolve()), **params)
     if path.is_dir():
         return GraphFilePairs(root=str(path.resolve()), **params)
     raise UnknownNameError(
@@ -234,34 +172,15 @@ def make_pair_source(name: str, **params: Any) -> PairSource:
 
 def dataset_names() -> list[str]:
     """Every name `make_pair_source` accepts (registered sources and aliases)."""
-    _register_all()
     return sorted(set(PAIR_SOURCES) | set(ALIASES))
 
 
-# Re-exported for callers of the earlier single module (e.g. acceptance_pairs).
-from sgloc.evaluation.pairs_kitti import Kitti00Pairs, route_overlap  # noqa: E402
-from sgloc.evaluation.pairs_sim import (  # noqa: E402
-    CACHE_DIR,
-    AirsimRunPairs,
-    CityPairs,
-    _city_graphs,
-)
-
 __all__ = [
     "ALIASES",
-    "CACHE_DIR",
-    "PAIR_SOURCES",
     "AirsimGuoPairs",
-    "AirsimRunPairs",
-    "CityPairs",
     "GraphFilePairs",
-    "Kitti00Pairs",
     "ObjectWorldPairs",
-    "Pair",
-    "_city_graphs",
+    "airsim_guo_maps",
     "dataset_names",
     "make_pair_source",
-    "pair_rng",
-    "register_pair_source",
-    "route_overlap",
 ]

@@ -1,4 +1,6 @@
-"""Pair source `kitti00`: two robots cut from KITTI 00's LiDAR object detections."""
+"""KITTI 00's LiDAR objects: the sequence (poses, refined revisits), the one map builder
+(`kitti_graph`, the `kitti-objects` extraction preset), the ground truth between two scan
+ranges, and the pair source `kitti00`."""
 
 from __future__ import annotations
 
@@ -11,16 +13,28 @@ from typing import Any, ClassVar
 import numpy as np
 
 from sgloc.errors import DatasetError
-from sgloc.evaluation.pairs import Pair, _moved_target, register_pair_source
+from sgloc.evaluation.scenes import (
+    MovedTargetSource,
+    Pair,
+    data_root,
+    register_pair_source,
+    route_overlap,
+)
 from sgloc.geometry import invert
-from sgloc.graph import SemanticGraph
+from sgloc.graph import DEFAULT_EDGE_RADIUS, SemanticGraph
+from sgloc.presets import extraction_preset
 from sgloc.presets import localizer_settings as preset_settings
 
 KITTI_LC_FILES = ("kitti_lc_test_0_10.txt", "kitti_lc_test_10_20.txt", "kitti_lc_test_20_30.txt")
 
 
+def kitti_root() -> str:
+    """The absolute KITTI 00 folder (the `kitti00` data set under SGLOC_DATA)."""
+    return data_root(None, "kitti00")
+
+
 @functools.lru_cache(maxsize=2)
-def _kitti_sequence(root: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def kitti_sequence(root: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(T_seq_lidar (N,4,4) per scan, revisit pairs (k,2) i<j, their M (k,4,4) with
     p_j = M p_i) of KITTI 00 under `root`, read once per process."""
     from sgloc.datasets.kitti_objects import TR_KITTI_00
@@ -45,48 +59,42 @@ def _kitti_sequence(root: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return P @ Tr, ij, M
 
 
-@functools.lru_cache(maxsize=256)
-def _kitti_graph(root: str, first: int, last: int, edge_radius: float) -> SemanticGraph:
-    """One robot's graph from scans first..last (inclusive), in its first scan's LiDAR frame."""
+@functools.lru_cache(maxsize=512)
+def kitti_graph(
+    root: str, first: int, last: int, edge_radius: float = DEFAULT_EDGE_RADIUS
+) -> SemanticGraph:
+    """One robot's graph from scans first..last (inclusive), in its first scan's LiDAR frame,
+    extracted with the `kitti-objects` preset (one scan: every object is seen once, so without
+    the preset's minimum observation count)."""
     from sgloc.datasets import make_dataset
-    from sgloc.extraction import build_graph, kitti_objects_extraction_config
+    from sgloc.extraction import build_graph
 
+    cfg = extraction_preset("kitti-objects")
+    name = f"kitti00[{first}-{last}]"
+    if first == last:
+        cfg, name = dataclasses.replace(cfg, min_observations=1), f"kitti00[{first}]"
     ds = make_dataset("kitti_objects", root, scans=(first, last), start_frame=True)
-    g = build_graph(ds, kitti_objects_extraction_config(), name=f"kitti00[{first}-{last}]")
-    return g.with_edge_radius(edge_radius)
+    return build_graph(ds, cfg, name=name).with_edge_radius(edge_radius)
 
 
-@functools.lru_cache(maxsize=8)
-def _kitti_places(src: Kitti00Pairs) -> np.ndarray:
-    _, ij, _ = _kitti_sequence(src.root)
-    ok = np.flatnonzero(ij[:, 1] - ij[:, 0] >= src.min_gap)
-    ok = ok[np.lexsort((ij[ok, 1], ij[ok, 0]))]
-    chosen: list[int] = []
-    for k in ok:
-        if any(abs(ij[k, 0] - ij[c, 0]) < src.length // 2 for c in chosen):
-            continue
-        _, _, ovs = src._sliding(int(k))
-        if ovs.size and ovs.max() >= src.min_max_overlap and ovs.min() <= 0.1:
-            chosen.append(int(k))
-    if not chosen:
-        raise DatasetError(f"{src.root}: no revisit with a long enough shared stretch.")
-    picks = np.linspace(0, len(chosen) - 1, min(src.n_places, len(chosen)))
-    return np.array(chosen)[np.round(picks).astype(int)]
-
-
-def route_overlap(xy_query: np.ndarray, xy_target: np.ndarray, radius: float) -> float:
-    """Fraction of the query route's length (scan positions (n,2), metres) that passes within
-    `radius` of the target route's scan positions."""
-    from scipy.spatial import cKDTree
-
-    step = np.linalg.norm(np.diff(xy_query, axis=0), axis=1)
-    near = cKDTree(xy_target).query(xy_query[:-1], distance_upper_bound=radius)[0] < radius
-    return float((step * near).sum() / max(step.sum(), 1e-9))
+def kitti_ground_truth(
+    root: str, a: tuple[int, int], b: tuple[int, int], k: int = -1, swap: bool = False
+) -> np.ndarray:
+    """T_A_B from scans b's first-scan frame (query) to scans a's (target): the raw poses when
+    k < 0, else the poses chained through refined revisit k (p_j = M p_i; a holds i and b holds
+    j, or the other way round with swap) -- more accurate near the revisit."""
+    L, ij, M = kitti_sequence(root)
+    if k < 0:
+        return invert(L[a[0]]) @ L[b[0]]
+    i, j = ij[k]
+    if swap:
+        return invert(L[a[0]]) @ L[j] @ M[k] @ invert(L[i]) @ L[b[0]]
+    return invert(L[a[0]]) @ L[i] @ invert(M[k]) @ invert(L[j]) @ L[b[0]]
 
 
 @register_pair_source("kitti00")
 @dataclass(frozen=True)
-class Kitti00Pairs:
+class Kitti00Pairs(MovedTargetSource):
     """KITTI 00 LiDAR objects (GOSMatch) as two robots, each mapping a scan range in its own
     first-scan frame; the target is also moved by a random rigid transform per trial.
 
@@ -115,22 +123,18 @@ class Kitti00Pairs:
     n_places: int = 10
     min_max_overlap: float = 0.5
     split: tuple[int, int, int, int] = (0, 800, 3900, 4540)
-    max_translation: float = 200.0
-    max_roll_pitch_deg: float = 5.0
-    edge_radius: float = 20.0
+    edge_radius: float = DEFAULT_EDGE_RADIUS
 
     def resolved(self) -> Kitti00Pairs:
-        from sgloc.data import data_path
+        """A copy with `root` made absolute (so remote workers need no SGLOC_DATA)."""
+        return dataclasses.replace(self, root=data_root(self.root, "kitti00"))
 
-        root = Path(self.root) if self.root else data_path("kitti00")
-        return dataclasses.replace(self, root=str(root.resolve()))
-
-    def _sliding(self, k: int) -> tuple[tuple[int, int], np.ndarray, np.ndarray]:
+    def sliding_windows(self, k: int) -> tuple[tuple[int, int], np.ndarray, np.ndarray]:
         """For revisit k: robot A's scans, the candidate first scans of robot B's window, and
         each window's route overlap with A (cumulative sums over the route, all at once)."""
         from scipy.spatial import cKDTree
 
-        L_seq, ij, _ = _kitti_sequence(self.root)
+        L_seq, ij, _ = kitti_sequence(self.root)
         xy = L_seq[:, [0, 2], 3]  # the camera sequence frame: ground plane is x-z
         n, (i, j) = len(L_seq), ij[k]
         a0 = int(np.clip(i - self.length // 2, 0, n - self.length))
@@ -145,15 +149,29 @@ class Kitti00Pairs:
         ovs = (c_near[e] - c_near[starts]) / np.maximum(c_all[e] - c_all[starts], 1e-9)
         return a, starts, ovs
 
+    @functools.lru_cache(maxsize=8)  # noqa: B019 (a few small frozen sources per process)
     def places(self) -> np.ndarray:
         """Indices of up to `n_places` distinct revisits (j - i >= min_gap) spread over the
         sequence, each on a shared stretch of road long enough that robot B's window can be
         slid from overlap <= 0.1 to >= `min_max_overlap` with robot A's."""
-        return _kitti_places(self)
+        _, ij, _ = kitti_sequence(self.root)
+        ok = np.flatnonzero(ij[:, 1] - ij[:, 0] >= self.min_gap)
+        ok = ok[np.lexsort((ij[ok, 1], ij[ok, 0]))]
+        chosen: list[int] = []
+        for k in ok:
+            if any(abs(ij[k, 0] - ij[c, 0]) < self.length // 2 for c in chosen):
+                continue
+            _, _, ovs = self.sliding_windows(int(k))
+            if ovs.size and ovs.max() >= self.min_max_overlap and ovs.min() <= 0.1:
+                chosen.append(int(k))
+        if not chosen:
+            raise DatasetError(f"{self.root}: no revisit with a long enough shared stretch.")
+        picks = np.linspace(0, len(chosen) - 1, min(self.n_places, len(chosen)))
+        return np.array(chosen)[np.round(picks).astype(int)]
 
     def windows(self, seed: int) -> tuple[tuple[int, int], tuple[int, int], int, float]:
         """(A scans, B scans, revisit index, achieved overlap) for a trial seed."""
-        L_seq, ij, _ = _kitti_sequence(self.root)
+        L_seq, ij, _ = kitti_sequence(self.root)
         if self.overlap is None:
             # Raw poses: the split's maps extend hundreds of scans from any revisit, where a
             # revisit's locally refined M is off by ~1 deg (measured: 64 of B's objects land
@@ -164,25 +182,18 @@ class Kitti00Pairs:
             return a, b, -1, ov
         places = self.places()
         k = int(places[int(seed) % len(places)])
-        a, starts, ovs = self._sliding(k)
+        a, starts, ovs = self.sliding_windows(k)
         best = int(np.argmin(np.abs(ovs - self.overlap)))
         s = int(starts[best])
         return a, (s, s + self.length - 1), k, float(ovs[best])
 
     def __call__(self, seed: int) -> Pair:
         src = self if self.root else self.resolved()
-        L_seq, ij, M = _kitti_sequence(src.root)
         a, b, k, ov = src.windows(seed)
-        target = _kitti_graph(src.root, a[0], a[1], src.edge_radius)
-        query = _kitti_graph(src.root, b[0], b[1], src.edge_radius)
-        if k >= 0:  # chain through the refined revisit: A <- L_i <- L_j <- B
-            i, j = ij[k]
-            T_A_B = invert(L_seq[a[0]]) @ L_seq[i] @ invert(M[k]) @ invert(L_seq[j]) @ L_seq[b[0]]
-        else:
-            T_A_B = invert(L_seq[a[0]]) @ L_seq[b[0]]
-        pair = _moved_target(
-            query, target, T_A_B, seed, src.max_translation, src.max_roll_pitch_deg
-        )
+        target = kitti_graph(src.root, a[0], a[1], src.edge_radius)
+        query = kitti_graph(src.root, b[0], b[1], src.edge_radius)
+        T_A_B = kitti_ground_truth(src.root, a, b, k)
+        pair = src.moved(query, target, T_A_B, seed)
         pair.info.update(
             {"overlap": round(ov, 4), "scans_a": f"{a[0]}-{a[1]}", "scans_b": f"{b[0]}-{b[1]}"}
         )

@@ -10,19 +10,16 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from sgloc.evaluation.pairs import Pair, _moved_target, register_pair_source
+from sgloc.evaluation.scenes import MovedTargetSource, Pair, register_pair_source
 from sgloc.graph import SemanticGraph
 from sgloc.presets import localizer_settings as preset_settings
-
-#: Disk cache of graphs extracted from rendered synthetic runs, under sgloc.data.cache_dir().
-CACHE_DIR = Path("evaluation")
 
 
 def evaluation_cache_dir() -> Path:
     """Where extracted city graphs are cached: `<sgloc.data.cache_dir()>/evaluation`."""
     from sgloc.data import cache_dir
 
-    return cache_dir() / CACHE_DIR
+    return cache_dir() / "evaluation"
 
 
 @functools.lru_cache(maxsize=1)
@@ -38,21 +35,44 @@ def _code_hash() -> str:
     return h.hexdigest()[:8]
 
 
+def city_graphs(
+    world: int,
+    overlap: float,
+    width: int = 320,
+    height: int = 180,
+    length: float = 400.0,
+    any_code_version: bool = False,
+) -> tuple[SemanticGraph, SemanticGraph, np.ndarray]:
+    """(query = backwardCar graph, target = forwardCar graph, T_target_query) of the synthetic
+    city run `world` at `overlap`: rendered and extracted once, then read from the disk cache.
+
+    any_code_version: use the newest cached graphs of that run even when an earlier version of
+    the sim or extraction code made them (the cache key names it; rendering takes minutes)."""
+    if any_code_version:
+        pattern = f"city-w{world}-o{overlap:g}-{width}x{height}-L{length:g}-*.npz"
+        found = sorted(evaluation_cache_dir().glob(pattern), key=lambda p: p.stat().st_mtime)
+        if found:
+            return _read_city(found[-1])
+    return _city_graphs(world, overlap, width, height, length)
+
+
+def _read_city(path: Path) -> tuple[SemanticGraph, SemanticGraph, np.ndarray]:
+    z, key = np.load(path), path.stem
+    return (
+        SemanticGraph(z["q_pos"], z["q_lab"], name=f"{key}:query"),
+        SemanticGraph(z["t_pos"], z["t_lab"], name=f"{key}:target"),
+        z["T"],
+    )
+
+
 @functools.lru_cache(maxsize=64)
 def _city_graphs(
     world: int, overlap: float, width: int, height: int, length: float
 ) -> tuple[SemanticGraph, SemanticGraph, np.ndarray]:
-    """(query = backwardCar graph, target = forwardCar graph, T_target_query) of the synthetic
-    city run `world` at `overlap`: rendered and extracted once, then read from the disk cache."""
     key = f"city-w{world}-o{overlap:g}-{width}x{height}-L{length:g}-{_code_hash()}"
     path = evaluation_cache_dir() / f"{key}.npz"
     if path.is_file():
-        z = np.load(path)
-        return (
-            SemanticGraph(z["q_pos"], z["q_lab"], name=f"{key}:query"),
-            SemanticGraph(z["t_pos"], z["t_lab"], name=f"{key}:target"),
-            z["T"],
-        )
+        return _read_city(path)
     from sgloc.extraction import build_graph
     from sgloc.sim.run import QUERY, TARGET, make_synthetic_run
 
@@ -69,7 +89,7 @@ def _city_graphs(
 
 @register_pair_source("city")
 @dataclass(frozen=True)
-class CityPairs:
+class CityPairs(MovedTargetSource):
     """The rendered synthetic city (`sgloc.sim`): two robots drive opposite ways sharing
     `overlap` of their routes; each map is extracted from its rendered semantic + depth frames
     and lies in the robot's own start frame. Trial seed s uses city `s % n_worlds` (rendering
@@ -84,21 +104,19 @@ class CityPairs:
     width: int = 320
     height: int = 180
     length: float = 400.0
-    max_translation: float = 200.0
-    max_roll_pitch_deg: float = 5.0
 
     def world(self, seed: int) -> int:
         return int(seed) % self.n_worlds
 
     def prepare(self, seed: int) -> str:
         """Render and extract the world of `seed` into the cache (for parallel warm-up)."""
-        _city_graphs(self.world(seed), self.overlap, self.width, self.height, self.length)
+        city_graphs(self.world(seed), self.overlap, self.width, self.height, self.length)
         return f"world {self.world(seed)}"
 
     def __call__(self, seed: int) -> Pair:
         w = self.world(seed)
-        q, t, T0 = _city_graphs(w, self.overlap, self.width, self.height, self.length)
-        pair = _moved_target(q, t, T0, seed, self.max_translation, self.max_roll_pitch_deg)
+        q, t, T0 = city_graphs(w, self.overlap, self.width, self.height, self.length)
+        pair = self.moved(q, t, T0, seed)
         pair.info.update({"overlap": self.overlap, "world": w})
         return pair
 
@@ -118,7 +136,7 @@ def _airsim_run_graphs(root: str, target: str, query: str) -> tuple[SemanticGrap
 
 @register_pair_source("airsim-run")
 @dataclass(frozen=True)
-class AirsimRunPairs:
+class AirsimRunPairs(MovedTargetSource):
     """A two-robot run in Guo's Airsim layout (e.g. written by `sgloc.sim`): the folders
     `target` and `query` (frames + airsim.txt) and `ground_truth.txt` (T_target_query). Both
     graphs are extracted from the images once per process; the target is moved by a random
@@ -127,12 +145,10 @@ class AirsimRunPairs:
     root: str = "."
     target: str = "forwardCar"
     query: str = "backwardCar"
-    max_translation: float = 200.0
-    max_roll_pitch_deg: float = 5.0
 
     def __call__(self, seed: int) -> Pair:
         from sgloc.sim.airsim_writer import read_ground_truth
 
         q, t = _airsim_run_graphs(str(Path(self.root).resolve()), self.target, self.query)
         T0 = read_ground_truth(self.root)
-        return _moved_target(q, t, T0, seed, self.max_translation, self.max_roll_pitch_deg)
+        return self.moved(q, t, T0, seed)

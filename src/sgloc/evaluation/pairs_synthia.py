@@ -6,24 +6,21 @@ from __future__ import annotations
 import dataclasses
 import functools
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from sgloc.evaluation.pairs import Pair, _moved_target, register_pair_source
-from sgloc.evaluation.pairs_kitti import route_overlap
+from sgloc.evaluation.scenes import (
+    MovedTargetSource,
+    Pair,
+    data_root,
+    register_pair_source,
+    route_overlap,
+)
 from sgloc.geometry import invert
+from sgloc.graph import DEFAULT_EDGE_RADIUS
+from sgloc.presets import extraction_preset
 
 CAMERAS = ("Omni_F", "Omni_B")
-
-
-def synthia_extraction_config():
-    """Extraction settings for SYNTHIA: the paper's defaults without its non-object classes
-    (sky, road, sidewalk, lane marking)."""
-    from sgloc.datasets.synthia import SYNTHIA_STUFF_CLASSES
-    from sgloc.extraction import ExtractionConfig
-
-    return ExtractionConfig(ignore_classes=SYNTHIA_STUFF_CLASSES)
 
 
 @functools.lru_cache(maxsize=4)
@@ -37,18 +34,18 @@ def _camera_poses(root: str, camera: str) -> np.ndarray:
 @functools.lru_cache(maxsize=64)
 def _synthia_graph(root: str, camera: str, first: int, last: int, edge_radius: float):
     """One camera's graph from frames first..last (inclusive), in its first frame's optical
-    frame."""
+    frame (the `synthia` extraction preset: objects only)."""
     from sgloc.datasets import make_dataset
     from sgloc.extraction import build_graph
 
     ds = make_dataset("synthia", root, camera=camera, frames=(first, last), start_frame=True)
-    g = build_graph(ds, synthia_extraction_config(), name=f"{camera}[{first}-{last}]")
+    g = build_graph(ds, extraction_preset("synthia"), name=f"{camera}[{first}-{last}]")
     return g.with_edge_radius(edge_radius)
 
 
 @register_pair_source("synthia")
 @dataclass(frozen=True)
-class SynthiaPairs:
+class SynthiaPairs(MovedTargetSource):
     """A SYNTHIA sequence folder (e.g. SYNTHIA-SEQS-04-SUMMER, or one written by
     `sgloc.sim.synthia_writer`): robot A (target) = Omni_F, robot B (query) = Omni_B, each map in
     its first frame's camera frame; the target is moved by a random rigid transform per trial.
@@ -64,15 +61,11 @@ class SynthiaPairs:
     overlap: float | None = None
     length: int = 200
     radius: float = 10.0
-    max_translation: float = 200.0
-    max_roll_pitch_deg: float = 5.0
-    edge_radius: float = 20.0
+    edge_radius: float = DEFAULT_EDGE_RADIUS
 
     def resolved(self) -> SynthiaPairs:
-        from sgloc.data import data_path
-
-        root = Path(self.root) if self.root else data_path("synthia")
-        return dataclasses.replace(self, root=str(root.resolve()))
+        """A copy with `root` made absolute (so remote workers need no SGLOC_DATA)."""
+        return dataclasses.replace(self, root=data_root(self.root, "synthia"))
 
     def windows(self) -> tuple[tuple[int, int], tuple[int, int], float]:
         """(A frames, B frames, achieved route overlap), inclusive ranges."""
@@ -95,9 +88,7 @@ class SynthiaPairs:
         target = _synthia_graph(src.root, CAMERAS[0], *a, src.edge_radius)
         query = _synthia_graph(src.root, CAMERAS[1], *b, src.edge_radius)
         T_A_B = invert(PA[a[0]]) @ PB[b[0]]
-        pair = _moved_target(
-            query, target, T_A_B, seed, src.max_translation, src.max_roll_pitch_deg
-        )
+        pair = src.moved(query, target, T_A_B, seed)
         pair.info.update(
             {"overlap": round(ov, 4), "frames_a": f"{a[0]}-{a[1]}", "frames_b": f"{b[0]}-{b[1]}"}
         )

@@ -195,8 +195,7 @@ def matches_picture(
     ext = np.maximum(np.ptp(both, axis=0), 1.0)
     axis = int(np.argmin(ext))  # shift the query map aside along the maps' narrow axis
     shift = np.zeros(2)
-    shift[axis] = 1.15 * ext[axis] + (t[:, axis].max() - q[:, axis].min()) - ext[axis]
-    shift[axis] = max(shift[axis], 0.15 * ext[axis] + t[:, axis].max() - q[:, axis].min())
+    shift[axis] = 0.15 * ext[axis] + t[:, axis].max() - q[:, axis].min()
     qs = q + shift
     w, h = np.ptp(np.concatenate([qs, t]), axis=0) + 1.0
     panel_w = float(np.clip(4.0 * w / h, 2.5, 6.0))

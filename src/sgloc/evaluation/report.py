@@ -26,67 +26,23 @@ from sgloc.data import PROJECT_ROOT
 
 #: The paper's Table 1 (Airsim, T_error = 5 m; i7-9700, C++): descriptor, rejection -> values.
 PAPER_TABLE1: dict[tuple[str, str], dict[str, str]] = {
-    ("histogram", "none"): dict(
-        final="67.84+-1.55",
-        recall="85.2",
-        precision="77.3",
-        rejection="-",
-        ransac="19.2",
-        total="19.2",
-        te="3.02+-0.91",
-        re="0.41+-0.32",
-    ),
-    ("histogram", "neighbor"): dict(
-        final="72.67+-0.78",
-        recall="91.4",
-        precision="87.9",
-        rejection="1.2",
-        ransac="7.9",
-        total="9.1",
-        te="2.69+-0.43",
-        re="0.40+-0.22",
-    ),
-    ("fast", "none"): dict(
-        final="24.84+-3.47",
-        recall="65.4",
-        precision="73.3",
-        rejection="-",
-        ransac="18.4",
-        total="18.4",
-        te="5.72+-6.53",
-        re="3.88+-5.71",
-    ),
-    ("fast", "neighbor"): dict(
-        final="36.69+-1.34",
-        recall="85.0",
-        precision="65.7",
-        rejection="1.0",
-        ransac="6.0",
-        total="7.0",
-        te="4.33+-1.31",
-        re="0.85+-0.28",
-    ),
-    ("random_walk", "none"): dict(
-        final="62.90+-1.91",
-        recall="66.3",
-        precision="83.0",
-        rejection="-",
-        ransac="18.3",
-        total="18.3",
-        te="2.76+-0.94",
-        re="0.61+-0.33",
-    ),
-    ("random_walk", "neighbor"): dict(
-        final="68.13+-0.61",
-        recall="71.3",
-        precision="91.2",
-        rejection="0.7",
-        ransac="11.7",
-        total="12.4",
-        te="2.44+-0.49",
-        re="0.61+-0.15",
-    ),
-}
+    setting: dict(zip(("final", "recall", "precision", "rejection", "ransac", "total", "te", "re"),
+                      values, strict=True))
+    for setting, values in {
+        ("histogram", "none"): ("67.84+-1.55", "85.2", "77.3", "-", "19.2", "19.2", "3.02+-0.91",
+                                "0.41+-0.32"),
+        ("histogram", "neighbor"): ("72.67+-0.78", "91.4", "87.9", "1.2", "7.9", "9.1",
+                                    "2.69+-0.43", "0.40+-0.22"),
+        ("fast", "none"): ("24.84+-3.47", "65.4", "73.3", "-", "18.4", "18.4", "5.72+-6.53",
+                           "3.88+-5.71"),
+        ("fast", "neighbor"): ("36.69+-1.34", "85.0", "65.7", "1.0", "6.0", "7.0", "4.33+-1.31",
+                               "0.85+-0.28"),
+        ("random_walk", "none"): ("62.90+-1.91", "66.3", "83.0", "-", "18.3", "18.3",
+                                  "2.76+-0.94", "0.61+-0.33"),
+        ("random_walk", "neighbor"): ("68.13+-0.61", "71.3", "91.2", "0.7", "11.7", "12.4",
+                                      "2.44+-0.49", "0.61+-0.15"),
+    }.items()
+}  # fmt: skip
 
 
 # -- CSV --------------------------------------------------------------------------------------
@@ -207,6 +163,10 @@ FAILURES = "failures (not loc. + wrong)"
 SETTING_LABEL = {"histogram": "Histogram", "fast": "Fast", "random_walk": "Random Walk"}
 
 
+def _failures(s: dict[str, Any]) -> str:
+    return f"{s['failures']} ({s['not_localized']} + {s['wrong']})"
+
+
 def setting_label(descriptor: str, rejection: str) -> str:
     """'Histogram' / 'Histogram + neighbor' style row names."""
     base = SETTING_LABEL.get(descriptor, descriptor)
@@ -222,40 +182,18 @@ def table1_markdown(summary: Sequence[dict[str, Any]], with_paper: bool = True) 
     ]  # fmt: skip
     body = []
     for s in summary:
-        body.append(
-            [
-                f"**{setting_label(s['descriptor'], s['rejection'])}** (ours)",
-                s["trials"],
-                f"{s['failures']} ({s['not_localized']} + {s['wrong']})",
-                pm(s["final_mean"], s["final_std"]),
-                fmt(100 * s["recall"], 1),
-                fmt(100 * s["precision"], 1),
-                fmt(s["rejection_ms"]) if s["rejection"] != "none" else "-",
-                fmt(s["ransac_ms"]),
-                fmt(s["total_ms"]),
-                fmt(s["pipeline_ms"]),
-                pm(s["te_mean"], s["te_std"]),
-                pm(s["re_mean"], s["re_std"]),
-            ]
-        )
+        label = setting_label(s["descriptor"], s["rejection"])
+        body.append([
+            f"**{label}** (ours)", s["trials"], _failures(s), pm(s["final_mean"], s["final_std"]),
+            fmt(100 * s["recall"], 1), fmt(100 * s["precision"], 1),
+            fmt(s["rejection_ms"]) if s["rejection"] != "none" else "-", fmt(s["ransac_ms"]),
+            fmt(s["total_ms"]), fmt(s["pipeline_ms"]), pm(s["te_mean"], s["te_std"]),
+            pm(s["re_mean"], s["re_std"]),
+        ])  # fmt: skip
         p = PAPER_TABLE1.get((s["descriptor"], s["rejection"]))
         if with_paper and p:
-            body.append(
-                [
-                    f"{setting_label(s['descriptor'], s['rejection'])} (paper)",
-                    100,
-                    "-",
-                    p["final"],
-                    p["recall"],
-                    p["precision"],
-                    p["rejection"],
-                    p["ransac"],
-                    p["total"],
-                    "-",
-                    p["te"],
-                    p["re"],
-                ]  # fmt: skip
-            )
+            body.append([f"{label} (paper)", 100, "-", p["final"], p["recall"], p["precision"],
+                         p["rejection"], p["ransac"], p["total"], "-", p["te"], p["re"]])
     return markdown_table(header, body)
 
 
@@ -269,7 +207,7 @@ def sweep_markdown(summary: Sequence[dict[str, Any]], by: Sequence[str]) -> str:
             *(s[k] for k in by),
             *([fmt(s["achieved_overlap"])] if extra else []),
             s["trials"],
-            f"{s['failures']} ({s['not_localized']} + {s['wrong']})",
+            _failures(s),
             fmt(s["final_mean"], 1),
             fmt(100 * s["recall"], 1),
             fmt(100 * s["precision"], 1),

@@ -89,19 +89,10 @@ class Sweep:
 
     def to_dict(self) -> dict[str, Any]:
         """The sweep as plain data (for the experiment's config YAML)."""
-        return {
-            "dataset": self.dataset,
-            "dataset_params": dict(self.dataset_params),
-            "settings": dict(self.settings),
-            "axes": {k: list(v) for k, v in self.axes.items()},
-            "dataset_axes": {k: list(v) for k, v in self.dataset_axes.items()},
-            "trials": self.trials,
-            "first_seed": self.first_seed,
-            "T_p": self.T_p,
-            "failure_m": self.failure_m,
-            "repeats": self.repeats,
-            "clock": self.clock,
-        }
+        d = dataclasses.asdict(self)
+        d["axes"] = {k: list(v) for k, v in self.axes.items()}
+        d["dataset_axes"] = {k: list(v) for k, v in self.dataset_axes.items()}
+        return d
 
 
 def _stage_params() -> set[str]:

@@ -9,7 +9,7 @@ Trials run serially, on local processes (`workers`), or on a Dask cluster (`sche
 from __future__ import annotations
 
 import contextlib
-import dataclasses
+import functools
 import os
 import time
 import types
@@ -63,46 +63,8 @@ class TrialTask:
     clock: str = "cpu"
 
 
-@dataclass
-class TrialRow:
-    """One trial's outcome: pose errors, match counts, recall/precision, stage times (ms).
-
-    translation_error_m / rotation_error_deg: of T_est @ inv(T_gt) in the target map's own
-    frame; translation_error_moved_m: the same in the randomly moved frame the target was
-    handed over in (adds up to |rotation error| x |random shift|); `failed` uses the former.
-    The pair's info (e.g. the achieved overlap) is appended as pair_* columns.
-    """
-
-    dataset: str
-    descriptor: str
-    rejection: str
-    ransac_threshold: float
-    seed: int
-    localized: bool
-    failed: bool
-    translation_error_m: float
-    rotation_error_deg: float
-    translation_error_moved_m: float
-    n_candidates: int
-    n_correct_candidates: int
-    n_survivors: int
-    n_correct_survivors: int
-    n_final: int
-    n_correct_final: int
-    recall: float
-    precision: float
-    t_descriptors_ms: float
-    t_matching_ms: float
-    t_rejection_ms: float
-    t_ransac_ms: float
-    t_estimation_ms: float
-    t_total_ms: float
-    t_cpu_ms: float
-    reason: str = ""
-
-    def to_dict(self, tags: dict[str, Any] | None = None) -> dict[str, Any]:
-        """Flat dict: the tags first, then the fields."""
-        return {**(tags or {}), **dataclasses.asdict(self)}
+#: The localizer's stages timed in every row (t_<stage>_ms; NaN when a stage did not run).
+STAGES = ("descriptors", "matching", "rejection", "ransac", "estimation", "total")
 
 
 _SOURCES: dict[tuple, Any] = {}
@@ -116,20 +78,15 @@ def _source(dataset: str, params: dict[str, Any]):
     return _SOURCES[key]
 
 
-_THREADS_LIMITED = False
-
-
+@functools.cache
 def limit_blas_threads() -> None:
     """Limit BLAS/OpenMP to one thread in this process (once). Trials are small matrix work:
     a multi-threaded OpenBLAS only spins on a loaded machine (measured here: matching 2 ms
     single-threaded, ~170 ms with OpenBLAS threads while other processes ran), and parallel
     trial workers would oversubscribe the cores."""
-    global _THREADS_LIMITED
-    if not _THREADS_LIMITED:
-        from threadpoolctl import threadpool_limits
+    from threadpoolctl import threadpool_limits
 
-        threadpool_limits(limits=1)
-        _THREADS_LIMITED = True
+    threadpool_limits(limits=1)
 
 
 @contextlib.contextmanager
@@ -149,8 +106,15 @@ def _stage_clock(clock: str) -> Iterator[None]:
 
 
 def run_task(task: TrialTask) -> dict[str, Any]:
-    """Run one trial and return its row as a flat dict (tags first). BLAS runs single-threaded
-    in the calling process from then on (see `limit_blas_threads`)."""
+    """Run one trial and return its row as a flat dict: the task's tags, then dataset, settings,
+    seed, outcome, pose errors, match counts (`MatchStats`), recall/precision, stage times (ms),
+    the call's CPU time, the localizer's reason, then the pair's info as pair_* columns.
+
+    translation_error_m / rotation_error_deg: of T_est @ inv(T_gt) in the target map's own
+    frame; translation_error_moved_m: the same in the randomly moved frame the target was
+    handed over in (adds up to |rotation error| x |random shift|); `failed` uses the former.
+    BLAS runs single-threaded in the calling process from then on (see `limit_blas_threads`).
+    """
     limit_blas_threads()
     pair = _source(task.dataset, task.dataset_params)(task.seed)
     cfg = LocalizerConfig.from_dict(task.config)
@@ -164,65 +128,41 @@ def run_task(task: TrialTask) -> dict[str, Any]:
             res = localizer(pair.query, pair.target, rng)
         cpu.append(time.thread_time() - c0)
         timings.append(res.timings)
-    fastest = {k: min(t[k] for t in timings) for k in timings[0]}
+    ms = {k: 1e3 * min(t[k] for t in timings) for k in timings[0]}
     te_moved, _ = pose_errors(res.transform, pair.T_target_query)
     T_own_moved = invert(pair.T_moved_own)
     T_est_own = None if res.transform is None else T_own_moved @ res.transform
     te, re = pose_errors(T_est_own, T_own_moved @ pair.T_target_query)
-    st = match_stats(
-        pair.query.positions,
-        pair.target.positions,
-        res.candidates,
-        res.survivors,
-        res.matches,
-        pair.T_target_query,
-        task.T_p,
-    )
-    ms = {k: 1e3 * v for k, v in fastest.items()}
-    row = TrialRow(
-        dataset=task.dataset,
-        descriptor=cfg.descriptor,
-        rejection=cfg.rejection,
-        ransac_threshold=float(cfg.ransac.threshold),
-        seed=int(task.seed),
-        localized=bool(res.success),
-        failed=is_failure(te, task.failure_m),
-        translation_error_m=te,
-        rotation_error_deg=re,
-        translation_error_moved_m=te_moved,
-        recall=st.recall,
-        precision=st.precision,
-        **{k: v for k, v in dataclasses.asdict(st).items()},
-        t_descriptors_ms=ms.get("descriptors", float("nan")),
-        t_matching_ms=ms.get("matching", float("nan")),
-        t_rejection_ms=ms.get("rejection", float("nan")),
-        t_ransac_ms=ms.get("ransac", float("nan")),
-        t_estimation_ms=ms.get("estimation", float("nan")),
-        t_total_ms=ms.get("total", float("nan")),
-        t_cpu_ms=1e3 * min(cpu),
-        reason=res.reason,
-    )
-    info = {f"pair_{k}": v for k, v in pair.info.items()}
-    known = {"descriptors", "matching", "rejection", "ransac", "estimation", "total"}
-    extra = {f"t_{k}_ms": v for k, v in ms.items() if k not in known}  # e.g. acceptance
-    return {**row.to_dict(task.tags), **extra, **info}
+    q, t, T_gt = pair.query.positions, pair.target.positions, pair.T_target_query
+    st = match_stats(q, t, res.candidates, res.survivors, res.matches, T_gt, task.T_p)
+    return {
+        **task.tags,
+        "dataset": task.dataset,
+        "descriptor": cfg.descriptor,
+        "rejection": cfg.rejection,
+        "ransac_threshold": float(cfg.ransac.threshold),
+        "seed": int(task.seed),
+        "localized": bool(res.success),
+        "failed": is_failure(te, task.failure_m),
+        "translation_error_m": te,
+        "rotation_error_deg": re,
+        "translation_error_moved_m": te_moved,
+        **st.to_dict(),
+        **{f"t_{k}_ms": ms.get(k, float("nan")) for k in STAGES},
+        "t_cpu_ms": 1e3 * min(cpu),
+        "reason": res.reason,
+        **{f"t_{k}_ms": v for k, v in ms.items() if k not in STAGES},  # e.g. acceptance
+        **{f"pair_{k}": v for k, v in pair.info.items()},
+    }
 
 
 Progress = Callable[[int], None]
 
 
-@dataclass
-class PrepareTask:
-    """Warm a pair source's cache for one seed (e.g. render a synthetic world once)."""
-
-    dataset: str
-    dataset_params: dict[str, Any]
-    seed: int
-
-
-def prepare_tasks(tasks: Sequence[TrialTask]) -> list[PrepareTask]:
-    """One PrepareTask per distinct world the trials need, for sources with a `prepare(seed)`
-    method and a `world(seed)` naming the cached item; empty for the others."""
+def prepare_tasks(tasks: Sequence[TrialTask]) -> list[TrialTask]:
+    """The first trial of each distinct world the trials need, for sources with a
+    `prepare(seed)` method (e.g. render a synthetic world once) and a `world(seed)` naming the
+    cached item; empty for the others. Run them with `run_tasks(..., fn=run_prepare)`."""
     out, seen = [], set()
     for t in tasks:
         src = _source(t.dataset, t.dataset_params)
@@ -231,12 +171,12 @@ def prepare_tasks(tasks: Sequence[TrialTask]) -> list[PrepareTask]:
         key = (t.dataset, repr(sorted(t.dataset_params.items())), src.world(t.seed))
         if key not in seen:
             seen.add(key)
-            out.append(PrepareTask(t.dataset, t.dataset_params, t.seed))
+            out.append(t)
     return out
 
 
-def run_prepare(task: PrepareTask) -> str:
-    """Run one PrepareTask (picklable entry point)."""
+def run_prepare(task: TrialTask) -> str:
+    """Warm the pair source's cache for the task's seed (picklable entry point)."""
     return _source(task.dataset, task.dataset_params).prepare(task.seed)
 
 

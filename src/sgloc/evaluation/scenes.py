@@ -1,0 +1,133 @@
+"""What every evaluation scene is made of: the `Pair`, the random motion of the target map, the
+route overlap, and the registry of pair sources.
+
+The lowest module of `sgloc.evaluation` (it imports none of the others). The map builders sit
+beside their data (`pairs_kitti`, `pairs_sim`, `pairs_synthia`, `pairs`); trials, the acceptance
+pair sets, the fleet scenes and the benchmarks all build their pairs from them and from here.
+
+Seeds: a pair source's randomness uses `pair_rng(seed)` = `np.random.default_rng([seed,
+PAIR_STREAM])`; the localizer in a trial uses another stream of the same seed.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from sgloc.geometry import random_rigid_transform
+from sgloc.graph import SemanticGraph
+
+#: Stream index of the pair's random numbers within a trial seed.
+PAIR_STREAM = 0
+#: Default random motion of the target map: translation (m) and roll/pitch (deg) bounds.
+MAX_TRANSLATION, MAX_ROLL_PITCH_DEG = 200.0, 5.0
+
+
+@dataclass
+class Pair:
+    """Two robots' graphs and the ground truth: p_target = T_target_query @ p_query.
+
+    T_moved_own: the random rigid motion applied to the target map in this trial (its map
+    frame "own" -> the frame it is handed to the localizer in, "moved"); identity when none.
+    Pose errors are reported in the target map's own frame (undoing that motion), so that a
+    random 200 m shift of the frame's origin does not turn rotation error into translation
+    error; the error in the moved frame is reported beside it.
+    """
+
+    query: SemanticGraph
+    target: SemanticGraph
+    T_target_query: np.ndarray
+    info: dict[str, Any] = field(default_factory=dict)
+    T_moved_own: np.ndarray = field(default_factory=lambda: np.eye(4))
+
+
+PairSource = Callable[[int], Pair]
+
+#: name -> class of pair source (called with its parameters, then with a seed).
+PAIR_SOURCES: dict[str, type] = {}
+
+
+def register_pair_source(name: str) -> Callable[[type], type]:
+    """Class decorator: register a pair source class under `name`."""
+
+    def deco(cls: type) -> type:
+        PAIR_SOURCES[name] = cls
+        cls.source_name = name
+        return cls
+
+    return deco
+
+
+def pair_rng(seed: int) -> np.random.Generator:
+    """The generator of a trial's pair randomness (initial transform, world, split)."""
+    return np.random.default_rng([int(seed), PAIR_STREAM])
+
+
+@functools.lru_cache(maxsize=16)
+def load_graph_cached(path: str, edge_radius: float) -> SemanticGraph:
+    """Load a graph file once per process (graphs are immutable, so sharing is safe)."""
+    return SemanticGraph.load(path, edge_radius=edge_radius)
+
+
+def move_target(
+    query: SemanticGraph,
+    target_same_frame: SemanticGraph,
+    T_target_query0: np.ndarray,
+    rng: np.random.Generator,
+    max_translation: float = MAX_TRANSLATION,
+    max_roll_pitch_deg: float = MAX_ROLL_PITCH_DEG,
+) -> Pair:
+    """The pair with the target map moved by a random rigid transform T drawn from `rng` (any
+    yaw, roll/pitch up to `max_roll_pitch_deg`, translation up to `max_translation` m); the
+    ground truth becomes T @ T_target_query0. Pair sources pass `pair_rng(seed)`."""
+    T = random_rigid_transform(rng, max_translation, max_roll_pitch_deg)
+    return Pair(
+        query=query,
+        target=target_same_frame.transformed(T),
+        T_target_query=T @ T_target_query0,
+        T_moved_own=T,
+        info={"initial_translation_m": float(np.linalg.norm(T[:3, 3]))},
+    )
+
+
+@dataclass(frozen=True)
+class MovedTargetSource:
+    """Base of the pair sources that hand the target map over moved by a random rigid transform
+    per trial (see `move_target`)."""
+
+    max_translation: float = MAX_TRANSLATION
+    max_roll_pitch_deg: float = MAX_ROLL_PITCH_DEG
+
+    def moved(
+        self, query: SemanticGraph, target: SemanticGraph, T_target_query0: np.ndarray, seed: int
+    ) -> Pair:
+        """The pair of trial `seed`: the target moved by its random transform (`pair_rng`)."""
+        rng = pair_rng(seed)
+        return move_target(
+            query, target, T_target_query0, rng, self.max_translation, self.max_roll_pitch_deg
+        )
+
+
+def data_root(root: str | None, data_set: str) -> str:
+    """`root` made absolute, or the folder of `data_set` under SGLOC_DATA when it is unset (so
+    remote workers need no SGLOC_DATA)."""
+    from pathlib import Path
+
+    from sgloc.data import data_path
+
+    return str((Path(root) if root else data_path(data_set)).resolve())
+
+
+def route_overlap(xy_query: np.ndarray, xy_target: np.ndarray, radius: float) -> float:
+    """Fraction of the query route's length (positions (n,2) or (n,3) along the route, metres)
+    that passes within `radius` of the target route's positions. The one overlap definition of
+    the evaluation (`Kitti00Pairs.sliding_windows` computes it for many windows at once)."""
+    from scipy.spatial import cKDTree
+
+    step = np.linalg.norm(np.diff(xy_query, axis=0), axis=1)
+    near = cKDTree(xy_target).query(xy_query[:-1], distance_upper_bound=radius)[0] < radius
+    return float((step * near).sum() / max(step.sum(), 1e-9))
