@@ -105,13 +105,19 @@ PREVIOUS: dict[str, Any] = {
     "min_inliers": 5,
     "min_inlier_ratio": 0.01,
     "scoring": "msac",
-    "confidence": 0.999,
+    "ransac_confidence": 0.999,
     "batch": 100,
     "refit_rounds": 2,
     "class_weights": None,
     "robust_refit": True,
     "icp": False,
     "icp_max_distance": 5.0,
+    # Settings added after 5466411, pinned to what the code did then: any rigid motion (no
+    # gravity gate), best-per-query candidates, every candidate weighed by the acceptance test.
+    "dof": 6,
+    "max_tilt": None,
+    "strategy": "top_k",
+    "max_ratio": None,
     "acceptance": {
         "enabled": True,
         "min_confidence": 0.9999,
@@ -120,6 +126,7 @@ PREVIOUS: dict[str, Any] = {
         "distinct_translation": 10.0,
         "distinct_rotation": 10.0,
         "runner_up_samples": 128,
+        "distinct_ratio": None,
     },
 }
 #: Settings of LocalizerConfig.to_dict() at commit 5466411, nested ones as "stage.name" (newer
@@ -140,7 +147,7 @@ PREVIOUS_CONFIG_KEYS = {
 PAPER: dict[str, Any] = {
     **{k: v for k, v in PREVIOUS.items() if k != "acceptance"},
     "scoring": "count",
-    "confidence": None,
+    "ransac_confidence": None,
     "robust_refit": False,
     "acceptance": False,
 }
