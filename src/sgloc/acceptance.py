@@ -17,7 +17,8 @@ RANSAC searches over the transforms fixed by triples of candidates; only triples
 distances agree within 2 * radius in both graphs can all be inliers, so the number of tests N is
 the number of such triples (triangles of the pairwise-consistency graph; at most C(m, 3)), and
 the number of false alarms is NFA_u = N * P(Poisson(lambda) >= k - 3) (k inliers among the m
-candidates; Poisson has a heavier tail than the binomial of the same mean: conservative in p).
+candidates, counted per query object: an object with several candidate targets is one inlier;
+Poisson has a heavier tail than the binomial of the same mean: conservative in p).
 As in AC-RANSAC the radius adapts to the precision of the fit: the NFA is evaluated with the
 inliers within 1/4, 1/2 and all of the radius (the smallest counts, the number of tests
 multiplied by 3), each with lambda scaled by (r_fit / radius)^2, r_fit = the largest residual
@@ -377,6 +378,17 @@ def _triplet_hypotheses(
     return (R, t) if len(R) else None
 
 
+def per_object_min(res2: np.ndarray, query_index: np.ndarray) -> np.ndarray:
+    """The smallest squared residual per query object of candidates (`query_index` per row): an
+    object with several candidate targets is one piece of evidence, inlier when any is."""
+    if res2.size == 0:
+        return res2
+    objects, row_object = np.unique(query_index, return_inverse=True)
+    best = np.full(objects.size, np.inf)
+    np.minimum.at(best, row_object, res2)
+    return best
+
+
 def inlier_spread(points: np.ndarray, dof: int = 6) -> float:
     """Standard deviation (metres) of `points` (k,3) along their second principal axis; with
     dof=4 along the first principal axis of their xy (with gravity fixing roll and pitch, a
@@ -423,7 +435,7 @@ def assess(
     moved = src @ transform[:3, :3].T + transform[:3, 3]
     res2 = np.sum((moved - dst) ** 2, axis=1)
     inl = res2 < r**2
-    k = int(inl.sum())
+    k = int(np.unique(cand[inl, 0]).size)
     n_classes = max(query.n_classes, target.n_classes)
     chance = _ChanceModel(target, r, n_classes)
     qi = cand[:, 0]
@@ -443,10 +455,11 @@ def assess(
         n_tests = float(edges[0].size)
     else:
         n_tests = _triangles(consistency, *edges) if m >= 3 else 0.0
-    lg_uniform, k_fit, r_fit = nfa_over_radii(res2, r, lam, m, n_tests, sample)
+    obj2 = per_object_min(res2, cand[:, 0])
+    lg_uniform, k_fit, r_fit = nfa_over_radii(obj2, r, lam, m, n_tests, sample)
     lam_perm = float(np.sum(used[qi, tlab] / np.bincount(tlab, minlength=n_classes)[tlab]))
     lg_geo, colocated, mu_geo = log10_colocation_p(query, counts > 0, cand[inl, 0])
-    lg_perm = nfa_over_radii(res2, r, lam_perm, m, n_tests, sample)[0] + min(lg_geo, 0.0)
+    lg_perm = nfa_over_radii(obj2, r, lam_perm, m, n_tests, sample)[0] + min(lg_geo, 0.0)
     lg_best = max(lg_uniform, lg_perm)
     spread = inlier_spread(dst[inl], dof)
     explained = res2 < (2 * r) ** 2
@@ -465,7 +478,8 @@ def assess(
         )
     if T2 is not None:
         (counts2,) = chance.near_counts(apply(T2, query.positions))
-        d2 = np.sum((apply(T2, src) - dst) ** 2, axis=1)[~explained]
+        d2 = np.sum((apply(T2, src) - dst) ** 2, axis=1)
+        d2 = per_object_min(d2[~explained], cand[~explained, 0])
         lam2 = chance.expected_inliers(counts2, qi, tlab)
         lg_second = nfa_over_radii(d2, r, lam2, m, n_tests, sample)[0]
     else:
