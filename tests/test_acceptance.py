@@ -161,3 +161,21 @@ def test_an_object_with_several_candidate_targets_is_one_inlier(rng):
     b = assess(g, g, twice, np.eye(4), 2.0, AcceptanceConfig(), rng)
     assert a.details["inliers"] == b.details["inliers"] == 30
     assert b.details["fit_inliers"] == 30
+
+
+def test_permutation_null_leaves_the_candidate_out():
+    from sgloc.acceptance import _ChanceModel, permutation_lambda
+
+    target = SemanticGraph(np.array([[0.0, 0, 0], [50, 0, 0], [100, 0, 0], [150, 0, 0]]),
+                           np.array([0, 0, 0, 1]))  # fmt: skip
+    chance = _ChanceModel(target, 2.0, 2)
+    # Two class-0 candidates, each an inlier on its own target, far from the other's target:
+    # under the leave-one-out null neither expects an inlier (with itself in, each would 1/2).
+    lam = permutation_lambda(np.array([1.0, 1.0]), np.array([True, True]), np.array([0, 0]),
+                             np.array([1.0, 1.0]), chance)  # fmt: skip
+    assert lam == 0.0
+    # The only candidate of class 1: the uniform null's N_c / n_c (no class-1 target near its
+    # moved position here: 0), not 1 because its own target is near.
+    lam1 = permutation_lambda(np.array([1.0]), np.array([True]), np.array([1]), np.array([0.0]),
+                              chance)  # fmt: skip
+    assert lam1 == 0.0

@@ -29,10 +29,12 @@ matches: the tests are the consistent pairs and the excess is k - 2.
 H0p (permutation): the target of candidate i is drawn from the targets the candidates of its
 class actually matched (what permuting targets within a class does). Repeated street furniture
 concentrates the matches on look-alike objects, which H0u ignores; H0p prices it in
-(lambda_p from the candidates' own targets). A true overlap also agrees *beyond* the matches:
-the query objects that are not inliers but land on a same-class target object after alignment
-are counted against a label-permutation null (log10_colocation_p), and that p-value multiplies
-NFA_p = N * P(Poisson(lambda_p) >= k - 3). NFA_best = max(NFA_u, NFA_p * p_colocation).
+(lambda_p from the candidates' own targets, leave-one-out: candidate i's target is drawn from
+the other candidates' targets, so an inlier does not explain itself). A true overlap also
+agrees *beyond* the matches: the query objects that are not inliers but land on a same-class
+target object after alignment are counted against a label-permutation null
+(log10_colocation_p), and that p-value multiplies NFA_p = N * P(Poisson(lambda_p) >= k - 3).
+NFA_best = max(NFA_u, NFA_p * p_colocation).
 
     confidence = 1 / (1 + NFA_best + NFA_best / NFA_runner_up)
 
@@ -378,6 +380,27 @@ def _triplet_hypotheses(
     return (R, t) if len(R) else None
 
 
+def permutation_lambda(
+    used_near: np.ndarray,
+    inlier: np.ndarray,
+    tlab: np.ndarray,
+    near: np.ndarray,
+    chance: _ChanceModel,
+) -> float:
+    """Expected chance inliers under the permutation null, leave-one-out: candidate i's target
+    is drawn from the targets the *other* candidates of its class matched (`used_near`: how
+    many of all the class's candidate targets lie within the radius of T q_i; an inlier's own
+    target is one of them and is taken out). Drawing from a distribution that holds i's own
+    target would make every inlier explain itself: with one candidate of a class its p would
+    be 1, whatever the map. A class with a single candidate takes the uniform null's N_c / n_c
+    (`near`: class-c target objects within the radius)."""
+    m_c = np.bincount(tlab)[tlab].astype(np.float64)
+    others = np.maximum(used_near - inlier, 0.0)
+    uniform = near / chance.class_count[tlab]
+    p = np.where(m_c > 1, others / np.maximum(m_c - 1.0, 1.0), uniform)
+    return float(np.sum(p))
+
+
 def per_object_min(res2: np.ndarray, query_index: np.ndarray) -> np.ndarray:
     """The smallest squared residual per query object of candidates (`query_index` per row): an
     object with several candidate targets is one piece of evidence, inlier when any is."""
@@ -457,7 +480,7 @@ def assess(
         n_tests = _triangles(consistency, *edges) if m >= 3 else 0.0
     obj2 = per_object_min(res2, cand[:, 0])
     lg_uniform, k_fit, r_fit = nfa_over_radii(obj2, r, lam, m, n_tests, sample)
-    lam_perm = float(np.sum(used[qi, tlab] / np.bincount(tlab, minlength=n_classes)[tlab]))
+    lam_perm = permutation_lambda(used[qi, tlab], inl, tlab, counts[qi, tlab], chance)
     lg_geo, colocated, mu_geo = log10_colocation_p(query, counts > 0, cand[inl, 0])
     lg_perm = nfa_over_radii(obj2, r, lam_perm, m, n_tests, sample)[0] + min(lg_geo, 0.0)
     lg_best = max(lg_uniform, lg_perm)
