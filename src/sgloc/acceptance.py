@@ -404,8 +404,8 @@ def permutation_lambda(
 def per_object_min(res2: np.ndarray, query_index: np.ndarray) -> np.ndarray:
     """The smallest squared residual per query object of candidates (`query_index` per row): an
     object with several candidate targets is one piece of evidence, inlier when any is."""
-    if res2.size == 0:
-        return res2
+    if res2.size == 0 or np.all(query_index[1:] > query_index[:-1]):
+        return res2  # one candidate per object (the usual top-1 candidates, sorted by query)
     objects, row_object = np.unique(query_index, return_inverse=True)
     best = np.full(objects.size, np.inf)
     np.minimum.at(best, row_object, res2)
