@@ -129,8 +129,9 @@ PREVIOUS: dict[str, Any] = {
         "distinct_ratio": None,
     },
 }
-#: Settings of LocalizerConfig.to_dict() at commit 5466411, nested ones as "stage.name" (newer
-#: ones are reported, since `previous` and `paper` then take their current defaults).
+#: Settings of LocalizerConfig.to_dict() at commit 5466411, nested ones as "stage.name", and the
+#: newer ones PREVIOUS pins to the old behaviour (any other newer one is reported, since
+#: `previous` and `paper` then take its current default).
 PREVIOUS_CONFIG_KEYS = {
     "descriptor", "descriptor_params", "rejection", "rejection_params", "class_weights",
     "robust_refit", "icp", "icp_max_distance",
@@ -140,6 +141,8 @@ PREVIOUS_CONFIG_KEYS = {
     "acceptance.enabled", "acceptance.min_confidence", "acceptance.radius",
     "acceptance.min_spread", "acceptance.distinct_translation", "acceptance.distinct_rotation",
     "acceptance.runner_up_samples",
+    "ransac.dof", "ransac.max_tilt", "matching.strategy", "matching.max_ratio",
+    "acceptance.distinct_ratio",
 }  # fmt: skip
 #: The paper's pipeline: histogram + neighbor (Alg. 1), Guo's RANSAC (1000 fixed iterations,
 #: most inliers, >= 5 inliers and >= 1 %), T_error = tau = 5 m, plain weighted fit, and Guo's
