@@ -43,19 +43,20 @@ inliers, >= 1 % of the matches). Its `confidence` in [0, 1]:
     confidence = 1 / (1 + NFA_best + NFA_best / NFA_runner_up)    (0 if inlier spread < 5 m)
 
 NFA (number of false alarms, a-contrario as in AC-RANSAC) = max of two nulls.
-Uniform: N * P(Poisson(lambda) >= k - 3), k = candidate matches (before rejection) within the
-RANSAC threshold of the estimate; lambda = the inliers expected if each candidate's target were
-a random object of its class (same-class target density around each moved query object); N =
-number of candidate triples whose pairwise distances agree within twice the threshold (the
-hypotheses RANSAC can form; with the default 4-dof model, pairs fix a hypothesis: N = consistent
-pairs and the excess is k - 2). Permutation: the same with lambda computed as if each candidate's
-target were drawn from the targets its class's candidates actually matched (repeated look-alike
-objects), times the p-value of the query objects that are *not* inliers yet land on a same-class
-target object (against the query's class frequencies): independent confirmation by the rest of
-the map. Both are evaluated at 1/4, 1/2 and all of the threshold (the smallest NFA, times 3),
-each lambda scaled by (r_fit / threshold)^2, r_fit = the largest residual of the inliers within
-that radius (at least 10 % of the threshold), as AC-RANSAC adapts its radius to the precision
-of the fit.
+Uniform: N * P(Poisson(lambda) >= k - 3), k = query objects with a candidate match (before
+rejection) within the RANSAC threshold of the estimate; lambda = the inliers expected if each
+candidate's target were a random object of its class (same-class target density around each
+moved query object); N = number of candidate triples whose pairwise distances agree within twice
+the threshold (the hypotheses RANSAC can form; with the default 4-dof model, pairs fix a
+hypothesis: N = consistent pairs and the excess is k - 2). Permutation: the same with lambda
+computed as if each candidate's target were drawn from the targets the *other* candidates of its
+class matched (repeated look-alike objects; leaving the candidate out keeps an inlier from
+explaining itself), times the p-value of the query objects that are *not* inliers yet land on a
+same-class target object (against the query's class frequencies): independent confirmation by
+the rest of the map. Both are evaluated at 1/4, 1/2 and all of the threshold (the smallest NFA,
+times 3), each lambda scaled by (r_fit / threshold)^2, r_fit = the largest residual of the
+inliers within that radius (at least 10 % of the threshold), as AC-RANSAC adapts its radius to
+the precision of the fit.
 The runner-up is the best *distinct* alignment (> 10 m or > 10 deg away, supported by
 candidates the best does not explain). So confidence is the weight of the best alignment when
 it, the runner-up and chance are weighed by 1/NFA; under the nulls, a non-overlapping pair

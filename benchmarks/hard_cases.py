@@ -106,13 +106,19 @@ PREVIOUS: dict[str, Any] = {
     "min_inliers": 5,
     "min_inlier_ratio": 0.01,
     "scoring": "msac",
-    "confidence": 0.999,
+    "ransac_confidence": 0.999,
     "batch": 100,
     "refit_rounds": 2,
     "class_weights": None,
     "robust_refit": True,
     "icp": False,
     "icp_max_distance": 5.0,
+    # Settings added after 5466411, pinned to what the code did then: any rigid motion (no
+    # gravity gate), best-per-query candidates, every candidate weighed by the acceptance test.
+    "dof": 6,
+    "max_tilt": None,
+    "strategy": "top_k",
+    "max_ratio": None,
     "acceptance": {
         "enabled": True,
         "min_confidence": 0.9999,
@@ -121,10 +127,12 @@ PREVIOUS: dict[str, Any] = {
         "distinct_translation": 10.0,
         "distinct_rotation": 10.0,
         "runner_up_samples": 128,
+        "distinct_ratio": None,
     },
 }
-#: Settings of LocalizerConfig.to_dict() at commit 5466411, nested ones as "stage.name" (newer
-#: ones are reported, since `previous` and `paper` then take their current defaults).
+#: Settings of LocalizerConfig.to_dict() at commit 5466411, nested ones as "stage.name", and the
+#: newer ones PREVIOUS pins to the old behaviour (any other newer one is reported, since
+#: `previous` and `paper` then take its current default).
 PREVIOUS_CONFIG_KEYS = {
     "descriptor", "descriptor_params", "rejection", "rejection_params", "class_weights",
     "robust_refit", "icp", "icp_max_distance",
@@ -134,6 +142,8 @@ PREVIOUS_CONFIG_KEYS = {
     "acceptance.enabled", "acceptance.min_confidence", "acceptance.radius",
     "acceptance.min_spread", "acceptance.distinct_translation", "acceptance.distinct_rotation",
     "acceptance.runner_up_samples",
+    "ransac.dof", "ransac.max_tilt", "matching.strategy", "matching.max_ratio",
+    "acceptance.distinct_ratio",
 }  # fmt: skip
 #: The paper's pipeline: histogram + neighbor (Alg. 1), Guo's RANSAC (1000 fixed iterations,
 #: most inliers, >= 5 inliers and >= 1 %), T_error = tau = 5 m, plain weighted fit, and Guo's
@@ -141,7 +151,7 @@ PREVIOUS_CONFIG_KEYS = {
 PAPER: dict[str, Any] = {
     **{k: v for k, v in PREVIOUS.items() if k != "acceptance"},
     "scoring": "count",
-    "confidence": None,
+    "ransac_confidence": None,
     "robust_refit": False,
     "acceptance": False,
 }

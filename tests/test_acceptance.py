@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 
 from sgloc import SemanticGraph, localize
-from sgloc.acceptance import AcceptanceConfig, assess, inlier_spread, log10_nfa
+from sgloc.acceptance import (
+    AcceptanceConfig,
+    assess,
+    inlier_spread,
+    log10_nfa,
+    per_object_min,
+)
 from sgloc.config import LocalizerConfig
 from sgloc.evaluation.acceptance_pairs import (
     airsim_pairs,
@@ -142,3 +148,34 @@ def test_bad_strictness_is_a_clear_error(airsim_graphs):
         localize(*airsim_graphs, min_confidence=1.5)
     with pytest.raises(SglocError, match="min_spread"):
         AcceptanceConfig(min_spread=-1)
+
+
+def test_an_object_with_several_candidate_targets_is_one_inlier(rng):
+    assert per_object_min(np.array([4.0, 1.0, 9.0]), np.array([2, 2, 5])).tolist() == [1.0, 9.0]
+    pos = rng.uniform(0, 100, (30, 3))
+    g = SemanticGraph(pos, rng.integers(0, 3, 30))
+    one = np.column_stack([np.arange(30), np.arange(30)])
+    # Each object also matched to itself a second time: the same evidence, not twice as much.
+    twice = np.concatenate([one, one])
+    a = assess(g, g, one, np.eye(4), 2.0, AcceptanceConfig(), rng)
+    b = assess(g, g, twice, np.eye(4), 2.0, AcceptanceConfig(), rng)
+    assert a.details["inliers"] == b.details["inliers"] == 30
+    assert b.details["fit_inliers"] == 30
+
+
+def test_permutation_null_leaves_the_candidate_out():
+    from sgloc.acceptance import _ChanceModel, permutation_lambda
+
+    target = SemanticGraph(np.array([[0.0, 0, 0], [50, 0, 0], [100, 0, 0], [150, 0, 0]]),
+                           np.array([0, 0, 0, 1]))  # fmt: skip
+    chance = _ChanceModel(target, 2.0, 2)
+    # Two class-0 candidates, each an inlier on its own target, far from the other's target:
+    # under the leave-one-out null neither expects an inlier (with itself in, each would 1/2).
+    lam = permutation_lambda(np.array([1.0, 1.0]), np.array([True, True]), np.array([0, 0]),
+                             np.array([1.0, 1.0]), chance)  # fmt: skip
+    assert lam == 0.0
+    # The only candidate of class 1: the uniform null's N_c / n_c (no class-1 target near its
+    # moved position here: 0), not 1 because its own target is near.
+    lam1 = permutation_lambda(np.array([1.0]), np.array([True]), np.array([1]), np.array([0.0]),
+                              chance)  # fmt: skip
+    assert lam1 == 0.0

@@ -17,7 +17,8 @@ RANSAC searches over the transforms fixed by triples of candidates; only triples
 distances agree within 2 * radius in both graphs can all be inliers, so the number of tests N is
 the number of such triples (triangles of the pairwise-consistency graph; at most C(m, 3)), and
 the number of false alarms is NFA_u = N * P(Poisson(lambda) >= k - 3) (k inliers among the m
-candidates; Poisson has a heavier tail than the binomial of the same mean: conservative in p).
+candidates, counted per query object: an object with several candidate targets is one inlier;
+Poisson has a heavier tail than the binomial of the same mean: conservative in p).
 As in AC-RANSAC the radius adapts to the precision of the fit: the NFA is evaluated with the
 inliers within 1/4, 1/2 and all of the radius (the smallest counts, the number of tests
 multiplied by 3), each with lambda scaled by (r_fit / radius)^2, r_fit = the largest residual
@@ -28,10 +29,12 @@ matches: the tests are the consistent pairs and the excess is k - 2.
 H0p (permutation): the target of candidate i is drawn from the targets the candidates of its
 class actually matched (what permuting targets within a class does). Repeated street furniture
 concentrates the matches on look-alike objects, which H0u ignores; H0p prices it in
-(lambda_p from the candidates' own targets). A true overlap also agrees *beyond* the matches:
-the query objects that are not inliers but land on a same-class target object after alignment
-are counted against a label-permutation null (log10_colocation_p), and that p-value multiplies
-NFA_p = N * P(Poisson(lambda_p) >= k - 3). NFA_best = max(NFA_u, NFA_p * p_colocation).
+(lambda_p from the candidates' own targets, leave-one-out: candidate i's target is drawn from
+the other candidates' targets, so an inlier does not explain itself). A true overlap also
+agrees *beyond* the matches: the query objects that are not inliers but land on a same-class
+target object after alignment are counted against a label-permutation null
+(log10_colocation_p), and that p-value multiplies NFA_p = N * P(Poisson(lambda_p) >= k - 3).
+NFA_best = max(NFA_u, NFA_p * p_colocation).
 
     confidence = 1 / (1 + NFA_best + NFA_best / NFA_runner_up)
 
@@ -377,6 +380,38 @@ def _triplet_hypotheses(
     return (R, t) if len(R) else None
 
 
+def permutation_lambda(
+    used_near: np.ndarray,
+    inlier: np.ndarray,
+    tlab: np.ndarray,
+    near: np.ndarray,
+    chance: _ChanceModel,
+) -> float:
+    """Expected chance inliers under the permutation null, leave-one-out: candidate i's target
+    is drawn from the targets the *other* candidates of its class matched (`used_near`: how
+    many of all the class's candidate targets lie within the radius of T q_i; an inlier's own
+    target is one of them and is taken out). Drawing from a distribution that holds i's own
+    target would make every inlier explain itself: with one candidate of a class its p would
+    be 1, whatever the map. A class with a single candidate takes the uniform null's N_c / n_c
+    (`near`: class-c target objects within the radius)."""
+    m_c = np.bincount(tlab)[tlab].astype(np.float64)
+    others = np.maximum(used_near - inlier, 0.0)
+    uniform = near / chance.class_count[tlab]
+    p = np.where(m_c > 1, others / np.maximum(m_c - 1.0, 1.0), uniform)
+    return float(np.sum(p))
+
+
+def per_object_min(res2: np.ndarray, query_index: np.ndarray) -> np.ndarray:
+    """The smallest squared residual per query object of candidates (`query_index` per row): an
+    object with several candidate targets is one piece of evidence, inlier when any is."""
+    if res2.size == 0 or np.all(query_index[1:] > query_index[:-1]):
+        return res2  # one candidate per object (the usual top-1 candidates, sorted by query)
+    objects, row_object = np.unique(query_index, return_inverse=True)
+    best = np.full(objects.size, np.inf)
+    np.minimum.at(best, row_object, res2)
+    return best
+
+
 def inlier_spread(points: np.ndarray, dof: int = 6) -> float:
     """Standard deviation (metres) of `points` (k,3) along their second principal axis; with
     dof=4 along the first principal axis of their xy (with gravity fixing roll and pitch, a
@@ -423,7 +458,7 @@ def assess(
     moved = src @ transform[:3, :3].T + transform[:3, 3]
     res2 = np.sum((moved - dst) ** 2, axis=1)
     inl = res2 < r**2
-    k = int(inl.sum())
+    k = int(np.unique(cand[inl, 0]).size)
     n_classes = max(query.n_classes, target.n_classes)
     chance = _ChanceModel(target, r, n_classes)
     qi = cand[:, 0]
@@ -443,10 +478,11 @@ def assess(
         n_tests = float(edges[0].size)
     else:
         n_tests = _triangles(consistency, *edges) if m >= 3 else 0.0
-    lg_uniform, k_fit, r_fit = nfa_over_radii(res2, r, lam, m, n_tests, sample)
-    lam_perm = float(np.sum(used[qi, tlab] / np.bincount(tlab, minlength=n_classes)[tlab]))
+    obj2 = per_object_min(res2, cand[:, 0])
+    lg_uniform, k_fit, r_fit = nfa_over_radii(obj2, r, lam, m, n_tests, sample)
+    lam_perm = permutation_lambda(used[qi, tlab], inl, tlab, counts[qi, tlab], chance)
     lg_geo, colocated, mu_geo = log10_colocation_p(query, counts > 0, cand[inl, 0])
-    lg_perm = nfa_over_radii(res2, r, lam_perm, m, n_tests, sample)[0] + min(lg_geo, 0.0)
+    lg_perm = nfa_over_radii(obj2, r, lam_perm, m, n_tests, sample)[0] + min(lg_geo, 0.0)
     lg_best = max(lg_uniform, lg_perm)
     spread = inlier_spread(dst[inl], dof)
     explained = res2 < (2 * r) ** 2
@@ -465,7 +501,8 @@ def assess(
         )
     if T2 is not None:
         (counts2,) = chance.near_counts(apply(T2, query.positions))
-        d2 = np.sum((apply(T2, src) - dst) ** 2, axis=1)[~explained]
+        d2 = np.sum((apply(T2, src) - dst) ** 2, axis=1)
+        d2 = per_object_min(d2[~explained], cand[~explained, 0])
         lam2 = chance.expected_inliers(counts2, qi, tlab)
         lg_second = nfa_over_radii(d2, r, lam2, m, n_tests, sample)[0]
     else:

@@ -62,7 +62,9 @@ def demo_cmd(
     height: int = typer.Option(180, help="Image height (px)."),
     length: float = typer.Option(400.0, help="Route length of each robot (m)."),
     step: float = typer.Option(2.0, help="Distance between frames (m)."),
-    descriptor: str = typer.Option("histogram", help="histogram | random_walk | fast"),
+    descriptor: str = typer.Option(
+        "distance_histogram", help="distance_histogram | triangles | histogram | random_walk | fast"
+    ),
     rejection: str = typer.Option("neighbor", help="neighbor | none"),
     cache_dir: Path | None = typer.Option(
         None, help="Where rendered runs are kept (default $SGLOC_CACHE or ~/.cache/sgloc)."

@@ -34,7 +34,9 @@ def localize_cmd(
     example: bool = typer.Option(
         False, "--example", help="Use the Airsim maps shipped with sgloc (cloud1 in cloud2)."
     ),
-    descriptor: str | None = typer.Option(None, help="histogram | random_walk | fast"),
+    descriptor: str | None = typer.Option(
+        None, help="distance_histogram (default) | triangles | histogram | random_walk | fast"
+    ),
     rejection: str | None = typer.Option(None, help="neighbor | none | any registered rejector"),
     ransac_threshold: float | None = typer.Option(None, help="RANSAC inlier distance (m)."),
     preset: str | None = preset_option(),
