@@ -191,3 +191,47 @@ def common_partner_count(bits: np.ndarray, ii: np.ndarray, jj: np.ndarray) -> in
     from sgloc.kernels.triangles import common_counts
 
     return int(common_counts(bits, np.asarray(ii, dtype=np.int64), np.asarray(jj, dtype=np.int64)))
+
+
+class ConsistentPairs:
+    """The consistent pairs i < j of packed rows (`consistency_bits`), in row-major order (that
+    of np.nonzero(np.triu(M))), without listing them: m words of bookkeeping instead of 16
+    bytes per pair (a large candidate set has tens of millions of pairs). Compiled.
+
+    size: the number of pairs; `at(k)`: (ii, jj) of the pairs at positions k; `within(keep)`:
+    the pairs whose both matches are kept (same order); `all()`: every pair."""
+
+    def __init__(self, bits: np.ndarray, keep: np.ndarray | None = None) -> None:
+        from sgloc.kernels.triangles import upper_counts
+
+        m = bits.shape[0]
+        self.bits = bits
+        self.keep = np.ones(m, dtype=bool) if keep is None else np.asarray(keep, dtype=bool)
+        self._keep_words = pack_rows(self.keep[None, :])[0]
+        if self._keep_words.shape[0] < bits.shape[1]:  # m = 0: no words at all
+            self._keep_words = np.zeros(bits.shape[1], dtype=np.uint64)
+        counts = upper_counts(bits, self._keep_words, self.keep)
+        self.row_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        self.size = int(self.row_start[-1])
+
+    def at(self, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(ii, jj) int64 of the pairs at positions k (any order, repeats allowed; 0 <= k <
+        size)."""
+        from sgloc.kernels.triangles import edges_at
+
+        k = np.asarray(k, dtype=np.int64).ravel()
+        if k.size and (k.min() < 0 or k.max() >= self.size):
+            raise IndexError(f"pair positions must lie in [0, {self.size})")
+        order = np.argsort(k, kind="stable")
+        ii, jj = edges_at(self.bits, self._keep_words, self.row_start, k[order])
+        out_i, out_j = np.empty_like(ii), np.empty_like(jj)
+        out_i[order], out_j[order] = ii, jj
+        return out_i, out_j
+
+    def within(self, keep: np.ndarray) -> ConsistentPairs:
+        """The pairs whose both matches are in the bool mask `keep` (m,)."""
+        return ConsistentPairs(self.bits, self.keep & np.asarray(keep, dtype=bool))
+
+    def all(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every pair: `consistent_pairs` (16 bytes per pair)."""
+        return self.at(np.arange(self.size))
