@@ -6,7 +6,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from sgloc import kernels
 from sgloc.consistency import ConsistentPairs, consistency_bits, pack_rows
+
+
+@pytest.fixture(autouse=True)
+def compiled_kernels(monkeypatch):
+    """The kernels themselves, whatever the size (small early problems may run the references:
+    `sgloc.kernels.use_compiled`)."""
+    monkeypatch.setattr(kernels, "FORCE", "compiled")
 
 
 def random_graph(m: int, p: float, rng: np.random.Generator) -> np.ndarray:
