@@ -63,3 +63,17 @@ def test_small_one_shot_run_does_not_load_numba(tmp_path):
             "sgloc.localize(*g, rejection='none'); print('numba' in sys.modules)")  # fmt: skip
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_register_same_either_way(monkeypatch):
+    from sgloc import register
+    from sgloc.sim.correspondences import make_correspondences
+
+    cs = make_correspondences(200, 0.7, np.random.default_rng(5))
+    out = []
+    for path in ("reference", "compiled"):
+        monkeypatch.setattr(kernels, "FORCE", path)
+        out.append(register(cs.src, cs.dst, seed=3))
+    a, b = out
+    assert a.success and b.success and np.array_equal(a.inliers, b.inliers)
+    assert np.abs(a.transform - b.transform).max() < 1e-9
