@@ -71,3 +71,22 @@ def test_gravity_gated_rigid_model_is_refused():
     src, dst = ground_matches(20, 0.0, 0)
     with pytest.raises(ValueError, match="ransac_reference"):
         compiled.ransac(src, dst, RansacConfig(dof=6, max_tilt=15.0))
+
+
+@pytest.mark.parametrize("max_tilt", [15.0, 2.0, None])
+def test_compiled_ground_fits_equal_numpy(max_tilt):
+    from sgloc.estimation import fit_rigid, irls_refine
+    from sgloc.kernels import fit
+
+    for seed in range(8):
+        src, dst = ground_matches(60, 0.2, seed, tilt_deg=[0.0, 4.0][seed % 2])
+        w = np.random.default_rng(seed).uniform(0.5, 2.0, len(src))
+        mt = float(max_tilt or 0.0)
+        ref = fit_rigid(src, dst, w, 4, max_tilt)
+        assert np.abs(fit.fit_model(src, dst, w, 4, mt) - ref).max() < 1e-9
+        ref_irls = irls_refine(src, dst, ref, w, dof=4, max_tilt=max_tilt)
+        assert np.abs(fit.irls_model(src, dst, ref, w, 15, 4, mt) - ref_irls).max() < 1e-9
+    line = np.column_stack([np.arange(10.0), 2 * np.arange(10.0), np.zeros(10)])
+    assert fit.collinear(line, 1e-3) and not fit.collinear(src, 1e-3)
+    assert np.abs(fit.fit_model(line, line + 1.0, np.ones(10), 4, 15.0)
+                  - fit_rigid(line, line + 1.0, None, 4, 15.0)).max() < 1e-9  # fmt: skip

@@ -3,9 +3,9 @@
 `ransac` takes the same arguments, draws the same samples from the same generator and makes
 the same decisions as `sgloc.estimation.ransac_reference` for any rigid motion without a
 gravity gate (dof=6, max_tilt=None: triplets, refits by `kernels.fit`) and for the ground
-vehicle's model (dof=4: x, y, z, yaw from pairs, refits by `sgloc.estimation`'s own refit, so
-the tilt tolerance applies as there); each block of hypotheses is fitted and scored in one
-compiled call (no (B,m) residual matrix, no BLAS).
+vehicle's model (dof=4: x, y, z, yaw from pairs; refits by `kernels.fit.fit_model`, the
+motion model of `sgloc.estimation.fit_rigid` with its tilt tolerance); each block of
+hypotheses is fitted and scored in one compiled call (no (B,m) residual matrix, no BLAS).
 """
 
 from __future__ import annotations
@@ -19,12 +19,11 @@ from sgloc.estimation import (
     RansacConfig,
     RansacResult,
     _needed_draws,
-    _refit,
     check_not_degenerate,
     draw_triplets,
 )
 from sgloc.geometry import make_transform
-from sgloc.kernels.fit import kabsch
+from sgloc.kernels.fit import fit_model, kabsch
 
 _BLOCK = 2_000_000  # as sgloc.estimation: hypotheses x matches per block
 
@@ -223,7 +222,7 @@ def ransac(
             reason="every RANSAC sample was collinear; the matched points lie (nearly) on a line",
         )
     if cfg.dof == 4:
-        T, inl = _refit(best_T, src_c, dst_c, thr2, weights, cfg)
+        T, inl = _refit_ground(best_T, src_c, dst_c, thr2, weights, cfg)
     else:
         T, inl = _refit_rigid(best_T, src_c, dst_c, thr2, weights, cfg)
     T = make_transform(T[:3, :3], T[:3, 3] + cd - T[:3, :3] @ cs)
@@ -289,6 +288,32 @@ def _refit_rigid(
         except DegenerateGeometryError:
             break
         T_new = kabsch(src_c[inl], dst_c[inl], w_all[inl])
+        new_inl = inliers(T_new, src_c, dst_c, thr2)
+        if len(new_inl) < len(inl):
+            break
+        T, same = T_new, np.array_equal(new_inl, inl)
+        inl = new_inl
+        if same:
+            break
+    return T, inl
+
+
+def _refit_ground(
+    T: np.ndarray,
+    src_c: np.ndarray,
+    dst_c: np.ndarray,
+    thr2: float,
+    weights: np.ndarray | None,
+    cfg: RansacConfig,
+) -> tuple[np.ndarray, np.ndarray]:
+    """`sgloc.estimation`'s refit for dof=4, with the compiled fit of the motion model."""
+    inl = inliers(T, src_c, dst_c, thr2)
+    w_all = np.ones(len(src_c)) if weights is None else np.asarray(weights, dtype=np.float64)
+    max_tilt = float(cfg.max_tilt or 0.0)
+    for _ in range(cfg.refit_rounds):
+        if len(inl) < 3:
+            break
+        T_new = fit_model(src_c[inl], dst_c[inl], w_all[inl], 4, max_tilt)
         new_inl = inliers(T_new, src_c, dst_c, thr2)
         if len(new_inl) < len(inl):
             break
