@@ -53,8 +53,9 @@ def test_localize_same_either_way(monkeypatch, airsim_graphs):
         monkeypatch.setattr(kernels, "FORCE", path)
         results.append(localize(q, t, seed=4))
     a, b = results
-    assert a.success and b.success and a.confidence == b.confidence
-    assert np.array_equal(a.transform, b.transform) and np.array_equal(a.matches, b.matches)
+    assert a.success and b.success and a.confidence == pytest.approx(b.confidence, abs=1e-9)
+    assert np.abs(a.transform - b.transform).max() < 1e-9  # compiled fits: equal to rounding
+    assert np.array_equal(a.matches, b.matches)
 
 
 def test_small_one_shot_run_does_not_load_numba(tmp_path):
