@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
 
+from sgloc import kernels
 from sgloc.consistency import (
     common_partner_count,
     consistency_bits,
@@ -19,6 +20,13 @@ from sgloc.errors import UnknownNameError
 from sgloc.rejection import NeighborRejector
 from sgloc.rejection.neighbor import prune_bits, prune_by_support, prune_by_support_reference
 from sgloc.sim.correspondences import make_correspondences
+
+
+@pytest.fixture(autouse=True)
+def compiled_kernels(monkeypatch):
+    """The kernels themselves, whatever the size (small early problems may run the references:
+    `sgloc.kernels.use_compiled`)."""
+    monkeypatch.setattr(kernels, "FORCE", "compiled")
 
 
 def dense_reference(src, dst, tau, form):

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import sgloc
+from sgloc import kernels
 from sgloc.consistency import consistency_bool
 from sgloc.errors import SglocError, UnknownNameError
 from sgloc.estimation import RansacConfig, irls_refine, ransac, ransac_reference, weighted_kabsch
@@ -14,6 +15,13 @@ from sgloc.kernels import fit
 from sgloc.kernels import ransac as compiled_ransac
 from sgloc.rejection.neighbor import prune_by_support_reference
 from sgloc.sim.correspondences import make_correspondences
+
+
+@pytest.fixture(autouse=True)
+def compiled_kernels(monkeypatch):
+    """The kernels themselves, whatever the size (small early problems may run the references:
+    `sgloc.kernels.use_compiled`)."""
+    monkeypatch.setattr(kernels, "FORCE", "compiled")
 
 
 def numpy_pipeline(src, dst, tau, threshold, seed):

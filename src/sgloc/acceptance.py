@@ -59,8 +59,6 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
-from scipy.special import gammaln, pdtrc
 
 from sgloc.consistency import (
     common_partner_count,
@@ -150,6 +148,8 @@ def _log_comb3(m: int) -> float:
     """ln C(m, 3)."""
     if m < 3:
         return 0.0
+    from scipy.special import gammaln  # deferred, as scipy.spatial below: ~0.3 s together
+
     return float(gammaln(m + 1) - gammaln(4) - gammaln(m - 2))
 
 
@@ -158,6 +158,8 @@ class _ChanceModel:
     same-class target objects within the radius of each moved query object."""
 
     def __init__(self, target: SemanticGraph, radius: float, n_classes: int) -> None:
+        from scipy.spatial import cKDTree
+
         self.tree = cKDTree(target.positions)
         self.labels = target.labels
         self.n_classes = n_classes
@@ -172,6 +174,8 @@ class _ChanceModel:
         n, k = len(moved), self.n_classes
         if n == 0:
             return [np.zeros((0, k)) for _ in weights]
+        from scipy.spatial import cKDTree
+
         pairs = cKDTree(moved).sparse_distance_matrix(self.tree, self.radius, output_type="ndarray")
         i, j = pairs["i"], pairs["j"]
         cell = i * k + self.labels[j]
@@ -190,6 +194,8 @@ def _log10_poisson_tail(k: int, lam: float) -> float:
     """log10 P(Poisson(lam) >= k)."""
     if k <= 0:
         return 0.0
+    from scipy.special import pdtrc
+
     p = pdtrc(k - 1, max(lam, 1e-12))
     if p > 1e-280:
         return float(np.log10(p))

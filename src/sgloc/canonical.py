@@ -6,12 +6,20 @@ result's vertex indices back to the caller's order."""
 from __future__ import annotations
 
 import dataclasses
+import weakref
 from typing import Any
 
 import numpy as np
 from scipy import sparse
 
 from sgloc.graph import SemanticGraph
+
+#: Canonical forms already built, per caller's graph (graphs are immutable; entries go with the
+#: graph): {class table bytes: (order, canonical graph)}. Reusing the canonical graph lets its
+#: own caches (descriptors, adjacency) serve every later call with the same map.
+_FORMS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+#: Class tables kept per graph (a map localized against maps with other classes).
+_FORMS_PER_GRAPH = 4
 
 
 def canonical_order(graph: SemanticGraph) -> np.ndarray:
@@ -26,10 +34,8 @@ class CanonicalPair:
 
     def __init__(self, query: SemanticGraph, target: SemanticGraph, config: Any) -> None:
         self.classes = np.union1d(query.labels, target.labels)  # original id of each new id
-        self.query_order = canonical_order(query)
-        self.target_order = canonical_order(target)
-        self.query = self._rebuilt(query, self.query_order)
-        self.target = self._rebuilt(target, self.target_order)
+        self.query_order, self.query = self._canonical(query)
+        self.target_order, self.target = self._canonical(target)
         self.original_config = config
         self.config = config
         if getattr(config, "class_weights", None):
@@ -39,6 +45,18 @@ class CanonicalPair:
                 if np.isin(int(c), self.classes)
             }
             self.config = dataclasses.replace(config, class_weights=weights)
+
+    def _canonical(self, graph: SemanticGraph) -> tuple[np.ndarray, SemanticGraph]:
+        """(order, canonical graph) of `graph` under this pair's class table, built once."""
+        key = self.classes.tobytes()
+        forms = _FORMS.setdefault(graph, {})
+        if key not in forms:
+            if len(forms) >= _FORMS_PER_GRAPH:
+                forms.pop(next(iter(forms)))
+            order = canonical_order(graph)
+            order.flags.writeable = False
+            forms[key] = (order, self._rebuilt(graph, order))
+        return forms[key]
 
     def _rebuilt(self, graph: SemanticGraph, order: np.ndarray) -> SemanticGraph:
         labels = np.searchsorted(self.classes, graph.labels[order])

@@ -20,6 +20,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from sgloc.errors import UnknownNameError
+from sgloc.kernels import use_compiled
 
 #: Side of the square tiles computed at once: 512 x 512 float32 = 1 MB per temporary (L2-sized).
 TILE = 512
@@ -130,8 +131,12 @@ def consistency_bits(
 ) -> tuple[np.ndarray, np.ndarray]:
     """(bits, degree): bit-packed consistency rows (m, ceil(m/64)) uint64 (bit j % 64 of word
     j // 64 of row i: matches i != j consistent) and each match's count of consistent partners
-    (m,) int64. src, dst: (m,3) metres. Compiled, one pass over the pairs."""
+    (m,) int64. src, dst: (m,3) metres. Compiled, one pass over the pairs (small problems
+    early in a process: the numpy tiles, `sgloc.kernels.use_compiled`)."""
     check_form(form)
+    if not use_compiled(len(src)):
+        M = consistency_bool(src, dst, tau, form)
+        return pack_rows(M), M.sum(axis=1, dtype=np.int64)
     from sgloc.kernels.consistency import consistency_bits as kernel
 
     src = np.ascontiguousarray(src, dtype=np.float64)
@@ -180,6 +185,8 @@ def consistency_bool(
 def consistent_pairs(bits: np.ndarray, degree: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(ii, jj) int64: every consistent pair with ii < jj, row-major (np.nonzero(np.triu(M)))
     from packed rows and degrees (`consistency_bits`). Compiled."""
+    if not use_compiled(len(bits)):
+        return _upper_pairs(bits, np.ones(len(bits), dtype=bool))
     from sgloc.kernels.triangles import upper_edges
 
     return upper_edges(bits, np.asarray(degree, dtype=np.int64))
@@ -188,6 +195,66 @@ def consistent_pairs(bits: np.ndarray, degree: np.ndarray) -> tuple[np.ndarray, 
 def common_partner_count(bits: np.ndarray, ii: np.ndarray, jj: np.ndarray) -> int:
     """Sum over the pairs (ii[k], jj[k]) of the number of matches consistent with both; over all
     consistent pairs i < j it is 3 x the number of triangles of the consistency graph."""
+    if not use_compiled(len(bits)):
+        M = unpack_rows(bits, bits.shape[1] * 64)
+        return int(np.count_nonzero(M[np.asarray(ii)] & M[np.asarray(jj)]))
     from sgloc.kernels.triangles import common_counts
 
     return int(common_counts(bits, np.asarray(ii, dtype=np.int64), np.asarray(jj, dtype=np.int64)))
+
+
+class ConsistentPairs:
+    """The consistent pairs i < j of packed rows (`consistency_bits`), in row-major order (that
+    of np.nonzero(np.triu(M))), without listing them: m words of bookkeeping instead of 16
+    bytes per pair (a large candidate set has tens of millions of pairs). Compiled.
+
+    size: the number of pairs; `at(k)`: (ii, jj) of the pairs at positions k; `within(keep)`:
+    the pairs whose both matches are kept (same order); `all()`: every pair."""
+
+    def __init__(self, bits: np.ndarray, keep: np.ndarray | None = None) -> None:
+        m = bits.shape[0]
+        self.bits = bits
+        self.keep = np.ones(m, dtype=bool) if keep is None else np.asarray(keep, dtype=bool)
+        self._listed = None if use_compiled(m) else _upper_pairs(bits, self.keep)
+        if self._listed is not None:  # small: the pairs themselves, in numpy
+            self.size = int(self._listed[0].size)
+            return
+        from sgloc.kernels.triangles import upper_counts
+
+        self._keep_words = pack_rows(self.keep[None, :])[0]
+        if self._keep_words.shape[0] < bits.shape[1]:  # m = 0: no words at all
+            self._keep_words = np.zeros(bits.shape[1], dtype=np.uint64)
+        counts = upper_counts(bits, self._keep_words, self.keep)
+        self.row_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        self.size = int(self.row_start[-1])
+
+    def at(self, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(ii, jj) int64 of the pairs at positions k (any order, repeats allowed; 0 <= k <
+        size)."""
+        k = np.asarray(k, dtype=np.int64).ravel()
+        if k.size and (k.min() < 0 or k.max() >= self.size):
+            raise IndexError(f"pair positions must lie in [0, {self.size})")
+        if self._listed is not None:
+            return self._listed[0][k], self._listed[1][k]
+        from sgloc.kernels.triangles import edges_at
+
+        order = np.argsort(k, kind="stable")
+        ii, jj = edges_at(self.bits, self._keep_words, self.row_start, k[order])
+        out_i, out_j = np.empty_like(ii), np.empty_like(jj)
+        out_i[order], out_j[order] = ii, jj
+        return out_i, out_j
+
+    def within(self, keep: np.ndarray) -> ConsistentPairs:
+        """The pairs whose both matches are in the bool mask `keep` (m,)."""
+        return ConsistentPairs(self.bits, self.keep & np.asarray(keep, dtype=bool))
+
+    def all(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every pair: `consistent_pairs` (16 bytes per pair)."""
+        return self.at(np.arange(self.size))
+
+
+def _upper_pairs(bits: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """np.nonzero(np.triu(M)) of the unpacked rows, both ends in `keep` (the numpy reference)."""
+    M = unpack_rows(bits, len(bits)) & keep[None, :] & keep[:, None]
+    ii, jj = np.nonzero(np.triu(M, 1))
+    return ii.astype(np.int64), jj.astype(np.int64)

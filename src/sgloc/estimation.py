@@ -5,7 +5,6 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from sgloc.errors import DegenerateGeometryError
 from sgloc.geometry import make_transform
@@ -588,6 +587,8 @@ def icp_refine(
     # Classes are separated by a 4th coordinate so one KD-tree per side serves all classes.
     offset = 4.0 * (np.abs(np.concatenate([src, dst])).max() + max_distance) + 1.0
     dst4 = np.column_stack([dst, dst_labels * offset])
+    from scipy.spatial import cKDTree  # deferred: scipy.spatial loads in ~0.2 s
+
     tree_dst = cKDTree(dst4)
     pairs_prev = None
     for _ in range(iterations):

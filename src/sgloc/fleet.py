@@ -25,7 +25,6 @@ from typing import Any
 import numpy as np
 from scipy import sparse
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from sgloc.config import LocalizerConfig
 from sgloc.errors import SglocError
@@ -362,6 +361,8 @@ def merge_graphs(
     rob = np.concatenate([np.full(len(graphs[i]), i) for i in ids])
     radius = graphs[ids[0]].edge_radius
     offset = 4.0 * (np.abs(pos).max() + fuse_radius) + 1.0 if len(pos) else 1.0
+    from scipy.spatial import cKDTree  # deferred: scipy.spatial loads in ~0.2 s
+
     pairs = cKDTree(np.column_stack([pos, lab * offset])).query_pairs(
         fuse_radius, output_type="ndarray"
     )

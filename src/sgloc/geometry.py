@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 
 def make_transform(R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -34,6 +33,8 @@ def random_rigid_transform(
     translation uniform in a ball of radius `max_translation` metres (z axis is up)."""
     yaw = rng.uniform(-np.pi, np.pi)
     roll, pitch = np.deg2rad(rng.uniform(-max_roll_pitch_deg, max_roll_pitch_deg, 2))
+    from scipy.spatial.transform import Rotation  # deferred: scipy.spatial loads in ~0.2 s
+
     R = Rotation.from_euler("zyx", [yaw, pitch, roll]).as_matrix()
     direction = rng.normal(size=3)
     direction /= np.linalg.norm(direction)

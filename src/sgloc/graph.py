@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 from scipy import sparse
-from scipy.spatial.distance import cdist
 
 from sgloc.errors import InvalidGraphError, SglocError
 from sgloc.validation import check_graph_arrays, check_real
@@ -71,6 +70,8 @@ class SemanticGraph:
     @cached_property
     def distances(self) -> np.ndarray:
         """(n,n) Euclidean distances between all vertices, metres."""
+        from scipy.spatial.distance import cdist  # deferred: scipy.spatial loads in ~0.2 s
+
         d = cdist(self.positions, self.positions)
         d.flags.writeable = False
         return d

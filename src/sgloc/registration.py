@@ -17,7 +17,8 @@ from typing import Any
 import numpy as np
 
 from sgloc.errors import SglocError, UnknownNameError
-from sgloc.estimation import RansacConfig, ransac
+from sgloc.estimation import RansacConfig, irls_refine, ransac, weighted_kabsch
+from sgloc.kernels import use_compiled
 from sgloc.registry import lookup
 from sgloc.rejection import REJECTORS, Rejector, make_rejector
 
@@ -91,7 +92,11 @@ def _stage_settings(
 
 def _final_fit(src: np.ndarray, dst: np.ndarray, refine: str) -> np.ndarray:
     """Least squares on the inliers, then the Tukey IRLS when refine == "irls" (the rule of
-    `sgloc.estimation.weighted_kabsch` / `irls_refine`, compiled: `sgloc.kernels.fit`)."""
+    `sgloc.estimation.weighted_kabsch` / `irls_refine`, compiled: `sgloc.kernels.fit`; those
+    themselves for a small problem early in a process, `sgloc.kernels.use_compiled`)."""
+    if not use_compiled(len(src)):
+        T = weighted_kabsch(src, dst)  # RANSAC checked that the inliers are not degenerate
+        return irls_refine(src, dst, T) if refine == "irls" else T
     from sgloc.kernels.fit import irls, kabsch
 
     ones = np.ones(len(src))

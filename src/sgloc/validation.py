@@ -13,9 +13,13 @@ import numpy as np
 
 from sgloc.errors import InvalidGraphError, SglocError
 
-#: Most objects in one graph. The pipeline's similarity matrix is n_query x n_target floats and
-#: the histogram descriptor n x L^2, so this bounds memory by the input (about 3 GB at the limit).
-MAX_VERTICES = 20_000
+#: Most objects in one graph. Memory grows with the candidate matches m (m <= n_query with the
+#: default top-1 matching): rejection and acceptance each hold an m x m consistency graph as
+#: packed bits (m^2 / 8 bytes: 1.25 GB at m = 100,000, one at a time), and the descriptors are
+#: n x L x bins floats per graph (distance_histogram: 16 bins, 1.3 KB per vertex for 10
+#: classes); similarities are computed in blocks (8 MB). At this limit two maps localize in
+#: about 2 GB; the consistency pass is quadratic in m (tens of seconds at the limit).
+MAX_VERTICES = 100_000
 #: Most distinct classes in one graph (class ids themselves may be any integer in [0, MAX_LABEL]:
 #: the localizer renumbers the classes present to 0..L-1 before sizing anything by them).
 MAX_CLASSES = 64

@@ -7,7 +7,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import sparse
-from scipy.spatial import cKDTree
 
 from sgloc.descriptors.base import Descriptor
 from sgloc.graph import SemanticGraph
@@ -21,6 +20,8 @@ def neighbour_pairs(positions: np.ndarray, radius: float) -> tuple[np.ndarray, n
     (KD-tree; memory linear in the number of pairs)."""
     if len(positions) < 2:
         return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
+    from scipy.spatial import cKDTree  # deferred: scipy.spatial loads in ~0.2 s
+
     pairs = cKDTree(positions).query_pairs(radius, output_type="ndarray")
     if pairs.size == 0:
         return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
@@ -109,6 +110,8 @@ class TriangleDescriptor(Descriptor):
         n_cols = L * L * nb * nb
         if n < 3 or k < 2:
             return sparse.csr_array((n, n_cols))
+        from scipy.spatial import cKDTree
+
         d, j = cKDTree(graph.positions).query(
             graph.positions, k + 1, distance_upper_bound=float(self.radius)
         )

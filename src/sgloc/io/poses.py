@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from sgloc.io.text import read_numbers
 
@@ -31,6 +30,8 @@ def read_tum_poses(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     vals = read_numbers(Path(path), "TUM pose file (t x y z qx qy qz qw)", per_row=8)
     T = np.tile(np.eye(4), (len(vals), 1, 1))
     q = vals[:, 4:8]
+    from scipy.spatial.transform import Rotation  # deferred: scipy.spatial loads in ~0.2 s
+
     T[:, :3, :3] = Rotation.from_quat(q / np.linalg.norm(q, axis=1, keepdims=True)).as_matrix()
     T[:, :3, 3] = vals[:, 1:4]
     return vals[:, 0], T
@@ -41,6 +42,8 @@ def write_tum_poses(path: str | Path, timestamps: np.ndarray, poses: np.ndarray)
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     poses = np.asarray(poses)
+    from scipy.spatial.transform import Rotation
+
     q = Rotation.from_matrix(poses[:, :3, :3]).as_quat()
     rows = np.column_stack([np.asarray(timestamps, float), poses[:, :3, 3], q])
     np.savetxt(p, rows, fmt="%.9f")

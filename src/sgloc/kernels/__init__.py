@@ -4,4 +4,35 @@ Importing this package is cheap: numba is imported, and each kernel compiled, on
 kernel module is first imported (callers import them inside functions). Compiled code is cached
 on disk (`cache=True`): next to the sources when that directory is writable, otherwise in numba's
 per-user cache directory; `NUMBA_CACHE_DIR` overrides both.
+
+Loading numba and the cached kernels costs a process about 0.7 s once. The first few small
+problems of a process (`use_compiled`) therefore run the numpy references, which give the same
+results: a one-shot run on small maps (the command line) never pays that, while a process that
+keeps working, or meets a large problem, loads the kernels.
 """
+
+from __future__ import annotations
+
+import sys
+
+#: Problems up to this size (matches) may run the numpy references while numba is not loaded.
+SMALL_PROBLEM = 1500
+#: Small problems a process solves with the references before it loads the kernels.
+REFERENCE_CALLS = 24
+#: "compiled" or "reference" forces that path for every size (tests); None: the rule above.
+FORCE: str | None = None
+
+_reference_calls = 0
+
+
+def use_compiled(size: int) -> bool:
+    """Whether a problem of `size` matches should run the compiled kernel (else the numpy
+    reference, with the same result): yes once numba is loaded, for large problems, and
+    after the first REFERENCE_CALLS small ones."""
+    global _reference_calls
+    if FORCE is not None:
+        return FORCE == "compiled"
+    if size > SMALL_PROBLEM or "numba" in sys.modules:
+        return True
+    _reference_calls += 1
+    return _reference_calls > REFERENCE_CALLS

@@ -211,3 +211,116 @@ def irls(
         if done:
             break
     return T
+
+
+@njit(cache=True, nogil=True)
+def collinear(points: np.ndarray, ratio: float) -> bool:
+    """`sgloc.estimation._collinear`: fewer than 3 points, or the second principal extent
+    under `ratio` times the first."""
+    m = points.shape[0]
+    if m < 3:
+        return True
+    mean = np.zeros(3)
+    for i in range(m):
+        for a in range(3):
+            mean[a] += points[i, a]
+    mean /= m
+    C = np.zeros((3, 3))
+    for i in range(m):
+        for a in range(3):
+            for b in range(3):
+                C[a, b] += (points[i, a] - mean[a]) * (points[i, b] - mean[b])
+    ev, _ = _symmetric_eigen(C)
+    return ev[0] <= 0.0 or np.sqrt(max(ev[1], 0.0) / ev[0]) < ratio
+
+
+@njit(cache=True, nogil=True)
+def yaw_fit(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """`sgloc.estimation.yaw_fit`: the weighted least-squares rotation about z and shift."""
+    m = src.shape[0]
+    total = weights.sum()
+    cs, cd = np.zeros(3), np.zeros(3)
+    for i in range(m):
+        wi = weights[i] / total
+        for a in range(3):
+            cs[a] += wi * src[i, a]
+            cd[a] += wi * dst[i, a]
+    cross, dot = 0.0, 0.0
+    for i in range(m):
+        wi = weights[i] / total
+        ax, ay = (src[i, 0] - cs[0]) * wi, (src[i, 1] - cs[1]) * wi
+        bx, by = dst[i, 0] - cd[0], dst[i, 1] - cd[1]
+        cross += ax * by - ay * bx
+        dot += ax * bx + ay * by
+    theta = np.arctan2(cross, dot)
+    c, s = np.cos(theta), np.sin(theta)
+    T = np.eye(4)
+    T[0, 0], T[0, 1], T[1, 0], T[1, 1] = c, -s, s, c
+    T[0, 3] = cd[0] - (c * cs[0] - s * cs[1])
+    T[1, 3] = cd[1] - (s * cs[0] + c * cs[1])
+    T[2, 3] = cd[2] - cs[2]
+    return T
+
+
+@njit(cache=True, nogil=True)
+def fit_model(
+    src: np.ndarray, dst: np.ndarray, weights: np.ndarray, dof: int, max_tilt: float
+) -> np.ndarray:
+    """`sgloc.estimation.fit_rigid` (no input checks); max_tilt <= 0 stands for None / 0:
+    dof=4 then fits the yaw only."""
+    if dof != 4:
+        return kabsch(src, dst, weights)
+    if max_tilt > 0.0 and not collinear(src, 1e-3):
+        T = kabsch(src, dst, weights)
+        if np.degrees(np.arccos(min(max(T[2, 2], -1.0), 1.0))) <= max_tilt:
+            return T
+    return yaw_fit(src, dst, weights)
+
+
+@njit(cache=True, nogil=True)
+def irls_model(
+    src: np.ndarray,
+    dst: np.ndarray,
+    T: np.ndarray,
+    prior: np.ndarray,
+    iterations: int,
+    dof: int,
+    max_tilt: float,
+) -> np.ndarray:
+    """`irls` under the motion model of `fit_model` (`sgloc.estimation.irls_refine` with
+    dof and max_tilt, without per-class scales)."""
+    m = src.shape[0]
+    w_prev = np.zeros(m)
+    have_prev = False
+    for _ in range(iterations):
+        r = residual_norms(src, dst, T)
+        sigma = 1.4826 * median(r)
+        if sigma <= 1e-12:
+            break
+        c = 4.685 * sigma
+        w = np.empty(m)
+        n_pos = 0
+        for i in range(m):
+            u = r[i] / c
+            w[i] = prior[i] * ((1.0 - u * u) ** 2 if u < 1.0 else 0.0)
+            n_pos += w[i] != 0.0
+        if n_pos < 3:
+            break
+        if have_prev:
+            same = True
+            for i in range(m):
+                if not abs(w[i] - w_prev[i]) <= 1e-6:
+                    same = False
+                    break
+            if same:
+                break
+        w_prev, have_prev = w, True
+        T_new = fit_model(src, dst, w, dof, max_tilt)
+        change = 0.0
+        for a in range(4):
+            for b in range(4):
+                change = max(change, abs(T_new[a, b] - T[a, b]))
+        T = T_new
+        if change < 1e-9:
+            break
+    return T

@@ -1,8 +1,11 @@
-"""RANSAC's hot loops (numba): hypotheses from triplets, scoring, inliers, refits.
+"""RANSAC's hot loops (numba): hypotheses from triplets or pairs, scoring, inliers, refits.
 
 `ransac` takes the same arguments, draws the same samples from the same generator and makes
-the same decisions as `sgloc.estimation.ransac`; each block of hypotheses is fitted and scored
-in one compiled call (no (B,m) residual matrix, no BLAS), and the refits use `kernels.fit`.
+the same decisions as `sgloc.estimation.ransac_reference` for any rigid motion without a
+gravity gate (dof=6, max_tilt=None: triplets, refits by `kernels.fit`) and for the ground
+vehicle's model (dof=4: x, y, z, yaw from pairs; refits by `kernels.fit.fit_model`, the
+motion model of `sgloc.estimation.fit_rigid` with its tilt tolerance); each block of
+hypotheses is fitted and scored in one compiled call (no (B,m) residual matrix, no BLAS).
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from sgloc.estimation import (
     draw_triplets,
 )
 from sgloc.geometry import make_transform
-from sgloc.kernels.fit import kabsch
+from sgloc.kernels.fit import fit_model, kabsch
 
 _BLOCK = 2_000_000  # as sgloc.estimation: hypotheses x matches per block
 
@@ -105,6 +108,72 @@ def score_block(
     return found, best_p, best_s, best_T, max_count
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _score(
+    R: np.ndarray, t: np.ndarray, src: np.ndarray, dst: np.ndarray, thr2: float, msac: bool
+) -> tuple[float, float, int]:
+    """(primary, secondary, inlier count) of one hypothesis, ordered as in `ransac`."""
+    count, cost, inlier_sum = 0, 0.0, 0.0
+    for i in range(src.shape[0]):
+        r2 = 0.0
+        for a in range(3):
+            e = R[a, 0] * src[i, 0] + R[a, 1] * src[i, 1] + R[a, 2] * src[i, 2] + t[a]
+            e -= dst[i, a]
+            r2 += e * e
+        if r2 < thr2:
+            count += 1
+            cost += r2
+            inlier_sum += r2
+        else:
+            cost += thr2
+    if msac:
+        return cost, float(-count), count
+    return float(-count), inlier_sum, count
+
+
+@njit(cache=True, nogil=True)
+def score_pair_block(
+    src: np.ndarray, dst: np.ndarray, pairs: np.ndarray, thr2: float, msac: bool, max_gap: float
+) -> tuple[bool, float, float, np.ndarray, int]:
+    """`score_block` for 4-dof hypotheses from the match pairs `pairs` (n,2): the yaw turns
+    the source pair's xy direction onto the target pair's, the translation maps the source
+    pair's midpoint onto the target's (`sgloc.estimation.yaw_from_pairs`). Pairs closer than
+    1e-6 m in xy, or whose xy lengths differ by `max_gap` or more, give no hypothesis."""
+    best_p, best_s, found, max_count = np.inf, np.inf, False, 0
+    best_T = np.eye(4)
+    R = np.zeros((3, 3))
+    R[2, 2] = 1.0
+    t, ms, md = np.empty(3), np.empty(3), np.empty(3)
+    for b in range(pairs.shape[0]):
+        i, j = pairs[b, 0], pairs[b, 1]
+        esx, esy = src[j, 0] - src[i, 0], src[j, 1] - src[i, 1]
+        edx, edy = dst[j, 0] - dst[i, 0], dst[j, 1] - dst[i, 1]
+        ls, ld = np.sqrt(esx * esx + esy * esy), np.sqrt(edx * edx + edy * edy)
+        if not (min(ls, ld) > 1e-6 and abs(ls - ld) < max_gap):
+            continue
+        theta = np.arctan2(edy, edx) - np.arctan2(esy, esx)
+        c, s = np.cos(theta), np.sin(theta)
+        R[0, 0], R[0, 1], R[1, 0], R[1, 1] = c, -s, s, c
+        for a in range(3):
+            ms[a], md[a] = (src[i, a] + src[j, a]) / 2.0, (dst[i, a] + dst[j, a]) / 2.0
+        for a in range(3):
+            t[a] = md[a] - (R[a, 0] * ms[0] + R[a, 1] * ms[1] + R[a, 2] * ms[2])
+        primary, secondary, count = _score(R, t, src, dst, thr2, msac)
+        max_count = max(max_count, count)
+        if not found or primary < best_p or (primary == best_p and secondary < best_s):
+            best_p, best_s, found = primary, secondary, True
+            best_T[:3, :3], best_T[:3, 3] = R, t
+    return found, best_p, best_s, best_T, max_count
+
+
+def draw_pairs(m: int, n: int, rng: np.random.Generator) -> np.ndarray:
+    """(n,2) samples of 2 distinct indices in [0, m), drawn as `ransac_reference` draws them."""
+    i = rng.integers(0, m, n)
+    j = rng.integers(0, m - 1, n)
+    j += j >= i
+    return np.stack([i, j], axis=1)
+
+
 @njit(cache=True, nogil=True)
 def inliers(T: np.ndarray, src: np.ndarray, dst: np.ndarray, thr2: float) -> np.ndarray:
     """Sorted indices i with ||R src_i + t - dst_i||^2 < thr2."""
@@ -126,8 +195,11 @@ def ransac(
     rng: np.random.Generator | None = None,
     weights: np.ndarray | None = None,
 ) -> RansacResult:
-    """`sgloc.estimation.ransac` with compiled blocks: same arguments, samples and result."""
+    """`sgloc.estimation.ransac_reference` with compiled blocks for dof=4 (any max_tilt) and
+    for dof=6 without max_tilt: same arguments, samples and result."""
     cfg = config or RansacConfig()
+    if cfg.dof == 6 and cfg.max_tilt is not None:
+        raise ValueError("the compiled RANSAC has no gravity gate for dof=6: use ransac_reference")
     rng = rng or np.random.default_rng(0)
     src = np.asarray(src, dtype=np.float64)
     dst = np.asarray(dst, dtype=np.float64)
@@ -138,31 +210,76 @@ def ransac(
         )
     if cfg.scoring not in ("count", "msac"):
         raise ValueError(f"unknown RANSAC scoring {cfg.scoring!r}; use 'count' or 'msac'")
+    if cfg.dof not in (4, 6):
+        raise ValueError(f"RANSAC dof must be 4 (x, y, z, yaw) or 6, got {cfg.dof!r}")
     cs, cd = src.mean(axis=0), dst.mean(axis=0)
     src_c, dst_c = np.ascontiguousarray(src - cs), np.ascontiguousarray(dst - cd)
     thr2 = cfg.threshold**2
-    best_key, best_T, drawn, needed = (np.inf, np.inf), None, 0, cfg.iterations
-    batch = max(1, min(cfg.batch, _BLOCK // m))
-    while drawn < min(needed, cfg.iterations):
-        n = min(batch if drawn else min(batch, 16), cfg.iterations - drawn)
-        drawn += n
-        samples = draw_triplets(m, n, rng)
-        found, p, s, T, max_count = score_block(src_c, dst_c, samples, thr2,
-                                                cfg.scoring == "msac")  # fmt: skip
-        if not found:
-            continue
-        if (p, s) < best_key:
-            best_key, best_T = (p, s), T
-        if cfg.confidence is not None:
-            needed = min(needed, _needed_draws(max_count / m, cfg.confidence, cfg.iterations))
+    best_T = _best_hypothesis(src_c, dst_c, cfg, rng)
     if best_T is None:
         return RansacResult(
             None,
             reason="every RANSAC sample was collinear; the matched points lie (nearly) on a line",
         )
-    T = best_T
+    if cfg.dof == 4:
+        T, inl = _refit_ground(best_T, src_c, dst_c, thr2, weights, cfg)
+    else:
+        T, inl = _refit_rigid(best_T, src_c, dst_c, thr2, weights, cfg)
+    T = make_transform(T[:3, :3], T[:3, 3] + cd - T[:3, :3] @ cs)
+    need = max(cfg.min_inliers, int(np.ceil(cfg.min_inlier_ratio * m)), 3)
+    if len(inl) < need:
+        return RansacResult(
+            None, inl, reason=f"best model has {len(inl)} inliers of {m} matches; at least "
+            f"{need} are needed",
+        )  # fmt: skip
+    if cfg.dof == 6:
+        try:
+            check_not_degenerate(src[inl], "inlier points")
+        except DegenerateGeometryError as e:
+            return RansacResult(None, inl, reason=str(e))
+    return RansacResult(T, inl)
+
+
+def _best_hypothesis(
+    src_c: np.ndarray, dst_c: np.ndarray, cfg: RansacConfig, rng: np.random.Generator
+) -> np.ndarray | None:
+    """The best hypothesis (4x4, centred frames) over adaptively many blocks, or None."""
+    m, thr2, msac = len(src_c), cfg.threshold**2, cfg.scoring == "msac"
+    size = 2 if cfg.dof == 4 else 3
+    best_key, best_T, drawn, needed = (np.inf, np.inf), None, 0, cfg.iterations
+    batch = max(1, min(cfg.batch, _BLOCK // m))
+    while drawn < min(needed, cfg.iterations):
+        n = min(batch if drawn else min(batch, 16), cfg.iterations - drawn)
+        drawn += n
+        if size == 2:
+            found, p, s, T, max_count = score_pair_block(
+                src_c, dst_c, draw_pairs(m, n, rng), thr2, msac, 2.0 * cfg.threshold
+            )
+        else:
+            found, p, s, T, max_count = score_block(
+                src_c, dst_c, draw_triplets(m, n, rng), thr2, msac
+            )
+        if not found:
+            continue
+        if (p, s) < best_key:
+            best_key, best_T = (p, s), T
+        if cfg.confidence is not None:
+            w = max_count / m
+            needed = min(needed, _needed_draws(w, cfg.confidence, cfg.iterations, size))
+    return best_T
+
+
+def _refit_rigid(
+    T: np.ndarray,
+    src_c: np.ndarray,
+    dst_c: np.ndarray,
+    thr2: float,
+    weights: np.ndarray | None,
+    cfg: RansacConfig,
+) -> tuple[np.ndarray, np.ndarray]:
+    """`sgloc.estimation`'s refit for dof=6 without max_tilt, with the compiled Kabsch."""
     inl = inliers(T, src_c, dst_c, thr2)
-    w_all = np.ones(m) if weights is None else np.asarray(weights, dtype=np.float64)
+    w_all = np.ones(len(src_c)) if weights is None else np.asarray(weights, dtype=np.float64)
     for _ in range(cfg.refit_rounds):
         if len(inl) < 3:
             break
@@ -178,15 +295,30 @@ def ransac(
         inl = new_inl
         if same:
             break
-    T = make_transform(T[:3, :3], T[:3, 3] + cd - T[:3, :3] @ cs)
-    need = max(cfg.min_inliers, int(np.ceil(cfg.min_inlier_ratio * m)), 3)
-    if len(inl) < need:
-        return RansacResult(
-            None, inl, reason=f"best model has {len(inl)} inliers of {m} matches; at least "
-            f"{need} are needed",
-        )  # fmt: skip
-    try:
-        check_not_degenerate(src[inl], "inlier points")
-    except DegenerateGeometryError as e:
-        return RansacResult(None, inl, reason=str(e))
-    return RansacResult(T, inl)
+    return T, inl
+
+
+def _refit_ground(
+    T: np.ndarray,
+    src_c: np.ndarray,
+    dst_c: np.ndarray,
+    thr2: float,
+    weights: np.ndarray | None,
+    cfg: RansacConfig,
+) -> tuple[np.ndarray, np.ndarray]:
+    """`sgloc.estimation`'s refit for dof=4, with the compiled fit of the motion model."""
+    inl = inliers(T, src_c, dst_c, thr2)
+    w_all = np.ones(len(src_c)) if weights is None else np.asarray(weights, dtype=np.float64)
+    max_tilt = float(cfg.max_tilt or 0.0)
+    for _ in range(cfg.refit_rounds):
+        if len(inl) < 3:
+            break
+        T_new = fit_model(src_c[inl], dst_c[inl], w_all[inl], 4, max_tilt)
+        new_inl = inliers(T_new, src_c, dst_c, thr2)
+        if len(new_inl) < len(inl):
+            break
+        T, same = T_new, np.array_equal(new_inl, inl)
+        inl = new_inl
+        if same:
+            break
+    return T, inl

@@ -46,3 +46,56 @@ def common_counts(bits: np.ndarray, ii: np.ndarray, jj: np.ndarray) -> int:
         for w in range(bits.shape[1]):
             total += np.int64(popcount(bits[a, w] & bits[b, w]))
     return total
+
+
+@njit(cache=True, nogil=True)
+def upper_counts(bits: np.ndarray, keep_words: np.ndarray, keep_rows: np.ndarray) -> np.ndarray:
+    """(m,) per row i, its consistent partners j > i among the kept ones (`keep_words`: the
+    kept columns as one packed row; rows outside `keep_rows` count 0)."""
+    m = bits.shape[0]
+    counts = np.zeros(m, dtype=np.int64)
+    for i in range(m):
+        if not keep_rows[i]:
+            continue
+        first = (i + 1) // WORD
+        c = 0
+        for w in range(first, bits.shape[1]):
+            x = bits[i, w] & keep_words[w]
+            if w == first:
+                shift = np.uint64((i + 1) % WORD)
+                x = (x >> shift) << shift
+            c += np.int64(popcount(x))
+        counts[i] = c
+    return counts
+
+
+@njit(cache=True, nogil=True)
+def edges_at(
+    bits: np.ndarray, keep_words: np.ndarray, row_start: np.ndarray, ks: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(ii, jj) of the kept consistent pairs i < j at the row-major positions `ks` (sorted,
+    each < row_start[-1]; row_start: the running sum of `upper_counts`, from 0), without
+    listing the others: one sweep, each row scanned at most once."""
+    ii = np.empty(ks.shape[0], dtype=np.int64)
+    jj = np.empty(ks.shape[0], dtype=np.int64)
+    row, w, seen = -1, 0, 0
+    x = np.uint64(0)
+    for n in range(ks.shape[0]):
+        k = ks[n]
+        r = np.searchsorted(row_start, k, side="right") - 1
+        if r != row:  # the first kept partner of row r: its lowest set bit right of r
+            row, w, seen = r, (r + 1) // WORD, 0
+            shift = np.uint64((r + 1) % WORD)
+            x = ((bits[r, w] & keep_words[w]) >> shift) << shift
+            while x == 0:
+                w += 1
+                x = bits[r, w] & keep_words[w]
+        while seen < k - row_start[r]:  # on to the next set bit
+            x &= x - np.uint64(1)
+            while x == 0:
+                w += 1
+                x = bits[r, w] & keep_words[w]
+            seen += 1
+        ii[n] = r
+        jj[n] = w * WORD + np.int64(cttz(x))
+    return ii, jj
