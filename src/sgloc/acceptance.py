@@ -61,9 +61,9 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from sgloc.consistency import (
+    ConsistentPairs,
     common_partner_count,
     consistency_bits,
-    consistent_pairs,
     unpack_rows,
 )
 from sgloc.errors import SglocError
@@ -270,8 +270,8 @@ def consistent_triples(src: np.ndarray, dst: np.ndarray, radius: float) -> float
     hypotheses RANSAC can form (triangles of the pairwise-consistency graph: trace(M^3) / 6)."""
     if len(src) < 3:
         return 0.0
-    bits, degree = _consistency(src, dst, radius)
-    return _triangles(bits, *consistent_pairs(bits, degree))
+    bits, _ = _consistency(src, dst, radius)
+    return _triangles(bits, ConsistentPairs(bits))
 
 
 def _consistency(src: np.ndarray, dst: np.ndarray, radius: float) -> tuple[np.ndarray, ...]:
@@ -280,15 +280,15 @@ def _consistency(src: np.ndarray, dst: np.ndarray, radius: float) -> tuple[np.nd
     return consistency_bits(src, dst, 2.0 * radius, "distance")
 
 
-def _triangles(bits: np.ndarray, ii: np.ndarray, jj: np.ndarray) -> float:
+def _triangles(bits: np.ndarray, edges: ConsistentPairs) -> float:
     """Number of triangles of the consistency graph (packed rows `bits`) with edges (ii, jj),
     ii < jj: the sum over edges of their common neighbours / 3. Only log10 of the count
     matters, so beyond _TRIANGLE_EDGES edges an evenly spaced subset is scaled up."""
-    if ii.size > _TRIANGLE_EDGES:
-        pick = np.linspace(0, ii.size - 1, _TRIANGLE_EDGES).astype(np.int64)
-        scale, ii, jj = ii.size / _TRIANGLE_EDGES, ii[pick], jj[pick]
+    if edges.size > _TRIANGLE_EDGES:
+        pick = np.linspace(0, edges.size - 1, _TRIANGLE_EDGES).astype(np.int64)
+        scale, (ii, jj) = edges.size / _TRIANGLE_EDGES, edges.at(pick)
     else:
-        scale = 1.0
+        scale, (ii, jj) = 1.0, edges.all()
     return float(scale * common_partner_count(bits, ii, jj) / 3.0)
 
 
@@ -298,7 +298,7 @@ def _runner_up(
     T: np.ndarray,
     exclude: np.ndarray,
     consistency: np.ndarray,
-    edges: tuple[np.ndarray, np.ndarray],
+    edges: ConsistentPairs,
     radius: float,
     cfg: AcceptanceConfig,
     rng: np.random.Generator,
@@ -319,13 +319,10 @@ def _runner_up(
     if free.sum() < 3 or cfg.runner_up_samples <= 0:
         return 0, None
     ps, pd = src[free], dst[free]
-    ii, jj = edges
-    keep = free[ii] & free[jj]
-    ii, jj = ii[keep], jj[keep]
-    if ii.size == 0:
+    kept = edges.within(free)
+    if kept.size == 0:
         return 0, None
-    pick = rng.integers(0, ii.size, cfg.runner_up_samples)
-    i, j = ii[pick], jj[pick]
+    i, j = kept.at(rng.integers(0, kept.size, cfg.runner_up_samples))
     if dof == 4:
         hyp = _yaw_hypotheses(src, dst, i, j)
     else:
@@ -473,17 +470,16 @@ def assess(
     counts, used = chance.near_counts(apply(transform, query.positions), (None, usage))
     lam = chance.expected_inliers(counts, qi, tlab)
     if m >= 3:
-        consistency, degree = _consistency(src, dst, r)  # packed rows (m, ceil(m / 64))
-        edges = consistent_pairs(consistency, degree)
+        consistency, _ = _consistency(src, dst, r)  # packed rows (m, ceil(m / 64))
     else:
         consistency = np.zeros((m, 1), dtype=np.uint64)
-        edges = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+    edges = ConsistentPairs(consistency)  # by position: no list of 16 bytes per pair
     # The hypotheses RANSAC can form: consistent triples (6 dof) or consistent pairs (4 dof).
     sample = 2 if dof == 4 else 3
     if dof == 4:
-        n_tests = float(edges[0].size)
+        n_tests = float(edges.size)
     else:
-        n_tests = _triangles(consistency, *edges) if m >= 3 else 0.0
+        n_tests = _triangles(consistency, edges) if m >= 3 else 0.0
     obj2 = per_object_min(res2, cand[:, 0])
     lg_uniform, k_fit, r_fit = nfa_over_radii(obj2, r, lam, m, n_tests, sample)
     lam_perm = permutation_lambda(used[qi, tlab], inl, tlab, counts[qi, tlab], chance)

@@ -243,15 +243,18 @@ def ransac(
 ) -> RansacResult:
     """Robustly fit T_dst_src to correspondences src[i] <-> dst[i] (both (m,3), metres).
 
-    Any rigid motion without a gravity gate (dof=6, max_tilt=None) runs the compiled loop of
-    `sgloc.kernels.ransac` (same samples, same result as `ransac_reference`); the other motion
-    models run `ransac_reference`.
+    The ground vehicle's model (dof=4) and any rigid motion without a gravity gate (dof=6,
+    max_tilt=None) run the compiled loop of `sgloc.kernels.ransac` (same samples, same result
+    as `ransac_reference`); dof=6 with max_tilt runs `ransac_reference`.
     """
     cfg = config or RansacConfig()
-    if cfg.dof == 6 and cfg.max_tilt is None:
-        from sgloc.kernels.ransac import ransac as compiled_ransac
+    if cfg.dof == 4 or cfg.max_tilt is None:
+        from sgloc.kernels import use_compiled
 
-        return compiled_ransac(src, dst, cfg, rng, weights)
+        if use_compiled(len(src)):
+            from sgloc.kernels.ransac import ransac as compiled_ransac
+
+            return compiled_ransac(src, dst, cfg, rng, weights)
     return ransac_reference(src, dst, cfg, rng, weights)
 
 
@@ -458,6 +461,13 @@ def irls_refine(
         the scales apart, those fix roll and pitch and the others count less.
     """
     prior = np.ones(len(src)) if weights is None else np.asarray(weights, dtype=np.float64)
+    from sgloc.kernels import use_compiled
+
+    if classes is None and use_compiled(len(src)):
+        from sgloc.kernels.fit import irls_model
+
+        src, dst = (np.ascontiguousarray(a, dtype=np.float64) for a in (src, dst))
+        return irls_model(src, dst, T, prior, iterations, dof, float(max_tilt or 0.0))
     w_prev = None
     for _ in range(iterations):
         d = src @ T[:3, :3].T + T[:3, 3] - dst

@@ -24,7 +24,7 @@ from sgloc.estimation import (
     weighted_kabsch,
 )
 from sgloc.graph import SemanticGraph
-from sgloc.matching import match_descriptors
+from sgloc.matching import match_descriptors, match_flagged
 from sgloc.rejection import make_rejector
 
 MIN_VERTICES = 3
@@ -118,7 +118,10 @@ class Localizer:
         t1 = time.perf_counter()
         timings["descriptors"] = t1 - t0
 
-        candidates, scores = match_descriptors(dq, dt, query.labels, target.labels, cfg.matching)
+        # Also flags the candidates the acceptance test counts (its ratio test): one pass.
+        candidates, scores, distinct = match_flagged(
+            dq, dt, query.labels, target.labels, cfg.matching, cfg.acceptance.distinct_ratio
+        )
         t2 = time.perf_counter()
         timings["matching"] = t2 - t1
 
@@ -156,8 +159,12 @@ class Localizer:
             if cfg.acceptance.distinct_ratio is not None:
                 # Only distinctive matches count as evidence: in a repetitive place near-tied
                 # matches line up with a wrong alignment as readily as with the right one.
-                strict = dataclasses.replace(cfg.matching, max_ratio=cfg.acceptance.distinct_ratio)
-                tested = match_descriptors(dq, dt, query.labels, target.labels, strict)[0]
+                if distinct is not None:
+                    tested = candidates[distinct]
+                else:
+                    ratio = cfg.acceptance.distinct_ratio
+                    strict = dataclasses.replace(cfg.matching, max_ratio=ratio)
+                    tested = match_descriptors(dq, dt, query.labels, target.labels, strict)[0]
             verdict = assess(
                 query,
                 target,

@@ -88,12 +88,20 @@ def cosine_similarity(desc_q, desc_t, labels_q: np.ndarray, labels_t: np.ndarray
 
 
 def _top_k(
-    Q, T, labels_q, labels_t, k: int, min_sim: float, max_ratio: float | None = None
+    Q,
+    T,
+    labels_q,
+    labels_t,
+    k: int,
+    min_sim: float,
+    max_ratio: float | None = None,
+    flag_ratio: float | None = None,
 ) -> tuple[np.ndarray, ...]:
     """Per query row its k most similar same-class targets with similarity >= min_sim and > 0
-    (and passing the ratio test when max_ratio is set): (query idx, target idx, score),
-    ordered by query, then score descending."""
-    out_q, out_t, out_s = [], [], []
+    (and passing the ratio test when max_ratio is set): (query idx, target idx, score, flag),
+    ordered by query, then score descending; flag: the query passes the ratio test at
+    `flag_ratio` (all True when it is None)."""
+    out_q, out_t, out_s, out_f = [], [], [], []
     for rows, it, S in _blocks(Q, T, labels_q, labels_t):
         kk = min(k, S.shape[1])
         if kk == 1:
@@ -101,20 +109,25 @@ def _top_k(
         else:
             best = np.argpartition(-S, kk - 1, axis=1)[:, :kk]
         sc = np.take_along_axis(S, best, axis=1)
-        if max_ratio is not None and S.shape[1] > 1:
+        flag = np.ones(len(rows), dtype=bool)
+        if (max_ratio is not None or flag_ratio is not None) and S.shape[1] > 1:
             top2 = -np.partition(-S, 1, axis=1)[:, :2]
-            distinct = (1.0 - top2[:, 0]) <= max_ratio * (1.0 - top2[:, 1])
-            sc = np.where(distinct[:, None], sc, -np.inf)
+            if max_ratio is not None:
+                distinct = (1.0 - top2[:, 0]) <= max_ratio * (1.0 - top2[:, 1])
+                sc = np.where(distinct[:, None], sc, -np.inf)
+            if flag_ratio is not None:
+                flag = (1.0 - top2[:, 0]) <= flag_ratio * (1.0 - top2[:, 1])
         out_q.append(np.repeat(rows, kk))
         out_t.append(it[best.ravel()])
         out_s.append(sc.ravel())
+        out_f.append(np.repeat(flag, kk))
     if not out_q:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
-    q, t, s = np.concatenate(out_q), np.concatenate(out_t), np.concatenate(out_s)
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0, bool)
+    q, t, s, f = (np.concatenate(x) for x in (out_q, out_t, out_s, out_f))
     keep = (s >= min_sim) & (s > 0)  # zero similarity never counts as a match
-    q, t, s = q[keep], t[keep], s[keep]
+    q, t, s, f = q[keep], t[keep], s[keep], f[keep]
     order = np.lexsort((t, -s, q))
-    return q[order], t[order], s[order]
+    return q[order], t[order], s[order], f[order]
 
 
 def _all_pairs(Q, T, labels_q, labels_t, cap: int, min_sim: float) -> tuple[np.ndarray, ...]:
@@ -166,27 +179,48 @@ def match_descriptors(
     every same-class pair above `min_similarity`, the `max_candidates` most similar.
     Ordered by query index, then score (descending).
     """
+    return match_flagged(desc_q, desc_t, labels_q, labels_t, config)[:2]
+
+
+def match_flagged(
+    desc_q,
+    desc_t,
+    labels_q: np.ndarray,
+    labels_t: np.ndarray,
+    config: MatchingConfig | None = None,
+    flag_ratio: float | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """`match_descriptors` plus, per candidate, whether it is also a candidate of the same
+    matching with `max_ratio=flag_ratio` (one pass instead of two): (candidates, scores,
+    flags (m,) bool). flags is None when that set is not a subset of these candidates (a
+    looser flag_ratio than the config's max_ratio); strategy "all" has no ratio test: all
+    True."""
     cfg = config or MatchingConfig()
     if cfg.strategy not in STRATEGIES:
         raise ValueError(f"unknown matching strategy {cfg.strategy!r}; use one of {STRATEGIES}")
+    if flag_ratio is not None and cfg.max_ratio is not None and flag_ratio > cfg.max_ratio:
+        return (*match_descriptors(desc_q, desc_t, labels_q, labels_t, cfg), None)
     with _one_blas_thread():
-        return _match(desc_q, desc_t, labels_q, labels_t, cfg)
+        return _match(desc_q, desc_t, labels_q, labels_t, cfg, flag_ratio)
 
 
-def _match(desc_q, desc_t, labels_q, labels_t, cfg: MatchingConfig) -> tuple[np.ndarray, ...]:
+def _match(
+    desc_q, desc_t, labels_q, labels_t, cfg: MatchingConfig, flag_ratio: float | None = None
+) -> tuple[np.ndarray, ...]:
     Q, T = _row_normalised(desc_q), _row_normalised(desc_t)
     if Q.shape[0] == 0 or T.shape[0] == 0:
-        return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
+        return np.zeros((0, 2), dtype=np.int64), np.zeros(0), np.zeros(0, bool)
     min_sim = float(cfg.min_similarity)
     if cfg.strategy == "all":
         q, t, s = _all_pairs(Q, T, labels_q, labels_t, max(int(cfg.max_candidates), 1), min_sim)
+        f = np.ones(len(q), dtype=bool)
     else:
         k = max(int(cfg.top_k), 1)
-        q, t, s = _top_k(Q, T, labels_q, labels_t, k, min_sim, cfg.max_ratio)
+        q, t, s, f = _top_k(Q, T, labels_q, labels_t, k, min_sim, cfg.max_ratio, flag_ratio)
         if cfg.mutual and q.size:
             # j's best k queries (any similarity), by the same blocks with the roles swapped.
-            tq, qq, _ = _top_k(T, Q, labels_t, labels_q, k, -np.inf)
+            tq, qq, _, _ = _top_k(T, Q, labels_t, labels_q, k, -np.inf)
             n_q = Q.shape[0]
             back = np.isin(t * n_q + q, tq * n_q + qq)
-            q, t, s = q[back], t[back], s[back]
-    return np.stack([q, t], axis=1).astype(np.int64), s
+            q, t, s, f = q[back], t[back], s[back], f[back]
+    return np.stack([q, t], axis=1).astype(np.int64), s, f

@@ -42,6 +42,12 @@ def prune_by_support(M: np.ndarray, eta: float) -> np.ndarray:
 
 def prune_bits(bits: np.ndarray, degree: np.ndarray, eta: float) -> np.ndarray:
     """`prune_by_support` on bit-packed rows and their counts (`consistency_bits` output)."""
+    from sgloc.kernels import use_compiled
+
+    if not use_compiled(len(bits)):
+        from sgloc.consistency import unpack_rows
+
+        return prune_by_support_reference(unpack_rows(bits, len(bits)), eta)
     from sgloc.kernels.prune import prune_bits as kernel
 
     return kernel(bits, degree, float(eta))
