@@ -272,7 +272,8 @@ def ransac(
     models, Guo's sampler and "first" scoring run `ransac_reference`.
     """
     cfg = config or RansacConfig()
-    if cfg.dof == 6 and cfg.max_tilt is None and cfg.sampler == "minimal" and cfg.scoring != "first":
+    compiled = cfg.dof == 6 and cfg.max_tilt is None and cfg.sampler == "minimal"
+    if compiled and cfg.scoring != "first":
         from sgloc.kernels.ransac import ransac as compiled_ransac
 
         return compiled_ransac(src, dst, cfg, rng, weights)
