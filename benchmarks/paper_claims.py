@@ -50,8 +50,9 @@ def more_good_matches(table: Rows, _sweep: Rows) -> tuple[bool, str]:
     return ok, "; ".join(parts)
 
 
-def faster(table: Rows, _sweep: Rows) -> tuple[bool, str]:
-    """Table 1: rejection + RANSAC about 2x faster than RANSAC alone (>= 1.5x for each)."""
+def _speedups(table: Rows) -> tuple[list[float], str]:
+    """RANSAC alone's median time over +neighbor's (rejection + RANSAC + final fit), per
+    descriptor."""
     s = _by(table, "descriptor", "rejection")
     ratios = [s[(d, "none")]["total_ms"] / s[(d, "neighbor")]["total_ms"] for d in DESCRIPTORS]
     parts = [
@@ -59,7 +60,19 @@ def faster(table: Rows, _sweep: Rows) -> tuple[bool, str]:
         f"({r:.2f}x)"
         for d, r in zip(DESCRIPTORS, ratios, strict=True)
     ]
-    return min(ratios) >= 1.5, "; ".join(parts)
+    return ratios, "; ".join(parts)
+
+
+def faster(table: Rows, _sweep: Rows) -> tuple[bool, str]:
+    """Table 1: rejection + RANSAC takes less time than RANSAC alone for every descriptor."""
+    ratios, text = _speedups(table)
+    return min(ratios) > 1.0, text
+
+
+def twice_as_fast(table: Rows, _sweep: Rows) -> tuple[bool, str]:
+    """Table 1: about 2x faster (>= 1.5x for every descriptor)."""
+    ratios, text = _speedups(table)
+    return min(ratios) >= 1.5, text
 
 
 def _error_check(key: str, what: str) -> Check:
@@ -73,6 +86,7 @@ def _error_check(key: str, what: str) -> Check:
         return ok, "; ".join(parts)
 
     check.__doc__ = f"Table 1: +neighbor has the lower {what} for every descriptor."
+    check.__name__ = f"lower_{key}"
     return check
 
 
@@ -139,9 +153,11 @@ CLAIMS: list[tuple[str, Check]] = [
     ("Fig. 4: lower translation error at most RANSAC thresholds", lower_error_most_thresholds),
     ("Fig. 1/4: fewer failed runs (not localized or > 20 m)", fewer_failures),
     ("Table 1: more good final matches", more_good_matches),
-    ("Table 1: about 2x faster (rejection + RANSAC vs RANSAC)", faster),
+    ("Table 1: faster (rejection + RANSAC vs RANSAC alone)", faster),
+    ("Table 1: about 2x faster", twice_as_fast),
     ("Table 1: lower translation error", _error_check("te_mean", "mean translation error")),
-    ("Table 1: smaller translation error deviation", _error_check("te_std", "its std")),
+    ("Table 1: smaller translation error deviation",
+     _error_check("te_std", "std of the translation error")),
     ("Table 1: lower rotation error", _error_check("re_mean", "mean rotation error")),
     ("Table 1: the largest gain on Fast", fast_gains_most),
     ("Fig. 5: PR curve above RANSAC alone's", pr_above),
@@ -166,7 +182,8 @@ def claims_markdown(results: Path) -> str:
     body = []
     for claim, check in CLAIMS:
         (ok_p, m_p), (ok_d, m_d) = (check(*data[name]) for name in SETTINGS)
-        body.append([f"{claim}<br>*{check.__doc__.split(': ', 1)[-1].strip()}*",
+        criterion = " ".join(check.__doc__.split(": ", 1)[-1].split())
+        body.append([f"{claim}<br>*{criterion}*",
                      verdict(ok_p, ok_d), m_p, m_d])  # fmt: skip
     return markdown_table(["claim (criterion)", "verdict", "paper preset", "sgloc defaults"], body)
 
