@@ -1,14 +1,17 @@
 """The paper's Airsim claims, each checked on the `paper` preset (the paper's own pipeline) and on
 sgloc's defaults, from the trials of `benchmarks/reproduce_paper.sh`; plus the tau sweep.
 
-Usage: python -m benchmarks.paper_claims [RESULTS_DIR] [OUT_MD]
-(defaults results/paper and docs/figures/paper-claims.md). Reads, under RESULTS_DIR:
+Usage: python -m benchmarks.paper_claims [RESULTS_DIR] [OUT_MD] [DOC]
+(defaults results/paper, docs/figures/paper-claims.md, docs/reproduction.md): writes OUT_MD and
+refills DOC's generated blocks (claims, tau, fig4/fig5-paper/default, and figures/*.md tables).
+Reads, under RESULTS_DIR:
 table1-airsim{,-paper}/trials.csv (T_error 5 m), threshold-airsim{,-paper}/trials.csv
 (T_error sweep) and tau{T}-airsim-paper/trials.csv (the tau sweep, histogram + neighbor).
 """
 
 from __future__ import annotations
 
+import re
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -237,20 +240,48 @@ def sweep_markdowns(results: Path) -> str:
     return "\n\n".join(out)
 
 
+GENERATED = re.compile(r"(<!-- generated: (\S+) -->\n)(?:.*?\n)??(<!-- /generated -->)", re.S)
+
+
+def fill_doc(doc: Path, blocks: dict[str, str]) -> None:
+    """Replace every `<!-- generated: NAME -->...<!-- /generated -->` block of `doc`: NAME is a
+    key of `blocks`, or `figures/FILE.md` (that table file without its title line)."""
+
+    def content(name: str) -> str:
+        if name in blocks:
+            return blocks[name]
+        lines = (doc.parent / name).read_text().strip().splitlines()
+        return "\n".join(lines[1:] if lines and lines[0].startswith("# ") else lines).strip()
+
+    text = GENERATED.sub(
+        lambda m: m.group(1) + content(m.group(2)) + "\n" + m.group(3), doc.read_text()
+    )
+    doc.write_text(text)
+
+
 def main(argv: Sequence[str]) -> None:
     results = Path(argv[0]) if argv else Path("results/paper")
     out = Path(argv[1]) if len(argv) > 1 else Path("docs/figures/paper-claims.md")
+    doc = Path(argv[2]) if len(argv) > 2 else Path("docs/reproduction.md")
+    blocks = {"claims": claims_markdown(results), "tau": tau_markdown(results)}
+    sweeps = sweep_markdowns(results)
     text = (
         "## The paper's claims on Airsim (100 trials each)\n\n"
-        + claims_markdown(results)
+        + blocks["claims"]
         + "\n\n## tau against T_error (histogram + neighbor, paper preset): recall / failures "
         "of 100\n\n"
-        + tau_markdown(results)
+        + blocks["tau"]
         + "\n\n"
-        + sweep_markdowns(results)
+        + sweeps
         + "\n"
     )
+    for part in sweeps.split("### ")[1:]:
+        title, table = part.split("\n\n", 1)
+        fig, setting = title.split(":")[0].split(", ")
+        key = f"{fig.lower().replace('. ', '')}-{'paper' if setting == 'paper' else 'default'}"
+        blocks[key] = table.strip()
     out.write_text(text)
+    fill_doc(doc, blocks)
     print(text)
 
 
