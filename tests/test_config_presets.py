@@ -152,3 +152,14 @@ def test_every_preset_builds():
     for name in LOCALIZER_PRESETS:
         localizer_preset(name)
     assert localizer_preset("KITTI_objects") == localizer_preset("kitti-objects")
+
+
+def test_guo_sampler_keeps_the_gravity_gate():
+    rng = np.random.default_rng(4)
+    src = rng.uniform(-40, 40, (40, 3))
+    flip = np.eye(4)
+    flip[1:3, 1:3] = [[0.0, -1.0], [1.0, 0.0]]  # 90 deg about x: the up axis turned sideways
+    cfg = dict(sampler="guo", scoring="first", confidence=None, refit_rounds=0, dof=6)
+    assert ransac(src, apply(flip, src), RansacConfig(**cfg, max_tilt=None)).transform is not None
+    res = ransac(src, apply(flip, src), RansacConfig(**cfg, max_tilt=15.0))
+    assert res.transform is None and "max_tilt" in res.reason

@@ -379,10 +379,10 @@ def _hypotheses(
     src: np.ndarray, dst: np.ndarray, rng: np.random.Generator, n: int, cfg: RansacConfig
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Up to n hypotheses (R (B,3,3), t (B,3)) from random minimal samples; None if none.
-    With sampler="guo": exactly n, each the Kabsch fit of 4 matches drawn with replacement."""
+    With sampler="guo": the Kabsch fits of samples of 4 matches drawn with replacement."""
     if cfg.sampler == "guo":
         samples = rng.integers(0, len(src), (n, GUO_SAMPLE))
-        return kabsch_batch(src[samples], dst[samples])
+        return _upright(*kabsch_batch(src[samples], dst[samples]), cfg.max_tilt)
     if cfg.dof == 4:
         i = rng.integers(0, len(src), n)
         j = rng.integers(0, len(src) - 1, n)
@@ -398,13 +398,17 @@ def _hypotheses(
     ok = non_collinear(S) & non_collinear(D)
     if not ok.any():
         return None
-    R, t = rigid_from_triplets(S[ok], D[ok])
-    if cfg.max_tilt is not None:
-        up = tilt_deg(R) <= cfg.max_tilt
-        if not up.any():
-            return None
-        R, t = R[up], t[up]
-    return R, t
+    return _upright(*rigid_from_triplets(S[ok], D[ok]), cfg.max_tilt)
+
+
+def _upright(
+    R: np.ndarray, t: np.ndarray, max_tilt: float | None
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The hypotheses that tilt the up axis by at most `max_tilt` degrees (all when None)."""
+    if max_tilt is None:
+        return R, t
+    up = tilt_deg(R) <= max_tilt
+    return (R[up], t[up]) if up.any() else None
 
 
 def _refit(
