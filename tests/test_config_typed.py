@@ -120,3 +120,30 @@ def test_acceptance_uses_the_consistency_layer_not_rejection():
     }
     assert "sgloc.consistency" in imported
     assert not any(m.startswith("sgloc.rejection") for m in imported)
+
+
+@pytest.mark.parametrize("preset", ["paper", "guo", "kitti-objects", "city", "default"])
+def test_flat_settings_round_trip(preset):
+    from sgloc.presets import localizer_preset
+
+    cfg = localizer_preset(preset).with_overrides(
+        descriptor_radius=40.0, class_scale=True, matching_max_ratio=0.9
+    ) if preset == "default" else localizer_preset(preset)  # fmt: skip
+    assert LocalizerConfig().with_overrides(**cfg.flat_settings()) == cfg
+
+
+def test_descriptor_radius_has_a_qualified_name():
+    cfg = LocalizerConfig().with_overrides(descriptor_radius=40.0, rejection_tau=3.0)
+    assert cfg.descriptor_params == {"radius": 40.0} and cfg.rejection_params == {"tau": 3.0}
+    with pytest.raises(UnknownNameError, match="descriptor_radius"):
+        LocalizerConfig().with_overrides(radius=40.0)
+
+
+def test_saved_preset_config_reaches_the_command_line(tmp_path):
+    from sgloc.presets import localizer_preset
+
+    path = tmp_path / "paper.yaml"
+    localizer_preset("paper").save(path)
+    out = tmp_path / "r"
+    assert main(["localize", "--example", "--config", str(path), "--out", str(out)]) == 0
+    assert LocalizerConfig.from_yaml(out / "config.yaml") == localizer_preset("paper")

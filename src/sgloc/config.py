@@ -86,8 +86,9 @@ class LocalizerConfig:
     def with_overrides(self, **overrides: Any) -> LocalizerConfig:
         """A copy with flat settings routed to their stage, e.g. `tau=3, min_similarity=0.6`.
 
-        A bare name must belong to one stage only; `ransac_<field>`, `matching_<field>` and
-        `acceptance_<field>` name a stage's field explicitly. Names that would be read two ways
+        A bare name must belong to one stage only; `ransac_<field>`, `matching_<field>`,
+        `acceptance_<field>`, `descriptor_<field>` and `rejection_<field>` name a stage's field
+        explicitly. Names that would be read two ways
         (FLAT_AMBIGUOUS, e.g. `confidence`) and unknown names raise UnknownNameError. Every value
         is checked by the stage config it lands in (sgloc.validation).
         """
@@ -130,6 +131,35 @@ class LocalizerConfig:
             )
         except TypeError as e:  # a descriptor/rejector given a parameter it does not have
             raise UnknownNameError(f"unknown setting: {e}") from None
+
+    def flat_settings(self) -> dict[str, Any]:
+        """The settings in which this config differs from the defaults, as flat names: bare
+        where a name means one setting (`tau`, `n_walks`), stage-qualified otherwise
+        (`ransac_confidence`, `descriptor_radius`; always `ransac_threshold`):
+        `LocalizerConfig().with_overrides(**cfg.flat_settings()) == cfg`."""
+        base = LocalizerConfig()
+        routes = _flat_routes(self.descriptor, self.rejection)
+
+        def name(stage: str, field_name: str) -> str:
+            bare = len(routes.get(field_name, [])) == 1 and field_name not in FLAT_AMBIGUOUS
+            keep = bare and (stage, field_name) != ("ransac", "threshold")
+            return field_name if keep else f"{_PREFIX[stage]}_{field_name}"
+
+        out: dict[str, Any] = {}
+        for key in ("descriptor", "rejection"):
+            if getattr(self, key) != getattr(base, key):
+                out[key] = getattr(self, key)
+            params = getattr(self, f"{key}_params").items()
+            out |= {name(f"{key}_params", k): v for k, v in params}
+        for stage in ("matching", "ransac"):
+            now, ref = (dataclasses.asdict(getattr(c, stage)) for c in (self, base))
+            out |= {name(stage, k): v for k, v in now.items() if v != ref[k]}
+        if self.acceptance != base.acceptance:
+            out["acceptance"] = dataclasses.asdict(self.acceptance)
+        for key in sorted(_TOP_LEVEL):
+            if getattr(self, key) != getattr(base, key):
+                out[key] = getattr(self, key)
+        return out
 
     def to_dict(self) -> dict[str, Any]:
         """A nested dict of plain values: descriptor and rejection as registered names with
@@ -261,8 +291,8 @@ def _acceptance(value: Any) -> AcceptanceConfig:
 FLAT_AMBIGUOUS = {
     "confidence": "ransac_confidence (RANSAC's stop probability) or min_confidence (the "
     "acceptance test's strictness)",
-    "radius": "acceptance_radius (the acceptance test's inlier radius; the graph edge radius is "
-    "set when a graph is built or loaded)",
+    "radius": "acceptance_radius (the acceptance test's inlier radius) or descriptor_radius (the "
+    "distance descriptors' radius); the graph edge radius is set when a graph is built or loaded",
     "enabled": "acceptance_enabled or acceptance=False",
 }
 _TOP_LEVEL = {"class_weights", "robust_refit", "class_scale", "icp", "icp_max_distance"}
@@ -284,9 +314,19 @@ def _flat_routes(descriptor: Any, rejection: Any) -> dict[str, list[tuple[str, s
     for stage, names in stages.items():
         for name in names:
             routes.setdefault(name, []).append((stage, name))
-            if stage in ("matching", "ransac", "acceptance"):
-                routes.setdefault(f"{stage}_{name}", []).append((stage, name))
+            if stage != "top":
+                routes.setdefault(f"{_PREFIX[stage]}_{name}", []).append((stage, name))
     return routes
+
+
+#: The prefix of each stage's qualified setting names (`ransac_threshold`, `descriptor_radius`).
+_PREFIX = {
+    "matching": "matching",
+    "ransac": "ransac",
+    "acceptance": "acceptance",
+    "descriptor_params": "descriptor",
+    "rejection_params": "rejection",
+}
 
 
 def _route(
@@ -298,10 +338,7 @@ def _route(
     if len(found) == 1:
         return found[0]
     if found:
-        options = ", ".join(
-            f"{s}_{n}" if s in ("matching", "ransac", "acceptance") else f"{s}={{{n!r}: ...}}"
-            for s, n in found
-        )
+        options = ", ".join(f"{_PREFIX[s]}_{n}" if s in _PREFIX else n for s, n in found)
         raise UnknownNameError(f"setting {key!r} is ambiguous; use one of {options}.")
     raise UnknownNameError(
         f"unknown setting {key!r} for descriptor {descriptor!r} and rejection {rejection!r}; "
