@@ -1,8 +1,14 @@
-"""The paper's Algorithm 1 (neighbor-constraint rejection) on hand-checked cases."""
+"""The paper's Algorithm 1 (neighbor-constraint rejection) on hand-checked cases, and its
+literal reading (`bound="literal"`, the `paper` preset) against a transcription of the
+pseudo-code."""
+
+import math
 
 import numpy as np
+import pytest
 
-from sgloc.rejection import NeighborRejector, consistency_matrix, prune_by_support
+from sgloc.presets import localizer_preset
+from sgloc.rejection import NeighborRejector, consistency_matrix, make_rejector, prune_by_support
 
 
 def test_consistency_distance_form():
@@ -72,3 +78,79 @@ def test_rejector_drops_outliers_keeps_inliers(rng):
 
 def test_empty_input():
     assert len(NeighborRejector()(np.zeros((0, 3)), np.zeros((0, 3)))) == 0
+
+
+def alg1_transcribed(src: list, dst: list, tau: float) -> list[int]:
+    """Alg. 1 line by line: M over every (i, j), the diagonal included; V = row sums;
+    `while V_i < 0.5 * rows of M_0`: V -= M[i,:], V_i = m, delete match i from M_0."""
+    m = len(src)
+    M = [[0] * m for _ in range(m)]
+    for i in range(m):
+        for j in range(m):
+            if abs(math.dist(src[i], src[j]) - math.dist(dst[i], dst[j])) < tau:
+                M[i][j] = 1
+    V = [sum(row) for row in M]
+    M0 = list(range(m))
+    i = V.index(min(V))
+    while V[i] < 0.5 * len(M0):
+        for j in range(m):
+            V[j] -= M[i][j]
+        V[i] = m
+        M0.remove(i)
+        i = V.index(min(V))
+    return M0
+
+
+def _random_matches(rng, m):
+    src = rng.uniform(-60, 60, (m, 3))
+    dst = src + rng.normal(0, 1.0, (m, 3))
+    k = int(rng.integers(0, m + 1))
+    dst[:k] = rng.uniform(-60, 60, (k, 3))  # outliers
+    return src, dst
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_paper_preset_rejection_is_alg1_as_written(seed):
+    rng = np.random.default_rng(seed)
+    cfg = localizer_preset("paper")
+    rejector = make_rejector(cfg.rejection, **cfg.rejection_params)
+    differs = 0
+    for _ in range(40):
+        src, dst = _random_matches(rng, int(rng.integers(1, 120)))
+        expected = alg1_transcribed(src.tolist(), dst.tolist(), 5.0)
+        assert rejector(src, dst).tolist() == expected
+        differs += NeighborRejector()(src, dst).tolist() != expected
+    assert differs > 0  # the default bound is another rule, and these sets tell them apart
+
+
+def test_literal_and_remaining_bounds_differ_on_an_even_count():
+    # A path 0-1-2 and an isolated 3 (supports without M_ii: 1, 2, 1, 0). Both rules remove
+    # 3 at r = 4 ("remaining": 0 < 0.5 * 3; "literal": 1 + 0 < 0.5 * 4) and stop at r = 3.
+    M = np.zeros((4, 4), dtype=bool)
+    M[0, 1] = M[1, 0] = M[1, 2] = M[2, 1] = True
+    assert prune_by_support(M, 0.5).tolist() == [0, 1, 2]
+    assert prune_by_support(M, 0.5, bound="literal").tolist() == [0, 1, 2]
+    # Four matches agreeing with nobody. "remaining": 0 < 1.5, 0 < 1, 0 < 0.5 remove 0, 1, 2.
+    # "literal": 1 < 2 and 1 < 1.5 remove 0 and 1; at r = 2 (even), 1 < 1 is false: stop.
+    E = np.zeros((4, 4), dtype=bool)
+    assert prune_by_support(E, 0.5).tolist() == [3]
+    assert prune_by_support(E, 0.5, bound="literal").tolist() == [2, 3]
+
+
+def test_literal_bound_on_matrices_of_any_width():
+    # Word boundaries of the packed rows: the literal rule appends one match.
+    rng = np.random.default_rng(3)
+    for m in (63, 64, 65, 127, 128):
+        R = rng.random((m, m)) < 0.5
+        R = R | R.T
+        np.fill_diagonal(R, False)
+        V = R.sum(axis=1).astype(float) + 1  # the diagonal counts
+        alive = list(range(m))
+        while True:
+            i = int(np.argmin(V))
+            if V[i] >= 0.5 * len(alive):
+                break
+            V -= R[i]
+            V[i] = np.inf
+            alive.remove(i)
+        assert prune_by_support(R, 0.5, bound="literal").tolist() == alive

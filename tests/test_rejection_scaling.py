@@ -22,7 +22,9 @@ def naive_consistency(src, dst, tau, form):
 
 
 def naive_prune(M, eta):
-    """Alg. 1 step 2 as written: float supports, full argmin, removed ones at +inf."""
+    """Alg. 1 step 2 with the default bound (V_i without M_ii, against eta * (r - 1); the
+    literal reading is tested in test_alg1.py), in plain numpy: float supports, full argmin,
+    removed ones at +inf."""
     m = M.shape[0]
     V = M.sum(axis=1).astype(np.float64)
     alive = np.ones(m, dtype=bool)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -10,11 +11,12 @@ from typing import Any
 import yaml
 
 from sgloc.acceptance import AcceptanceConfig
-from sgloc.descriptors import DESCRIPTORS, make_descriptor
+from sgloc.descriptors import DESCRIPTORS, Descriptor, make_descriptor
 from sgloc.errors import SglocError, UnknownNameError
 from sgloc.estimation import RansacConfig
 from sgloc.matching import MatchingConfig
-from sgloc.rejection import REJECTORS, make_rejector
+from sgloc.registry import registered_name
+from sgloc.rejection import REJECTORS, Rejector, make_rejector
 from sgloc.validation import validate_localizer_settings
 
 
@@ -24,8 +26,11 @@ class LocalizerConfig:
     (`distance_histogram`) and the ground-vehicle motion model of `RansacConfig` (dof=4,
     max_tilt=15), chosen by measurement (docs/acceptance.md, the hard-cases benchmark).
 
-    descriptor / descriptor_params: name in DESCRIPTORS and its parameters.
-    rejection / rejection_params: name in REJECTORS and its parameters.
+    descriptor / descriptor_params: name in DESCRIPTORS and its parameters. `descriptor` may
+        also be given typed, as the descriptor itself (`HistogramDescriptor()`) or as a mapping
+        {"name": ..., field: value}; it is stored as its registered name and the fields that
+        differ from the descriptor's defaults. `descriptor_config` is the typed object.
+    rejection / rejection_params: the same for the rejector (REJECTORS; `rejector_config`).
     class_weights: {class id: weight} for the final weighted fit (others weigh 1).
     robust_refit: refine the final fit over RANSAC's inliers by an M-estimator (Tukey biweight
         IRLS, `sgloc.estimation.irls_refine`); False: the plain weighted least squares of Eq. 4.
@@ -38,10 +43,10 @@ class LocalizerConfig:
     acceptance: the test behind `success` (sgloc.acceptance; strictness = min_confidence).
     """
 
-    descriptor: str = "distance_histogram"
+    descriptor: str | Descriptor | dict[str, Any] = "distance_histogram"
     descriptor_params: dict[str, Any] = field(default_factory=dict)
     matching: MatchingConfig = field(default_factory=MatchingConfig)
-    rejection: str = "neighbor"
+    rejection: str | Rejector | dict[str, Any] = "neighbor"
     rejection_params: dict[str, Any] = field(default_factory=dict)
     ransac: RansacConfig = field(default_factory=RansacConfig)
     class_weights: dict[int, float] | None = None
@@ -52,28 +57,56 @@ class LocalizerConfig:
     acceptance: AcceptanceConfig = field(default_factory=AcceptanceConfig)
 
     def __post_init__(self) -> None:
+        self.descriptor, self.descriptor_params = _named_stage(
+            self.descriptor, self.descriptor_params, DESCRIPTORS, Descriptor, "descriptor"
+        )
+        self.rejection, self.rejection_params = _named_stage(
+            self.rejection, self.rejection_params, REJECTORS, Rejector, "rejection"
+        )
         validate_localizer_settings(self)  # type and range of the top-level settings
-        # Fail early on unknown names or parameters.
-        make_descriptor(self.descriptor, **self.descriptor_params)
-        make_rejector(self.rejection, **self.rejection_params)
+        # Fail early on unknown parameters and bad values (the typed objects check them).
+        _ = self.descriptor_config, self.rejector_config
+
+    @property
+    def descriptor_config(self) -> Descriptor:
+        """The descriptor these settings name, as its typed (dataclass) object."""
+        try:
+            return make_descriptor(self.descriptor, **self.descriptor_params)
+        except TypeError as e:
+            raise UnknownNameError(f"descriptor {self.descriptor!r}: {e}") from None
+
+    @property
+    def rejector_config(self) -> Rejector:
+        """The rejector these settings name, as its typed (dataclass) object."""
+        try:
+            return make_rejector(self.rejection, **self.rejection_params)
+        except TypeError as e:
+            raise UnknownNameError(f"rejection {self.rejection!r}: {e}") from None
 
     def with_overrides(self, **overrides: Any) -> LocalizerConfig:
         """A copy with flat settings routed to their stage, e.g. `tau=3, min_similarity=0.6`.
 
-        A bare name must belong to one stage only; `ransac_<field>`, `matching_<field>` and
-        `acceptance_<field>` name a stage's field explicitly. Names that would be read two ways
+        A bare name must belong to one stage only; `ransac_<field>`, `matching_<field>`,
+        `acceptance_<field>`, `descriptor_<field>` and `rejection_<field>` name a stage's field
+        explicitly. Names that would be read two ways
         (FLAT_AMBIGUOUS, e.g. `confidence`) and unknown names raise UnknownNameError. Every value
         is checked by the stage config it lands in (sgloc.validation).
         """
         overrides = dict(overrides)
         top = {k: overrides.pop(k) for k in ("descriptor", "rejection") if k in overrides}
+        # A new descriptor or rejector starts from its own defaults (or the typed object's).
+        params = {
+            "descriptor_params": dict(self.descriptor_params),
+            "rejection_params": dict(self.rejection_params),
+        }
+        for key, table, base in (
+            ("descriptor", DESCRIPTORS, Descriptor),
+            ("rejection", REJECTORS, Rejector),
+        ):
+            if key in top:
+                top[key], params[f"{key}_params"] = _named_stage(top[key], {}, table, base, key)
         descriptor = top.get("descriptor", self.descriptor)
         rejection = top.get("rejection", self.rejection)
-        # A new descriptor or rejector starts from its own defaults.
-        params = {
-            "descriptor_params": {} if "descriptor" in top else dict(self.descriptor_params),
-            "rejection_params": {} if "rejection" in top else dict(self.rejection_params),
-        }
         stages: dict[str, dict[str, Any]] = {"matching": {}, "ransac": {}, "acceptance": {}}
         acceptance = _acceptance(overrides.pop("acceptance")) if "acceptance" in overrides else None
         routes = _flat_routes(descriptor, rejection)
@@ -99,7 +132,38 @@ class LocalizerConfig:
         except TypeError as e:  # a descriptor/rejector given a parameter it does not have
             raise UnknownNameError(f"unknown setting: {e}") from None
 
+    def flat_settings(self) -> dict[str, Any]:
+        """The settings in which this config differs from the defaults, as flat names: bare
+        where a name means one setting (`tau`, `n_walks`), stage-qualified otherwise
+        (`ransac_confidence`, `descriptor_radius`; always `ransac_threshold`):
+        `LocalizerConfig().with_overrides(**cfg.flat_settings()) == cfg`."""
+        base = LocalizerConfig()
+        routes = _flat_routes(self.descriptor, self.rejection)
+
+        def name(stage: str, field_name: str) -> str:
+            bare = len(routes.get(field_name, [])) == 1 and field_name not in FLAT_AMBIGUOUS
+            keep = bare and (stage, field_name) != ("ransac", "threshold")
+            return field_name if keep else f"{_PREFIX[stage]}_{field_name}"
+
+        out: dict[str, Any] = {}
+        for key in ("descriptor", "rejection"):
+            if getattr(self, key) != getattr(base, key):
+                out[key] = getattr(self, key)
+            params = getattr(self, f"{key}_params").items()
+            out |= {name(f"{key}_params", k): v for k, v in params}
+        for stage in ("matching", "ransac"):
+            now, ref = (dataclasses.asdict(getattr(c, stage)) for c in (self, base))
+            out |= {name(stage, k): v for k, v in now.items() if v != ref[k]}
+        if self.acceptance != base.acceptance:
+            out["acceptance"] = dataclasses.asdict(self.acceptance)
+        for key in sorted(_TOP_LEVEL):
+            if getattr(self, key) != getattr(base, key):
+                out[key] = getattr(self, key)
+        return out
+
     def to_dict(self) -> dict[str, Any]:
+        """A nested dict of plain values: descriptor and rejection as registered names with
+        their parameters, each stage config as a mapping of its fields."""
         return dataclasses.asdict(self)
 
     @classmethod
@@ -107,7 +171,7 @@ class LocalizerConfig:
         """The config of a nested dict (as `to_dict` writes it); every value is checked."""
         if not isinstance(data, dict):
             raise SglocError(f"malformed localizer config: expected a mapping, got {data!r:.60}.")
-        data = dict(data)
+        data = _int_keys(dict(data))  # class ids come back as strings from JSON
         try:
             for key, klass in (("matching", MatchingConfig), ("ransac", RansacConfig)):
                 sub = data.get(key) or {}
@@ -122,6 +186,29 @@ class LocalizerConfig:
     def to_yaml(self, path: str | Path) -> None:
         Path(path).write_text(yaml.safe_dump(self.to_dict(), sort_keys=False))
 
+    def to_json(self, path: str | Path) -> None:
+        Path(path).write_text(json.dumps(_json_ready(self.to_dict()), indent=2) + "\n")
+
+    @classmethod
+    def from_json(cls, path: str | Path) -> LocalizerConfig:
+        from sgloc.io.files import MAX_TEXT_FILE_BYTES, read_regular_file
+
+        raw = read_regular_file(path, "JSON config file", MAX_TEXT_FILE_BYTES, SglocError)
+        try:
+            data = json.loads(raw.decode("utf-8"))
+        except (ValueError, RecursionError) as e:
+            raise SglocError(f"{path}: not a valid JSON config ({type(e).__name__}).") from None
+        return cls.from_dict(data)
+
+    def save(self, path: str | Path) -> None:
+        """Write the config to `path`: JSON for a .json file, YAML otherwise."""
+        (self.to_json if Path(path).suffix.lower() == ".json" else self.to_yaml)(path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> LocalizerConfig:
+        """Read a config written by `save` (JSON for a .json file, YAML otherwise)."""
+        return (cls.from_json if Path(path).suffix.lower() == ".json" else cls.from_yaml)(path)
+
     @classmethod
     def from_yaml(cls, path: str | Path) -> LocalizerConfig:
         from sgloc.io.files import MAX_TEXT_FILE_BYTES, read_regular_file
@@ -132,6 +219,56 @@ class LocalizerConfig:
         except (yaml.YAMLError, UnicodeDecodeError, RecursionError) as e:
             raise SglocError(f"{path}: not a valid YAML config ({type(e).__name__}).") from None
         return cls.from_dict(data or {})
+
+
+def _named_stage(
+    value: Any, params: Any, table: dict[str, type], base: type, kind: str
+) -> tuple[Any, dict[str, Any]]:
+    """(registered name, parameters) of a stage given by name, as a typed object, or as a
+    mapping {"name": ..., field: value}; `params` add to (and override) the object's fields.
+    An instance of an unregistered class is kept as it is (it runs, but is not serialisable)."""
+    params = dict(params) if isinstance(params, dict) else params
+    if isinstance(value, base):
+        key = next((k for k, klass in table.items() if type(value) is klass), None)
+        if key is None:
+            return value, params
+        default = type(value)()
+        fields = {
+            f.name: getattr(value, f.name)
+            for f in dataclasses.fields(value)
+            if getattr(value, f.name) != getattr(default, f.name)
+        }
+        return key, fields | (params or {})
+    if isinstance(value, dict):
+        fields = dict(value)
+        if not isinstance(fields.get("name"), str):
+            choices = ", ".join(table)
+            raise SglocError(f"setting {kind}: a mapping needs a 'name' (one of {choices}).")
+        name = fields.pop("name")
+        return registered_name(table, name, kind), fields | (params or {})
+    if isinstance(value, str):
+        return registered_name(table, value, kind), params
+    return value, params
+
+
+def _json_ready(data: Any) -> Any:
+    """`data` with mapping keys as strings (JSON's only key type)."""
+    if isinstance(data, dict):
+        return {str(k): _json_ready(v) for k, v in data.items()}
+    if isinstance(data, list | tuple):
+        return [_json_ready(v) for v in data]
+    return data
+
+
+def _int_keys(data: dict[str, Any]) -> dict[str, Any]:
+    """class_weights read back from JSON: its class ids were written as strings."""
+    weights = data.get("class_weights")
+    if isinstance(weights, dict):
+        try:
+            data = {**data, "class_weights": {int(k): v for k, v in weights.items()}}
+        except ValueError:
+            raise SglocError("setting class_weights: class ids must be integers.") from None
+    return data
 
 
 def _acceptance(value: Any) -> AcceptanceConfig:
@@ -154,11 +291,11 @@ def _acceptance(value: Any) -> AcceptanceConfig:
 FLAT_AMBIGUOUS = {
     "confidence": "ransac_confidence (RANSAC's stop probability) or min_confidence (the "
     "acceptance test's strictness)",
-    "radius": "acceptance_radius (the acceptance test's inlier radius; the graph edge radius is "
-    "set when a graph is built or loaded)",
+    "radius": "acceptance_radius (the acceptance test's inlier radius) or descriptor_radius (the "
+    "distance descriptors' radius); the graph edge radius is set when a graph is built or loaded",
     "enabled": "acceptance_enabled or acceptance=False",
 }
-_TOP_LEVEL = {"class_weights", "robust_refit", "icp", "icp_max_distance"}
+_TOP_LEVEL = {"class_weights", "robust_refit", "class_scale", "icp", "icp_max_distance"}
 
 
 def _flat_routes(descriptor: Any, rejection: Any) -> dict[str, list[tuple[str, str]]]:
@@ -177,9 +314,19 @@ def _flat_routes(descriptor: Any, rejection: Any) -> dict[str, list[tuple[str, s
     for stage, names in stages.items():
         for name in names:
             routes.setdefault(name, []).append((stage, name))
-            if stage in ("matching", "ransac", "acceptance"):
-                routes.setdefault(f"{stage}_{name}", []).append((stage, name))
+            if stage != "top":
+                routes.setdefault(f"{_PREFIX[stage]}_{name}", []).append((stage, name))
     return routes
+
+
+#: The prefix of each stage's qualified setting names (`ransac_threshold`, `descriptor_radius`).
+_PREFIX = {
+    "matching": "matching",
+    "ransac": "ransac",
+    "acceptance": "acceptance",
+    "descriptor_params": "descriptor",
+    "rejection_params": "rejection",
+}
 
 
 def _route(
@@ -191,10 +338,7 @@ def _route(
     if len(found) == 1:
         return found[0]
     if found:
-        options = ", ".join(
-            f"{s}_{n}" if s in ("matching", "ransac", "acceptance") else f"{s}={{{n!r}: ...}}"
-            for s, n in found
-        )
+        options = ", ".join(f"{_PREFIX[s]}_{n}" if s in _PREFIX else n for s, n in found)
         raise UnknownNameError(f"setting {key!r} is ambiguous; use one of {options}.")
     raise UnknownNameError(
         f"unknown setting {key!r} for descriptor {descriptor!r} and rejection {rejection!r}; "

@@ -8,7 +8,7 @@ import numpy as np
 
 from sgloc.errors import DegenerateGeometryError
 from sgloc.geometry import make_transform
-from sgloc.validation import validate_settings
+from sgloc.validation import InvalidSettingError, validate_settings
 
 #: Relative size under which a point set counts as collinear (second principal extent over the
 #: first). Objects of a city map are metres apart; 1e-3 is a line to within a millimetre per metre.
@@ -177,8 +177,8 @@ class RansacConfig:
     min_inliers, min_inlier_ratio: accept a model only with >= min_inliers inliers and
         >= min_inlier_ratio of the matches given to RANSAC (Guo: 5 and 1 %).
     scoring: "msac" (least truncated quadratic cost sum(min(r^2, threshold^2)); the default:
-        it separates hypotheses with equal inlier counts) or "count" (Guo: most inliers, ties
-        by least inlier residual).
+        it separates hypotheses with equal inlier counts), "count" (most inliers, ties by least
+        inlier residual) or "first" (Guo's code: most inliers, ties to the first drawn).
     confidence: stop drawing once, with this probability, an all-inlier sample has been drawn
         given the best inlier ratio so far (the standard adaptive stop); None draws all
         `iterations` (Guo's fixed 1000).
@@ -189,6 +189,10 @@ class RansacConfig:
     max_tilt: degrees; when set, the maps share gravity (z up) up to this tilt: hypotheses and
         fits that tilt the up axis more (upside-down or mirrored alignments) are refused. With
         dof=4 the refits may tilt up to this much (None or 0: yaw only). None: no assumption.
+    sampler: "minimal" (the default: samples of 3 distinct, non-collinear matches, 2 with
+        dof=4, each hypothesis exact on its sample) or "guo" (Guo et al.'s code: samples of
+        4 matches drawn with replacement, each hypothesis the unweighted Kabsch fit of its 4,
+        degenerate samples kept; dof=6 only).
     """
 
     threshold: float = 5.0
@@ -201,6 +205,7 @@ class RansacConfig:
     refit_rounds: int = 2
     dof: int = 4
     max_tilt: float | None = 15.0
+    sampler: str = "minimal"
 
     def __post_init__(self) -> None:
         validate_settings(self)  # type, range, finiteness of every field (sgloc.validation)
@@ -220,6 +225,24 @@ class RansacResult:
 
 # Bound on hypotheses x matches scored at once (memory of the residual block, ~16 MB).
 _BLOCK = 2_000_000
+
+
+#: Matches per sample of Guo's RANSAC (drawn with replacement).
+GUO_SAMPLE = 4
+
+
+def kabsch_batch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unweighted Kabsch fits of B point samples src, dst (B,k,3) -> R (B,3,3), t (B,3), with
+    the reflection guard. A degenerate sample (repeated or collinear points) still gets a
+    rotation, arbitrary about the undetermined axes, as Guo's code lets it."""
+    cs, cd = src.mean(axis=1), dst.mean(axis=1)
+    H = np.einsum("bki,bkj->bij", src - cs[:, None], dst - cd[:, None])
+    U, _, Vt = np.linalg.svd(H)
+    V = np.swapaxes(Vt, 1, 2)
+    d = np.sign(np.linalg.det(V @ np.swapaxes(U, 1, 2)))
+    V[:, :, 2] *= np.where(d == 0, 1.0, d)[:, None]
+    R = V @ np.swapaxes(U, 1, 2)
+    return R, cd - np.einsum("bij,bj->bi", R, cs)
 
 
 def draw_triplets(m: int, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -245,10 +268,12 @@ def ransac(
 
     The ground vehicle's model (dof=4) and any rigid motion without a gravity gate (dof=6,
     max_tilt=None) run the compiled loop of `sgloc.kernels.ransac` (same samples, same result
-    as `ransac_reference`); dof=6 with max_tilt runs `ransac_reference`.
+    as `ransac_reference`); dof=6 with max_tilt, Guo's sampler and "first" scoring run
+    `ransac_reference`.
     """
     cfg = config or RansacConfig()
-    if cfg.dof == 4 or cfg.max_tilt is None:
+    kernel_model = cfg.dof == 4 or cfg.max_tilt is None
+    if kernel_model and cfg.sampler == "minimal" and cfg.scoring != "first":
         from sgloc.kernels import use_compiled
 
         if use_compiled(len(src)):
@@ -277,17 +302,22 @@ def ransac_reference(
         return RansacResult(
             None, reason=f"only {m} match(es) reached RANSAC; at least 3 are needed"
         )
-    if cfg.scoring not in ("count", "msac"):
-        raise ValueError(f"unknown RANSAC scoring {cfg.scoring!r}; use 'count' or 'msac'")
+    if cfg.scoring not in ("count", "msac", "first"):
+        raise ValueError(f"unknown RANSAC scoring {cfg.scoring!r}; use 'msac', 'count' or 'first'")
     if cfg.dof not in (4, 6):
         raise ValueError(f"RANSAC dof must be 4 (x, y, z, yaw) or 6, got {cfg.dof!r}")
+    if cfg.sampler == "guo" and cfg.dof != 6:
+        raise InvalidSettingError(
+            f"setting ransac.sampler='guo' needs ransac.dof=6 (got dof={cfg.dof}): Guo's samples "
+            "fix any rigid motion; use sampler='minimal' for dof=4."
+        )
     # Centre both sets: better conditioned residual expansion; undone at the end.
     cs, cd = src.mean(axis=0), dst.mean(axis=0)
     src_c, dst_c = src - cs, dst - cd
     thr2 = cfg.threshold**2
     best_key, best_T, drawn, needed = (np.inf, np.inf), None, 0, cfg.iterations
     batch = max(1, min(cfg.batch, _BLOCK // m))
-    sample_size = 2 if cfg.dof == 4 else 3
+    sample_size = GUO_SAMPLE if cfg.sampler == "guo" else 2 if cfg.dof == 4 else 3
     while drawn < min(needed, cfg.iterations):
         # A small first block: after rejection the inlier ratio is often near 1 and a handful
         # of draws settles it.
@@ -300,7 +330,10 @@ def ransac_reference(
         r2 = squared_residuals(R, t, src_c, dst_c)
         inl = r2 < thr2
         counts = inl.sum(axis=1)
-        if cfg.scoring == "count":
+        if cfg.scoring == "first":  # Guo: a later hypothesis must have strictly more inliers
+            primary = -counts.astype(np.float64)
+            secondary = np.arange(drawn - len(counts), drawn, dtype=np.float64)
+        elif cfg.scoring == "count":
             primary = -counts.astype(np.float64)
             # Tie-break by inlier residual, computed only for the tied best hypotheses.
             secondary = np.full(len(primary), np.inf)
@@ -348,7 +381,11 @@ def _no_hypothesis_reason(cfg: RansacConfig) -> str:
 def _hypotheses(
     src: np.ndarray, dst: np.ndarray, rng: np.random.Generator, n: int, cfg: RansacConfig
 ) -> tuple[np.ndarray, np.ndarray] | None:
-    """Up to n hypotheses (R (B,3,3), t (B,3)) from random minimal samples; None if none."""
+    """Up to n hypotheses (R (B,3,3), t (B,3)) from random minimal samples; None if none.
+    With sampler="guo": the Kabsch fits of samples of 4 matches drawn with replacement."""
+    if cfg.sampler == "guo":
+        samples = rng.integers(0, len(src), (n, GUO_SAMPLE))
+        return _upright(*kabsch_batch(src[samples], dst[samples]), cfg.max_tilt)
     if cfg.dof == 4:
         i = rng.integers(0, len(src), n)
         j = rng.integers(0, len(src) - 1, n)
@@ -364,13 +401,17 @@ def _hypotheses(
     ok = non_collinear(S) & non_collinear(D)
     if not ok.any():
         return None
-    R, t = rigid_from_triplets(S[ok], D[ok])
-    if cfg.max_tilt is not None:
-        up = tilt_deg(R) <= cfg.max_tilt
-        if not up.any():
-            return None
-        R, t = R[up], t[up]
-    return R, t
+    return _upright(*rigid_from_triplets(S[ok], D[ok]), cfg.max_tilt)
+
+
+def _upright(
+    R: np.ndarray, t: np.ndarray, max_tilt: float | None
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The hypotheses that tilt the up axis by at most `max_tilt` degrees (all when None)."""
+    if max_tilt is None:
+        return R, t
+    up = tilt_deg(R) <= max_tilt
+    return (R[up], t[up]) if up.any() else None
 
 
 def _refit(

@@ -281,6 +281,7 @@ def localize(
     seed: int | None = 0,
     *,
     config: LocalizerConfig | None = None,
+    preset: str | None = None,
     rng: np.random.Generator | None = None,
     **settings: Any,
 ) -> LocalizationResult:
@@ -297,6 +298,8 @@ def localize(
             gravity up to max_tilt=15 deg); dof=6, max_tilt=None allows any rigid motion.
         seed: seed of the random generator (RANSAC, random walks); ignored when `rng` is given.
         config: a full LocalizerConfig to start from; arguments given here override it.
+        preset: named settings applied over `config` (sgloc.presets: "paper" = the paper's own
+            pipeline, "guo" = its baseline, "default", dataset presets).
         **settings: any stage setting by name, e.g. tau=3.0, eta=0.5, min_similarity=0.6,
             top_k=2, mutual=True, strategy="all", iterations=2000, dof=6, max_tilt=None,
             radius=40.0 (distance_histogram), class_weights={3: 11.0}, icp=True,
@@ -304,5 +307,9 @@ def localize(
     """
     named = {"descriptor": descriptor, "rejection": rejection, "ransac_threshold": ransac_threshold}
     overrides = {k: v for k, v in named.items() if v is not None} | settings
+    if preset is not None:
+        from sgloc.presets import localizer_settings
+
+        overrides = localizer_settings(preset) | overrides
     cfg = (config or LocalizerConfig()).with_overrides(**overrides)
     return Localizer(cfg)(query, target, rng if rng is not None else seed)

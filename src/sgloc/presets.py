@@ -3,8 +3,16 @@ each kind of data. `sgloc localize|fleet|experiment --preset NAME` and the datas
 experiments and the demo all read them from here.
 
 Localizer presets (flat `LocalizerConfig.with_overrides` settings):
-- `paper`: the paper's defaults (5 m RANSAC threshold, tau 5 m, Histogram + neighbor constraints).
-- `airsim-guo`: Guo et al.'s Airsim object maps; the paper's defaults.
+- `default`: sgloc's own defaults (nothing changed).
+- `paper`: the paper's pipeline and nothing of sgloc's additions: the histogram descriptor,
+  the best match per query object (similarity >= 0.5), Alg. 1 as its pseudo-code reads
+  (`bound="literal"`, tau 5 m, eta 0.5), Guo et al.'s RANSAC (samples of 4 matches drawn with
+  replacement, a fixed 1000 draws, most inliers wins, >= 5 inliers and >= 1 % of the matches,
+  T_error 5 m, the model refit once on its inliers), the plain weighted SVD of Eq. 4 (no robust
+  refit, no ICP), any rigid motion (dof 6, no gravity gate) and no acceptance test beyond
+  Guo's inlier rule.
+- `guo`: `paper` without the rejection (Guo et al.'s pipeline, the paper's baseline).
+- `airsim-guo`: Guo et al.'s Airsim object maps; sgloc's defaults.
 - `city`: graphs extracted from the rendered synthetic city. A building's vertex depends on the
   viewpoint (the centroid of the visible part of a facade moves as a robot drives past, and two
   robots see opposite ends), so every other class weighs 10x a building in the final fit.
@@ -26,37 +34,59 @@ import copy
 from typing import TYPE_CHECKING, Any
 
 from sgloc.errors import UnknownNameError
+from sgloc.registry import lookup
 
 if TYPE_CHECKING:
     from sgloc.config import LocalizerConfig
     from sgloc.extraction.config import ExtractionConfig
 
+#: Guo et al.'s pipeline (the paper's baseline), every sgloc addition switched off.
+_GUO: dict[str, Any] = {
+    "descriptor": "histogram",
+    "min_similarity": 0.5,
+    "top_k": 1,
+    "mutual": False,
+    "strategy": "top_k",
+    "max_ratio": None,
+    "rejection": "none",
+    "ransac_threshold": 5.0,
+    "sampler": "guo",
+    "scoring": "first",
+    "iterations": 1000,
+    "ransac_confidence": None,
+    "min_inliers": 5,
+    "min_inlier_ratio": 0.01,
+    "refit_rounds": 0,
+    "dof": 6,
+    "max_tilt": None,
+    "class_weights": None,
+    "robust_refit": False,
+    "icp": False,
+    "acceptance": {"enabled": False, "distinct_ratio": None},
+}
+
 LOCALIZER_PRESETS: dict[str, dict[str, Any]] = {
-    "paper": {},
+    "default": {},
+    "paper": {**_GUO, "rejection": "neighbor", "tau": 5.0, "eta": 0.5, "form": "distance",
+              "bound": "literal"},  # fmt: skip
+    "guo": _GUO,
     "airsim-guo": {},
     "city": {"class_weights": {0: 0.1}},
     "kitti-objects": {"ransac_threshold": 2.0, "tau": 2.0},
 }
 
 EXTRACTION_PRESETS: dict[str, dict[str, Any]] = {
+    "default": {},
     "paper": {},
+    "guo": {},
     "kitti-objects": {"merge_distance": 3.0, "min_observations": 2},
     "synthia": {"ignore_classes": (1, 3, 4, 12)},
 }
 
 
-def _key(name: str) -> str:
-    return name.strip().lower().replace("_", "-")
-
-
 def localizer_settings(name: str) -> dict[str, Any]:
     """A copy of the flat localizer settings of preset `name` (e.g. {"tau": 2.0})."""
-    key = _key(name)
-    if key not in LOCALIZER_PRESETS:
-        raise UnknownNameError(
-            f"unknown preset {name!r}; choose one of {', '.join(LOCALIZER_PRESETS)}."
-        )
-    return copy.deepcopy(LOCALIZER_PRESETS[key])
+    return copy.deepcopy(lookup(LOCALIZER_PRESETS, name, "preset"))
 
 
 def localizer_preset(name: str) -> LocalizerConfig:
@@ -68,7 +98,10 @@ def localizer_preset(name: str) -> LocalizerConfig:
 
 def extraction_settings(name: str) -> dict[str, Any]:
     """A copy of the extraction settings of preset `name`; {} (Guo's defaults) when none."""
-    return copy.deepcopy(EXTRACTION_PRESETS.get(_key(name), {}))
+    try:
+        return copy.deepcopy(lookup(EXTRACTION_PRESETS, name, "extraction preset"))
+    except UnknownNameError:
+        return {}
 
 
 def extraction_preset(name: str) -> ExtractionConfig:

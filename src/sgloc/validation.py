@@ -230,12 +230,13 @@ SETTINGS: dict[str, dict[str, Any]] = {
         "iterations": _int(1, MAX_ITERATIONS),
         "min_inliers": _int(0, MAX_VERTICES),
         "min_inlier_ratio": _real(0.0, 1.0),
-        "scoring": _choice("msac", "count", what="how RANSAC scores a hypothesis"),
+        "scoring": _choice("msac", "count", "first", what="how RANSAC scores a hypothesis"),
         "confidence": _real(0.0, 1.0, low_open=True, high_open=True, none_ok=True),
         "batch": _int(1, MAX_ITERATIONS),
         "refit_rounds": _int(0, 100),
         "dof": _int_choice(4, 6),
         "max_tilt": _real(0.0, 180.0, low_open=True, none_ok=True, unit="degrees"),
+        "sampler": _choice("minimal", "guo", what="how RANSAC draws its samples"),
     },
     "AcceptanceConfig": {
         "enabled": lambda name, value: check_bool(name, value),
@@ -265,6 +266,7 @@ SETTINGS: dict[str, dict[str, Any]] = {
         "tau": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
         "eta": _real(0.0, 1.0),
         "form": _choice("distance", "neighbor", what="the consistency form"),
+        "bound": _choice("remaining", "literal", what="Alg. 1's removal bound"),
     },
     "CliqueRejector": {
         "tau": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),

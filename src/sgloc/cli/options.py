@@ -55,25 +55,7 @@ _NESTED = {"matching", "ransac", "acceptance", "descriptor_params", "rejection_p
 def flat_settings(cfg: LocalizerConfig) -> dict[str, Any]:
     """The flat settings (as `--set` and `localize(**settings)` take them) in which `cfg`
     differs from the defaults: `LocalizerConfig().with_overrides(**flat) == cfg`."""
-    import dataclasses
-
-    base = LocalizerConfig()
-    out: dict[str, Any] = {}
-    for key in ("descriptor", "rejection"):
-        if getattr(cfg, key) != getattr(base, key):
-            out[key] = getattr(cfg, key)
-    out |= cfg.descriptor_params | cfg.rejection_params
-    for section in ("matching", "ransac"):
-        now, ref = (dataclasses.asdict(getattr(c, section)) for c in (cfg, base))
-        for k, v in now.items():
-            if v != ref[k]:
-                out["ransac_threshold" if (section, k) == ("ransac", "threshold") else k] = v
-    if cfg.acceptance != base.acceptance:
-        out["acceptance"] = dataclasses.asdict(cfg.acceptance)
-    for k in ("class_weights", "robust_refit", "icp", "icp_max_distance"):
-        if getattr(cfg, k) != getattr(base, k):
-            out[k] = getattr(cfg, k)
-    return out
+    return cfg.flat_settings()
 
 
 def read_settings_file(path: Path) -> dict[str, Any]:

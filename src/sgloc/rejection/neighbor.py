@@ -29,18 +29,24 @@ _REMOVED = 1 << 30
 _WIDE_LIMIT = 4096
 
 
-def prune_by_support(M: np.ndarray, eta: float) -> np.ndarray:
+#: Alg. 1's removal bounds (see NeighborRejector).
+BOUNDS = ("remaining", "literal")
+
+
+def prune_by_support(M: np.ndarray, eta: float, bound: str = "remaining") -> np.ndarray:
     """Alg. 1 step 2 on a consistency matrix M (m,m) bool with a False diagonal: the sorted
-    indices of the survivors (compiled, `sgloc.kernels.prune`; the rule is that of
-    `prune_by_support_reference`)."""
+    indices of the survivors (compiled, `sgloc.kernels.prune`; the rule of bound="remaining" is
+    that of `prune_by_support_reference`, bound="literal" is described in NeighborRejector)."""
     M = np.asarray(M)
     if M.shape[0] == 0:
         return np.zeros(0, dtype=np.int64)
     M = M if M.dtype == np.bool_ else M != 0
-    return prune_bits(pack_rows(M), M.sum(axis=1, dtype=np.int64), eta)
+    return prune_bits(pack_rows(M), M.sum(axis=1, dtype=np.int64), eta, bound)
 
 
-def prune_bits(bits: np.ndarray, degree: np.ndarray, eta: float) -> np.ndarray:
+def prune_bits(
+    bits: np.ndarray, degree: np.ndarray, eta: float, bound: str = "remaining"
+) -> np.ndarray:
     """`prune_by_support` on bit-packed rows and their counts (`consistency_bits` output)."""
     from sgloc.kernels import use_compiled
 
@@ -50,7 +56,23 @@ def prune_bits(bits: np.ndarray, degree: np.ndarray, eta: float) -> np.ndarray:
         return prune_by_support_reference(unpack_rows(bits, len(bits)), eta)
     from sgloc.kernels.prune import prune_bits as kernel
 
-    return kernel(bits, degree, float(eta))
+    if bound not in BOUNDS:
+        raise ValueError(f"unknown bound {bound!r}; use one of {BOUNDS}")
+    m = len(degree)
+    if bound == "remaining" or m == 0:
+        return kernel(bits, degree, float(eta))
+    # The literal bound: remove while 1 + V_i < eta * r (V_i without M_ii). The kernel's rule
+    # V_i < eta * (r - 1), run with one extra match consistent with every match, is exactly
+    # that: the extra one adds 1 to every support and to r, and, having the largest possible
+    # support, is never removed before a real match (eta <= 1; ties go to the lower index).
+    n_words = (m + 1 + 63) // 64
+    wide = np.zeros((m + 1, n_words), dtype=np.uint64)
+    wide[:m, : bits.shape[1]] = bits
+    wide[:m, m // 64] |= np.uint64(1) << np.uint64(m % 64)
+    wide[m] = pack_rows(np.arange(m + 1)[None, :] < m)[0]
+    support = np.append(np.asarray(degree, dtype=np.int64) + 1, m)
+    kept = kernel(wide, support, float(eta))
+    return kept[kept < m]
 
 
 def prune_by_support_reference(M: np.ndarray, eta: float) -> np.ndarray:
@@ -116,14 +138,24 @@ class NeighborRejector(Rejector):
         in the two graphs; for form="neighbor", the neighbour radius of Nei().
     eta: a match survives while it agrees with at least eta of the other remaining matches.
     form: "distance" (Alg. 1's pseudo-code, the default) or "neighbor" (Eq. 2-3).
+    bound: when the least supported remaining match (ties: the lowest index) is removed, with
+        r matches remaining and V_i the number of other remaining matches it agrees with:
+        - "remaining" (the default): V_i < eta * (r - 1); a match does not vouch for itself.
+        - "literal": 1 + V_i < eta * r, Alg. 1 as its pseudo-code reads: M_ii = 1 (a match's
+          distances agree with themselves, |D - D| = 0 < tau), V = row sums of M, loop while
+          V_i < 0.5 * rows of M_0, and M_0 loses a row per removal, so its rows are r.
+        With eta = 0.5 the two differ only when r is even and the least support is
+        V_i = r/2 - 1: "remaining" removes that match, "literal" stops there.
     """
 
     tau: float = 5.0
     eta: float = 0.5
     form: Literal["distance", "neighbor"] = "distance"
+    bound: Literal["remaining", "literal"] = "remaining"
     name = "neighbor"
 
     def __call__(self, src, dst, scores=None):
         if len(src) == 0:
             return np.zeros(0, dtype=np.int64)
-        return prune_bits(*consistency_bits(src, dst, self.tau, self.form), self.eta)
+        bits, degree = consistency_bits(src, dst, self.tau, self.form)
+        return prune_bits(bits, degree, self.eta, self.bound)
