@@ -8,12 +8,10 @@ Trials run serially, on local processes (`workers`), or on a Dask cluster (`sche
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import os
 import time
-import types
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from typing import Any
@@ -89,22 +87,6 @@ def limit_blas_threads() -> None:
     threadpool_limits(limits=1)
 
 
-@contextlib.contextmanager
-def _stage_clock(clock: str) -> Iterator[None]:
-    """Make the localizer's stage timer (`time.perf_counter` in sgloc.localizer) read this
-    thread's CPU time while the block runs (clock="cpu"); clock="wall" leaves it alone."""
-    import sgloc.localizer as loc
-
-    if clock == "wall" or getattr(loc, "time", None) is not time:
-        yield
-        return
-    loc.time = types.SimpleNamespace(perf_counter=time.thread_time)
-    try:
-        yield
-    finally:
-        loc.time = time
-
-
 def run_task(task: TrialTask) -> dict[str, Any]:
     """Run one trial and return its row as a flat dict: the task's tags, then dataset, settings,
     seed, outcome, pose errors, match counts (`MatchStats`), recall/precision, stage times (ms),
@@ -124,8 +106,8 @@ def run_task(task: TrialTask) -> dict[str, Any]:
     for _ in range(max(1, task.repeats)):
         rng = np.random.default_rng([int(task.seed), LOCALIZER_STREAM])
         c0 = time.thread_time()
-        with _stage_clock(task.clock):
-            res = localizer(pair.query, pair.target, rng)
+        clock = time.thread_time if task.clock == "cpu" else time.perf_counter
+        res = localizer(pair.query, pair.target, rng, clock=clock)
         cpu.append(time.thread_time() - c0)
         timings.append(res.timings)
     ms = {k: 1e3 * min(t[k] for t in timings) for k in timings[0]}
