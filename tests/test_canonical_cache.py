@@ -4,6 +4,7 @@ map reuse it, and with it every cache the canonical graph holds (descriptors, ad
 from __future__ import annotations
 
 import gc
+import weakref
 
 import numpy as np
 
@@ -42,7 +43,11 @@ def test_cache_entries_go_with_the_graph():
     g = SemanticGraph(rng.uniform(0, 50, (30, 3)), rng.integers(0, 3, 30))
     h = SemanticGraph(rng.uniform(0, 50, (30, 3)), rng.integers(0, 3, 30))
     CanonicalPair(g, h, LocalizerConfig())
+    assert g in _FORMS and h in _FORMS
+    refs = [weakref.ref(g), weakref.ref(h)]
+    gc.collect()  # earlier tests' graphs may go too: count only these two
     n = len(_FORMS)
     del g, h
     gc.collect()
+    assert all(r() is None for r in refs)  # nothing (the cache included) kept them alive
     assert len(_FORMS) == n - 2
