@@ -170,50 +170,6 @@ def residual_norms(src: np.ndarray, dst: np.ndarray, T: np.ndarray) -> np.ndarra
 
 
 @njit(cache=True, nogil=True)
-def irls(
-    src: np.ndarray, dst: np.ndarray, T: np.ndarray, prior: np.ndarray, iterations: int
-) -> np.ndarray:
-    """Tukey-biweight IRLS refit of T_dst_src from T (the rule of
-    `sgloc.estimation.irls_refine`: c = 4.685 sigma, sigma = 1.4826 median residual)."""
-    m = src.shape[0]
-    w_prev = np.zeros(m)
-    have_prev = False
-    for _ in range(iterations):
-        r = residual_norms(src, dst, T)
-        sigma = 1.4826 * median(r)
-        if sigma <= 1e-12:
-            break
-        c = 4.685 * sigma
-        w = np.empty(m)
-        n_pos = 0
-        for i in range(m):
-            u = r[i] / c
-            w[i] = prior[i] * ((1.0 - u * u) ** 2 if u < 1.0 else 0.0)
-            n_pos += w[i] != 0.0
-        if n_pos < 3:
-            break
-        if have_prev:
-            same = True
-            for i in range(m):
-                if not abs(w[i] - w_prev[i]) <= 1e-6:
-                    same = False
-                    break
-            if same:
-                break
-        w_prev, have_prev = w, True
-        T_new = kabsch(src, dst, w)
-        change = 0.0
-        for a in range(4):
-            for b in range(4):
-                change = max(change, abs(T_new[a, b] - T[a, b]))
-        T = T_new
-        done = change < 1e-9
-        if done:
-            break
-    return T
-
-
-@njit(cache=True, nogil=True)
 def collinear(points: np.ndarray, ratio: float) -> bool:
     """`sgloc.estimation._collinear`: fewer than 3 points, or the second principal extent
     under `ratio` times the first."""
@@ -324,3 +280,13 @@ def irls_model(
         if change < 1e-9:
             break
     return T
+
+
+@njit(cache=True, nogil=True)
+def irls(
+    src: np.ndarray, dst: np.ndarray, T: np.ndarray, prior: np.ndarray, iterations: int
+) -> np.ndarray:
+    """Tukey-biweight IRLS refit of T_dst_src from T (the rule of
+    `sgloc.estimation.irls_refine`: c = 4.685 sigma, sigma = 1.4826 median residual): the
+    6-dof case of `irls_model`."""
+    return irls_model(src, dst, T, prior, iterations, 6, 0.0)
