@@ -128,7 +128,7 @@ def summarise(rows: list[dict]) -> tuple[list[str], list[list[str]]]:
 
 
 def goal_lines(rows: list[dict]) -> list[str]:
-    """The issue's goals checked against the measured rows (medians, ms; mean error, m)."""
+    """The goals checked against the measured rows (medians, ms; mean error, m)."""
     by = {r["setting"]: r["trials"] for r in rows}
 
     def verdict(ok: bool) -> str:
@@ -185,7 +185,7 @@ def main() -> None:
         "|" + "---|" * len(head),
         *["| " + " | ".join(b) + " |" for b in body],
         "",
-        "## Goals (issue 2), read off this run",
+        "## Goals, read off this run",
         "",
         *goal_lines(rows),
         "",

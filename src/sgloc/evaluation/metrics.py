@@ -1,4 +1,4 @@
-"""The paper's evaluation metrics (PAPER.md section 6).
+"""The paper's evaluation metrics (its Section IV: pose errors, recall and precision of matches).
 
 - Pose error: translation (m) and rotation (deg) of `T_err = T_est @ inv(T_gt)`, both mapping
   query into target, i.e. measured in the target map's frame (`sgloc.geometry.transform_error`).

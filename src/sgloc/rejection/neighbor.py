@@ -83,7 +83,7 @@ def prune_by_support_reference(M: np.ndarray, eta: float) -> np.ndarray:
     update V -= M[i] (O(r) per removal). Ties go to the lowest index. Returns the sorted indices
     of the survivors.
 
-    The bound shrinks with r: against the original m every match ends up removed (PAPER.md).
+    The bound shrinks with r: against the original m every match ends up removed.
     M_ii does not count: a match does not vouch for itself, so V_i ranges over 0..r-1.
     Supports are int32 (int16 once at most 4096 remain, with M as int16 rows; uint8 rows before)
     and M is compacted to the survivors whenever half of the rows it holds are gone, so a
