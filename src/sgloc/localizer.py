@@ -199,7 +199,6 @@ class Localizer:
             timings=timings,
             reason="" if transform is not None else reason,
             confidence=confidence,
-            config=cfg.to_dict(),
         )
         return canonical.restore(result)  # the caller's vertex indices and config
 
@@ -315,5 +314,19 @@ def localize(
         from sgloc.presets import localizer_settings
 
         overrides = localizer_settings(preset) | overrides
-    cfg = (config or LocalizerConfig()).with_overrides(**overrides)
-    return Localizer(cfg)(query, target, rng if rng is not None else seed)
+    if config is None and not overrides:
+        localizer = _default_localizer()
+    else:
+        localizer = Localizer((config or LocalizerConfig()).with_overrides(**overrides))
+    return localizer(query, target, rng if rng is not None else seed)
+
+
+_DEFAULT: list[Localizer] = []
+
+
+def _default_localizer() -> Localizer:
+    """The Localizer of the default settings, built once per process (it holds no state that
+    a call changes)."""
+    if not _DEFAULT:
+        _DEFAULT.append(Localizer(LocalizerConfig()))
+    return _DEFAULT[0]
