@@ -58,56 +58,6 @@ def _frame(p: np.ndarray) -> np.ndarray:
     return F
 
 
-@njit(cache=True, nogil=True)
-def score_block(
-    src: np.ndarray, dst: np.ndarray, samples: np.ndarray, thr2: float, msac: bool
-) -> tuple[bool, float, float, np.ndarray, int]:
-    """Fit and score the hypotheses of `samples` (n,3) on centred src, dst (m,3).
-
-    Returns (found, primary, secondary, T, max_count): the best hypothesis by (primary,
-    secondary), first on ties, as `sgloc.estimation.ransac` orders them (msac: truncated cost,
-    then -count; count: -count, then inlier residual), its 4x4 T, and the largest inlier count
-    of the block (for the adaptive stop); found=False when every sample is collinear.
-    """
-    m = src.shape[0]
-    best_p, best_s, found, max_count = np.inf, np.inf, False, 0
-    best_T = np.eye(4)
-    S, D = np.empty((3, 3)), np.empty((3, 3))
-    for b in range(samples.shape[0]):
-        for k in range(3):
-            S[k], D[k] = src[samples[b, k]], dst[samples[b, k]]
-        if not (_non_collinear(S, COLLINEAR_RATIO) and _non_collinear(D, COLLINEAR_RATIO)):
-            continue
-        Fd, Fs = _frame(D), _frame(S)
-        R = np.empty((3, 3))
-        for a in range(3):
-            for c in range(3):
-                R[a, c] = Fd[a, 0] * Fs[c, 0] + Fd[a, 1] * Fs[c, 1] + Fd[a, 2] * Fs[c, 2]
-        cs, cd = (S[0] + S[1] + S[2]) / 3.0, (D[0] + D[1] + D[2]) / 3.0
-        t = np.empty(3)
-        for a in range(3):
-            t[a] = cd[a] - (R[a, 0] * cs[0] + R[a, 1] * cs[1] + R[a, 2] * cs[2])
-        count, cost, inlier_sum = 0, 0.0, 0.0
-        for i in range(m):
-            r2 = 0.0
-            for a in range(3):
-                e = R[a, 0] * src[i, 0] + R[a, 1] * src[i, 1] + R[a, 2] * src[i, 2] + t[a]
-                e -= dst[i, a]
-                r2 += e * e
-            if r2 < thr2:
-                count += 1
-                cost += r2
-                inlier_sum += r2
-            else:
-                cost += thr2
-        primary, secondary = (cost, -count) if msac else (-count, inlier_sum)
-        max_count = max(max_count, count)
-        if not found or primary < best_p or (primary == best_p and secondary < best_s):
-            best_p, best_s, found = primary, secondary, True
-            best_T[:3, :3], best_T[:3, 3] = R, t
-    return found, best_p, best_s, best_T, max_count
-
-
 @njit(cache=True, nogil=True, inline="always")
 def _score(
     R: np.ndarray, t: np.ndarray, src: np.ndarray, dst: np.ndarray, thr2: float, msac: bool
@@ -129,6 +79,42 @@ def _score(
     if msac:
         return cost, float(-count), count
     return float(-count), inlier_sum, count
+
+
+@njit(cache=True, nogil=True)
+def score_block(
+    src: np.ndarray, dst: np.ndarray, samples: np.ndarray, thr2: float, msac: bool
+) -> tuple[bool, float, float, np.ndarray, int]:
+    """Fit and score the hypotheses of `samples` (n,3) on centred src, dst (m,3).
+
+    Returns (found, primary, secondary, T, max_count): the best hypothesis by (primary,
+    secondary), first on ties, as `sgloc.estimation.ransac` orders them (msac: truncated cost,
+    then -count; count: -count, then inlier residual), its 4x4 T, and the largest inlier count
+    of the block (for the adaptive stop); found=False when every sample is collinear.
+    """
+    best_p, best_s, found, max_count = np.inf, np.inf, False, 0
+    best_T = np.eye(4)
+    S, D = np.empty((3, 3)), np.empty((3, 3))
+    for b in range(samples.shape[0]):
+        for k in range(3):
+            S[k], D[k] = src[samples[b, k]], dst[samples[b, k]]
+        if not (_non_collinear(S, COLLINEAR_RATIO) and _non_collinear(D, COLLINEAR_RATIO)):
+            continue
+        Fd, Fs = _frame(D), _frame(S)
+        R = np.empty((3, 3))
+        for a in range(3):
+            for c in range(3):
+                R[a, c] = Fd[a, 0] * Fs[c, 0] + Fd[a, 1] * Fs[c, 1] + Fd[a, 2] * Fs[c, 2]
+        cs, cd = (S[0] + S[1] + S[2]) / 3.0, (D[0] + D[1] + D[2]) / 3.0
+        t = np.empty(3)
+        for a in range(3):
+            t[a] = cd[a] - (R[a, 0] * cs[0] + R[a, 1] * cs[1] + R[a, 2] * cs[2])
+        primary, secondary, count = _score(R, t, src, dst, thr2, msac)
+        max_count = max(max_count, count)
+        if not found or primary < best_p or (primary == best_p and secondary < best_s):
+            best_p, best_s, found = primary, secondary, True
+            best_T[:3, :3], best_T[:3, 3] = R, t
+    return found, best_p, best_s, best_T, max_count
 
 
 @njit(cache=True, nogil=True)
