@@ -238,8 +238,10 @@ def _final_fit(
             transform,
             cfg.icp_max_distance,
         )
-    if max_tilt is not None and tilt_deg(transform[:3, :3]) > max(max_tilt, 1e-6):
-        return None, _tilt_reason(tilt_deg(transform[:3, :3]), max_tilt)
+    if max_tilt is not None:
+        tilt = tilt_deg(transform[:3, :3])
+        if tilt > max(max_tilt, 1e-6):
+            return None, _tilt_reason(tilt, max_tilt)
     return transform, ""
 
 
