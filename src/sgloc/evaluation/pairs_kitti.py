@@ -19,6 +19,7 @@ from sgloc.evaluation.scenes import (
     data_root,
     register_pair_source,
     route_overlap,
+    window_overlaps,
 )
 from sgloc.geometry import invert
 from sgloc.graph import DEFAULT_EDGE_RADIUS, SemanticGraph
@@ -132,8 +133,6 @@ class Kitti00Pairs(MovedTargetSource):
     def sliding_windows(self, k: int) -> tuple[tuple[int, int], np.ndarray, np.ndarray]:
         """For revisit k: robot A's scans, the candidate first scans of robot B's window, and
         each window's route overlap with A (cumulative sums over the route, all at once)."""
-        from scipy.spatial import cKDTree
-
         L_seq, ij, _ = kitti_sequence(self.root)
         xy = L_seq[:, [0, 2], 3]  # the camera sequence frame: ground plane is x-z
         n, (i, j) = len(L_seq), ij[k]
@@ -141,12 +140,7 @@ class Kitti00Pairs(MovedTargetSource):
         a = (a0, a0 + self.length - 1)
         lo = max(a[1] + 1, j - 2 * self.length)
         starts = np.arange(lo, max(lo, min(n - self.length, j + self.length)) + 1)
-        step = np.linalg.norm(np.diff(xy, axis=0), axis=1)
-        near = cKDTree(xy[a[0] : a[1] + 1]).query(xy[:-1], distance_upper_bound=self.radius)[0]
-        c_all = np.concatenate([[0.0], np.cumsum(step)])
-        c_near = np.concatenate([[0.0], np.cumsum(step * (near < self.radius))])
-        e = starts + self.length - 1
-        ovs = (c_near[e] - c_near[starts]) / np.maximum(c_all[e] - c_all[starts], 1e-9)
+        ovs = window_overlaps(xy, xy[a[0] : a[1] + 1], starts, self.length, self.radius)
         return a, starts, ovs
 
     @functools.lru_cache(maxsize=8)  # noqa: B019 (a few small frozen sources per process)

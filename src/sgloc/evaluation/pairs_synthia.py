@@ -15,6 +15,7 @@ from sgloc.evaluation.scenes import (
     data_root,
     register_pair_source,
     route_overlap,
+    window_overlaps,
 )
 from sgloc.geometry import invert
 from sgloc.graph import DEFAULT_EDGE_RADIUS
@@ -77,7 +78,7 @@ class SynthiaPairs(MovedTargetSource):
         n = min(self.length, len(PA), len(PB))
         a = (0, n - 1)
         starts = np.arange(0, len(PB) - n + 1)
-        ovs = np.array([route_overlap(xb[s : s + n], xa[: n], self.radius) for s in starts])
+        ovs = window_overlaps(xb, xa[:n], starts, n, self.radius)
         s = int(starts[np.argmin(np.abs(ovs - self.overlap))])
         return a, (s, s + n - 1), float(ovs[s])
 

@@ -125,9 +125,24 @@ def data_root(root: str | None, data_set: str) -> str:
 def route_overlap(xy_query: np.ndarray, xy_target: np.ndarray, radius: float) -> float:
     """Fraction of the query route's length (positions (n,2) or (n,3) along the route, metres)
     that passes within `radius` of the target route's positions. The one overlap definition of
-    the evaluation (`Kitti00Pairs.sliding_windows` computes it for many windows at once)."""
+    the evaluation (`window_overlaps` computes it for many windows at once)."""
     from scipy.spatial import cKDTree
 
     step = np.linalg.norm(np.diff(xy_query, axis=0), axis=1)
     near = cKDTree(xy_target).query(xy_query[:-1], distance_upper_bound=radius)[0] < radius
     return float((step * near).sum() / max(step.sum(), 1e-9))
+
+
+def window_overlaps(
+    route: np.ndarray, target_route: np.ndarray, starts: np.ndarray, length: int, radius: float
+) -> np.ndarray:
+    """`route_overlap(route[s : s + length], target_route, radius)` for every window start s of
+    `starts`, all at once by cumulative sums over the route."""
+    from scipy.spatial import cKDTree
+
+    step = np.linalg.norm(np.diff(route, axis=0), axis=1)
+    near = cKDTree(target_route).query(route[:-1], distance_upper_bound=radius)[0] < radius
+    c_all = np.concatenate([[0.0], np.cumsum(step)])
+    c_near = np.concatenate([[0.0], np.cumsum(step * near)])
+    e = starts + length - 1
+    return (c_near[e] - c_near[starts]) / np.maximum(c_all[e] - c_all[starts], 1e-9)
