@@ -25,7 +25,6 @@ from rich.progress import track
 
 from sgloc import localize
 from sgloc.evaluation.pairs import make_pair_source
-from sgloc.geometry import invert, transform_error
 
 STRICTNESS = (0.0, 0.5, 0.9, 0.99, 0.999, 0.9999, 0.99999)
 WRONG_M, WRONG_DEG = 5.0, 2.0
@@ -47,11 +46,7 @@ def trial(source, seed: int, dropout: float) -> dict:
     res = localize(q, t, seed=seed, min_confidence=0.0)
     row = {"seed": seed, "dropout": dropout, "ms": (time.perf_counter() - t0) * 1e3}
     row |= {"success": res.success, "confidence": res.confidence or 0.0}
-    if res.success:
-        M = invert(pair.T_moved_own)
-        te, re = transform_error(M @ res.transform, M @ pair.T_target_query)
-    else:
-        te, re = np.inf, np.inf
+    te, re = pair.own_frame_errors(res.transform)
     return row | {"t_err_m": te, "r_err_deg": re}
 
 

@@ -48,7 +48,6 @@ from sgloc.evaluation.pairs_kitti import (  # noqa: E402
 )
 from sgloc.evaluation.pairs_sim import CityPairs  # noqa: E402
 from sgloc.evaluation.scenes import Pair, move_target, pair_rng, route_overlap  # noqa: E402
-from sgloc.geometry import invert, transform_error  # noqa: E402
 from sgloc.graph import SemanticGraph  # noqa: E402
 
 #: Last scan of the tuning part of KITTI 00; pairs with any scan after it are held out.
@@ -510,16 +509,13 @@ def run_spec(spec: PairSpec, configs: dict[str, dict[str, Any]]) -> list[dict[st
     limit_blas_threads()
     pair = make_pair(spec)
     gt = gt_check(pair) if spec.kind == "kitti" and spec.positive else {"gt_ok": True}
-    T_own = invert(pair.T_moved_own)
     tol_t, tol_r = TOLERANCE.get(spec.category, DEFAULT_TOLERANCE)
     rows = []
     for name, settings in configs.items():
         c0 = time.thread_time()
         res = localize(pair.query, pair.target, seed=spec.seed, **settings)
         ms = 1e3 * (time.thread_time() - c0)
-        te = re_ = float("nan")
-        if res.success:
-            te, re_ = transform_error(T_own @ res.transform, T_own @ pair.T_target_query)
+        te, re_ = pair.own_frame_errors(res.transform)
         right = spec.positive and res.success and te <= tol_t and re_ <= tol_r
         outcome = "localized" if right else ("wrong" if res.success else "refused")
         rows.append(

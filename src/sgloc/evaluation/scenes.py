@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from sgloc.geometry import random_rigid_transform
+from sgloc.geometry import invert, random_rigid_transform, transform_error
 from sgloc.graph import SemanticGraph
 
 #: Stream index of the pair's random numbers within a trial seed.
@@ -43,6 +43,14 @@ class Pair:
     T_target_query: np.ndarray
     info: dict[str, Any] = field(default_factory=dict)
     T_moved_own: np.ndarray = field(default_factory=lambda: np.eye(4))
+
+    def own_frame_errors(self, T_est: np.ndarray | None) -> tuple[float, float]:
+        """(translation m, rotation deg) of the estimate T_est (query -> moved target) against
+        the ground truth, in the target map's own frame; NaN when there is no estimate."""
+        if T_est is None:
+            return float("nan"), float("nan")
+        T_own_moved = invert(self.T_moved_own)
+        return transform_error(T_own_moved @ T_est, T_own_moved @ self.T_target_query)
 
 
 PairSource = Callable[[int], Pair]

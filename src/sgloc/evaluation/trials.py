@@ -22,7 +22,6 @@ from sgloc.config import LocalizerConfig
 from sgloc.errors import SglocError
 from sgloc.evaluation.metrics import FAILURE_M, T_P, is_failure, match_stats, pose_errors
 from sgloc.evaluation.pairs import make_pair_source
-from sgloc.geometry import invert
 from sgloc.localizer import Localizer
 
 #: Stream index of the localizer's random numbers (RANSAC, random walks) within a trial seed.
@@ -112,9 +111,7 @@ def run_task(task: TrialTask) -> dict[str, Any]:
         timings.append(res.timings)
     ms = {k: 1e3 * min(t[k] for t in timings) for k in timings[0]}
     te_moved, _ = pose_errors(res.transform, pair.T_target_query)
-    T_own_moved = invert(pair.T_moved_own)
-    T_est_own = None if res.transform is None else T_own_moved @ res.transform
-    te, re = pose_errors(T_est_own, T_own_moved @ pair.T_target_query)
+    te, re = pair.own_frame_errors(res.transform)
     q, t, T_gt = pair.query.positions, pair.target.positions, pair.T_target_query
     st = match_stats(q, t, res.candidates, res.survivors, res.matches, T_gt, task.T_p)
     return {
