@@ -384,6 +384,11 @@ def main(argv: list[str] | None = None) -> None:
         "machine), correspondences in, transform out (for sgloc: `sgloc.register`, i.e. "
         "rejection + RANSAC + refit).",
         "",
+        "Hard real cases (KITTI 00 reverse / same-direction revisits, crossings, low overlap, "
+        "small maps, one scan against a map, 100 non-overlapping pairs; the rendered city at "
+        "overlap 0.1 / 0.2; Airsim): localized / wrong / refused and time per configuration in "
+        "[hard_cases.md](hard_cases.md), `python benchmarks/hard_cases.py [--quick] [--heldout]`.",
+        "",
         "Wall-clock timings of `sgloc.register` against KISS-Matcher at the goal sizes, with "
         "default threads and interleaved calls: [speed_benchmark.md](speed_benchmark.md) "
         "(`python -m benchmarks.speed`).",
