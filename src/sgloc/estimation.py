@@ -507,11 +507,20 @@ def irls_refine(
     prior = np.ones(len(src)) if weights is None else np.asarray(weights, dtype=np.float64)
     from sgloc.kernels import use_compiled
 
-    if classes is None and use_compiled(len(src)):
-        from sgloc.kernels.fit import irls_model
+    if use_compiled(len(src)):
+        from sgloc.kernels.fit import irls_class_scaled, irls_model
 
         src, dst = (np.ascontiguousarray(a, dtype=np.float64) for a in (src, dst))
-        return irls_model(src, dst, T, prior, iterations, dof, float(max_tilt or 0.0))
+        T = np.ascontiguousarray(T, dtype=np.float64)
+        if classes is None:
+            return irls_model(src, dst, T, prior, iterations, dof, float(max_tilt or 0.0))
+        if class_axes not in CLASS_AXES:
+            raise ValueError(f"class scale axes must be one of {CLASS_AXES}, got {class_axes!r}")
+        uniq, cls = np.unique(classes, return_inverse=True)
+        return irls_class_scaled(
+            src, dst, T, prior, cls.astype(np.int64), len(uniq), class_axes == "height",
+            iterations, dof, float(max_tilt or 0.0), MIN_CLASS_MATCHES, MIN_SCALE_RATIO,
+        )  # fmt: skip
     w_prev = None
     for _ in range(iterations):
         d = src @ T[:3, :3].T + T[:3, 3] - dst
