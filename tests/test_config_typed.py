@@ -147,3 +147,14 @@ def test_saved_preset_config_reaches_the_command_line(tmp_path):
     out = tmp_path / "r"
     assert main(["localize", "--example", "--config", str(path), "--out", str(out)]) == 0
     assert LocalizerConfig.from_yaml(out / "config.yaml") == localizer_preset("paper")
+
+
+def test_class_scale_values():
+    assert LocalizerConfig().class_scale == "none"
+    assert LocalizerConfig(class_scale=True).class_scale == "full"
+    assert LocalizerConfig(class_scale=False).class_scale == "none"
+    cfg = LocalizerConfig().with_overrides(class_scale="height")
+    assert cfg.class_scale == "height" and cfg.flat_settings() == {"class_scale": "height"}
+    assert LocalizerConfig.from_dict(cfg.to_dict()) == cfg
+    with pytest.raises(InvalidSettingError, match="class_scale"):
+        LocalizerConfig(class_scale="xy")

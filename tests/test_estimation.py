@@ -172,3 +172,60 @@ def test_class_scales_and_anisotropic_fit(rng):
     plain = irls_refine(src, dst, weighted_kabsch(src, dst))
     per_class = irls_refine(src, dst, weighted_kabsch(src, dst), classes=classes)
     assert tilt_deg((per_class @ invert(T))[:3, :3]) < 0.5 * tilt_deg((plain @ invert(T))[:3, :3])
+
+
+def _tilted(T: np.ndarray, roll_deg: float) -> np.ndarray:
+    """T followed by a roll about x of `roll_deg` degrees."""
+    a = np.radians(roll_deg)
+    Rx = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)], [0.0, np.sin(a), np.cos(a)]])
+    return make_transform(Rx, np.zeros(3)) @ T
+
+
+def test_anisotropic_fit_under_the_ground_vehicle_model(rng):
+    """dof=4 with a tilt tolerance fits roll and pitch too, as `fit_rigid` does (the maps may
+    disagree about gravity by up to max_tilt); without one it keeps T's tilt; a step beyond
+    the tolerance is not taken."""
+    src = rng.uniform(-80, 80, (40, 3)) * [1, 1, 0.05]
+    T = _tilted(_yaw_motion(25.0), 2.0)
+    dst, ones = apply(T, src), np.ones(len(src))
+    start = _yaw_motion(24.0, (29.0, -11.0, 1.0))
+    tol = anisotropic_fit(src, dst, start, ones, ones, dof=4, max_tilt=15.0, steps=10)
+    np.testing.assert_allclose(tol, T, atol=1e-8)
+    yaw_only = anisotropic_fit(src, dst, start, ones, ones, dof=4, max_tilt=None, steps=10)
+    assert tilt_deg(yaw_only[:3, :3]) == pytest.approx(0.0, abs=1e-9)
+    gated = anisotropic_fit(src, dst, start, ones, ones, dof=4, max_tilt=1.0, steps=10)
+    assert tilt_deg(gated[:3, :3]) <= 1.0
+
+
+def test_height_class_scales_share_one_horizontal_scale(rng):
+    d = rng.normal(0, 1.0, (40, 3)) * np.repeat([[1, 1, 0.05], [3, 3, 2.0]], 20, axis=0)
+    classes = np.repeat([0, 1], 20)
+    sigma = 1.4826 * np.median(np.linalg.norm(d, axis=1))
+    full_xy, full_z = class_scales(d, classes, sigma, "full")
+    h_xy, h_z = class_scales(d, classes, sigma, "height")
+    np.testing.assert_array_equal(h_z, full_z)
+    assert np.ptp(h_xy) == 0.0 and full_xy[-1] > 2 * full_xy[0]
+    all_xy = 1.4826 * np.median(np.linalg.norm(d[:, :2], axis=1) / np.sqrt(2.0))
+    assert h_xy[0] == pytest.approx(all_xy)
+    with pytest.raises(ValueError, match="axes"):
+        class_scales(d, classes, sigma, "xy")
+
+
+@pytest.mark.parametrize("axes", ["height", "full"])
+def test_class_scaled_refit_takes_the_tilt_from_precise_heights(rng, axes):
+    """Maps that disagree about gravity by 3 deg (within max_tilt): heights of class 1 off by
+    metres (tall objects), class 0's precise. The gravity-bound refit with per-class scales
+    takes the tilt from class 0; the isotropic one is pulled by class 1."""
+    n = 80
+    src = rng.uniform(-80, 80, (n, 3)) * [1, 1, 0.05]
+    classes = np.repeat([0, 1], n // 2)
+    T = _tilted(_yaw_motion(40.0), 3.0)
+    dst = apply(T, src)
+    dst[:, :2] += rng.normal(0, 1.0, (n, 2))
+    dst[:, 2] += np.where(classes == 0, rng.normal(0, 0.02, n), rng.normal(0, 3.0, n))
+    start = weighted_kabsch(src, dst)
+    kw = {"dof": 4, "max_tilt": 15.0}
+    plain = irls_refine(src, dst, start, **kw)
+    scaled = irls_refine(src, dst, start, classes=classes, class_axes=axes, **kw)
+    err = [transform_error(E, T)[1] for E in (plain, scaled)]
+    assert err[1] < 0.5 * err[0]

@@ -35,8 +35,10 @@ class LocalizerConfig:
     robust_refit: refine the final fit over RANSAC's inliers by an M-estimator (Tukey biweight
         IRLS, `sgloc.estimation.irls_refine`); False: the plain weighted least squares of Eq. 4.
     class_scale: in the robust refit, weigh each class by the inverse variance of its own
-        residuals (`sgloc.estimation.class_precision`), so that objects whose centre moves with
-        the viewpoint count less.
+        residuals (`sgloc.estimation.class_scales`), so that objects whose centre moves with
+        the viewpoint count less: "none"; "height" (per class vertical scales, one horizontal
+        scale for all); "full" (per class horizontal and vertical scales). False and True
+        are read as "none" and "full".
     icp: refine the final transform by mutual-nearest-neighbour ICP on all objects of the two
         graphs (not in the paper's pipeline; see docs/core_benchmark.md for its effect).
     icp_max_distance: ICP pairing radius (metres).
@@ -51,7 +53,7 @@ class LocalizerConfig:
     ransac: RansacConfig = field(default_factory=RansacConfig)
     class_weights: dict[int, float] | None = None
     robust_refit: bool = True
-    class_scale: bool = False
+    class_scale: bool | str = "none"
     icp: bool = False
     icp_max_distance: float = 5.0
     acceptance: AcceptanceConfig = field(default_factory=AcceptanceConfig)

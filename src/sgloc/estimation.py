@@ -484,6 +484,7 @@ def irls_refine(
     dof: int = 6,
     max_tilt: float | None = None,
     classes: np.ndarray | None = None,
+    class_axes: str = "full",
 ) -> np.ndarray:
     """Refine T_dst_src on matched points (metres) by an M-estimator: iteratively reweighted
     least squares with Tukey's biweight, c = 4.685 * sigma, sigma re-estimated each round as
@@ -500,15 +501,26 @@ def irls_refine(
         (`anisotropic_fit`). The centres of tall or extended objects (buildings, fences) move
         with the viewpoint, most in height; ground-level objects give precise heights: with
         the scales apart, those fix roll and pitch and the others count less.
+    class_axes: with `classes`, "full" (per class, horizontal and vertical scales) or
+        "height" (per class vertical scales; one horizontal scale shared by all matches).
     """
     prior = np.ones(len(src)) if weights is None else np.asarray(weights, dtype=np.float64)
     from sgloc.kernels import use_compiled
 
-    if classes is None and use_compiled(len(src)):
-        from sgloc.kernels.fit import irls_model
+    if use_compiled(len(src)):
+        from sgloc.kernels.fit import irls_class_scaled, irls_model
 
         src, dst = (np.ascontiguousarray(a, dtype=np.float64) for a in (src, dst))
-        return irls_model(src, dst, T, prior, iterations, dof, float(max_tilt or 0.0))
+        T = np.ascontiguousarray(T, dtype=np.float64)
+        if classes is None:
+            return irls_model(src, dst, T, prior, iterations, dof, float(max_tilt or 0.0))
+        if class_axes not in CLASS_AXES:
+            raise ValueError(f"class scale axes must be one of {CLASS_AXES}, got {class_axes!r}")
+        uniq, cls = np.unique(classes, return_inverse=True)
+        return irls_class_scaled(
+            src, dst, T, prior, cls.astype(np.int64), len(uniq), class_axes == "height",
+            iterations, dof, float(max_tilt or 0.0), MIN_CLASS_MATCHES, MIN_SCALE_RATIO,
+        )  # fmt: skip
     w_prev = None
     for _ in range(iterations):
         d = src @ T[:3, :3].T + T[:3, 3] - dst
@@ -517,7 +529,7 @@ def irls_refine(
         if sigma <= 1e-12:
             break
         if classes is not None:
-            s_xy, s_z = class_scales(d, classes, sigma)
+            s_xy, s_z = class_scales(d, classes, sigma, class_axes)
             u = np.sqrt((d[:, 0] ** 2 + d[:, 1] ** 2) / s_xy**2 + d[:, 2] ** 2 / s_z**2) / 4.685
         else:
             u = r / (4.685 * sigma)
@@ -546,11 +558,21 @@ MIN_CLASS_MATCHES = 5
 MIN_SCALE_RATIO = 0.02
 
 
-def class_scales(d: np.ndarray, classes: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+#: What `class_scales` estimates per class: both axes, or the vertical one only.
+CLASS_AXES = ("full", "height")
+
+
+def class_scales(
+    d: np.ndarray, classes: np.ndarray, sigma: float, axes: str = "full"
+) -> tuple[np.ndarray, np.ndarray]:
     """Per match, the horizontal and vertical residual scales of its class: (s_xy, s_z), each
     (m,), metres per axis, from the residual vectors d (m,3) as 1.4826 * median |residual| per
     axis (xy: the 2D norm / sqrt 2). Classes with fewer than MIN_CLASS_MATCHES matches take the
-    scales of all matches together; every scale is at least MIN_SCALE_RATIO * sigma."""
+    scales of all matches together; every scale is at least MIN_SCALE_RATIO * sigma.
+    axes="height": only the vertical scale is per class; every match gets the horizontal scale
+    of all matches together."""
+    if axes not in CLASS_AXES:
+        raise ValueError(f"class scale axes must be one of {CLASS_AXES}, got {axes!r}")
     h = np.linalg.norm(d[:, :2], axis=1) / np.sqrt(2.0)
     v = np.abs(d[:, 2])
     floor = max(MIN_SCALE_RATIO * sigma, 1e-9)
@@ -562,7 +584,7 @@ def class_scales(d: np.ndarray, classes: np.ndarray, sigma: float) -> tuple[np.n
     for c in range(len(uniq)):
         idx = order[bounds[c] : bounds[c + 1]]
         few = cnt[c] < MIN_CLASS_MATCHES
-        sxy[c] = all_xy if few else 1.4826 * np.median(h[idx])
+        sxy[c] = all_xy if few or axes == "height" else 1.4826 * np.median(h[idx])
         sz[c] = all_z if few else 1.4826 * np.median(v[idx])
     return np.maximum(sxy, floor)[inv], np.maximum(sz, floor)[inv]
 
@@ -578,10 +600,12 @@ def anisotropic_fit(
     steps: int = 5,
 ) -> np.ndarray:
     """T_dst_src minimising sum_i w_xy_i |xy residual_i|^2 + w_z_i (z residual_i)^2, by
-    Gauss-Newton from T (a few steps; rotations updated on the manifold). dof=4 updates yaw
-    and translation only (roll and pitch stay as in T); with dof=6 and `max_tilt` set, a step
-    that would tilt the up axis beyond it is not taken."""
-    cols = [2, 3, 4, 5] if dof == 4 else [0, 1, 2, 3, 4, 5]
+    Gauss-Newton from T (a few steps; rotations updated on the manifold). The motion model of
+    `fit_rigid`: dof=4 with a tilt tolerance `max_tilt` (degrees) and dof=6 update the whole
+    rotation, and with `max_tilt` set a step that would tilt the up axis beyond it is not
+    taken; dof=4 without a tolerance updates yaw and translation only (roll and pitch stay as
+    in T)."""
+    cols = [2, 3, 4, 5] if dof == 4 and not max_tilt else [0, 1, 2, 3, 4, 5]
     W = np.stack([w_xy, w_xy, w_z], axis=1)
     for _ in range(steps):
         p = src @ T[:3, :3].T + T[:3, 3]
@@ -602,7 +626,7 @@ def anisotropic_fit(
             break
         dR = _rotvec_to_matrix(x[:3])
         R = dR @ T[:3, :3]
-        if dof == 6 and max_tilt is not None and tilt_deg(R) > max_tilt:
+        if max_tilt and len(cols) == 6 and tilt_deg(R) > max_tilt:
             break
         T = make_transform(R, dR @ (T[:3, 3] - c) + c + x[3:])
         if np.abs(x).max() < 1e-12:

@@ -225,9 +225,16 @@ def _final_fit(
         if tilt > max_tilt:
             return None, _tilt_reason(tilt, max_tilt)
     if cfg.robust_refit:
-        classes = query.labels[final[:, 0]] if cfg.class_scale else None
+        scaled = cfg.class_scale != "none"
         transform = irls_refine(
-            src, dst, transform, weights, dof=dof, max_tilt=max_tilt, classes=classes
+            src,
+            dst,
+            transform,
+            weights,
+            dof=dof,
+            max_tilt=max_tilt,
+            classes=query.labels[final[:, 0]] if scaled else None,
+            class_axes=cfg.class_scale if scaled else "full",
         )
     if cfg.icp:
         transform = icp_refine(

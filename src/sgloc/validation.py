@@ -90,6 +90,17 @@ def check_bool(name: str, value: Any) -> bool:
     return bool(value)
 
 
+#: Values of LocalizerConfig.class_scale; False and True stand for "none" and "full".
+CLASS_SCALE_CHOICES = ("none", "height", "full")
+
+
+def check_class_scale(name: str, value: Any) -> str:
+    """One of CLASS_SCALE_CHOICES; a bool maps to "full" (True) or "none" (False)."""
+    if isinstance(value, bool | np.bool_):
+        return "full" if value else "none"
+    return check_choice(name, value, CLASS_SCALE_CHOICES, "per-class residual scales")
+
+
 def check_choice(name: str, value: Any, choices: Iterable[str], what: str = "") -> str:
     """`value` if it is one of `choices` (strings); `what` describes the setting in errors."""
     options = sorted(choices)
@@ -319,7 +330,7 @@ def validate_localizer_settings(config: Any) -> None:
             raise InvalidSettingError(f"setting {name}: must be a mapping of parameters.")
     config.class_weights = check_class_weights("class_weights", config.class_weights)
     config.robust_refit = check_bool("robust_refit", config.robust_refit)
-    config.class_scale = check_bool("class_scale", config.class_scale)
+    config.class_scale = check_class_scale("class_scale", config.class_scale)
     config.icp = check_bool("icp", config.icp)
     config.icp_max_distance = check_real(
         "icp_max_distance", config.icp_max_distance, 0.0, MAX_COORDINATE, low_open=True, unit="m"

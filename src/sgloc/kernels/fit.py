@@ -1,4 +1,5 @@
-"""Small rigid fits without BLAS or LAPACK calls (numba): weighted Kabsch and the Tukey IRLS.
+"""Small rigid fits without BLAS or LAPACK calls (numba): weighted Kabsch and the Tukey IRLS
+(also with per-class residual scales and the anisotropic Gauss-Newton fit).
 
 They compute what `sgloc.estimation.weighted_kabsch` (less its input checks) and
 `sgloc.estimation.irls_refine` compute, with the same decisions, in compiled loops: no numpy
@@ -290,3 +291,191 @@ def irls(
     `sgloc.estimation.irls_refine`: c = 4.685 sigma, sigma = 1.4826 median residual): the
     6-dof case of `irls_model`."""
     return irls_model(src, dst, T, prior, iterations, 6, 0.0)
+
+
+@njit(cache=True, nogil=True)
+def class_scales(
+    d: np.ndarray, cls: np.ndarray, n_cls: int, sigma: float, height_only: bool,
+    min_matches: int, min_ratio: float,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """`sgloc.estimation.class_scales` with classes given as 0..n_cls-1 (`cls`, (m,))."""
+    m = d.shape[0]
+    h, v = np.empty(m), np.empty(m)
+    for i in range(m):
+        h[i] = np.sqrt((d[i, 0] ** 2 + d[i, 1] ** 2) / 2.0)
+        v[i] = abs(d[i, 2])
+    floor = max(min_ratio * sigma, 1e-9)
+    all_xy, all_z = 1.4826 * median(h), 1.4826 * median(v)
+    counts = np.zeros(n_cls, np.int64)
+    for i in range(m):
+        counts[cls[i]] += 1
+    sxy_c, sz_c = np.empty(n_cls), np.empty(n_cls)
+    for c in range(n_cls):
+        sxy_c[c], sz_c[c] = all_xy, all_z
+        if counts[c] >= min_matches:
+            hc, vc = np.empty(counts[c]), np.empty(counts[c])
+            k = 0
+            for i in range(m):
+                if cls[i] == c:
+                    hc[k], vc[k] = h[i], v[i]
+                    k += 1
+            if not height_only:
+                sxy_c[c] = 1.4826 * median(hc)
+            sz_c[c] = 1.4826 * median(vc)
+    s_xy, s_z = np.empty(m), np.empty(m)
+    for i in range(m):
+        s_xy[i] = max(sxy_c[cls[i]], floor)
+        s_z[i] = max(sz_c[cls[i]], floor)
+    return s_xy, s_z
+
+
+@njit(cache=True, nogil=True)
+def _solve(H: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, bool]:
+    """x with H x = g (k x k, Gaussian elimination with partial pivoting); ok False when H is
+    singular to working precision."""
+    k = H.shape[0]
+    A = H.copy()
+    b = g.copy()
+    scale = 0.0
+    for a in range(k):
+        for c in range(k):
+            scale = max(scale, abs(A[a, c]))
+    for col in range(k):
+        p = col
+        for r in range(col + 1, k):
+            if abs(A[r, col]) > abs(A[p, col]):
+                p = r
+        if abs(A[p, col]) <= 1e-14 * scale or scale == 0.0:
+            return b, False
+        if p != col:
+            for c in range(k):
+                A[col, c], A[p, c] = A[p, c], A[col, c]
+            b[col], b[p] = b[p], b[col]
+        for r in range(col + 1, k):
+            f = A[r, col] / A[col, col]
+            for c in range(col, k):
+                A[r, c] -= f * A[col, c]
+            b[r] -= f * b[col]
+    x = np.zeros(k)
+    for r in range(k - 1, -1, -1):
+        s = b[r]
+        for c in range(r + 1, k):
+            s -= A[r, c] * x[c]
+        x[r] = s / A[r, r]
+    return x, True
+
+
+@njit(cache=True, nogil=True)
+def _rotvec_matrix(v: np.ndarray) -> np.ndarray:
+    """Rodrigues: the rotation (3,3) by angle |v| about v / |v|."""
+    a = np.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
+    R = np.eye(3)
+    if a < 1e-15:
+        return R
+    k = v / a
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return R + np.sin(a) * K + (1.0 - np.cos(a)) * (K @ K)
+
+
+@njit(cache=True, nogil=True)
+def anisotropic_fit(
+    src: np.ndarray, dst: np.ndarray, T: np.ndarray, w_xy: np.ndarray, w_z: np.ndarray,
+    dof: int, max_tilt: float, steps: int,
+) -> np.ndarray:  # fmt: skip
+    """`sgloc.estimation.anisotropic_fit`; max_tilt <= 0 stands for None."""
+    m = src.shape[0]
+    full = dof != 4 or max_tilt > 0.0
+    first = 0 if full else 2  # dof=4 without a tolerance: yaw (column 2) and translation
+    k = 6 - first
+    T = T.copy()
+    for _ in range(steps):
+        p = np.empty((m, 3))
+        for i in range(m):
+            for a in range(3):
+                p[i, a] = T[a, 0] * src[i, 0] + T[a, 1] * src[i, 1] + T[a, 2] * src[i, 2]
+                p[i, a] += T[a, 3]
+        wsum, c = 0.0, np.zeros(3)
+        for i in range(m):
+            wsum += w_xy[i]
+            for a in range(3):
+                c[a] += w_xy[i] * p[i, a]
+        c /= max(wsum, 1e-300)
+        H, g = np.zeros((k, k)), np.zeros(k)
+        J = np.zeros((3, 6))
+        for i in range(m):
+            q0, q1, q2 = p[i, 0] - c[0], p[i, 1] - c[1], p[i, 2] - c[2]
+            J[0, 1], J[0, 2], J[1, 0], J[1, 2], J[2, 0], J[2, 1] = q2, -q1, -q2, q0, q1, -q0
+            J[0, 3] = J[1, 4] = J[2, 5] = 1.0
+            for a in range(3):
+                wa = w_z[i] if a == 2 else w_xy[i]
+                ra = dst[i, a] - p[i, a]
+                for r in range(k):
+                    jr = J[a, first + r] * wa
+                    g[r] += jr * ra
+                    for s in range(k):
+                        H[r, s] += jr * J[a, first + s]
+        xk, ok = _solve(H, g)
+        if not ok:
+            break
+        x = np.zeros(6)
+        x[first:] = xk
+        dR = _rotvec_matrix(x[:3])
+        R = dR @ np.ascontiguousarray(T[:3, :3])
+        tilt = np.degrees(np.arccos(min(max(R[2, 2], -1.0), 1.0)))
+        if full and max_tilt > 0.0 and tilt > max_tilt:
+            break
+        t_new = dR @ (T[:3, 3] - c) + c + x[3:]
+        T[:3, :3] = R
+        T[:3, 3] = t_new
+        if np.abs(x).max() < 1e-12:
+            break
+    return T
+
+
+@njit(cache=True, nogil=True)
+def irls_class_scaled(
+    src: np.ndarray, dst: np.ndarray, T: np.ndarray, prior: np.ndarray, cls: np.ndarray,
+    n_cls: int, height_only: bool, iterations: int, dof: int, max_tilt: float,
+    min_matches: int, min_ratio: float,
+) -> np.ndarray:  # fmt: skip
+    """`sgloc.estimation.irls_refine` with per-class residual scales (`classes` as 0..n_cls-1
+    in `cls`; max_tilt <= 0 stands for None)."""
+    m = src.shape[0]
+    w_prev = np.zeros(m)
+    have_prev = False
+    for _ in range(iterations):
+        d = np.empty((m, 3))
+        r = np.empty(m)
+        for i in range(m):
+            for a in range(3):
+                d[i, a] = (T[a, 0] * src[i, 0] + T[a, 1] * src[i, 1] + T[a, 2] * src[i, 2]
+                           + T[a, 3] - dst[i, a])  # fmt: skip
+            r[i] = np.sqrt(d[i, 0] ** 2 + d[i, 1] ** 2 + d[i, 2] ** 2)
+        sigma = 1.4826 * median(r)
+        if sigma <= 1e-12:
+            break
+        s_xy, s_z = class_scales(d, cls, n_cls, sigma, height_only, min_matches, min_ratio)
+        w = np.empty(m)
+        n_pos = 0
+        for i in range(m):
+            u2 = (d[i, 0] ** 2 + d[i, 1] ** 2) / s_xy[i] ** 2 + d[i, 2] ** 2 / s_z[i] ** 2
+            u = np.sqrt(u2) / 4.685
+            w[i] = prior[i] * ((1.0 - u * u) ** 2 if u < 1.0 else 0.0)
+            n_pos += w[i] != 0.0
+        if n_pos < 3:
+            break
+        if have_prev:
+            same = True
+            for i in range(m):
+                if not abs(w[i] - w_prev[i]) <= 1e-6:
+                    same = False
+                    break
+            if same:
+                break
+        w_prev, have_prev = w, True
+        T_new = anisotropic_fit(src, dst, T, w / s_xy**2, w / s_z**2, dof, max_tilt, 5)
+        change = np.abs(T_new - T).max()
+        T = T_new
+        if change < 1e-9:
+            break
+    return T
