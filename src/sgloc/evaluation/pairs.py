@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -25,50 +25,12 @@ from sgloc.evaluation.scenes import (
     MovedTargetSource,
     Pair,
     PairSource,
-    data_root,
     load_graph_cached,
     register_pair_source,
 )
 from sgloc.graph import DEFAULT_EDGE_RADIUS, SemanticGraph
 
 GRAPH_SUFFIXES = (".pcd", ".json", ".npz")
-
-
-def airsim_guo_maps(
-    root: str | None = None,
-    query_file: str = "cloud1.pcd",
-    target_file: str = "cloud2.pcd",
-    edge_radius: float = DEFAULT_EDGE_RADIUS,
-) -> tuple[SemanticGraph, SemanticGraph]:
-    """Guo's Airsim object maps (query cloud1, target cloud2), both in the Airsim world frame;
-    root: their folder (default: the `airsim_guo` data set under SGLOC_DATA)."""
-    folder = Path(data_root(root, "airsim_guo"))
-    return (
-        load_graph_cached(str(folder / query_file), edge_radius),
-        load_graph_cached(str(folder / target_file), edge_radius),
-    )
-
-
-@register_pair_source("airsim-guo")
-@dataclass(frozen=True)
-class AirsimGuoPairs(MovedTargetSource):
-    """Guo's Airsim object maps: cloud1 (query) against cloud2 moved by a random rigid transform
-    (any yaw, roll/pitch up to `max_roll_pitch_deg`, translation up to `max_translation` m).
-    Both maps are in the Airsim world frame, so the ground truth is that transform."""
-
-    root: str | None = None
-    query_file: str = "cloud1.pcd"
-    target_file: str = "cloud2.pcd"
-    edge_radius: float = DEFAULT_EDGE_RADIUS
-
-    def resolved(self) -> AirsimGuoPairs:
-        """A copy with `root` made absolute (so remote workers need no SGLOC_DATA)."""
-        return dataclasses.replace(self, root=data_root(self.root, "airsim_guo"))
-
-    def __call__(self, seed: int) -> Pair:
-        src = self if self.root else self.resolved()
-        q, t = airsim_guo_maps(src.root, src.query_file, src.target_file, src.edge_radius)
-        return src.moved(q, t, np.eye(4), seed)
 
 
 @register_pair_source("object-world")
@@ -102,7 +64,7 @@ class GraphFilePairs(MovedTargetSource):
     moved by a random rigid transform per trial. The maps' own relative pose is the identity,
     or the 4x4 matrix in `T_target_query.txt` in the same folder (p_target = T p_query)."""
 
-    root: str = "."
+    root: str | None = "."
     query_file: str | None = None
     target_file: str | None = None
     edge_radius: float = DEFAULT_EDGE_RADIUS
@@ -128,13 +90,25 @@ class GraphFilePairs(MovedTargetSource):
                 raise DatasetError(f"{p}: no such graph file.")
         return q, t
 
-    def __call__(self, seed: int) -> Pair:
-        q_path, t_path = self.files()
-        q = load_graph_cached(str(q_path.resolve()), self.edge_radius)
-        t = load_graph_cached(str(t_path.resolve()), self.edge_radius)
+    def maps(self, seed: int) -> tuple[SemanticGraph, SemanticGraph, np.ndarray, dict[str, Any]]:
+        q, t = (load_graph_cached(str(p.resolve()), self.edge_radius) for p in self.files())
         gt_file = Path(self.root) / "T_target_query.txt"
         T0 = np.loadtxt(gt_file).reshape(4, 4) if gt_file.is_file() else np.eye(4)
-        return self.moved(q, t, T0, seed)
+        return q, t, T0, {}
+
+
+@register_pair_source("airsim-guo")
+@dataclass(frozen=True)
+class AirsimGuoPairs(GraphFilePairs):
+    """Guo's Airsim object maps: cloud1 (query) against cloud2 moved by a random rigid transform
+    (any yaw, roll/pitch up to `max_roll_pitch_deg`, translation up to `max_translation` m).
+    Both maps are in the Airsim world frame, so the ground truth is that transform; root: their
+    folder (default: the `airsim_guo` data set under SGLOC_DATA)."""
+
+    data_set: ClassVar[str | None] = "airsim_guo"
+    root: str | None = None
+    query_file: str | None = "cloud1.pcd"
+    target_file: str | None = "cloud2.pcd"
 
 
 #: Dataset names that stand for another source.
@@ -145,29 +119,28 @@ def make_pair_source(name: str, **params: Any) -> PairSource:
     """A pair source by registered name (or alias), or by a folder: a SYNTHIA sequence (with
     CameraParams/), an Airsim-layout two-robot run (with ground_truth.txt), or a folder holding
     two graph files."""
-    key = ALIASES.get(name, name)
-    if key in PAIR_SOURCES:
-        cls = PAIR_SOURCES[key]
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(params) - known
-        if unknown:
+    cls = PAIR_SOURCES.get(ALIASES.get(name, name))
+    if cls is None:
+        path = Path(name)
+        if not path.is_dir():
             raise UnknownNameError(
-                f"dataset {name!r} has no parameter(s) {', '.join(sorted(unknown))}; "
-                f"it takes {', '.join(sorted(known))}."
+                f"unknown dataset {name!r}; choose one of {', '.join(dataset_names())} or give a "
+                "folder holding two graph files or an Airsim-layout run with ground_truth.txt."
             )
-        src = cls(**params)
-        return src.resolved() if hasattr(src, "resolved") else src
-    path = Path(name)
-    if path.is_dir() and (path / "CameraParams").is_dir():
-        return SynthiaPairs(root=str(path.resolve()), **params)
-    if path.is_dir() and (path / "ground_truth.txt").is_file():
-        return AirsimRunPairs(root=str(path.resolve()), **params)
-    if path.is_dir():
-        return GraphFilePairs(root=str(path.resolve()), **params)
-    raise UnknownNameError(
-        f"unknown dataset {name!r}; choose one of {', '.join(dataset_names())} or give a folder "
-        "holding two graph files or an Airsim-layout run with ground_truth.txt."
-    )
+        if (path / "CameraParams").is_dir():
+            cls = SynthiaPairs
+        else:
+            cls = AirsimRunPairs if (path / "ground_truth.txt").is_file() else GraphFilePairs
+        params = {"root": name, **params}
+    known = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(params) - known
+    if unknown:
+        raise UnknownNameError(
+            f"dataset {name!r} has no parameter(s) {', '.join(sorted(unknown))}; "
+            f"it takes {', '.join(sorted(known))}."
+        )
+    src = cls(**params)
+    return src.resolved() if hasattr(src, "resolved") else src
 
 
 def dataset_names() -> list[str]:
@@ -180,7 +153,6 @@ __all__ = [
     "AirsimGuoPairs",
     "GraphFilePairs",
     "ObjectWorldPairs",
-    "airsim_guo_maps",
     "dataset_names",
     "make_pair_source",
 ]

@@ -10,7 +10,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from sgloc.evaluation.scenes import MovedTargetSource, Pair, register_pair_source
+from sgloc.evaluation.scenes import MovedTargetSource, register_pair_source
 from sgloc.graph import SemanticGraph
 from sgloc.presets import localizer_settings as preset_settings
 
@@ -113,12 +113,10 @@ class CityPairs(MovedTargetSource):
         city_graphs(self.world(seed), self.overlap, self.width, self.height, self.length)
         return f"world {self.world(seed)}"
 
-    def __call__(self, seed: int) -> Pair:
+    def maps(self, seed: int) -> tuple[SemanticGraph, SemanticGraph, np.ndarray, dict[str, Any]]:
         w = self.world(seed)
         q, t, T0 = city_graphs(w, self.overlap, self.width, self.height, self.length)
-        pair = self.moved(q, t, T0, seed)
-        pair.info.update({"overlap": self.overlap, "world": w})
-        return pair
+        return q, t, T0, {"overlap": self.overlap, "world": w}
 
 
 @functools.lru_cache(maxsize=8)
@@ -146,9 +144,8 @@ class AirsimRunPairs(MovedTargetSource):
     target: str = "forwardCar"
     query: str = "backwardCar"
 
-    def __call__(self, seed: int) -> Pair:
+    def maps(self, seed: int) -> tuple[SemanticGraph, SemanticGraph, np.ndarray, dict[str, Any]]:
         from sgloc.sim.airsim_writer import read_ground_truth
 
-        q, t = _airsim_run_graphs(str(Path(self.root).resolve()), self.target, self.query)
-        T0 = read_ground_truth(self.root)
-        return self.moved(q, t, T0, seed)
+        q, t = _airsim_run_graphs(self.root, self.target, self.query)
+        return q, t, read_ground_truth(self.root), {}

@@ -3,22 +3,20 @@ robots, the paper's SYNTHIA experiment (Table 2 whole maps, Fig. 6 overlap sweep
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 
 from sgloc.evaluation.scenes import (
     MovedTargetSource,
-    Pair,
-    data_root,
     register_pair_source,
     route_overlap,
     window_overlaps,
 )
 from sgloc.geometry import invert
-from sgloc.graph import DEFAULT_EDGE_RADIUS
+from sgloc.graph import DEFAULT_EDGE_RADIUS, SemanticGraph
 from sgloc.presets import extraction_preset
 
 CAMERAS = ("Omni_F", "Omni_B")
@@ -33,7 +31,9 @@ def _camera_poses(root: str, camera: str) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=64)
-def _synthia_graph(root: str, camera: str, first: int, last: int, edge_radius: float):
+def _synthia_graph(
+    root: str, camera: str, first: int, last: int, edge_radius: float
+) -> SemanticGraph:
     """One camera's graph from frames first..last (inclusive), in its first frame's optical
     frame (the `synthia` extraction preset: objects only)."""
     from sgloc.datasets import make_dataset
@@ -58,15 +58,12 @@ class SynthiaPairs(MovedTargetSource):
     sequence's world frame, T_A_B = inv(P_A[a0]) @ P_B[b0].
     """
 
+    data_set: ClassVar[str | None] = "synthia"
     root: str | None = None
     overlap: float | None = None
     length: int = 200
     radius: float = 10.0
     edge_radius: float = DEFAULT_EDGE_RADIUS
-
-    def resolved(self) -> SynthiaPairs:
-        """A copy with `root` made absolute (so remote workers need no SGLOC_DATA)."""
-        return dataclasses.replace(self, root=data_root(self.root, "synthia"))
 
     def windows(self) -> tuple[tuple[int, int], tuple[int, int], float]:
         """(A frames, B frames, achieved route overlap), inclusive ranges."""
@@ -82,16 +79,10 @@ class SynthiaPairs(MovedTargetSource):
         s = int(starts[np.argmin(np.abs(ovs - self.overlap))])
         return a, (s, s + n - 1), float(ovs[s])
 
-    def __call__(self, seed: int) -> Pair:
-        src = self if self.root else self.resolved()
-        a, b, ov = src.windows()
-        PA, PB = (_camera_poses(src.root, c) for c in CAMERAS)
-        target = _synthia_graph(src.root, CAMERAS[0], *a, src.edge_radius)
-        query = _synthia_graph(src.root, CAMERAS[1], *b, src.edge_radius)
-        T_A_B = invert(PA[a[0]]) @ PB[b[0]]
-        pair = src.moved(query, target, T_A_B, seed)
-        pair.info.update(
-            {"overlap": round(ov, 4), "frames_a": f"{a[0]}-{a[1]}", "frames_b": f"{b[0]}-{b[1]}"}
-        )
-        return pair
-
+    def maps(self, seed: int) -> tuple[SemanticGraph, SemanticGraph, np.ndarray, dict[str, Any]]:
+        a, b, ov = self.windows()
+        PA, PB = (_camera_poses(self.root, c) for c in CAMERAS)
+        target = _synthia_graph(self.root, CAMERAS[0], *a, self.edge_radius)
+        query = _synthia_graph(self.root, CAMERAS[1], *b, self.edge_radius)
+        info = {"overlap": round(ov, 4), "frames_a": f"{a[0]}-{a[1]}", "frames_b": f"{b[0]}-{b[1]}"}
+        return query, target, invert(PA[a[0]]) @ PB[b[0]], info
