@@ -40,9 +40,6 @@ from sgloc.evaluation.sweeps import (
     THRESHOLDS,
     Sweep,
     config_for,
-    descriptor_rejection_sweep,
-    overlap_sweep,
-    threshold_sweep,
 )
 from sgloc.evaluation.trials import LOCALIZER_STREAM, prepare_tasks, run_prepare, run_tasks
 from sgloc.localizer import Localizer
@@ -94,29 +91,45 @@ def resolved_options(dataset: str, opt: ExperimentOptions) -> ExperimentOptions:
 
 
 def make_sweep(name: str, dataset: str, opt: ExperimentOptions) -> Sweep:
-    """The sweep behind experiment `name` (matches has none: it is a single trial)."""
+    """The sweep behind experiment `name` (matches has none: it is a single trial): table
+    (Table 1) every descriptor x rejection at one RANSAC threshold; threshold and pr (Fig. 4-5)
+    the same over the thresholds T_error; overlap (Fig. 6) the rejections over the pair
+    source's `overlap` parameter."""
     opt = resolved_options(dataset, opt)
-    common = dict(
-        first_seed=opt.first_seed,
-        dataset_params=dict(opt.dataset_params),
-        settings=opt.settings,
-        repeats=opt.repeats,
-        clock=opt.clock,
-    )
+    thr = {"ransac_threshold": opt.threshold}
+    by_setting = {"descriptor": list(opt.descriptors), "rejection": list(opt.rejections)}
+    dataset_axes = {}
     if name == "table":
-        return descriptor_rejection_sweep(
-            dataset, opt.trials, opt.threshold, opt.descriptors, opt.rejections, **common
-        )
-    if name in ("threshold", "pr"):
-        return threshold_sweep(
-            dataset, opt.trials, opt.thresholds, opt.descriptors, opt.rejections, **common
-        )
-    if name == "overlap":
-        return overlap_sweep(
-            dataset, opt.trials, opt.overlaps, opt.descriptor, opt.rejections, opt.threshold,
-            **common,
-        )  # fmt: skip
-    raise UnknownNameError(f"unknown experiment {name!r}; choose one of {', '.join(EXPERIMENTS)}.")
+        settings, axes = {**thr, **opt.settings}, by_setting
+    elif name in ("threshold", "pr"):
+        settings = dict(opt.settings)
+        axes = {**by_setting, "ransac_threshold": [float(t) for t in opt.thresholds]}
+    elif name == "overlap":
+        settings = {"descriptor": opt.descriptor, **thr, **opt.settings}
+        axes = {"rejection": list(opt.rejections)}
+        dataset_axes = {"overlap": [float(o) for o in opt.overlaps]}
+    else:
+        raise _unknown(name)
+    return Sweep(
+        dataset, dict(opt.dataset_params), settings, axes, dataset_axes, opt.trials,
+        opt.first_seed, repeats=opt.repeats, clock=opt.clock,
+    )  # fmt: skip
+
+
+def _unknown(name: str) -> UnknownNameError:
+    return UnknownNameError(f"unknown experiment {name!r}; choose one of {', '.join(EXPERIMENTS)}.")
+
+
+def _ticker(progress: Callable | None, total: int, phase: str) -> Callable[[int], None]:
+    """A `run_tasks` progress callback that reports (done, total, phase) to `progress`."""
+    done = [0]
+
+    def tick(n: int) -> None:
+        done[0] += n
+        if progress:
+            progress(done[0], total, phase)
+
+    return tick
 
 
 def run_experiment(
@@ -134,9 +147,7 @@ def run_experiment(
     """
     opt = options or ExperimentOptions()
     if name not in EXPERIMENTS:
-        raise UnknownNameError(
-            f"unknown experiment {name!r}; choose one of {', '.join(EXPERIMENTS)}."
-        )
+        raise _unknown(name)
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
     opt = resolved_options(dataset, opt)  # fails early on a bad dataset name
@@ -148,25 +159,12 @@ def run_experiment(
     if opt.from_csv:
         rows = read_csv(opt.from_csv)
     else:
-        done = [0]
-
-        def tick(n: int) -> None:
-            done[0] += n
-            if progress:
-                progress(done[0], len(tasks), "trials")
-
         prep = prepare_tasks(tasks)  # e.g. render each synthetic world once, in parallel
         if prep:
-            ready = [0]
-
-            def tick_prep(n: int) -> None:
-                ready[0] += n
-                if progress:
-                    progress(ready[0], len(prep), "preparing worlds")
-
+            tick_prep = _ticker(progress, len(prep), "preparing worlds")
             tick_prep(0)
             run_tasks(prep, workers, scheduler, tick_prep, fn=run_prepare)
-        rows = run_tasks(tasks, workers=workers, scheduler=scheduler, progress=tick)
+        rows = run_tasks(tasks, workers, scheduler, _ticker(progress, len(tasks), "trials"))
     wall = time.perf_counter() - t0
     files = [write_csv(rows, folder / "trials.csv")]
     md, figs = _outputs(name, dataset, rows, folder, opt)
@@ -183,7 +181,8 @@ def run_experiment(
     cfg_path = folder / "config.yaml"
     if not (opt.from_csv and cfg_path.exists()):  # keep the config of the run that made the CSV
         configs = {_cell_name(s, p): config_for(s).to_dict() for s, p in sweep.cells()}
-        exp = {"name": name, **sweep.to_dict(), "workers": workers, "scheduler": str(scheduler)}
+        exp = {"name": name, **dataclasses.asdict(sweep), "workers": workers}
+        exp["scheduler"] = str(scheduler)
         if opt.from_csv:
             exp["from_csv"] = opt.from_csv
         write_config_yaml(cfg_path, exp, configs)

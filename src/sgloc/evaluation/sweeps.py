@@ -1,4 +1,5 @@
-"""Sweeps: grids of trials over localizer settings and pair-source parameters.
+"""Sweeps: grids of trials over localizer settings and pair-source parameters (the paper's
+experiments build theirs in `sgloc.evaluation.experiments.make_sweep`).
 
 Trial i of every grid cell uses seed `first_seed + i`, so cells are compared on the same pairs
 and initial transforms (paired comparisons), and any cell can be re-run alone.
@@ -51,12 +52,9 @@ class Sweep:
 
     def cells(self) -> list[tuple[dict[str, Any], dict[str, Any]]]:
         """Every (localizer settings, dataset parameters) of the grid, in a fixed order."""
-        names = list(self.dataset_axes) + list(self.axes)
-        values = [list(self.dataset_axes[n]) for n in self.dataset_axes] + [
-            list(self.axes[n]) for n in self.axes
-        ]
+        names = [*self.dataset_axes, *self.axes]
         out = []
-        for combo in itertools.product(*values):
+        for combo in itertools.product(*self.dataset_axes.values(), *self.axes.values()):
             point = dict(zip(names, combo, strict=True))
             settings = {**self.settings, **{k: point[k] for k in self.axes}}
             params = {**self.dataset_params, **{k: point[k] for k in self.dataset_axes}}
@@ -87,13 +85,6 @@ class Sweep:
             for cfg, params, tags in cells
         ]
 
-    def to_dict(self) -> dict[str, Any]:
-        """The sweep as plain data (for the experiment's config YAML)."""
-        d = dataclasses.asdict(self)
-        d["axes"] = {k: list(v) for k, v in self.axes.items()}
-        d["dataset_axes"] = {k: list(v) for k, v in self.dataset_axes.items()}
-        return d
-
 
 def _stage_params() -> set[str]:
     """Names of every registered descriptor's and rejector's parameters."""
@@ -121,55 +112,3 @@ def config_for(settings: dict[str, Any]) -> LocalizerConfig:
             if key not in _stage_params():
                 raise
     return cfg
-
-
-def descriptor_rejection_sweep(
-    dataset: str,
-    trials: int = 100,
-    threshold: float = 5.0,
-    descriptors: Sequence[str] = DESCRIPTOR_NAMES,
-    rejections: Sequence[str] = REJECTION_NAMES,
-    **kw: Any,
-) -> Sweep:
-    """Table 1: every descriptor x rejection at one RANSAC threshold."""
-    settings = {"ransac_threshold": threshold, **kw.pop("settings", {})}
-    axes = {"descriptor": list(descriptors), "rejection": list(rejections)}
-    return Sweep(dataset, settings=settings, axes=axes, trials=trials, **kw)
-
-
-def threshold_sweep(
-    dataset: str,
-    trials: int = 100,
-    thresholds: Sequence[float] = THRESHOLDS,
-    descriptors: Sequence[str] = DESCRIPTOR_NAMES,
-    rejections: Sequence[str] = REJECTION_NAMES,
-    **kw: Any,
-) -> Sweep:
-    """Fig. 4-5: every descriptor x rejection over RANSAC thresholds T_error (metres)."""
-    axes = {
-        "descriptor": list(descriptors),
-        "rejection": list(rejections),
-        "ransac_threshold": [float(t) for t in thresholds],
-    }
-    return Sweep(dataset, settings=kw.pop("settings", {}), axes=axes, trials=trials, **kw)
-
-
-def overlap_sweep(
-    dataset: str,
-    trials: int = 100,
-    overlaps: Sequence[float] = OVERLAPS,
-    descriptor: str = "histogram",
-    rejections: Sequence[str] = REJECTION_NAMES,
-    threshold: float = 5.0,
-    **kw: Any,
-) -> Sweep:
-    """Fig. 6: baseline vs neighbor rejection over the pair source's `overlap` parameter."""
-    settings = {"descriptor": descriptor, "ransac_threshold": threshold, **kw.pop("settings", {})}
-    return Sweep(
-        dataset,
-        settings=settings,
-        axes={"rejection": list(rejections)},
-        dataset_axes={"overlap": [float(o) for o in overlaps]},
-        trials=trials,
-        **kw,
-    )

@@ -126,7 +126,7 @@ def run_task(task: TrialTask) -> dict[str, Any]:
         "translation_error_m": te,
         "rotation_error_deg": re,
         "translation_error_moved_m": te_moved,
-        **st.to_dict(),
+        **st,
         **{f"t_{k}_ms": ms.get(k, float("nan")) for k in STAGES},
         "t_cpu_ms": 1e3 * min(cpu),
         "reason": res.reason,
@@ -185,13 +185,18 @@ def run_tasks(
             rows.append(fn(t))
             tick(1)
         return rows
-    rows: list[dict[str, Any] | None] = [None] * len(tasks)
     with ProcessPoolExecutor(max_workers=min(workers, len(tasks))) as pool:
-        futures = {pool.submit(fn, t): i for i, t in enumerate(tasks)}
-        for fut in as_completed(futures):
-            rows[futures[fut]] = fut.result()
-            tick(1)
-    return rows  # type: ignore[return-value]
+        return _collect([pool.submit(fn, t) for t in tasks], as_completed, tick)
+
+
+def _collect(futures: list[Any], completed: Callable, tick: Progress) -> list[Any]:
+    """The futures' results in their order, calling tick(1) as each completes (any order)."""
+    index = {getattr(f, "key", f): i for i, f in enumerate(futures)}  # Dask futures by key
+    rows: list[Any] = [None] * len(futures)
+    for fut in completed(futures):
+        rows[index[getattr(fut, "key", fut)]] = fut.result()
+        tick(1)
+    return rows
 
 
 def _run_dask(tasks: list[Any], scheduler: Any, tick: Progress, fn: Callable) -> list[Any]:
@@ -210,13 +215,7 @@ def _run_dask(tasks: list[Any], scheduler: Any, tick: Progress, fn: Callable) ->
             "`dask scheduler` and `dask worker ADDRESS`) or drop --scheduler to run locally."
         ) from None
     try:
-        futures = client.map(fn, tasks, pure=False)
-        index = {f.key: i for i, f in enumerate(futures)}
-        rows: list[dict[str, Any] | None] = [None] * len(tasks)
-        for fut in dask_completed(futures):
-            rows[index[fut.key]] = fut.result()
-            tick(1)
-        return rows  # type: ignore[return-value]
+        return _collect(client.map(fn, tasks, pure=False), dask_completed, tick)
     finally:
         if own:
             client.close()
