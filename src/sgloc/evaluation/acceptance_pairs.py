@@ -34,10 +34,8 @@ class LabeledPair(Pair):
 
 
 def _labeled(pair: Pair, positive: bool, source: str, info: dict) -> LabeledPair:
-    return LabeledPair(
-        pair.query, pair.target, pair.T_target_query, {**info, **pair.info}, pair.T_moved_own,
-        positive, source,
-    )  # fmt: skip
+    fields = {**vars(pair), "info": {**info, **pair.info}}
+    return LabeledPair(**fields, positive=positive, source=source)
 
 
 def _cut_drop_move(
@@ -204,15 +202,8 @@ def default_pair_sets(seed: int = 0, scale: int = 1, city: bool = False) -> list
     """The benchmark's sets: per source `scale` x (positives, negatives) =
     airsim (40, 40), object world (40, 40), KITTI 00 (40, 40), and with `city` the rendered
     city (40, 40; renders and caches 3 worlds x 5 runs on first use)."""
-    n = 40 * scale
-    out = (
-        airsim_pairs(n, True, seed, keep=0.9)
-        + airsim_pairs(n, False, seed, keep=0.9)
-        + world_pairs(n, True, seed)
-        + world_pairs(n, False, seed)
-        + kitti_pairs(n, True, seed)
-        + kitti_pairs(n, False, seed)
-    )
-    if city:
-        out += city_pairs(n, True, seed) + city_pairs(n, False, seed)
+    out: list[LabeledPair] = []
+    sources = [(airsim_pairs, {"keep": 0.9}), (world_pairs, {}), (kitti_pairs, {})]
+    for build, kw in sources + ([(city_pairs, {})] if city else []):
+        out += build(40 * scale, True, seed, **kw) + build(40 * scale, False, seed, **kw)
     return out

@@ -65,7 +65,6 @@ def register_pair_source(name: str) -> Callable[[type], type]:
 
     def deco(cls: type) -> type:
         PAIR_SOURCES[name] = cls
-        cls.source_name = name
         return cls
 
     return deco
