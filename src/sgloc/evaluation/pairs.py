@@ -47,13 +47,7 @@ class ObjectWorldPairs:
     def __call__(self, seed: int) -> Pair:
         from sgloc.sim.object_world import make_two_robot_scene
 
-        scene = make_two_robot_scene(
-            seed=int(seed),
-            overlap=self.overlap,
-            stretch=self.stretch,
-            view_radius=self.view_radius,
-            noise=self.noise,
-        )
+        scene = make_two_robot_scene(int(seed), **dataclasses.asdict(self))
         return Pair(scene.query, scene.target, scene.T_target_query, {"overlap": self.overlap})
 
 

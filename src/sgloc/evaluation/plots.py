@@ -128,6 +128,7 @@ def overlap_boxplots(
     width = 0.8 / max(len(rejections), 1)
     top = ax.get_xaxis_transform()  # x in data, y in axes fraction
     for k, rej in enumerate(rejections):
+        color = "tab:red" if rej == "none" else "tab:blue"
         data, wrong, unloc, counts = [], [], [], []
         for o in overlaps:
             g = [r for r in rows if r["rejection"] == rej and float(r["overlap"]) == o]
@@ -136,15 +137,13 @@ def overlap_boxplots(
             te = te[localized & np.isfinite(te)] if len(g) else te
             data.append(te if len(te) else np.array([np.nan]))
             n = max(len(g), 1)
-            n_unloc = int(np.sum(~localized))
-            counts.append((n_unloc, len(g)))
-            unloc.append(100 * n_unloc / n)
+            counts.append((int(np.sum(~localized)), len(g)))
+            unloc.append(100 * counts[-1][0] / n)
             wrong.append(100 * sum(bool(r["localized"] and r["failed"]) for r in g) / n)
         pos = np.arange(len(overlaps)) + (k - (len(rejections) - 1) / 2) * width
         for x, (n_unloc, n) in zip(pos, counts, strict=True):
-            ax.text(x, 0.985, f"{n_unloc}/{n}", transform=top, ha="center", va="top",
-                    fontsize=6, color="tab:red" if rej == "none" else "tab:blue")
-        color = "tab:red" if rej == "none" else "tab:blue"
+            ax.text(x, 0.985, f"{n_unloc}/{n}", transform=top, ha="center", va="top", fontsize=6,
+                    color=color)  # fmt: skip
         label = "baseline (RANSAC)" if rej == "none" else f"+{rej}"
         bp = ax.boxplot(
             data, positions=pos, widths=width * 0.9, patch_artist=True, showfliers=True,

@@ -88,7 +88,7 @@ def limit_blas_threads() -> None:
 
 def run_task(task: TrialTask) -> dict[str, Any]:
     """Run one trial and return its row as a flat dict: the task's tags, then dataset, settings,
-    seed, outcome, pose errors, match counts (`MatchStats`), recall/precision, stage times (ms),
+    seed, outcome, pose errors, match counts and recall/precision (`match_stats`), stage times (ms),
     the call's CPU time, the localizer's reason, then the pair's info as pair_* columns.
 
     translation_error_m / rotation_error_deg: of T_est @ inv(T_gt) in the target map's own
@@ -100,12 +100,11 @@ def run_task(task: TrialTask) -> dict[str, Any]:
     pair = _source(task.dataset, task.dataset_params)(task.seed)
     cfg = LocalizerConfig.from_dict(task.config)
     localizer = Localizer(cfg)
-    timings: list[dict[str, float]] = []
-    cpu = []
+    clock = time.thread_time if task.clock == "cpu" else time.perf_counter
+    timings, cpu = [], []
     for _ in range(max(1, task.repeats)):
         rng = np.random.default_rng([int(task.seed), LOCALIZER_STREAM])
         c0 = time.thread_time()
-        clock = time.thread_time if task.clock == "cpu" else time.perf_counter
         res = localizer(pair.query, pair.target, rng, clock=clock)
         cpu.append(time.thread_time() - c0)
         timings.append(res.timings)
@@ -142,16 +141,13 @@ def prepare_tasks(tasks: Sequence[TrialTask]) -> list[TrialTask]:
     """The first trial of each distinct world the trials need, for sources with a
     `prepare(seed)` method (e.g. render a synthetic world once) and a `world(seed)` naming the
     cached item; empty for the others. Run them with `run_tasks(..., fn=run_prepare)`."""
-    out, seen = [], set()
+    first: dict[tuple, TrialTask] = {}
     for t in tasks:
         src = _source(t.dataset, t.dataset_params)
-        if not hasattr(src, "prepare"):
-            continue
-        key = (t.dataset, repr(sorted(t.dataset_params.items())), src.world(t.seed))
-        if key not in seen:
-            seen.add(key)
-            out.append(t)
-    return out
+        if hasattr(src, "prepare"):
+            key = (t.dataset, repr(sorted(t.dataset_params.items())), src.world(t.seed))
+            first.setdefault(key, t)
+    return list(first.values())
 
 
 def run_prepare(task: TrialTask) -> str:
