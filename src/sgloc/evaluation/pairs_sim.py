@@ -48,12 +48,13 @@ def city_graphs(
 
     any_code_version: use the newest cached graphs of that run even when an earlier version of
     the sim or extraction code made them (the cache key names it; rendering takes minutes)."""
+    stem = f"city-w{world}-o{overlap:g}-{width}x{height}-L{length:g}"
     if any_code_version:
-        pattern = f"city-w{world}-o{overlap:g}-{width}x{height}-L{length:g}-*.npz"
-        found = sorted(evaluation_cache_dir().glob(pattern), key=lambda p: p.stat().st_mtime)
+        cached = evaluation_cache_dir().glob(f"{stem}-*.npz")
+        found = sorted(cached, key=lambda p: p.stat().st_mtime)
         if found:
             return _read_city(found[-1])
-    return _city_graphs(world, overlap, width, height, length)
+    return _city_graphs(stem, world, overlap, width, height, length)
 
 
 def _read_city(path: Path) -> tuple[SemanticGraph, SemanticGraph, np.ndarray]:
@@ -67,9 +68,9 @@ def _read_city(path: Path) -> tuple[SemanticGraph, SemanticGraph, np.ndarray]:
 
 @functools.lru_cache(maxsize=64)
 def _city_graphs(
-    world: int, overlap: float, width: int, height: int, length: float
+    stem: str, world: int, overlap: float, width: int, height: int, length: float
 ) -> tuple[SemanticGraph, SemanticGraph, np.ndarray]:
-    key = f"city-w{world}-o{overlap:g}-{width}x{height}-L{length:g}-{_code_hash()}"
+    key = f"{stem}-{_code_hash()}"
     path = evaluation_cache_dir() / f"{key}.npz"
     if path.is_file():
         return _read_city(path)

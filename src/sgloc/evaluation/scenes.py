@@ -1,7 +1,7 @@
 """What every evaluation scene is made of: the `Pair`, the random motion of the target map, the
 route overlap, and the registry of pair sources.
 
-The lowest module of `sgloc.evaluation` (it imports none of the others). The map builders sit
+Above `metrics` only, below every other module of `sgloc.evaluation`. The map builders sit
 beside their data (`pairs_kitti`, `pairs_sim`, `pairs_synthia`, `pairs`); trials, the acceptance
 pair sets, the fleet scenes and the benchmarks all build their pairs from them and from here.
 
@@ -19,7 +19,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from sgloc.geometry import invert, random_rigid_transform, transform_error
+from sgloc.evaluation.metrics import pose_errors
+from sgloc.geometry import invert, random_rigid_transform
 from sgloc.graph import SemanticGraph
 
 #: Stream index of the pair's random numbers within a trial seed.
@@ -48,10 +49,9 @@ class Pair:
     def own_frame_errors(self, T_est: np.ndarray | None) -> tuple[float, float]:
         """(translation m, rotation deg) of the estimate T_est (query -> moved target) against
         the ground truth, in the target map's own frame; NaN when there is no estimate."""
-        if T_est is None:
-            return float("nan"), float("nan")
         T_own_moved = invert(self.T_moved_own)
-        return transform_error(T_own_moved @ T_est, T_own_moved @ self.T_target_query)
+        T_own = None if T_est is None else T_own_moved @ T_est
+        return pose_errors(T_own, T_own_moved @ self.T_target_query)
 
 
 PairSource = Callable[[int], Pair]
