@@ -2,7 +2,7 @@
 route overlap, and the registry of pair sources.
 
 Above `metrics` only, below every other module of `sgloc.evaluation`. The map builders sit
-beside their data (`pairs_kitti`, `pairs_sim`, `pairs_synthia`, `pairs`); trials, the acceptance
+beside their data (`pairs_kitti`, `pairs_sim`, `pairs`); trials, the acceptance
 pair sets, the fleet scenes and the benchmarks all build their pairs from them and from here.
 
 Seeds: a pair source's randomness uses `pair_rng(seed)` = `np.random.default_rng([seed,
