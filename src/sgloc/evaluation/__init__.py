@@ -6,19 +6,16 @@ rows = run_tasks(make_sweep("table", "airsim-guo", ExperimentOptions(trials=10))
 """
 
 from sgloc.evaluation.pairs import make_pair_source
-from sgloc.evaluation.report import summarize, write_csv
-from sgloc.evaluation.scenes import PAIR_SOURCES, Pair, register_pair_source
-from sgloc.evaluation.trials import TrialTask, reproducible_part, run_task, run_tasks
+from sgloc.evaluation.report import summarize
+from sgloc.evaluation.scenes import Pair, register_pair_source
+from sgloc.evaluation.trials import reproducible_part, run_task, run_tasks
 
 __all__ = [
-    "PAIR_SOURCES",
     "Pair",
-    "TrialTask",
     "make_pair_source",
     "register_pair_source",
     "reproducible_part",
     "run_task",
     "run_tasks",
     "summarize",
-    "write_csv",
 ]

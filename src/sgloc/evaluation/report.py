@@ -11,6 +11,7 @@ column.
 from __future__ import annotations
 
 import csv
+import json
 import math
 import platform
 import subprocess
@@ -235,16 +236,6 @@ def write_config_yaml(path: str | Path, experiment: dict[str, Any], configs: dic
         },
     }
     path = Path(path)
-    path.write_text(yaml.safe_dump(_plain(doc), sort_keys=False))
+    plain = json.loads(json.dumps(doc, default=lambda x: x.item()))  # numpy scalars, tuples
+    path.write_text(yaml.safe_dump(plain, sort_keys=False))
     return path
-
-
-def _plain(x: Any) -> Any:
-    """YAML-safe: tuples -> lists, numpy scalars -> Python, dict keys -> str."""
-    if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.generic):
-        return x.item()
-    return x
