@@ -81,10 +81,9 @@ class Sweep:
 
     def cells(self) -> list[tuple[dict[str, Any], dict[str, Any]]]:
         """Every (localizer settings, dataset parameters) of the grid, in a fixed order."""
-        names = [*self.dataset_axes, *self.axes]
         out = []
         for combo in itertools.product(*self.dataset_axes.values(), *self.axes.values()):
-            point = dict(zip(names, combo, strict=True))
+            point = dict(zip([*self.dataset_axes, *self.axes], combo, strict=True))
             settings = {**self.settings, **{k: point[k] for k in self.axes}}
             params = {**self.dataset_params, **{k: point[k] for k in self.dataset_axes}}
             out.append((settings, params))
@@ -111,11 +110,8 @@ def _stage_params() -> set[str]:
     from sgloc.descriptors import DESCRIPTORS
     from sgloc.rejection import REJECTORS
 
-    return {
-        f.name
-        for cls in [*DESCRIPTORS.values(), *REJECTORS.values()]
-        for f in dataclasses.fields(cls)
-    }
+    stages = [*DESCRIPTORS.values(), *REJECTORS.values()]
+    return {f.name for cls in stages for f in dataclasses.fields(cls)}
 
 
 def config_for(settings: dict[str, Any]) -> LocalizerConfig:
