@@ -81,8 +81,8 @@ def airsim_pairs(
     out = []
     for i in range(n):
         q, t = (c1, c2) if (positive or i % 2 == 0) else (c2, c1)
-        rng, cut_i = np.random.default_rng([seed, i, 6]), None if positive else cut
-        pair = _cut_drop_move(q, t, np.eye(4), rng, keep, cut_i)
+        cut_i = None if positive else cut
+        pair = _cut_drop_move(q, t, np.eye(4), np.random.default_rng([seed, i, 6]), keep, cut_i)
         info = {"query": pair.query.name, "keep": keep, "cut": cut_i}
         out.append(_labeled(pair, positive, "airsim", info))
     return out
