@@ -107,12 +107,8 @@ class CityPairs(MovedTargetSource):
     length: float = 400.0
 
     def world(self, seed: int) -> int:
+        """The city of trial `seed` (what the disk cache holds; see `trials.prepare_tasks`)."""
         return int(seed) % self.n_worlds
-
-    def prepare(self, seed: int) -> str:
-        """Render and extract the world of `seed` into the cache (for parallel warm-up)."""
-        city_graphs(self.world(seed), self.overlap, self.width, self.height, self.length)
-        return f"world {self.world(seed)}"
 
     def maps(self, seed: int) -> tuple[SemanticGraph, SemanticGraph, np.ndarray, dict[str, Any]]:
         w = self.world(seed)

@@ -138,21 +138,21 @@ Progress = Callable[[int], None]
 
 
 def prepare_tasks(tasks: Sequence[TrialTask]) -> list[TrialTask]:
-    """The first trial of each distinct world the trials need, for sources with a
-    `prepare(seed)` method (e.g. render a synthetic world once) and a `world(seed)` naming the
-    cached item; empty for the others. Run them with `run_tasks(..., fn=run_prepare)`."""
+    """The first trial of each distinct world the trials need, for sources whose pairs come
+    from an expensive disk-cached world (a `world(seed)` method, e.g. a rendered city); empty
+    for the others. Run them with `run_tasks(..., fn=run_prepare)` to build each world once."""
     first: dict[tuple, TrialTask] = {}
     for t in tasks:
         src = _source(t.dataset, t.dataset_params)
-        if hasattr(src, "prepare"):
+        if hasattr(src, "world"):
             key = (t.dataset, repr(sorted(t.dataset_params.items())), src.world(t.seed))
             first.setdefault(key, t)
     return list(first.values())
 
 
-def run_prepare(task: TrialTask) -> str:
-    """Warm the pair source's cache for the task's seed (picklable entry point)."""
-    return _source(task.dataset, task.dataset_params).prepare(task.seed)
+def run_prepare(task: TrialTask) -> None:
+    """Build the task's pair once, so that its world is in the cache (picklable entry point)."""
+    _source(task.dataset, task.dataset_params)(task.seed)
 
 
 def run_tasks(
