@@ -7,17 +7,14 @@ import numpy as np
 import pytest
 
 from sgloc.errors import UnknownNameError
-from sgloc.evaluation import (
-    descriptor_rejection_sweep,
-    make_pair_source,
-    overlap_sweep,
-    reproducible_part,
-    run_task,
-    run_tasks,
-    threshold_sweep,
-)
+from sgloc.evaluation import make_pair_source, reproducible_part, run_task, run_tasks
+from sgloc.evaluation.experiments import ExperimentOptions, make_sweep
 from sgloc.evaluation.metrics import correct_matches
 from sgloc.geometry import apply
+
+
+def _sweep(name, dataset, **options):
+    return make_sweep(name, dataset, ExperimentOptions(**options))
 
 
 def _same(rows_a, rows_b):
@@ -80,21 +77,21 @@ def test_graph_folder_pair_source(tmp_path, airsim_graphs):
 
 
 def test_sweeps_build_the_grid_with_shared_seeds():
-    tasks = descriptor_rejection_sweep("airsim-guo", trials=3, threshold=4.0).tasks()
+    tasks = _sweep("table", "airsim-guo", trials=3, threshold=4.0).tasks()
     assert len(tasks) == 3 * 2 * 3
     assert sorted({t.seed for t in tasks}) == [0, 1, 2]
     cells = {(t.config["descriptor"], t.config["rejection"]) for t in tasks}
     assert len(cells) == 6
     assert all(t.config["ransac"]["threshold"] == 4.0 for t in tasks)
-    th = threshold_sweep("airsim-guo", trials=2, thresholds=[1, 5, 9], descriptors=["fast"])
+    th = _sweep("threshold", "airsim-guo", trials=2, thresholds=[1, 5, 9], descriptors=["fast"])
     assert sorted({t.config["ransac"]["threshold"] for t in th.tasks()}) == [1.0, 5.0, 9.0]
-    ov = overlap_sweep("object-world", trials=2, overlaps=[0.2, 0.6]).tasks()
+    ov = _sweep("overlap", "object-world", trials=2, overlaps=[0.2, 0.6]).tasks()
     assert {t.dataset_params["overlap"] for t in ov} == {0.2, 0.6}
     assert {t.tags["overlap"] for t in ov} == {0.2, 0.6}
 
 
 def test_trial_row_is_scored_and_timed():
-    task = descriptor_rejection_sweep("airsim-guo", trials=1, descriptors=["histogram"]).tasks()
+    task = _sweep("table", "airsim-guo", trials=1, descriptors=["histogram"]).tasks()
     row = run_task(task[1])  # histogram + neighbor, seed 0
     assert row["rejection"] == "neighbor" and row["seed"] == 0
     assert row["localized"] and not row["failed"]
@@ -109,8 +106,8 @@ def test_trial_row_is_scored_and_timed():
 
 
 def test_same_seed_same_row_and_different_seed_different_pose():
-    tasks = descriptor_rejection_sweep(
-        "airsim-guo", trials=3, descriptors=["random_walk"], rejections=["neighbor"]
+    tasks = _sweep(
+        "table", "airsim-guo", trials=3, descriptors=["random_walk"], rejections=["neighbor"]
     ).tasks()
     a = [run_task(t) for t in tasks]
     b = [run_task(t) for t in tasks]
@@ -120,15 +117,15 @@ def test_same_seed_same_row_and_different_seed_different_pose():
 
 
 def test_process_pool_equals_serial():
-    tasks = descriptor_rejection_sweep(
-        "object-world", trials=3, descriptors=["histogram"], dataset_params={"overlap": 0.4}
-    ).tasks()
+    opts = {"trials": 3, "descriptors": ["histogram"], "dataset_params": {"overlap": 0.4}}
+    sweep = _sweep("table", "object-world", **opts)
+    tasks = sweep.tasks()
     _same(run_tasks(tasks, workers=1), run_tasks(tasks, workers=2))
 
 
 def test_dask_cluster_equals_local():
     distributed = pytest.importorskip("distributed")
-    tasks = descriptor_rejection_sweep("airsim-guo", trials=3, descriptors=["histogram"]).tasks()
+    tasks = _sweep("table", "airsim-guo", trials=3, descriptors=["histogram"]).tasks()
     local = run_tasks(tasks, workers=1)
     done = []
     with distributed.LocalCluster(
@@ -141,12 +138,12 @@ def test_dask_cluster_equals_local():
 
 def test_errors_in_the_target_maps_own_frame():
     # object-world pairs are not moved: both error columns agree
-    t = overlap_sweep("object-world", trials=1, overlaps=[0.6], rejections=["neighbor"]).tasks()
+    t = _sweep("overlap", "object-world", trials=1, overlaps=[0.6], rejections=["neighbor"]).tasks()
     row = run_task(t[0])
     assert row["translation_error_m"] == pytest.approx(row["translation_error_moved_m"])
     assert row["pair_overlap"] == 0.6
     # airsim pairs are moved by up to 200 m: the moved-frame error adds rotation x shift
-    t = descriptor_rejection_sweep("airsim-guo", trials=4, descriptors=["histogram"]).tasks()
+    t = _sweep("table", "airsim-guo", trials=4, descriptors=["histogram"]).tasks()
     rows = [run_task(x) for x in t]
     diff = [abs(r["translation_error_m"] - r["translation_error_moved_m"]) for r in rows]
     bound = [np.radians(r["rotation_error_deg"]) * r["pair_initial_translation_m"] for r in rows]
@@ -192,7 +189,7 @@ def _near_same_class_no_gt(p, radius):
 
 
 def test_timing_repeats_change_no_result():
-    sweep = descriptor_rejection_sweep("airsim-guo", trials=2, descriptors=["fast"])
+    sweep = _sweep("table", "airsim-guo", trials=2, descriptors=["fast"])
     once = run_tasks(sweep.tasks(), workers=1)
     sweep.repeats = 3
     thrice = run_tasks(sweep.tasks(), workers=1)
@@ -201,15 +198,13 @@ def test_timing_repeats_change_no_result():
 
 
 def test_cpu_clock_stage_times_add_up_to_at_most_the_calls_cpu_time():
-    t = descriptor_rejection_sweep("airsim-guo", trials=1, descriptors=["histogram"]).tasks()
+    t = _sweep("table", "airsim-guo", trials=1, descriptors=["histogram"]).tasks()
     row = run_task(t[1])
     stages = sum(row[f"t_{k}_ms"] for k in ("descriptors", "matching", "rejection", "ransac"))
     assert 0 < stages <= row["t_total_ms"] <= row["t_cpu_ms"] * 1.02 + 0.2
 
 
 def test_dataset_recommended_settings_and_overrides(data_dir):
-    from sgloc.evaluation.experiments import ExperimentOptions, make_sweep
-
     kitti = make_sweep("overlap", "kitti00", ExperimentOptions(trials=1, overlaps=[0.3]))
     cfg = kitti.tasks()[0].config
     assert cfg["ransac"]["threshold"] == 2.0  # the KITTI objects preset

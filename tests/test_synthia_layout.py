@@ -8,8 +8,7 @@ import pytest
 
 from sgloc.datasets import make_dataset
 from sgloc.datasets.synthia import SYNTHIA_CLASSES
-from sgloc.evaluation.pairs import make_pair_source
-from sgloc.evaluation.pairs_synthia import SynthiaPairs
+from sgloc.evaluation.pairs import SynthiaPairs, make_pair_source
 from sgloc.sim.run import QUERY, TARGET, make_synthetic_run
 from sgloc.sim.synthia_writer import (
     city_to_synthia_ids,

@@ -12,8 +12,13 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from sgloc.cli.app import app, fail
 from sgloc.cli.options import config_option, merged_settings, parse_settings, preset_option
 from sgloc.errors import SglocError
-from sgloc.evaluation.experiments import EXPERIMENTS, ExperimentOptions, run_experiment
-from sgloc.evaluation.sweeps import OVERLAPS, THRESHOLDS
+from sgloc.evaluation.experiments import (
+    EXPERIMENTS,
+    OVERLAPS,
+    THRESHOLDS,
+    ExperimentOptions,
+    run_experiment,
+)
 
 
 def _floats(text: str | None, default: tuple[float, ...]) -> tuple[float, ...]:

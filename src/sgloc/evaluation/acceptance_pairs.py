@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from sgloc.evaluation.pairs import ObjectWorldPairs, airsim_guo_maps
+from sgloc.evaluation.pairs import AirsimGuoPairs, ObjectWorldPairs
 from sgloc.evaluation.pairs_kitti import kitti_graph, kitti_ground_truth, kitti_root, kitti_sequence
 from sgloc.evaluation.pairs_sim import city_graphs
 from sgloc.evaluation.scenes import Pair, move_target, route_overlap
@@ -34,10 +34,25 @@ class LabeledPair(Pair):
 
 
 def _labeled(pair: Pair, positive: bool, source: str, info: dict) -> LabeledPair:
-    return LabeledPair(
-        pair.query, pair.target, pair.T_target_query, {**info, **pair.info}, pair.T_moved_own,
-        positive, source,
-    )  # fmt: skip
+    fields = {**vars(pair), "info": {**info, **pair.info}}
+    return LabeledPair(**fields, positive=positive, source=source)
+
+
+def _cut_drop_move(
+    q: SemanticGraph,
+    t: SemanticGraph,
+    T0: np.ndarray,
+    rng: np.random.Generator,
+    keep: float,
+    cut: float | None,
+) -> Pair:
+    """The pair of maps q, t (ground truth T0): q's shared area cut out when `cut` is set, each
+    object kept with probability `keep`, the target moved (all draws from `rng`)."""
+    if cut is not None:
+        q = cut_shared_area(q, t, T0, cut)
+    if keep < 1.0:
+        q, t = _dropout(q, keep, rng), _dropout(t, keep, rng)
+    return move_target(q, t, T0, rng)
 
 
 def cut_shared_area(
@@ -62,17 +77,14 @@ def airsim_pairs(
     Negatives alternate the direction (cloud1 with cloud2's area cut out, against cloud2; and
     cloud2 with cloud1's area cut out, against cloud1). `keep` < 1 drops each object with
     probability 1 - keep (a different detection run), so the n pairs differ."""
-    c1, c2 = airsim_guo_maps()
+    c1, c2, _, _ = AirsimGuoPairs().resolved().maps(0)
     out = []
     for i in range(n):
-        rng = np.random.default_rng([seed, i, 6])
         q, t = (c1, c2) if (positive or i % 2 == 0) else (c2, c1)
-        if not positive:
-            q = cut_shared_area(q, t, np.eye(4), cut)
-        if keep < 1.0:
-            q, t = _dropout(q, keep, rng), _dropout(t, keep, rng)
-        info = {"query": q.name, "keep": keep, "cut": None if positive else cut}
-        out.append(_labeled(move_target(q, t, np.eye(4), rng), positive, "airsim", info))
+        cut_i = None if positive else cut
+        pair = _cut_drop_move(q, t, np.eye(4), np.random.default_rng([seed, i, 6]), keep, cut_i)
+        info = {"query": pair.query.name, "keep": keep, "cut": cut_i}
+        out.append(_labeled(pair, positive, "airsim", info))
     return out
 
 
@@ -164,29 +176,25 @@ def city_pairs(
     of one world against robot A of another. Each pair gets its own random rigid motion of the
     target and a 90 % object dropout of both maps."""
 
-    def graphs(world: int, ov: float):
+    def graphs(world: int, ov: float) -> tuple[SemanticGraph, SemanticGraph, np.ndarray]:
         return city_graphs(world, ov, any_code_version=True)
 
     out = []
     for i in range(n):
         rng = np.random.default_rng([seed, i, 63])
-        w = worlds[i % len(worlds)]
+        w, cut_i = worlds[i % len(worlds)], None
         if positive:
             ov = overlaps[(i // len(worlds)) % len(overlaps)]
             q, t, T0 = graphs(w, ov)
             info = {"world": w, "overlap": ov}
         elif i % 2 == 0:
             q, t, T0 = graphs(w, 0.0)
-            q = cut_shared_area(q, t, T0, cut)
-            info = {"world": w, "overlap": 0.0}
+            cut_i, info = cut, {"world": w, "overlap": 0.0}
         else:
             w2 = worlds[(i + 1) % len(worlds)]
-            q, _, _ = graphs(w2, 0.5)
-            _, t, _ = graphs(w, 0.5)
-            T0 = np.eye(4)
+            q, t, T0 = graphs(w2, 0.5)[0], graphs(w, 0.5)[1], np.eye(4)
             info = {"world": w, "query_world": w2}
-        q, t = _dropout(q, 0.9, rng), _dropout(t, 0.9, rng)
-        out.append(_labeled(move_target(q, t, T0, rng), positive, "city", info))
+        out.append(_labeled(_cut_drop_move(q, t, T0, rng, 0.9, cut_i), positive, "city", info))
     return out
 
 
@@ -194,15 +202,8 @@ def default_pair_sets(seed: int = 0, scale: int = 1, city: bool = False) -> list
     """The benchmark's sets: per source `scale` x (positives, negatives) =
     airsim (40, 40), object world (40, 40), KITTI 00 (40, 40), and with `city` the rendered
     city (40, 40; renders and caches 3 worlds x 5 runs on first use)."""
-    n = 40 * scale
-    out = (
-        airsim_pairs(n, True, seed, keep=0.9)
-        + airsim_pairs(n, False, seed, keep=0.9)
-        + world_pairs(n, True, seed)
-        + world_pairs(n, False, seed)
-        + kitti_pairs(n, True, seed)
-        + kitti_pairs(n, False, seed)
-    )
-    if city:
-        out += city_pairs(n, True, seed) + city_pairs(n, False, seed)
+    out: list[LabeledPair] = []
+    sources = [(airsim_pairs, {"keep": 0.9}), (world_pairs, {}), (kitti_pairs, {})]
+    for build, kw in sources + ([(city_pairs, {})] if city else []):
+        out += build(40 * scale, True, seed, **kw) + build(40 * scale, False, seed, **kw)
     return out

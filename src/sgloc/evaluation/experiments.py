@@ -1,4 +1,4 @@
-"""The paper's experiments by name, each writing a results folder.
+"""Grids of trials (`Sweep`) and the paper's experiments by name, each writing a results folder.
 
 `run_experiment(name, dataset, ...)` builds the sweep, runs its trials (serially, on local
 processes or on a Dask cluster), and writes into `out`: `trials.csv` (one row per trial),
@@ -12,6 +12,7 @@ overlap (Fig. 6), matches (Fig. 7).
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -20,8 +21,9 @@ from typing import Any
 
 import numpy as np
 
+from sgloc.config import LocalizerConfig
 from sgloc.errors import UnknownNameError
-from sgloc.evaluation.metrics import T_P, correct_matches, pose_errors
+from sgloc.evaluation.metrics import FAILURE_M, T_P, correct_matches, pose_errors
 from sgloc.evaluation.pairs import make_pair_source
 from sgloc.evaluation.report import (
     fmt,
@@ -33,21 +35,99 @@ from sgloc.evaluation.report import (
     write_config_yaml,
     write_csv,
 )
-from sgloc.evaluation.sweeps import (
-    DESCRIPTOR_NAMES,
-    OVERLAPS,
-    REJECTION_NAMES,
-    THRESHOLDS,
-    Sweep,
-    config_for,
-    descriptor_rejection_sweep,
-    overlap_sweep,
-    threshold_sweep,
+from sgloc.evaluation.trials import (
+    LOCALIZER_STREAM,
+    TrialTask,
+    prepare_tasks,
+    run_prepare,
+    run_tasks,
 )
-from sgloc.evaluation.trials import LOCALIZER_STREAM, prepare_tasks, run_prepare, run_tasks
 from sgloc.localizer import Localizer
 
 EXPERIMENTS = ("table", "threshold", "pr", "overlap", "matches")
+DESCRIPTOR_NAMES = ("histogram", "fast", "random_walk")
+REJECTION_NAMES = ("none", "neighbor")
+#: RANSAC thresholds T_error of Fig. 4-5 (metres).
+THRESHOLDS = tuple(float(x) for x in range(1, 21))
+OVERLAPS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
+
+
+@dataclass
+class Sweep:
+    """A grid of trials over localizer settings and pair-source parameters. Trial i of every
+    cell uses seed `first_seed + i`, so cells are compared on the same pairs and initial
+    transforms (paired comparisons), and any cell can be re-run alone.
+
+    dataset / dataset_params: the pair source and its fixed parameters.
+    settings: fixed localizer settings (flat names, as `localize(**settings)` takes them).
+    axes: localizer settings to sweep, name -> values (e.g. {"ransac_threshold": [1, 2]}).
+    dataset_axes: pair-source parameters to sweep (e.g. {"overlap": [0.1, 0.3]}).
+    trials: trials per grid cell; first_seed: seed of trial 0.
+    repeats: timing repeats per trial (each stage's fastest is kept; results are identical).
+    clock: "cpu" (stage CPU time, default) or "wall" (see `TrialTask`).
+    """
+
+    dataset: str
+    dataset_params: dict[str, Any] = field(default_factory=dict)
+    settings: dict[str, Any] = field(default_factory=dict)
+    axes: dict[str, Sequence[Any]] = field(default_factory=dict)
+    dataset_axes: dict[str, Sequence[Any]] = field(default_factory=dict)
+    trials: int = 100
+    first_seed: int = 0
+    T_p: float = T_P
+    failure_m: float = FAILURE_M
+    repeats: int = 1
+    clock: str = "cpu"
+
+    def cells(self) -> list[tuple[dict[str, Any], dict[str, Any]]]:
+        """Every (localizer settings, dataset parameters) of the grid, in a fixed order."""
+        out = []
+        for combo in itertools.product(*self.dataset_axes.values(), *self.axes.values()):
+            point = dict(zip([*self.dataset_axes, *self.axes], combo, strict=True))
+            settings = {**self.settings, **{k: point[k] for k in self.axes}}
+            params = {**self.dataset_params, **{k: point[k] for k in self.dataset_axes}}
+            out.append((settings, params))
+        return out
+
+    def tasks(self) -> list[TrialTask]:
+        """The trials of the whole grid, seed-major: trial i of every cell, then trial i + 1.
+        Interleaving the cells exposes them all alike to load that drifts during a run (on a
+        shared machine even CPU times drift by tens of percent), so their times compare."""
+        cells = [
+            (config_for(settings).to_dict(), params, {k: params[k] for k in self.dataset_axes})
+            for settings, params in self.cells()
+        ]
+        shared = {k: getattr(self, k) for k in ("T_p", "failure_m", "repeats", "clock")}
+        return [
+            TrialTask(self.dataset, cfg, self.first_seed + i, params, tags, **shared)
+            for i in range(self.trials)
+            for cfg, params, tags in cells
+        ]
+
+
+def _stage_params() -> set[str]:
+    """Names of every registered descriptor's and rejector's parameters."""
+    from sgloc.descriptors import DESCRIPTORS
+    from sgloc.rejection import REJECTORS
+
+    stages = [*DESCRIPTORS.values(), *REJECTORS.values()]
+    return {f.name for cls in stages for f in dataclasses.fields(cls)}
+
+
+def config_for(settings: dict[str, Any]) -> LocalizerConfig:
+    """The LocalizerConfig of flat `settings`; a parameter of another descriptor or rejector
+    than the cell's (e.g. tau when rejection is none) is left out, a misspelt one still raises."""
+    stage = {k: settings[k] for k in ("descriptor", "rejection") if k in settings}
+    cfg = LocalizerConfig().with_overrides(**stage)
+    for key, value in settings.items():
+        if key in stage:
+            continue
+        try:
+            cfg = cfg.with_overrides(**{key: value})
+        except UnknownNameError:
+            if key not in _stage_params():
+                raise
+    return cfg
 
 
 @dataclass
@@ -76,7 +156,6 @@ class ExperimentOutput:
     folder: Path
     files: list[Path]
     markdown: str
-    rows: list[dict[str, Any]]
 
 
 def resolved_options(dataset: str, opt: ExperimentOptions) -> ExperimentOptions:
@@ -94,29 +173,45 @@ def resolved_options(dataset: str, opt: ExperimentOptions) -> ExperimentOptions:
 
 
 def make_sweep(name: str, dataset: str, opt: ExperimentOptions) -> Sweep:
-    """The sweep behind experiment `name` (matches has none: it is a single trial)."""
+    """The sweep behind experiment `name` (matches has none: it is a single trial): table
+    (Table 1) every descriptor x rejection at one RANSAC threshold; threshold and pr (Fig. 4-5)
+    the same over the thresholds T_error; overlap (Fig. 6) the rejections over the pair
+    source's `overlap` parameter."""
     opt = resolved_options(dataset, opt)
-    common = dict(
-        first_seed=opt.first_seed,
-        dataset_params=dict(opt.dataset_params),
-        settings=opt.settings,
-        repeats=opt.repeats,
-        clock=opt.clock,
-    )
+    thr = {"ransac_threshold": opt.threshold}
+    by_setting = {"descriptor": list(opt.descriptors), "rejection": list(opt.rejections)}
+    dataset_axes = {}
     if name == "table":
-        return descriptor_rejection_sweep(
-            dataset, opt.trials, opt.threshold, opt.descriptors, opt.rejections, **common
-        )
-    if name in ("threshold", "pr"):
-        return threshold_sweep(
-            dataset, opt.trials, opt.thresholds, opt.descriptors, opt.rejections, **common
-        )
-    if name == "overlap":
-        return overlap_sweep(
-            dataset, opt.trials, opt.overlaps, opt.descriptor, opt.rejections, opt.threshold,
-            **common,
-        )  # fmt: skip
-    raise UnknownNameError(f"unknown experiment {name!r}; choose one of {', '.join(EXPERIMENTS)}.")
+        settings, axes = {**thr, **opt.settings}, by_setting
+    elif name in ("threshold", "pr"):
+        settings = dict(opt.settings)
+        axes = {**by_setting, "ransac_threshold": [float(t) for t in opt.thresholds]}
+    elif name == "overlap":
+        settings = {"descriptor": opt.descriptor, **thr, **opt.settings}
+        axes = {"rejection": list(opt.rejections)}
+        dataset_axes = {"overlap": [float(o) for o in opt.overlaps]}
+    else:
+        raise _unknown(name)
+    return Sweep(
+        dataset, dict(opt.dataset_params), settings, axes, dataset_axes, opt.trials,
+        opt.first_seed, repeats=opt.repeats, clock=opt.clock,
+    )  # fmt: skip
+
+
+def _unknown(name: str) -> UnknownNameError:
+    return UnknownNameError(f"unknown experiment {name!r}; choose one of {', '.join(EXPERIMENTS)}.")
+
+
+def _ticker(progress: Callable | None, total: int, phase: str) -> Callable[[int], None]:
+    """A `run_tasks` progress callback that reports (done, total, phase) to `progress`."""
+    done = [0]
+
+    def tick(n: int) -> None:
+        done[0] += n
+        if progress:
+            progress(done[0], total, phase)
+
+    return tick
 
 
 def run_experiment(
@@ -134,9 +229,7 @@ def run_experiment(
     """
     opt = options or ExperimentOptions()
     if name not in EXPERIMENTS:
-        raise UnknownNameError(
-            f"unknown experiment {name!r}; choose one of {', '.join(EXPERIMENTS)}."
-        )
+        raise _unknown(name)
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
     opt = resolved_options(dataset, opt)  # fails early on a bad dataset name
@@ -148,25 +241,12 @@ def run_experiment(
     if opt.from_csv:
         rows = read_csv(opt.from_csv)
     else:
-        done = [0]
-
-        def tick(n: int) -> None:
-            done[0] += n
-            if progress:
-                progress(done[0], len(tasks), "trials")
-
         prep = prepare_tasks(tasks)  # e.g. render each synthetic world once, in parallel
         if prep:
-            ready = [0]
-
-            def tick_prep(n: int) -> None:
-                ready[0] += n
-                if progress:
-                    progress(ready[0], len(prep), "preparing worlds")
-
+            tick_prep = _ticker(progress, len(prep), "preparing worlds")
             tick_prep(0)
             run_tasks(prep, workers, scheduler, tick_prep, fn=run_prepare)
-        rows = run_tasks(tasks, workers=workers, scheduler=scheduler, progress=tick)
+        rows = run_tasks(tasks, workers, scheduler, _ticker(progress, len(tasks), "trials"))
     wall = time.perf_counter() - t0
     files = [write_csv(rows, folder / "trials.csv")]
     md, figs = _outputs(name, dataset, rows, folder, opt)
@@ -183,12 +263,13 @@ def run_experiment(
     cfg_path = folder / "config.yaml"
     if not (opt.from_csv and cfg_path.exists()):  # keep the config of the run that made the CSV
         configs = {_cell_name(s, p): config_for(s).to_dict() for s, p in sweep.cells()}
-        exp = {"name": name, **sweep.to_dict(), "workers": workers, "scheduler": str(scheduler)}
+        exp = {"name": name, **dataclasses.asdict(sweep), "workers": workers}
+        exp["scheduler"] = str(scheduler)
         if opt.from_csv:
             exp["from_csv"] = opt.from_csv
         write_config_yaml(cfg_path, exp, configs)
     files.append(cfg_path)
-    return ExperimentOutput(folder, files, md, rows)
+    return ExperimentOutput(folder, files, md)
 
 
 def _cell_name(settings: dict[str, Any], params: dict[str, Any]) -> str:
@@ -201,32 +282,21 @@ def _outputs(
 ) -> tuple[str, list[Path]]:
     from sgloc.evaluation import plots  # deferred: matplotlib costs ~0.25 s at import
 
-    figs: list[Path] = []
     if name == "table":
-        summary = summarize(rows, ["descriptor", "rejection"])
-        md = table1_markdown(summary, with_paper=dataset == "airsim-guo")
-        figs.append(
-            plots.error_distribution(rows, folder / "error_distribution.png", opt.threshold)
-        )
-        return md, figs
-    if name in ("threshold", "pr"):
-        summary = summarize(rows, ["descriptor", "rejection", "ransac_threshold"])
-        md = sweep_markdown(summary, ["descriptor", "rejection", "ransac_threshold"])
-        if name == "threshold":
-            figs.append(plots.error_vs_threshold(rows, folder / "error_vs_threshold.png"))
-            if any(abs(float(r["ransac_threshold"]) - 5.0) < 1e-9 for r in rows):
-                figs.append(plots.error_distribution(rows, folder / "error_distribution_5m.png"))
-        else:
-            figs.append(plots.pr_curves(rows, folder / "pr_curves.png"))
-        return md, figs
-    # overlap
-    summary = summarize(rows, ["overlap", "rejection"])
-    md = sweep_markdown(summary, ["overlap", "rejection"])
-    figs.append(
-        plots.overlap_boxplots(
-            rows, folder / "overlap_boxplots.png", f"{dataset}: translation error vs overlap"
-        )
-    )
+        md = table1_markdown(summarize(rows, ["descriptor", "rejection"]), dataset == "airsim-guo")
+        fig = plots.error_distribution(rows, folder / "error_distribution.png", opt.threshold)
+        return md, [fig]
+    if name == "overlap":
+        by, title = ["overlap", "rejection"], f"{dataset}: translation error vs overlap"
+        figs = [plots.overlap_boxplots(rows, folder / "overlap_boxplots.png", title)]
+        return sweep_markdown(summarize(rows, by), by), figs
+    by = ["descriptor", "rejection", "ransac_threshold"]
+    md = sweep_markdown(summarize(rows, by), by)
+    if name == "pr":
+        return md, [plots.pr_curves(rows, folder / "pr_curves.png")]
+    figs = [plots.error_vs_threshold(rows, folder / "error_vs_threshold.png")]
+    if any(abs(float(r["ransac_threshold"]) - 5.0) < 1e-9 for r in rows):
+        figs.append(plots.error_distribution(rows, folder / "error_distribution_5m.png"))
     return md, figs
 
 
@@ -237,46 +307,31 @@ def _matches(dataset: str, folder: Path, opt: ExperimentOptions) -> ExperimentOu
 
     seed = opt.first_seed
     pair = make_pair_source(dataset, **opt.dataset_params)(seed)
+    q, t, T_gt = pair.query.positions, pair.target.positions, pair.T_target_query
     base = {"descriptor": opt.descriptor, "ransac_threshold": opt.threshold, **opt.settings}
+    cfgs = {rej: config_for({**base, "rejection": rej}) for rej in ("neighbor", "none")}
     results = {}
-    for rej in ("neighbor", "none"):
-        cfg = config_for({**base, "rejection": rej})
+    for rej, cfg in cfgs.items():
         rng = np.random.default_rng([seed, LOCALIZER_STREAM])
-        results[rej] = (cfg, Localizer(cfg)(pair.query, pair.target, rng))
-    nb, bl = results["neighbor"][1], results["none"][1]
+        results[rej] = Localizer(cfg)(pair.query, pair.target, rng)
+    nb, bl = results["neighbor"], results["none"]
     stages = {
         "original matches": nb.candidates,
         "after neighbor rejection": nb.survivors,
         "final (neighbor + RANSAC)": nb.matches,
         "final (RANSAC only)": bl.matches,
     }
-    fig = plots.matches_picture(
-        pair.query.positions,
-        pair.target.positions,
-        pair.T_target_query,
-        stages,
-        folder / "matches.png",
-        T_P,
-        f"{dataset}, seed {seed}: green = correct (within {T_P:g} m under ground truth)",
-    )
-    body = []
-    for label, m in stages.items():
-        ok = correct_matches(
-            pair.query.positions, pair.target.positions, m, pair.T_target_query, T_P
-        )
-        body.append([label, len(m), int(ok.sum())])
-    md = f"# matches on {dataset} (seed {seed})\n\n" + markdown_table(
-        ["stage", "matches", "correct"], body
-    )
-    for rej, (_, res) in results.items():
-        te, re = pose_errors(res.transform, pair.T_target_query)
+    title = f"{dataset}, seed {seed}: green = correct (within {T_P:g} m under ground truth)"
+    fig = plots.matches_picture(q, t, T_gt, stages, folder / "matches.png", T_P, title)
+    body = [[k, len(m), int(correct_matches(q, t, m, T_gt, T_P).sum())] for k, m in stages.items()]
+    md = f"# matches on {dataset} (seed {seed})\n\n"
+    md += markdown_table(["stage", "matches", "correct"], body)
+    for rej, res in results.items():
+        te, re = pose_errors(res.transform, T_gt)
         md += f"\n{rej}: localized={res.success}, translation error {fmt(te)} m, "
         md += f"rotation error {fmt(re)} deg"
-    md += "\n"
-    (folder / "table.md").write_text(md)
-    exp = {"name": "matches", "dataset": dataset, "dataset_params": opt.dataset_params,
-           "seed": seed}  # fmt: skip
-    cfg_file = write_config_yaml(
-        folder / "config.yaml", exp, {k: v[0].to_dict() for k, v in results.items()}
-    )
-    return ExperimentOutput(folder, [fig, folder / "table.md", cfg_file], md, [])
+    (folder / "table.md").write_text(md + "\n")
+    exp = {"name": "matches", "dataset": dataset, "dataset_params": opt.dataset_params}
+    configs = {k: c.to_dict() for k, c in cfgs.items()}
+    cfg_file = write_config_yaml(folder / "config.yaml", {**exp, "seed": seed}, configs)
+    return ExperimentOutput(folder, [fig, folder / "table.md", cfg_file], md + "\n")

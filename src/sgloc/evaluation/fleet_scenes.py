@@ -36,22 +36,20 @@ def world_fleet(
     keep_probability: float = 0.85,
 ) -> FleetScene:
     """Robots driving stretches [x0, x1] (metres) of the main street of one object world
-    (`sgloc.sim.object_world.make_object_world`)."""
-    from sgloc.sim.object_world import make_object_world
+    (`sgloc.sim.object_world`; robots observe the street as in the `object-world` pairs)."""
+    from sgloc.sim.object_world import make_object_world, observe_street
 
     rng = np.random.default_rng([seed, 61])
     length = max(b for _, b in stretches) + 2 * view_radius
     pos, lab = make_object_world(rng, length=length)
     graphs, Ts, notes = [], [], []
     for r, (x0, x1) in enumerate(stretches):
-        x0, x1 = x0 + view_radius, x1 + view_radius
-        d = np.hypot(np.clip(pos[:, 0], x0, x1) - pos[:, 0], pos[:, 1])
-        seen = (d < view_radius) & (rng.random(len(pos)) < keep_probability)
-        p = pos[seen] + rng.normal(0, noise, (int(seen.sum()), 3))
+        a, b = x0 + view_radius, x1 + view_radius
+        seen = observe_street(pos, lab, a, b, rng, view_radius, keep_probability, noise)
         T_gt_r = random_rigid_transform(rng, 100.0, 3.0)
-        graphs.append(SemanticGraph(apply(invert(T_gt_r), p), lab[seen], name=f"world{r}"))
+        graphs.append(seen.transformed(invert(T_gt_r), name=f"world{r}"))
         Ts.append(T_gt_r)
-        notes.append(f"street x {x0 - view_radius:g}-{x1 - view_radius:g} m")
+        notes.append(f"street x {x0:g}-{x1:g} m")
     return FleetScene(graphs, Ts, notes)
 
 

@@ -15,8 +15,6 @@ average over the trials where a value is defined and count failures separately.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-
 import numpy as np
 
 from sgloc.geometry import apply, transform_error
@@ -66,31 +64,6 @@ def is_failure(translation_error: float, failure_m: float = FAILURE_M) -> bool:
     return not (np.isfinite(translation_error) and translation_error <= failure_m)
 
 
-@dataclass
-class MatchStats:
-    """Counts of matches at each stage, and how many of them are correct."""
-
-    n_candidates: int
-    n_correct_candidates: int
-    n_survivors: int
-    n_correct_survivors: int
-    n_final: int
-    n_correct_final: int
-
-    @property
-    def recall(self) -> float:
-        return recall_precision(self.n_correct_final, self.n_final, self.n_correct_candidates)[0]
-
-    @property
-    def precision(self) -> float:
-        return recall_precision(self.n_correct_final, self.n_final, self.n_correct_candidates)[1]
-
-    def to_dict(self) -> dict[str, float]:
-        d = asdict(self)
-        d["recall"], d["precision"] = self.recall, self.precision
-        return d
-
-
 def match_stats(
     query_positions: np.ndarray,
     target_positions: np.ndarray,
@@ -99,15 +72,13 @@ def match_stats(
     final: np.ndarray,
     T_target_query: np.ndarray,
     tol: float = T_P,
-) -> MatchStats:
-    """Count the candidate, surviving (after rejection) and final matches and their correct
-    ones under the ground truth T_target_query, with correctness radius `tol` metres."""
-
-    def count(m: np.ndarray) -> tuple[int, int]:
+) -> dict[str, float]:
+    """The candidate, surviving (after rejection) and final matches and their correct ones under
+    the ground truth T_target_query (correctness radius `tol` metres), as counts n_<stage> and
+    n_correct_<stage>, then recall and precision."""
+    out: dict[str, float] = {}
+    for stage, m in (("candidates", candidates), ("survivors", survivors), ("final", final)):
         ok = correct_matches(query_positions, target_positions, m, T_target_query, tol)
-        return int(len(ok)), int(ok.sum())
-
-    nc, ncc = count(candidates)
-    ns, nsc = count(survivors)
-    nf, nfc = count(final)
-    return MatchStats(nc, ncc, ns, nsc, nf, nfc)
+        out[f"n_{stage}"], out[f"n_correct_{stage}"] = int(len(ok)), int(ok.sum())
+    rp = recall_precision(out["n_correct_final"], out["n_final"], out["n_correct_candidates"])
+    return {**out, "recall": rp[0], "precision": rp[1]}

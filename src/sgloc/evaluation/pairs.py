@@ -1,74 +1,41 @@
 """The pair factory: `make_pair_source(name or folder, **params)` -> a pair source, a small
 picklable object (a frozen dataclass of its parameters) with `__call__(seed) -> Pair`.
 
-Sources register by name in `sgloc.evaluation.scenes.PAIR_SOURCES`: the file-based and
-code-generated ones here, `kitti00` (pairs_kitti), `city` and `airsim-run` (pairs_sim),
-`synthia` (pairs_synthia). Everything random in a pair comes from the seed, so a trial is a pure
-function of (source, parameters, seed) and gives the same pair on any process or Dask worker.
+Sources register by name in `sgloc.evaluation.scenes.PAIR_SOURCES`: the file-based ones
+(`graph-files`, `airsim-guo`, `synthia`) and the code-generated `object-world` here, `kitti00`
+(pairs_kitti), `city` and `airsim-run` (pairs_sim). Everything random in a pair comes from the
+seed, so a trial is a pure function of (source, parameters, seed) and gives the same pair on any
+process or Dask worker.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from sgloc.errors import DatasetError, UnknownNameError
 from sgloc.evaluation import pairs_kitti  # noqa: F401  (registers kitti00)
 from sgloc.evaluation.pairs_sim import AirsimRunPairs  # (also registers city)
-from sgloc.evaluation.pairs_synthia import SynthiaPairs
 from sgloc.evaluation.scenes import (
     PAIR_SOURCES,
     MovedTargetSource,
     Pair,
     PairSource,
-    data_root,
     load_graph_cached,
     register_pair_source,
+    route_overlap,
+    window_overlaps,
 )
+from sgloc.geometry import invert
 from sgloc.graph import DEFAULT_EDGE_RADIUS, SemanticGraph
+from sgloc.presets import extraction_preset
 
 GRAPH_SUFFIXES = (".pcd", ".json", ".npz")
-
-
-def airsim_guo_maps(
-    root: str | None = None,
-    query_file: str = "cloud1.pcd",
-    target_file: str = "cloud2.pcd",
-    edge_radius: float = DEFAULT_EDGE_RADIUS,
-) -> tuple[SemanticGraph, SemanticGraph]:
-    """Guo's Airsim object maps (query cloud1, target cloud2), both in the Airsim world frame;
-    root: their folder (default: the `airsim_guo` data set under SGLOC_DATA)."""
-    folder = Path(data_root(root, "airsim_guo"))
-    return (
-        load_graph_cached(str(folder / query_file), edge_radius),
-        load_graph_cached(str(folder / target_file), edge_radius),
-    )
-
-
-@register_pair_source("airsim-guo")
-@dataclass(frozen=True)
-class AirsimGuoPairs(MovedTargetSource):
-    """Guo's Airsim object maps: cloud1 (query) against cloud2 moved by a random rigid transform
-    (any yaw, roll/pitch up to `max_roll_pitch_deg`, translation up to `max_translation` m).
-    Both maps are in the Airsim world frame, so the ground truth is that transform."""
-
-    root: str | None = None
-    query_file: str = "cloud1.pcd"
-    target_file: str = "cloud2.pcd"
-    edge_radius: float = DEFAULT_EDGE_RADIUS
-
-    def resolved(self) -> AirsimGuoPairs:
-        """A copy with `root` made absolute (so remote workers need no SGLOC_DATA)."""
-        return dataclasses.replace(self, root=data_root(self.root, "airsim_guo"))
-
-    def __call__(self, seed: int) -> Pair:
-        src = self if self.root else self.resolved()
-        q, t = airsim_guo_maps(src.root, src.query_file, src.target_file, src.edge_radius)
-        return src.moved(q, t, np.eye(4), seed)
 
 
 @register_pair_source("object-world")
@@ -85,13 +52,7 @@ class ObjectWorldPairs:
     def __call__(self, seed: int) -> Pair:
         from sgloc.sim.object_world import make_two_robot_scene
 
-        scene = make_two_robot_scene(
-            seed=int(seed),
-            overlap=self.overlap,
-            stretch=self.stretch,
-            view_radius=self.view_radius,
-            noise=self.noise,
-        )
+        scene = make_two_robot_scene(int(seed), **dataclasses.asdict(self))
         return Pair(scene.query, scene.target, scene.T_target_query, {"overlap": self.overlap})
 
 
@@ -102,7 +63,7 @@ class GraphFilePairs(MovedTargetSource):
     moved by a random rigid transform per trial. The maps' own relative pose is the identity,
     or the 4x4 matrix in `T_target_query.txt` in the same folder (p_target = T p_query)."""
 
-    root: str = "."
+    root: str | None = "."
     query_file: str | None = None
     target_file: str | None = None
     edge_radius: float = DEFAULT_EDGE_RADIUS
@@ -128,13 +89,95 @@ class GraphFilePairs(MovedTargetSource):
                 raise DatasetError(f"{p}: no such graph file.")
         return q, t
 
-    def __call__(self, seed: int) -> Pair:
-        q_path, t_path = self.files()
-        q = load_graph_cached(str(q_path.resolve()), self.edge_radius)
-        t = load_graph_cached(str(t_path.resolve()), self.edge_radius)
+    def maps(self, seed: int) -> tuple[SemanticGraph, SemanticGraph, np.ndarray, dict[str, Any]]:
+        q, t = (load_graph_cached(str(p.resolve()), self.edge_radius) for p in self.files())
         gt_file = Path(self.root) / "T_target_query.txt"
         T0 = np.loadtxt(gt_file).reshape(4, 4) if gt_file.is_file() else np.eye(4)
-        return self.moved(q, t, T0, seed)
+        return q, t, T0, {}
+
+
+@register_pair_source("airsim-guo")
+@dataclass(frozen=True)
+class AirsimGuoPairs(GraphFilePairs):
+    """Guo's Airsim object maps: cloud1 (query) against cloud2 moved by a random rigid transform
+    (any yaw, roll/pitch up to `max_roll_pitch_deg`, translation up to `max_translation` m).
+    Both maps are in the Airsim world frame, so the ground truth is that transform; root: their
+    folder (default: the `airsim_guo` data set under SGLOC_DATA)."""
+
+    data_set: ClassVar[str | None] = "airsim_guo"
+    root: str | None = None
+    query_file: str | None = "cloud1.pcd"
+    target_file: str | None = "cloud2.pcd"
+
+
+# -- SYNTHIA: the forward (Omni_F) and backward (Omni_B) cameras as two robots ---------------
+CAMERAS = ("Omni_F", "Omni_B")
+
+
+@functools.lru_cache(maxsize=4)
+def _camera_poses(root: str, camera: str) -> np.ndarray:
+    """(N,4,4) world-from-optical poses of every frame of one camera."""
+    from sgloc.datasets import make_dataset
+
+    return make_dataset("synthia", root, camera=camera).poses
+
+
+@functools.lru_cache(maxsize=64)
+def _synthia_graph(
+    root: str, camera: str, first: int, last: int, edge_radius: float
+) -> SemanticGraph:
+    """One camera's graph from frames first..last (inclusive), in its first frame's optical
+    frame (the `synthia` extraction preset: objects only)."""
+    from sgloc.datasets import make_dataset
+    from sgloc.extraction import build_graph
+
+    ds = make_dataset("synthia", root, camera=camera, frames=(first, last), start_frame=True)
+    g = build_graph(ds, extraction_preset("synthia"), name=f"{camera}[{first}-{last}]")
+    return g.with_edge_radius(edge_radius)
+
+
+@register_pair_source("synthia")
+@dataclass(frozen=True)
+class SynthiaPairs(MovedTargetSource):
+    """A SYNTHIA sequence folder (e.g. SYNTHIA-SEQS-04-SUMMER, or one written by
+    `sgloc.sim.synthia_writer`): robot A (target) = Omni_F, robot B (query) = Omni_B, each map in
+    its first frame's camera frame; the target is moved by a random rigid transform per trial.
+
+    overlap=None: the whole sequences (Table 2). overlap=o: robot A maps the first `length`
+    frames, robot B a window of `length` frames slid along the sequence so that the fraction of
+    B's route within `radius` m of A's route is as close to o as it allows (the achieved value
+    is in the pair's info as `overlap`). Ground truth: both cameras' poses are in the
+    sequence's world frame, T_A_B = inv(P_A[a0]) @ P_B[b0].
+    """
+
+    data_set: ClassVar[str | None] = "synthia"
+    root: str | None = None
+    overlap: float | None = None
+    length: int = 200
+    radius: float = 10.0
+    edge_radius: float = DEFAULT_EDGE_RADIUS
+
+    def windows(self) -> tuple[tuple[int, int], tuple[int, int], float]:
+        """(A frames, B frames, achieved route overlap), inclusive ranges."""
+        PA, PB = (_camera_poses(self.root, c) for c in CAMERAS)
+        xa, xb = PA[:, :3, 3], PB[:, :3, 3]
+        if self.overlap is None:
+            a, b = (0, len(PA) - 1), (0, len(PB) - 1)
+            return a, b, route_overlap(xb, xa, self.radius)
+        n = min(self.length, len(PA), len(PB))
+        a = (0, n - 1)
+        starts = np.arange(0, len(PB) - n + 1)
+        ovs = window_overlaps(xb, xa[:n], starts, n, self.radius)
+        s = int(starts[np.argmin(np.abs(ovs - self.overlap))])
+        return a, (s, s + n - 1), float(ovs[s])
+
+    def maps(self, seed: int) -> tuple[SemanticGraph, SemanticGraph, np.ndarray, dict[str, Any]]:
+        a, b, ov = self.windows()
+        PA, PB = (_camera_poses(self.root, c) for c in CAMERAS)
+        target = _synthia_graph(self.root, CAMERAS[0], *a, self.edge_radius)
+        query = _synthia_graph(self.root, CAMERAS[1], *b, self.edge_radius)
+        info = {"overlap": round(ov, 4), "frames_a": f"{a[0]}-{a[1]}", "frames_b": f"{b[0]}-{b[1]}"}
+        return query, target, invert(PA[a[0]]) @ PB[b[0]], info
 
 
 #: Dataset names that stand for another source.
@@ -145,29 +188,28 @@ def make_pair_source(name: str, **params: Any) -> PairSource:
     """A pair source by registered name (or alias), or by a folder: a SYNTHIA sequence (with
     CameraParams/), an Airsim-layout two-robot run (with ground_truth.txt), or a folder holding
     two graph files."""
-    key = ALIASES.get(name, name)
-    if key in PAIR_SOURCES:
-        cls = PAIR_SOURCES[key]
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(params) - known
-        if unknown:
+    cls = PAIR_SOURCES.get(ALIASES.get(name, name))
+    if cls is None:
+        path = Path(name)
+        if not path.is_dir():
             raise UnknownNameError(
-                f"dataset {name!r} has no parameter(s) {', '.join(sorted(unknown))}; "
-                f"it takes {', '.join(sorted(known))}."
+                f"unknown dataset {name!r}; choose one of {', '.join(dataset_names())} or give a "
+                "folder holding two graph files or an Airsim-layout run with ground_truth.txt."
             )
-        src = cls(**params)
-        return src.resolved() if hasattr(src, "resolved") else src
-    path = Path(name)
-    if path.is_dir() and (path / "CameraParams").is_dir():
-        return SynthiaPairs(root=str(path.resolve()), **params)
-    if path.is_dir() and (path / "ground_truth.txt").is_file():
-        return AirsimRunPairs(root=str(path.resolve()), **params)
-    if path.is_dir():
-        return GraphFilePairs(root=str(path.resolve()), **params)
-    raise UnknownNameError(
-        f"unknown dataset {name!r}; choose one of {', '.join(dataset_names())} or give a folder "
-        "holding two graph files or an Airsim-layout run with ground_truth.txt."
-    )
+        if (path / "CameraParams").is_dir():
+            cls = SynthiaPairs
+        else:
+            cls = AirsimRunPairs if (path / "ground_truth.txt").is_file() else GraphFilePairs
+        params = {"root": name, **params}
+    known = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(params) - known
+    if unknown:
+        raise UnknownNameError(
+            f"dataset {name!r} has no parameter(s) {', '.join(sorted(unknown))}; "
+            f"it takes {', '.join(sorted(known))}."
+        )
+    src = cls(**params)
+    return src.resolved() if hasattr(src, "resolved") else src
 
 
 def dataset_names() -> list[str]:
@@ -180,7 +222,7 @@ __all__ = [
     "AirsimGuoPairs",
     "GraphFilePairs",
     "ObjectWorldPairs",
-    "airsim_guo_maps",
+    "SynthiaPairs",
     "dataset_names",
     "make_pair_source",
 ]

@@ -15,7 +15,6 @@ import numpy as np
 from sgloc.errors import DatasetError
 from sgloc.evaluation.scenes import (
     MovedTargetSource,
-    Pair,
     data_root,
     register_pair_source,
     route_overlap,
@@ -113,6 +112,7 @@ class Kitti00Pairs(MovedTargetSource):
     accurate and the split's maps reach hundreds of metres beyond it).
     """
 
+    data_set: ClassVar[str | None] = "kitti00"
     #: Recommended localizer settings (the extraction preset's: precise LiDAR centroids).
     localizer_settings: ClassVar[dict[str, Any]] = preset_settings("kitti-objects")
 
@@ -125,10 +125,6 @@ class Kitti00Pairs(MovedTargetSource):
     min_max_overlap: float = 0.5
     split: tuple[int, int, int, int] = (0, 800, 3900, 4540)
     edge_radius: float = DEFAULT_EDGE_RADIUS
-
-    def resolved(self) -> Kitti00Pairs:
-        """A copy with `root` made absolute (so remote workers need no SGLOC_DATA)."""
-        return dataclasses.replace(self, root=data_root(self.root, "kitti00"))
 
     def sliding_windows(self, k: int) -> tuple[tuple[int, int], np.ndarray, np.ndarray]:
         """For revisit k: robot A's scans, the candidate first scans of robot B's window, and
@@ -181,14 +177,9 @@ class Kitti00Pairs(MovedTargetSource):
         s = int(starts[best])
         return a, (s, s + self.length - 1), k, float(ovs[best])
 
-    def __call__(self, seed: int) -> Pair:
-        src = self if self.root else self.resolved()
-        a, b, k, ov = src.windows(seed)
-        target = kitti_graph(src.root, a[0], a[1], src.edge_radius)
-        query = kitti_graph(src.root, b[0], b[1], src.edge_radius)
-        T_A_B = kitti_ground_truth(src.root, a, b, k)
-        pair = src.moved(query, target, T_A_B, seed)
-        pair.info.update(
-            {"overlap": round(ov, 4), "scans_a": f"{a[0]}-{a[1]}", "scans_b": f"{b[0]}-{b[1]}"}
-        )
-        return pair
+    def maps(self, seed: int) -> tuple[SemanticGraph, SemanticGraph, np.ndarray, dict[str, Any]]:
+        a, b, k, ov = self.windows(seed)
+        target = kitti_graph(self.root, a[0], a[1], self.edge_radius)
+        query = kitti_graph(self.root, b[0], b[1], self.edge_radius)
+        info = {"overlap": round(ov, 4), "scans_a": f"{a[0]}-{a[1]}", "scans_b": f"{b[0]}-{b[1]}"}
+        return query, target, kitti_ground_truth(self.root, a, b, k), info

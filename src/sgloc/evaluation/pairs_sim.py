@@ -10,7 +10,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from sgloc.evaluation.scenes import MovedTargetSource, Pair, register_pair_source
+from sgloc.evaluation.scenes import MovedTargetSource, register_pair_source
 from sgloc.graph import SemanticGraph
 from sgloc.presets import localizer_settings as preset_settings
 
@@ -48,12 +48,13 @@ def city_graphs(
 
     any_code_version: use the newest cached graphs of that run even when an earlier version of
     the sim or extraction code made them (the cache key names it; rendering takes minutes)."""
+    stem = f"city-w{world}-o{overlap:g}-{width}x{height}-L{length:g}"
     if any_code_version:
-        pattern = f"city-w{world}-o{overlap:g}-{width}x{height}-L{length:g}-*.npz"
-        found = sorted(evaluation_cache_dir().glob(pattern), key=lambda p: p.stat().st_mtime)
+        cached = evaluation_cache_dir().glob(f"{stem}-*.npz")
+        found = sorted(cached, key=lambda p: p.stat().st_mtime)
         if found:
             return _read_city(found[-1])
-    return _city_graphs(world, overlap, width, height, length)
+    return _city_graphs(stem, world, overlap, width, height, length)
 
 
 def _read_city(path: Path) -> tuple[SemanticGraph, SemanticGraph, np.ndarray]:
@@ -67,9 +68,9 @@ def _read_city(path: Path) -> tuple[SemanticGraph, SemanticGraph, np.ndarray]:
 
 @functools.lru_cache(maxsize=64)
 def _city_graphs(
-    world: int, overlap: float, width: int, height: int, length: float
+    stem: str, world: int, overlap: float, width: int, height: int, length: float
 ) -> tuple[SemanticGraph, SemanticGraph, np.ndarray]:
-    key = f"city-w{world}-o{overlap:g}-{width}x{height}-L{length:g}-{_code_hash()}"
+    key = f"{stem}-{_code_hash()}"
     path = evaluation_cache_dir() / f"{key}.npz"
     if path.is_file():
         return _read_city(path)
@@ -106,19 +107,13 @@ class CityPairs(MovedTargetSource):
     length: float = 400.0
 
     def world(self, seed: int) -> int:
+        """The city of trial `seed` (what the disk cache holds; see `trials.prepare_tasks`)."""
         return int(seed) % self.n_worlds
 
-    def prepare(self, seed: int) -> str:
-        """Render and extract the world of `seed` into the cache (for parallel warm-up)."""
-        city_graphs(self.world(seed), self.overlap, self.width, self.height, self.length)
-        return f"world {self.world(seed)}"
-
-    def __call__(self, seed: int) -> Pair:
+    def maps(self, seed: int) -> tuple[SemanticGraph, SemanticGraph, np.ndarray, dict[str, Any]]:
         w = self.world(seed)
         q, t, T0 = city_graphs(w, self.overlap, self.width, self.height, self.length)
-        pair = self.moved(q, t, T0, seed)
-        pair.info.update({"overlap": self.overlap, "world": w})
-        return pair
+        return q, t, T0, {"overlap": self.overlap, "world": w}
 
 
 @functools.lru_cache(maxsize=8)
@@ -146,9 +141,8 @@ class AirsimRunPairs(MovedTargetSource):
     target: str = "forwardCar"
     query: str = "backwardCar"
 
-    def __call__(self, seed: int) -> Pair:
+    def maps(self, seed: int) -> tuple[SemanticGraph, SemanticGraph, np.ndarray, dict[str, Any]]:
         from sgloc.sim.airsim_writer import read_ground_truth
 
-        q, t = _airsim_run_graphs(str(Path(self.root).resolve()), self.target, self.query)
-        T0 = read_ground_truth(self.root)
-        return self.moved(q, t, T0, seed)
+        q, t = _airsim_run_graphs(self.root, self.target, self.query)
+        return q, t, read_ground_truth(self.root), {}

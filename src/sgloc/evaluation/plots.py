@@ -59,13 +59,12 @@ def error_vs_threshold(rows: Sequence[dict[str, Any]], path: str | Path) -> Path
         ax.plot(x, m, label=setting_label(d, r), **st)
         ax.fill_between(x, m - sd, m + sd, color=st["color"], alpha=0.08)
         ax2.plot(x, [100 * c["failures"] / c["trials"] for c in s], **st)
+    ax.set_title("Translation error vs RANSAC threshold (mean +- std)")
     ax.set_ylabel("translation error (m)")
     ax.set_ylim(bottom=0)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, ncol=2)
-    ax.set_title("Translation error vs RANSAC threshold (mean +- std)")
-    ax2.set_xlabel("RANSAC threshold T_error (m)")
-    ax2.set_ylabel("failures %")
+    ax2.set(xlabel="RANSAC threshold T_error (m)", ylabel="failures %")
     ax2.grid(alpha=0.3)
     return _save(fig, path)
 
@@ -87,8 +86,7 @@ def error_distribution(
     for ax, data, name in ((axes[0], te, "translation error (m)"), (axes[1], re, "rotation (deg)")):
         ax.boxplot([x if x.size else np.array([np.nan]) for x in data], showfliers=True)
         ax.set_xticks(range(1, len(labels) + 1), labels, rotation=35, ha="right", fontsize=7)
-        ax.set_yscale("log")
-        ax.set_ylabel(name)
+        ax.set(yscale="log", ylabel=name)
         ax.grid(alpha=0.3, axis="y")
     fig.suptitle(f"Error distribution at T_error = {threshold:g} m")
     return _save(fig, path, top=0.93)
@@ -105,8 +103,7 @@ def pr_curves(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
         ax.plot(rec, pre, label=setting_label(d, r), **_style(d, r))
         for c, x, y in ((s[0], rec[0], pre[0]), (s[-1], rec[-1], pre[-1])):
             ax.annotate(f"{c['ransac_threshold']:g}", (x, y), fontsize=6, alpha=0.7)
-    ax.set_xlabel("recall %")
-    ax.set_ylabel("precision %")
+    ax.set(xlabel="recall %", ylabel="precision %")
     ax.set_title("Precision-recall over the RANSAC threshold")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
@@ -128,6 +125,7 @@ def overlap_boxplots(
     width = 0.8 / max(len(rejections), 1)
     top = ax.get_xaxis_transform()  # x in data, y in axes fraction
     for k, rej in enumerate(rejections):
+        color = "tab:red" if rej == "none" else "tab:blue"
         data, wrong, unloc, counts = [], [], [], []
         for o in overlaps:
             g = [r for r in rows if r["rejection"] == rej and float(r["overlap"]) == o]
@@ -136,15 +134,13 @@ def overlap_boxplots(
             te = te[localized & np.isfinite(te)] if len(g) else te
             data.append(te if len(te) else np.array([np.nan]))
             n = max(len(g), 1)
-            n_unloc = int(np.sum(~localized))
-            counts.append((n_unloc, len(g)))
-            unloc.append(100 * n_unloc / n)
+            counts.append((int(np.sum(~localized)), len(g)))
+            unloc.append(100 * counts[-1][0] / n)
             wrong.append(100 * sum(bool(r["localized"] and r["failed"]) for r in g) / n)
         pos = np.arange(len(overlaps)) + (k - (len(rejections) - 1) / 2) * width
         for x, (n_unloc, n) in zip(pos, counts, strict=True):
-            ax.text(x, 0.985, f"{n_unloc}/{n}", transform=top, ha="center", va="top",
-                    fontsize=6, color="tab:red" if rej == "none" else "tab:blue")
-        color = "tab:red" if rej == "none" else "tab:blue"
+            ax.text(x, 0.985, f"{n_unloc}/{n}", transform=top, ha="center", va="top", fontsize=6,
+                    color=color)  # fmt: skip
         label = "baseline (RANSAC)" if rej == "none" else f"+{rej}"
         bp = ax.boxplot(
             data, positions=pos, widths=width * 0.9, patch_artist=True, showfliers=True,
@@ -160,12 +156,11 @@ def overlap_boxplots(
     lo, hi = ax.get_ylim()
     ax.set_ylim(lo, hi * 4)  # room for the unlocalized counts
     ax.set_ylabel("translation error of localized trials (m)")
+    ax.set_title(title or "Translation error vs overlap")
     ax.legend(fontsize=7, title="k/n over a box: k of n not localized", title_fontsize=7)
     ax.grid(alpha=0.3, axis="y")
-    ax.set_title(title or "Translation error vs overlap")
     ax2.set_xticks(range(len(overlaps)), [f"{o:g}" for o in overlaps])
-    ax2.set_xlabel("overlap rate")
-    ax2.set_ylabel("failures %")
+    ax2.set(xlabel="overlap rate", ylabel="failures %")
     ax2.legend(
         handles=[
             Patch(facecolor="0.4", alpha=0.8, label=f"wrong (> {failure_m:g} m)"),

@@ -11,6 +11,7 @@ column.
 from __future__ import annotations
 
 import csv
+import json
 import math
 import platform
 import subprocess
@@ -50,11 +51,8 @@ def write_csv(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
     """Write trial rows (flat dicts with the same keys) as CSV, one row per trial."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    keys: list[str] = []
-    for r in rows:
-        keys += [k for k in r if k not in keys]
     with path.open("w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=keys)
+        w = csv.DictWriter(f, fieldnames=list(dict.fromkeys(k for r in rows for k in r)))
         w.writeheader()
         w.writerows(rows)
     return path
@@ -104,42 +102,33 @@ def summarize(rows: Sequence[dict[str, Any]], by: Sequence[str]) -> list[dict[st
     out = []
     for key, g in group_rows(rows, by).items():
         loc = [r for r in g if r["localized"]]
-        te_m, te_s = _mean_std(column(loc, "translation_error_m"))
-        re_m, re_s = _mean_std(column(loc, "rotation_error_deg"))
-        fin_m, fin_s = _mean_std(column(g, "n_final"))
         rej = column(g, "t_rejection_ms")
         rs = column(g, "t_ransac_ms") + column(g, "t_estimation_ms")
         te_all = column(g, "translation_error_m")
-        out.append(
-            {
-                **dict(zip(by, key, strict=True)),
-                "trials": len(g),
-                "localized": len(loc),
-                "failures": int(sum(bool(r["failed"]) for r in g)),
-                "not_localized": len(g) - len(loc),
-                "wrong": int(sum(bool(r["failed"]) for r in loc)),
-                "final_mean": fin_m,
-                "final_std": fin_s,
-                "candidates_mean": float(np.nanmean(column(g, "n_candidates"))),
-                "survivors_mean": float(np.nanmean(column(g, "n_survivors"))),
-                "recall": _mean_std(column(g, "recall"))[0],
-                "precision": _mean_std(column(loc, "precision"))[0],
-                "rejection_ms": float(np.nanmedian(rej)),
-                "ransac_ms": float(np.nanmedian(rs)),
-                "total_ms": float(np.nanmedian(rej + rs)),
-                "pipeline_ms": float(np.nanmedian(column(g, "t_total_ms"))),
-                "te_mean": te_m,
-                "te_std": te_s,
-                "te_median": float(np.nanmedian(te_all)) if np.isfinite(te_all).any() else math.nan,
-                "re_mean": re_m,
-                "re_std": re_s,
-                **(
-                    {"achieved_overlap": float(np.nanmean(column(g, "pair_overlap")))}
-                    if "pair_overlap" in g[0]
-                    else {}
-                ),
-            }
-        )
+        s = {
+            **dict(zip(by, key, strict=True)),
+            "trials": len(g),
+            "localized": len(loc),
+            "failures": int(sum(bool(r["failed"]) for r in g)),
+            "not_localized": len(g) - len(loc),
+            "wrong": int(sum(bool(r["failed"]) for r in loc)),
+            "recall": _mean_std(column(g, "recall"))[0],
+            "precision": _mean_std(column(loc, "precision"))[0],
+            "rejection_ms": float(np.nanmedian(rej)),
+            "ransac_ms": float(np.nanmedian(rs)),
+            "total_ms": float(np.nanmedian(rej + rs)),
+            "pipeline_ms": float(np.nanmedian(column(g, "t_total_ms"))),
+            "te_median": float(np.nanmedian(te_all)) if np.isfinite(te_all).any() else math.nan,
+        }
+        for name, sel, col in (
+            ("final", g, "n_final"),
+            ("te", loc, "translation_error_m"),
+            ("re", loc, "rotation_error_deg"),
+        ):
+            s[f"{name}_mean"], s[f"{name}_std"] = _mean_std(column(sel, col))
+        if "pair_overlap" in g[0]:
+            s["achieved_overlap"] = float(np.nanmean(column(g, "pair_overlap")))
+        out.append(s)
     return out
 
 
@@ -247,16 +236,6 @@ def write_config_yaml(path: str | Path, experiment: dict[str, Any], configs: dic
         },
     }
     path = Path(path)
-    path.write_text(yaml.safe_dump(_plain(doc), sort_keys=False))
+    plain = json.loads(json.dumps(doc, default=lambda x: x.item()))  # numpy scalars, tuples
+    path.write_text(yaml.safe_dump(plain, sort_keys=False))
     return path
-
-
-def _plain(x: Any) -> Any:
-    """YAML-safe: tuples -> lists, numpy scalars -> Python, dict keys -> str."""
-    if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.generic):
-        return x.item()
-    return x

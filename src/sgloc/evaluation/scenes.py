@@ -1,8 +1,8 @@
 """What every evaluation scene is made of: the `Pair`, the random motion of the target map, the
 route overlap, and the registry of pair sources.
 
-The lowest module of `sgloc.evaluation` (it imports none of the others). The map builders sit
-beside their data (`pairs_kitti`, `pairs_sim`, `pairs_synthia`, `pairs`); trials, the acceptance
+Above `metrics` only, below every other module of `sgloc.evaluation`. The map builders sit
+beside their data (`pairs_kitti`, `pairs_sim`, `pairs`); trials, the acceptance
 pair sets, the fleet scenes and the benchmarks all build their pairs from them and from here.
 
 Seeds: a pair source's randomness uses `pair_rng(seed)` = `np.random.default_rng([seed,
@@ -11,14 +11,16 @@ PAIR_STREAM])`; the localizer in a trial uses another stream of the same seed.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
-from sgloc.geometry import invert, random_rigid_transform, transform_error
+from sgloc.evaluation.metrics import pose_errors
+from sgloc.geometry import invert, random_rigid_transform
 from sgloc.graph import SemanticGraph
 
 #: Stream index of the pair's random numbers within a trial seed.
@@ -47,10 +49,9 @@ class Pair:
     def own_frame_errors(self, T_est: np.ndarray | None) -> tuple[float, float]:
         """(translation m, rotation deg) of the estimate T_est (query -> moved target) against
         the ground truth, in the target map's own frame; NaN when there is no estimate."""
-        if T_est is None:
-            return float("nan"), float("nan")
         T_own_moved = invert(self.T_moved_own)
-        return transform_error(T_own_moved @ T_est, T_own_moved @ self.T_target_query)
+        T_own = None if T_est is None else T_own_moved @ T_est
+        return pose_errors(T_own, T_own_moved @ self.T_target_query)
 
 
 PairSource = Callable[[int], Pair]
@@ -64,7 +65,6 @@ def register_pair_source(name: str) -> Callable[[type], type]:
 
     def deco(cls: type) -> type:
         PAIR_SOURCES[name] = cls
-        cls.source_name = name
         return cls
 
     return deco
@@ -105,22 +105,34 @@ def move_target(
 @dataclass(frozen=True)
 class MovedTargetSource:
     """Base of the pair sources that hand the target map over moved by a random rigid transform
-    per trial (see `move_target`)."""
+    per trial: a source names its maps and their ground truth in `maps(seed) -> (query, target,
+    T_target_query0, info)`, and `__call__(seed)` moves the target (`move_target` with
+    `pair_rng(seed)`) and adds `info` to the pair's."""
 
     max_translation: float = MAX_TRANSLATION
     max_roll_pitch_deg: float = MAX_ROLL_PITCH_DEG
+    #: The data set whose folder under SGLOC_DATA is the default `root` (sources with a root).
+    data_set: ClassVar[str | None] = None
 
-    def moved(
-        self, query: SemanticGraph, target: SemanticGraph, T_target_query0: np.ndarray, seed: int
-    ) -> Pair:
-        """The pair of trial `seed`: the target moved by its random transform (`pair_rng`)."""
+    def resolved(self) -> MovedTargetSource:
+        """A copy with `root` made absolute (so remote workers need no SGLOC_DATA)."""
+        if not hasattr(self, "root"):
+            return self
+        return dataclasses.replace(self, root=data_root(self.root, self.data_set))
+
+    def maps(self, seed: int) -> tuple[SemanticGraph, SemanticGraph, np.ndarray, dict[str, Any]]:
+        """(query, target, T_target_query0 in the maps' own frames, info) of trial `seed`."""
+        raise NotImplementedError
+
+    def __call__(self, seed: int) -> Pair:
+        q, t, T0, info = self.resolved().maps(seed)
         rng = pair_rng(seed)
-        return move_target(
-            query, target, T_target_query0, rng, self.max_translation, self.max_roll_pitch_deg
-        )
+        pair = move_target(q, t, T0, rng, self.max_translation, self.max_roll_pitch_deg)
+        pair.info.update(info)
+        return pair
 
 
-def data_root(root: str | None, data_set: str) -> str:
+def data_root(root: str | None, data_set: str | None) -> str:
     """`root` made absolute, or the folder of `data_set` under SGLOC_DATA when it is unset (so
     remote workers need no SGLOC_DATA)."""
     from pathlib import Path

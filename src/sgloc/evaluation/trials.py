@@ -88,7 +88,7 @@ def limit_blas_threads() -> None:
 
 def run_task(task: TrialTask) -> dict[str, Any]:
     """Run one trial and return its row as a flat dict: the task's tags, then dataset, settings,
-    seed, outcome, pose errors, match counts (`MatchStats`), recall/precision, stage times (ms),
+    seed, outcome, pose errors, match counts and recall/precision (`match_stats`), stage times (ms),
     the call's CPU time, the localizer's reason, then the pair's info as pair_* columns.
 
     translation_error_m / rotation_error_deg: of T_est @ inv(T_gt) in the target map's own
@@ -100,12 +100,11 @@ def run_task(task: TrialTask) -> dict[str, Any]:
     pair = _source(task.dataset, task.dataset_params)(task.seed)
     cfg = LocalizerConfig.from_dict(task.config)
     localizer = Localizer(cfg)
-    timings: list[dict[str, float]] = []
-    cpu = []
+    clock = time.thread_time if task.clock == "cpu" else time.perf_counter
+    timings, cpu = [], []
     for _ in range(max(1, task.repeats)):
         rng = np.random.default_rng([int(task.seed), LOCALIZER_STREAM])
         c0 = time.thread_time()
-        clock = time.thread_time if task.clock == "cpu" else time.perf_counter
         res = localizer(pair.query, pair.target, rng, clock=clock)
         cpu.append(time.thread_time() - c0)
         timings.append(res.timings)
@@ -126,7 +125,7 @@ def run_task(task: TrialTask) -> dict[str, Any]:
         "translation_error_m": te,
         "rotation_error_deg": re,
         "translation_error_moved_m": te_moved,
-        **st.to_dict(),
+        **st,
         **{f"t_{k}_ms": ms.get(k, float("nan")) for k in STAGES},
         "t_cpu_ms": 1e3 * min(cpu),
         "reason": res.reason,
@@ -139,24 +138,21 @@ Progress = Callable[[int], None]
 
 
 def prepare_tasks(tasks: Sequence[TrialTask]) -> list[TrialTask]:
-    """The first trial of each distinct world the trials need, for sources with a
-    `prepare(seed)` method (e.g. render a synthetic world once) and a `world(seed)` naming the
-    cached item; empty for the others. Run them with `run_tasks(..., fn=run_prepare)`."""
-    out, seen = [], set()
+    """The first trial of each distinct world the trials need, for sources whose pairs come
+    from an expensive disk-cached world (a `world(seed)` method, e.g. a rendered city); empty
+    for the others. Run them with `run_tasks(..., fn=run_prepare)` to build each world once."""
+    first: dict[tuple, TrialTask] = {}
     for t in tasks:
         src = _source(t.dataset, t.dataset_params)
-        if not hasattr(src, "prepare"):
-            continue
-        key = (t.dataset, repr(sorted(t.dataset_params.items())), src.world(t.seed))
-        if key not in seen:
-            seen.add(key)
-            out.append(t)
-    return out
+        if hasattr(src, "world"):
+            key = (t.dataset, repr(sorted(t.dataset_params.items())), src.world(t.seed))
+            first.setdefault(key, t)
+    return list(first.values())
 
 
-def run_prepare(task: TrialTask) -> str:
-    """Warm the pair source's cache for the task's seed (picklable entry point)."""
-    return _source(task.dataset, task.dataset_params).prepare(task.seed)
+def run_prepare(task: TrialTask) -> None:
+    """Build the task's pair once, so that its world is in the cache (picklable entry point)."""
+    _source(task.dataset, task.dataset_params)(task.seed)
 
 
 def run_tasks(
@@ -185,13 +181,18 @@ def run_tasks(
             rows.append(fn(t))
             tick(1)
         return rows
-    rows: list[dict[str, Any] | None] = [None] * len(tasks)
     with ProcessPoolExecutor(max_workers=min(workers, len(tasks))) as pool:
-        futures = {pool.submit(fn, t): i for i, t in enumerate(tasks)}
-        for fut in as_completed(futures):
-            rows[futures[fut]] = fut.result()
-            tick(1)
-    return rows  # type: ignore[return-value]
+        return _collect([pool.submit(fn, t) for t in tasks], as_completed, tick)
+
+
+def _collect(futures: list[Any], completed: Callable, tick: Progress) -> list[Any]:
+    """The futures' results in their order, calling tick(1) as each completes (any order)."""
+    index = {getattr(f, "key", f): i for i, f in enumerate(futures)}  # Dask futures by key
+    rows: list[Any] = [None] * len(futures)
+    for fut in completed(futures):
+        rows[index[getattr(fut, "key", fut)]] = fut.result()
+        tick(1)
+    return rows
 
 
 def _run_dask(tasks: list[Any], scheduler: Any, tick: Progress, fn: Callable) -> list[Any]:
@@ -210,13 +211,7 @@ def _run_dask(tasks: list[Any], scheduler: Any, tick: Progress, fn: Callable) ->
             "`dask scheduler` and `dask worker ADDRESS`) or drop --scheduler to run locally."
         ) from None
     try:
-        futures = client.map(fn, tasks, pure=False)
-        index = {f.key: i for i, f in enumerate(futures)}
-        rows: list[dict[str, Any] | None] = [None] * len(tasks)
-        for fut in dask_completed(futures):
-            rows[index[fut.key]] = fut.result()
-            tick(1)
-        return rows  # type: ignore[return-value]
+        return _collect(client.map(fn, tasks, pure=False), dask_completed, tick)
     finally:
         if own:
             client.close()

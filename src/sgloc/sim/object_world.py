@@ -40,6 +40,26 @@ def make_object_world(
     return np.concatenate(pts), np.concatenate(labs)
 
 
+def observe_street(
+    pos: np.ndarray,
+    lab: np.ndarray,
+    x0: float,
+    x1: float,
+    rng: np.random.Generator,
+    view_radius: float = 40.0,
+    keep_probability: float = 0.85,
+    noise: float = 0.5,
+    name: str = "",
+) -> SemanticGraph:
+    """The map of a robot driving the main street from x = x0 to x1 (metres) past the objects
+    (pos, lab): those within `view_radius` of its path, each kept with probability
+    `keep_probability`, positions with Gaussian `noise` (metres), in the world frame."""
+    d = np.hypot(np.clip(pos[:, 0], x0, x1) - pos[:, 0], pos[:, 1])
+    seen = (d < view_radius) & (rng.random(len(pos)) < keep_probability)
+    p = pos[seen] + rng.normal(0, noise, (int(seen.sum()), 3))
+    return SemanticGraph(p, lab[seen], name=name)
+
+
 @dataclass
 class TwoRobotScene:
     """Two robots' graphs, each in its own frame, and the ground truth T_target_query."""
@@ -66,14 +86,9 @@ def make_two_robot_scene(
     a0 = view_radius
     b0 = a0 + stretch * (1 - overlap)
 
-    def observe(x0: float, name: str) -> SemanticGraph:
-        d = np.hypot(np.clip(pos[:, 0], x0, x0 + stretch) - pos[:, 0], pos[:, 1])
-        seen = (d < view_radius) & (rng.random(len(pos)) < keep_probability)
-        p = pos[seen] + rng.normal(0, noise, (seen.sum(), 3))
-        return SemanticGraph(p, lab[seen], name=name)
-
-    world_target = observe(a0, "robot_a")
-    world_query = observe(b0, "robot_b")
+    view = (view_radius, keep_probability, noise)
+    world_target = observe_street(pos, lab, a0, a0 + stretch, rng, *view, name="robot_a")
+    world_query = observe_street(pos, lab, b0, b0 + stretch, rng, *view, name="robot_b")
     # Each robot's map frame is a random rigid motion of the world frame.
     T_world_a = random_rigid_transform(rng, 100.0, 3.0)
     T_world_b = random_rigid_transform(rng, 100.0, 3.0)
