@@ -235,6 +235,28 @@ def fit_model(
 
 
 @njit(cache=True, nogil=True)
+def _biweight_step(
+    u: np.ndarray, prior: np.ndarray, w_prev: np.ndarray, have_prev: bool
+) -> tuple[np.ndarray, bool]:
+    """One IRLS reweighting: Tukey biweights prior * (1 - u^2)^2 of the scaled residuals u, and
+    whether to stop (fewer than 3 positive weights, or no weight moved by more than 1e-6)."""
+    m = u.shape[0]
+    w = np.empty(m)
+    n_pos = 0
+    for i in range(m):
+        w[i] = prior[i] * ((1.0 - u[i] * u[i]) ** 2 if u[i] < 1.0 else 0.0)
+        n_pos += w[i] != 0.0
+    if n_pos < 3:
+        return w, True
+    if not have_prev:
+        return w, False
+    for i in range(m):
+        if not abs(w[i] - w_prev[i]) <= 1e-6:
+            return w, False
+    return w, True
+
+
+@njit(cache=True, nogil=True)
 def irls_model(
     src: np.ndarray,
     dst: np.ndarray,
@@ -254,23 +276,9 @@ def irls_model(
         sigma = 1.4826 * median(r)
         if sigma <= 1e-12:
             break
-        c = 4.685 * sigma
-        w = np.empty(m)
-        n_pos = 0
-        for i in range(m):
-            u = r[i] / c
-            w[i] = prior[i] * ((1.0 - u * u) ** 2 if u < 1.0 else 0.0)
-            n_pos += w[i] != 0.0
-        if n_pos < 3:
+        w, stop = _biweight_step(r / (4.685 * sigma), prior, w_prev, have_prev)
+        if stop:
             break
-        if have_prev:
-            same = True
-            for i in range(m):
-                if not abs(w[i] - w_prev[i]) <= 1e-6:
-                    same = False
-                    break
-            if same:
-                break
         w_prev, have_prev = w, True
         T_new = fit_model(src, dst, w, dof, max_tilt)
         change = 0.0
@@ -455,23 +463,10 @@ def irls_class_scaled(
         if sigma <= 1e-12:
             break
         s_xy, s_z = class_scales(d, cls, n_cls, sigma, height_only, min_matches, min_ratio)
-        w = np.empty(m)
-        n_pos = 0
-        for i in range(m):
-            u2 = (d[i, 0] ** 2 + d[i, 1] ** 2) / s_xy[i] ** 2 + d[i, 2] ** 2 / s_z[i] ** 2
-            u = np.sqrt(u2) / 4.685
-            w[i] = prior[i] * ((1.0 - u * u) ** 2 if u < 1.0 else 0.0)
-            n_pos += w[i] != 0.0
-        if n_pos < 3:
+        u = np.sqrt((d[:, 0] ** 2 + d[:, 1] ** 2) / s_xy**2 + d[:, 2] ** 2 / s_z**2) / 4.685
+        w, stop = _biweight_step(u, prior, w_prev, have_prev)
+        if stop:
             break
-        if have_prev:
-            same = True
-            for i in range(m):
-                if not abs(w[i] - w_prev[i]) <= 1e-6:
-                    same = False
-                    break
-            if same:
-                break
         w_prev, have_prev = w, True
         T_new = anisotropic_fit(src, dst, T, w / s_xy**2, w / s_z**2, dof, max_tilt, 5)
         change = np.abs(T_new - T).max()
