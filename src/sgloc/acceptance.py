@@ -112,6 +112,11 @@ class AcceptanceConfig:
         of its right matches are distinctive (`ratio_for`). 0: no query is small. Measured on
         the hard-case benchmark's tuning pairs and on small crops of non-overlapping maps
         (docs/acceptance.md): 0.9 or no filter gave false accepts in repetitive places.
+    small_exclusion: metres; for a small query, the ratio test's rival is the best same-class
+        target farther than this from the candidate's target (`sgloc.distinctive`): a near tie
+        with a neighbour in the same place is no ambiguity about the place. 0: the second
+        best of the class. (Measured: for large queries too it let 2 of 480 non-overlapping
+        pairs of the rendered city through.)
     """
 
     enabled: bool = True
@@ -124,6 +129,7 @@ class AcceptanceConfig:
     distinct_ratio: float | None = 0.8
     small_query: int = 30
     small_distinct_ratio: float | None = 0.85
+    small_exclusion: float = 10.0
 
     def __post_init__(self) -> None:
         validate_settings(self)  # type, range, finiteness of every field (sgloc.validation)
@@ -147,6 +153,11 @@ class AcceptanceConfig:
         if n_query < self.small_query and self.distinct_ratio is not None:
             return self.small_distinct_ratio
         return self.distinct_ratio
+
+    def exclusion_for(self, n_query: int) -> float:
+        """Metres around a candidate's target where no rival is sought, for a query graph of
+        `n_query` objects: `small_exclusion` below `small_query` objects, else 0."""
+        return float(self.small_exclusion) if n_query < self.small_query else 0.0
 
 
 @dataclass

@@ -14,6 +14,7 @@ from sgloc.acceptance import assess
 from sgloc.canonical import CanonicalPair
 from sgloc.config import LocalizerConfig
 from sgloc.descriptors import make_descriptor
+from sgloc.distinctive import spatially_distinct
 from sgloc.errors import DegenerateGeometryError, InvalidGraphError, SglocError
 from sgloc.estimation import (
     check_not_degenerate,
@@ -164,7 +165,15 @@ class Localizer:
             if flag_ratio is not None:
                 # Only distinctive matches count as evidence: in a repetitive place near-tied
                 # matches line up with a wrong alignment as readily as with the right one.
-                if distinct is not None:
+                exclusion = cfg.acceptance.exclusion_for(len(query))
+                if exclusion > 0:  # rivals only at other places (sgloc.distinctive)
+                    tested = candidates[
+                        spatially_distinct(
+                            dq, dt, target.labels, target.positions, candidates, flag_ratio,
+                            exclusion,
+                        )
+                    ]
+                elif distinct is not None:
                     tested = candidates[distinct]
                 else:
                     strict = dataclasses.replace(cfg.matching, max_ratio=flag_ratio)

@@ -249,6 +249,7 @@ SETTINGS: dict[str, dict[str, Any]] = {
         "distinct_ratio": _real(0.0, 1.0, low_open=True, none_ok=True),
         "small_query": _int(0, MAX_VERTICES),
         "small_distinct_ratio": _real(0.0, 1.0, low_open=True, none_ok=True),
+        "small_exclusion": _real(0.0, MAX_COORDINATE, unit="m"),
     },
     "DistanceHistogramDescriptor": {
         "radius": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
