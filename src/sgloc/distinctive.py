@@ -10,8 +10,6 @@ repetitive city), not for its own neighbours.
 
 from __future__ import annotations
 
-from itertools import chain
-
 import numpy as np
 
 #: Similarities held at once per block (8 MB of float64).
@@ -37,8 +35,6 @@ def spatially_distinct(
     of the descriptors, s_2 = the best similarity of query i to a target of j's class farther
     than `exclusion` metres from target j (none: passes). exclusion 0: the usual ratio test
     against the second best target of the class (for top-1 candidates)."""
-    from scipy.spatial import cKDTree  # deferred: scipy.spatial loads in ~0.2 s
-
     cand = np.asarray(candidates, dtype=np.int64).reshape(-1, 2)
     out = np.ones(len(cand), dtype=bool)
     if len(cand) == 0:
@@ -48,21 +44,17 @@ def spatially_distinct(
     for c in np.unique(tlab):
         rows = np.flatnonzero(tlab == c)
         members = np.flatnonzero(labels_t == c)
-        local = np.searchsorted(members, cand[rows, 1])  # j's index among its class
-        tree = cKDTree(target_positions[members])
-        near = tree.query_ball_point(target_positions[cand[rows, 1]], exclusion)
-        TcT = np.ascontiguousarray(T[members].T)
+        TcT, Pc = np.ascontiguousarray(T[members].T), target_positions[members]
+        pc2 = np.einsum("ij,ij->i", Pc, Pc)
         step = max(1, _BLOCK_ENTRIES // max(len(members), 1))
         for s in range(0, len(rows), step):
-            block = slice(s, s + step)
-            r = rows[block]
+            r = rows[s : s + step]
             S = Q[cand[r, 0]] @ TcT
-            s1 = S[np.arange(len(r)), local[block]]
-            counts = np.fromiter((len(n) for n in near[block]), np.int64, len(r))
-            if counts.sum():
-                cols = np.fromiter(chain.from_iterable(near[block]), np.int64, int(counts.sum()))
-                S[np.repeat(np.arange(len(r)), counts), cols] = -np.inf
-            S[np.arange(len(r)), local[block]] = -np.inf  # the candidate itself is no rival
+            s1 = np.einsum("ij,ij->i", Q[cand[r, 0]], T[cand[r, 1]])
+            # Targets within `exclusion` of the candidate's target (itself included): no rivals.
+            pj = target_positions[cand[r, 1]]
+            d2 = np.einsum("ij,ij->i", pj, pj)[:, None] + pc2[None, :] - 2.0 * (pj @ Pc.T)
+            S[d2 <= exclusion**2 + 1e-9] = -np.inf
             s2 = S.max(axis=1)
             out[r] = ~np.isfinite(s2) | ((1.0 - s1) <= ratio * (1.0 - s2))
     return out
