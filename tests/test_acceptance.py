@@ -179,3 +179,62 @@ def test_permutation_null_leaves_the_candidate_out():
     lam1 = permutation_lambda(np.array([1.0]), np.array([True]), np.array([1]), np.array([0.0]),
                               chance)  # fmt: skip
     assert lam1 == 0.0
+
+
+def test_small_queries_use_the_small_query_ratio():
+    cfg = AcceptanceConfig(distinct_ratio=0.8, small_query=30, small_distinct_ratio=0.85)
+    assert cfg.ratio_for(29) == 0.85 and cfg.ratio_for(30) == 0.8 and cfg.ratio_for(500) == 0.8
+    assert AcceptanceConfig(small_query=0).ratio_for(3) == 0.8  # 0: no query is small
+    assert AcceptanceConfig(small_distinct_ratio=None).ratio_for(5) is None  # all candidates
+    assert AcceptanceConfig(distinct_ratio=None).ratio_for(5) is None  # filter off altogether
+
+
+def _pair_positions(query, target, candidates) -> set:
+    """Candidates as (query position, target position) tuples: independent of vertex order."""
+    c = np.asarray(candidates).reshape(-1, 2)
+    both = np.hstack([query.positions[c[:, 0]], target.positions[c[:, 1]]]).round(9)
+    return {tuple(row) for row in both}
+
+
+def _tested_candidates(monkeypatch, query, target, **settings) -> set:
+    """The candidates the localizer hands to the acceptance test (`_pair_positions`)."""
+    import sgloc.localizer as loc
+
+    seen = []
+
+    def spy(q, t, tested, *args, **kwargs):
+        seen.append(_pair_positions(q, t, tested))
+        return assess(q, t, tested, *args, **kwargs)
+
+    monkeypatch.setattr(loc, "assess", spy)
+    localize(query, target, seed=0, **settings)
+    assert seen, "the acceptance test was not reached"
+    return seen[0]
+
+
+@pytest.mark.parametrize("n_query", [20, 60])
+def test_localizer_tests_a_small_query_with_the_looser_ratio(monkeypatch, n_query):
+    from sgloc.descriptors import DistanceHistogramDescriptor
+    from sgloc.distinctive import spatially_distinct
+    from sgloc.matching import MatchingConfig, match_descriptors
+
+    # A repetitive map (one 60 m block of 40 objects tiled 4 x 4, jittered by 1 m): near ties.
+    gen = np.random.default_rng(3)
+    block = gen.uniform(0, 60, (40, 3)) * [1, 1, 0.02]
+    tiles = [block + [60 * i, 60 * j, 0] for i in range(4) for j in range(4)]
+    pos = np.concatenate(tiles) + gen.normal(0, 1.0, (640, 3)) * [1, 1, 0]
+    target = SemanticGraph(pos, np.tile(gen.integers(0, 3, 40), 16))
+    query = target.subgraph(np.argsort(np.linalg.norm(pos - [120, 120, 0], axis=1))[:n_query])
+    tested = _tested_candidates(monkeypatch, query, target, acceptance_min_confidence=0.0)
+
+    d = DistanceHistogramDescriptor()
+    dq, dt = d(query, 3, gen), d(target, 3, gen)
+    cand = match_descriptors(dq, dt, query.labels, target.labels)[0]
+    strict = match_descriptors(
+        dq, dt, query.labels, target.labels, MatchingConfig(max_ratio=0.8)
+    )[0]
+    # Small queries: ratio 0.85 against rivals farther than 10 m from the candidate's target.
+    loose = cand[spatially_distinct(dq, dt, target.labels, target.positions, cand, 0.85, 10.0)]
+    assert len(loose) > len(strict)  # the two tests differ on this map: the check can fail
+    expected = loose if n_query < AcceptanceConfig().small_query else strict
+    assert tested == _pair_positions(query, target, expected)

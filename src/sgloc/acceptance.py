@@ -106,6 +106,17 @@ class AcceptanceConfig:
         the ratio test (1 - s_1) / (1 - s_2) <= distinct_ratio (`MatchingConfig.max_ratio`): in a
         repetitive place near-tied matches support a wrong alignment as readily as the right
         one. None: every candidate.
+    small_query, small_distinct_ratio: a query graph with fewer than `small_query` objects (one
+        scan, a short stretch) is tested with the looser ratio `small_distinct_ratio` (None:
+        every candidate counts): its objects see only part of their neighbourhood, so fewer
+        of its right matches are distinctive (`ratio_for`). 0: no query is small. Measured on
+        the hard-case benchmark's tuning pairs and on small crops of non-overlapping maps
+        (docs/acceptance.md): 0.9 or no filter gave false accepts in repetitive places.
+    small_exclusion: metres; for a small query, the ratio test's rival is the best same-class
+        target farther than this from the candidate's target (`sgloc.distinctive`): a near tie
+        with a neighbour in the same place is no ambiguity about the place. 0: the second
+        best of the class. (Measured: for large queries too it let 2 of 480 non-overlapping
+        pairs of the rendered city through.)
     """
 
     enabled: bool = True
@@ -116,6 +127,9 @@ class AcceptanceConfig:
     distinct_rotation: float = 10.0
     runner_up_samples: int = 128
     distinct_ratio: float | None = 0.8
+    small_query: int = 30
+    small_distinct_ratio: float | None = 0.85
+    small_exclusion: float = 10.0
 
     def __post_init__(self) -> None:
         validate_settings(self)  # type, range, finiteness of every field (sgloc.validation)
@@ -131,6 +145,19 @@ class AcceptanceConfig:
 
     def get_params(self) -> dict:
         return asdict(self)
+
+    def ratio_for(self, n_query: int) -> float | None:
+        """The distinctiveness ratio for a query graph of `n_query` objects (None: every
+        candidate is evidence): `small_distinct_ratio` below `small_query` objects, else
+        `distinct_ratio`."""
+        if n_query < self.small_query and self.distinct_ratio is not None:
+            return self.small_distinct_ratio
+        return self.distinct_ratio
+
+    def exclusion_for(self, n_query: int) -> float:
+        """Metres around a candidate's target where no rival is sought, for a query graph of
+        `n_query` objects: `small_exclusion` below `small_query` objects, else 0."""
+        return float(self.small_exclusion) if n_query < self.small_query else 0.0
 
 
 @dataclass

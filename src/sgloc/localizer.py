@@ -14,6 +14,7 @@ from sgloc.acceptance import assess
 from sgloc.canonical import CanonicalPair
 from sgloc.config import LocalizerConfig
 from sgloc.descriptors import make_descriptor
+from sgloc.distinctive import spatially_distinct
 from sgloc.errors import DegenerateGeometryError, InvalidGraphError, SglocError
 from sgloc.estimation import (
     check_not_degenerate,
@@ -123,8 +124,9 @@ class Localizer:
         timings["descriptors"] = t1 - t0
 
         # Also flags the candidates the acceptance test counts (its ratio test): one pass.
+        flag_ratio = cfg.acceptance.ratio_for(len(query))
         candidates, scores, distinct = match_flagged(
-            dq, dt, query.labels, target.labels, cfg.matching, cfg.acceptance.distinct_ratio
+            dq, dt, query.labels, target.labels, cfg.matching, flag_ratio
         )
         t2 = clock()
         timings["matching"] = t2 - t1
@@ -160,14 +162,21 @@ class Localizer:
         confidence = None
         if transform is not None and cfg.acceptance.enabled:
             tested = candidates
-            if cfg.acceptance.distinct_ratio is not None:
+            if flag_ratio is not None:
                 # Only distinctive matches count as evidence: in a repetitive place near-tied
                 # matches line up with a wrong alignment as readily as with the right one.
-                if distinct is not None:
+                exclusion = cfg.acceptance.exclusion_for(len(query))
+                if exclusion > 0:  # rivals only at other places (sgloc.distinctive)
+                    tested = candidates[
+                        spatially_distinct(
+                            dq, dt, target.labels, target.positions, candidates, flag_ratio,
+                            exclusion,
+                        )
+                    ]
+                elif distinct is not None:
                     tested = candidates[distinct]
                 else:
-                    ratio = cfg.acceptance.distinct_ratio
-                    strict = dataclasses.replace(cfg.matching, max_ratio=ratio)
+                    strict = dataclasses.replace(cfg.matching, max_ratio=flag_ratio)
                     tested = match_descriptors(dq, dt, query.labels, target.labels, strict)[0]
             verdict = assess(
                 query,

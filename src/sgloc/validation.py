@@ -258,6 +258,9 @@ SETTINGS: dict[str, dict[str, Any]] = {
         "distinct_rotation": _real(0.0, 180.0, unit="degrees"),
         "runner_up_samples": _int(0, MAX_ITERATIONS),
         "distinct_ratio": _real(0.0, 1.0, low_open=True, none_ok=True),
+        "small_query": _int(0, MAX_VERTICES),
+        "small_distinct_ratio": _real(0.0, 1.0, low_open=True, none_ok=True),
+        "small_exclusion": _real(0.0, MAX_COORDINATE, unit="m"),
     },
     "DistanceHistogramDescriptor": {
         "radius": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),

@@ -1,0 +1,60 @@
+"""Which candidate matches are distinctive: the ratio test against rivals at *other places*.
+
+Lowe's ratio test keeps a match when it is clearly better than the second best. Against a map,
+the second best is often a neighbour of the best target (two trees of one row, 6 m apart): a
+near tie between objects of one place, not an ambiguity about the place. `spatially_distinct`
+takes the rival only among the same-class targets farther than `exclusion` metres from the
+candidate's target, so a match is refused for a look-alike elsewhere (another block of a
+repetitive city), not for its own neighbours.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Similarities held at once per block (8 MB of float64).
+_BLOCK_ENTRIES = 1 << 20
+
+
+def _unit_rows(D) -> np.ndarray:
+    D = D.toarray() if hasattr(D, "toarray") else np.asarray(D, dtype=np.float64)
+    norms = np.linalg.norm(D, axis=1)
+    return D * np.divide(1.0, norms, out=np.zeros_like(norms), where=norms > 0)[:, None]
+
+
+def spatially_distinct(
+    desc_q,
+    desc_t,
+    labels_t: np.ndarray,
+    target_positions: np.ndarray,
+    candidates: np.ndarray,
+    ratio: float,
+    exclusion: float,
+) -> np.ndarray:
+    """(m,) bool: candidate (i, j) passes (1 - s_ij) <= ratio * (1 - s_2), s = cosine similarity
+    of the descriptors, s_2 = the best similarity of query i to a target of j's class farther
+    than `exclusion` metres from target j (none: passes). exclusion 0: the usual ratio test
+    against the second best target of the class (for top-1 candidates)."""
+    cand = np.asarray(candidates, dtype=np.int64).reshape(-1, 2)
+    out = np.ones(len(cand), dtype=bool)
+    if len(cand) == 0:
+        return out
+    Q, T = _unit_rows(desc_q), _unit_rows(desc_t)
+    tlab = labels_t[cand[:, 1]]
+    for c in np.unique(tlab):
+        rows = np.flatnonzero(tlab == c)
+        members = np.flatnonzero(labels_t == c)
+        TcT, Pc = np.ascontiguousarray(T[members].T), target_positions[members]
+        pc2 = np.einsum("ij,ij->i", Pc, Pc)
+        step = max(1, _BLOCK_ENTRIES // max(len(members), 1))
+        for s in range(0, len(rows), step):
+            r = rows[s : s + step]
+            S = Q[cand[r, 0]] @ TcT
+            s1 = np.einsum("ij,ij->i", Q[cand[r, 0]], T[cand[r, 1]])
+            # Targets within `exclusion` of the candidate's target (itself included): no rivals.
+            pj = target_positions[cand[r, 1]]
+            d2 = np.einsum("ij,ij->i", pj, pj)[:, None] + pc2[None, :] - 2.0 * (pj @ Pc.T)
+            S[d2 <= exclusion**2 + 1e-9] = -np.inf
+            s2 = S.max(axis=1)
+            out[r] = ~np.isfinite(s2) | ((1.0 - s1) <= ratio * (1.0 - s2))
+    return out
