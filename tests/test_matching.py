@@ -1,10 +1,8 @@
 """Cosine-similarity matching: same class only, threshold, top-k, mutual."""
 
 import numpy as np
-import pytest
 
-from sgloc import kernels
-from sgloc.matching import MatchingConfig, cosine_similarity, match_descriptors, match_flagged
+from sgloc.matching import MatchingConfig, cosine_similarity, match_descriptors
 
 
 def test_cosine_similarity_same_class_only():
@@ -110,53 +108,3 @@ def test_matching_memory_is_linear_in_the_vertices():
     assert len(m) == 2 * n
     assert peak < 60e6, peak
 
-
-def _descriptor_pair(seed: int, n_q: int, n_t: int, d: int = 24):
-    """Sparse-ish non-negative descriptors with exact ties (duplicated rows), zero rows, and
-    class ids that are large, unsorted and partly present on one side only."""
-    rng = np.random.default_rng(seed)
-    dq = rng.random((n_q, d)) * (rng.random((n_q, d)) < 0.4)
-    dt = rng.random((n_t, d)) * (rng.random((n_t, d)) < 0.4)
-    dt[1::7] = dt[::7][: len(dt[1::7])]  # duplicated targets: tied similarities
-    dq[3::11] = dt[5::11][: len(dq[3::11])]  # exact copies: similarity 1
-    dq[::13] = 0.0
-    ids = np.array([7, 1_000_003, 2, 40])
-    lq = ids[rng.integers(0, 3, n_q)]
-    lt = ids[rng.integers(1, 4, n_t)]
-    return dq, dt, lq, lt
-
-
-@pytest.mark.parametrize("seed", [0, 1, 2])
-@pytest.mark.parametrize(
-    "cfg, flag_ratio",
-    [
-        (MatchingConfig(), None),
-        (MatchingConfig(), 0.8),
-        (MatchingConfig(min_similarity=0.2, top_k=3), 0.9),
-        (MatchingConfig(min_similarity=0.3, top_k=2, mutual=True), None),
-        (MatchingConfig(min_similarity=0.1, top_k=4, max_ratio=0.9), 0.7),
-        (MatchingConfig(min_similarity=0.0, max_ratio=0.95), None),
-    ],
-)
-def test_compiled_top_k_equals_reference(monkeypatch, seed, cfg, flag_ratio):
-    """The kernel (`sgloc.kernels.matching`) keeps the same candidates, in the same order, with
-    the same flags and similarities to rounding, as the numpy blocks (ties included)."""
-    dq, dt, lq, lt = _descriptor_pair(seed, 90 + 17 * seed, 120)
-    out = {}
-    for path in ("reference", "compiled"):
-        monkeypatch.setattr(kernels, "FORCE", path)
-        out[path] = match_flagged(dq, dt, lq, lt, cfg, flag_ratio)
-    (ma, sa, fa), (mb, sb, fb) = out["reference"], out["compiled"]
-    assert len(ma) > 20
-    np.testing.assert_array_equal(ma, mb)
-    np.testing.assert_allclose(sa, sb, rtol=0, atol=1e-12)
-    np.testing.assert_array_equal(fa, fb)
-
-
-def test_compiled_top_k_handles_empty_and_disjoint_classes(monkeypatch):
-    monkeypatch.setattr(kernels, "FORCE", "compiled")
-    d = np.ones((3, 4))
-    m, s = match_descriptors(d, d, np.array([0, 0, 0]), np.array([1, 1, 1]))
-    assert m.shape == (0, 2) and s.shape == (0,)
-    m, s = match_descriptors(d[:0], d, np.zeros(0, int), np.array([1, 1, 1]))
-    assert m.shape == (0, 2)

@@ -76,6 +76,7 @@ from sgloc.estimation import (
 )
 from sgloc.geometry import apply
 from sgloc.graph import SemanticGraph
+from sgloc.kernels import use_compiled
 from sgloc.validation import validate_settings
 
 _LN10 = np.log(10.0)
@@ -158,24 +159,47 @@ class _ChanceModel:
     same-class target objects within the radius of each moved query object."""
 
     def __init__(self, target: SemanticGraph, radius: float, n_classes: int) -> None:
-        from scipy.spatial import cKDTree
-
-        self.tree = cKDTree(target.positions)
+        self.positions = target.positions
         self.labels = target.labels
         self.n_classes = n_classes
         self.class_count = np.bincount(target.labels, minlength=n_classes).astype(np.float64)
         self.radius = radius
+        # The neighbour search: compiled (a grid per call) or by KD-trees (the reference).
+        self.compiled = use_compiled(len(target))
+        self.tree = None
 
     def near_counts(
         self, moved: np.ndarray, weights: tuple[np.ndarray | None, ...] = (None,)
     ) -> list[np.ndarray]:
         """For each entry of `weights`: (n, n_classes) number (None) or summed weights of the
-        class-c target objects within the radius of each point of `moved` (n,3)."""
+        class-c target objects within the radius (distance <= radius) of each point of `moved`
+        (n,3)."""
+        if self.compiled and len(weights) <= 2 and weights[0] is None:
+            from sgloc.kernels.neighbors import near_class_counts
+
+            w = weights[1] if len(weights) == 2 else None
+            counts, summed = near_class_counts(
+                np.ascontiguousarray(moved, dtype=np.float64),
+                self.positions,
+                np.asarray(self.labels, dtype=np.int64),
+                self.n_classes,
+                float(self.radius),
+                np.zeros(0) if w is None else np.asarray(w, dtype=np.float64),
+            )
+            return [counts, summed][: len(weights)]
+        return self.near_counts_reference(moved, weights)
+
+    def near_counts_reference(
+        self, moved: np.ndarray, weights: tuple[np.ndarray | None, ...] = (None,)
+    ) -> list[np.ndarray]:
+        """`near_counts` by KD-trees (scipy), the reference of the compiled search."""
         n, k = len(moved), self.n_classes
         if n == 0:
             return [np.zeros((0, k)) for _ in weights]
         from scipy.spatial import cKDTree
 
+        if self.tree is None:
+            self.tree = cKDTree(self.positions)
         pairs = cKDTree(moved).sparse_distance_matrix(self.tree, self.radius, output_type="ndarray")
         i, j = pairs["i"], pairs["j"]
         cell = i * k + self.labels[j]

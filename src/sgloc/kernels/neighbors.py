@@ -1,0 +1,73 @@
+"""Per-class counts of the points near each query point (numba): the acceptance test's
+chance model without a KD-tree per call.
+
+The points are bucketed on an xy grid of cells at least the radius wide (sorted cell keys), so
+each query point scans the 3 x 3 cells around its own. A pair counts when its squared distance
+dx*dx + dy*dy + dz*dz <= radius * radius, in float64, the test (and the rounding) of
+scipy's cKDTree.sparse_distance_matrix.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+#: Cells are this much wider than the radius, so that rounding in the cell index never puts
+#: two points within the radius more than one cell apart.
+_CELL_MARGIN = 1.0 + 2.0**-10
+#: Largest number of cells per axis (cell keys stay far inside int64).
+_MAX_CELLS = 2**30
+
+
+@njit(cache=True, nogil=True)
+def near_class_counts(
+    query: np.ndarray,
+    points: np.ndarray,
+    labels: np.ndarray,
+    n_classes: int,
+    radius: float,
+    weights: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(counts, weighted), each (n_query, n_classes) float64: per query point (n_query,3) and
+    class c, the number of `points` (n,3) of label c within `radius` (distance <= radius), and
+    the sum of their `weights` (n,) (an empty `weights`: the second array stays zero)."""
+    n_q = query.shape[0]
+    counts = np.zeros((n_q, n_classes))
+    weighted = np.zeros((n_q, n_classes))
+    n = points.shape[0]
+    if n == 0 or n_q == 0:
+        return counts, weighted
+    x0, y0 = points[:, 0].min(), points[:, 1].min()
+    extent = max(points[:, 0].max() - x0, points[:, 1].max() - y0)
+    cell = max(radius * _CELL_MARGIN, extent / _MAX_CELLS)
+    n_y = np.int64(np.floor((points[:, 1].max() - y0) / cell)) + 3  # y cells, one spare each side
+    keys = np.empty(n, dtype=np.int64)
+    for j in range(n):
+        cx = np.int64(np.floor((points[j, 0] - x0) / cell)) + 1
+        cy = np.int64(np.floor((points[j, 1] - y0) / cell)) + 1
+        keys[j] = cx * n_y + cy
+    order = np.argsort(keys)
+    sorted_keys = keys[order]
+    n_x = sorted_keys[-1] // n_y + 2
+    use_weights = weights.shape[0] == n
+    r2 = radius * radius
+    for i in range(n_q):
+        qx, qy, qz = query[i, 0], query[i, 1], query[i, 2]
+        fx, fy = np.floor((qx - x0) / cell) + 1, np.floor((qy - y0) / cell) + 1
+        if not (fx >= 0 and fx <= n_x and fy >= 0 and fy <= n_y - 1):
+            continue  # a cell away from every point: nothing within the radius (or NaN)
+        cx, cy = np.int64(fx), np.int64(fy)
+        for dx_cell in range(-1, 2):
+            lo_key = (cx + dx_cell) * n_y + max(cy - 1, 0)
+            hi_key = (cx + dx_cell) * n_y + min(cy + 1, n_y - 1)
+            start = np.searchsorted(sorted_keys, lo_key)
+            for s in range(start, n):
+                if sorted_keys[s] > hi_key:
+                    break
+                j = order[s]
+                dx, dy, dz = qx - points[j, 0], qy - points[j, 1], qz - points[j, 2]
+                if dx * dx + dy * dy + dz * dz <= r2:
+                    counts[i, labels[j]] += 1.0
+                    if use_weights:
+                        weighted[i, labels[j]] += weights[j]
+    return counts, weighted
