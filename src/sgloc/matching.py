@@ -58,13 +58,9 @@ def _row_normalised(D) -> sparse.csr_array | np.ndarray:
         inv = np.divide(1.0, norms, out=np.zeros_like(norms), where=norms > 0)
         return sparse.csr_array(sparse.diags_array(inv) @ D)
     D = np.asarray(D, dtype=np.float64)
-    return D * _inverse_norms(D)[:, None]
-
-
-def _inverse_norms(D: np.ndarray) -> np.ndarray:
-    """1 / the Euclidean norm of each row of the dense D (n,d), 0 for an all-zero row."""
     norms = np.linalg.norm(D, axis=1)
-    return np.divide(1.0, norms, out=np.zeros_like(norms), where=norms > 0)
+    inv = np.divide(1.0, norms, out=np.zeros_like(norms), where=norms > 0)
+    return D * inv[:, None]
 
 
 def _blocks(Q, T, labels_q: np.ndarray, labels_t: np.ndarray) -> Iterator[tuple]:
@@ -158,13 +154,9 @@ def _compiled_top_k(desc_q, desc_t, labels_q, labels_t, k, min_sim, max_ratio, f
     labels_t = np.asarray(labels_t, dtype=np.int64)
     order_q = np.argsort(labels_q, kind="stable")
     order_t = np.argsort(labels_t, kind="stable")
-    Q = np.ascontiguousarray(desc_q, dtype=np.float64)
-    T = np.ascontiguousarray(desc_t, dtype=np.float64)
     return top_k_same_class(
-        Q,
-        T,
-        _inverse_norms(Q),  # the normalisation of `_row_normalised`, exactly
-        _inverse_norms(T),
+        np.ascontiguousarray(desc_q, dtype=np.float64),
+        np.ascontiguousarray(desc_t, dtype=np.float64),
         order_q,
         labels_q[order_q],
         order_t,

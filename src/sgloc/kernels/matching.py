@@ -15,6 +15,28 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
+def inverse_norms(D: np.ndarray) -> np.ndarray:
+    """1 / the Euclidean norm of each row of D (n,d), 0 for an all-zero row; the squares summed
+    in order, four rows at a time (independent sums: no wait on one long chain)."""
+    n, d = D.shape
+    out = np.zeros(n)
+    for i0 in range(0, n, 4):
+        s0 = s1 = s2 = s3 = 0.0
+        i1, i2, i3 = min(i0 + 1, n - 1), min(i0 + 2, n - 1), min(i0 + 3, n - 1)
+        for f in range(d):
+            a, b, c, e = D[i0, f], D[i1, f], D[i2, f], D[i3, f]
+            s0 += a * a
+            s1 += b * b
+            s2 += c * c
+            s3 += e * e
+        sums = (s0, s1, s2, s3)
+        for r in range(min(4, n - i0)):
+            if sums[r] > 0:
+                out[i0 + r] = 1.0 / np.sqrt(sums[r])
+    return out
+
+
+@njit(cache=True, nogil=True)
 def _insert(best_s: np.ndarray, best_j: np.ndarray, n: int, s: float, j: int) -> int:
     """Insert (s, j) into the n entries of best_* kept sorted by score descending, then target
     ascending, at most len(best_s) entries; returns the new count."""
@@ -34,8 +56,6 @@ def _insert(best_s: np.ndarray, best_j: np.ndarray, n: int, s: float, j: int) ->
 def top_k_same_class(
     Q: np.ndarray,
     T: np.ndarray,
-    inv_q: np.ndarray,
-    inv_t: np.ndarray,
     order_q: np.ndarray,
     sorted_q: np.ndarray,
     order_t: np.ndarray,
@@ -46,8 +66,8 @@ def top_k_same_class(
     flag_ratio: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per query row its k most similar same-class target rows (cosine similarity of the rows
-    of Q (n_q,d) and T (n_t,d), inv_*: 1 / the rows' norms, 0 for a zero row), kept when
-    similarity >= min_sim and > 0.
+    of Q (n_q,d) and T (n_t,d); a zero row is similar to nothing), kept when similarity >=
+    min_sim and > 0.
 
     order_* / sorted_*: a stable argsort of each side's labels and the sorted labels.
     max_ratio / flag_ratio (NaN: unset): a query row whose best similarity s_1 and second s_2
@@ -57,6 +77,7 @@ def top_k_same_class(
     then target; among equal scores the lower target index ranks first.
     """
     n_q, d = Q.shape
+    inv_q, inv_t = inverse_norms(Q), inverse_norms(T)
     out_j = np.full((n_q, k), -1, dtype=np.int64)
     out_s = np.zeros((n_q, k))
     out_n = np.zeros(n_q, dtype=np.int64)
