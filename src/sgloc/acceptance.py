@@ -348,7 +348,7 @@ def _runner_up(
         return 0, None
     i, j = kept.at(rng.integers(0, kept.size, cfg.runner_up_samples))
     if dof == 4:
-        hyp = _yaw_hypotheses(src, dst, i, j)
+        hyp = _yaw_hypotheses(src, dst, *_first_draws(i, j, len(src)))
     else:
         hyp = _triplet_hypotheses(src, dst, i, j, consistency, free, rng, max_tilt)
     if hyp is None:
@@ -368,6 +368,14 @@ def _runner_up(
     T2 = np.eye(4)
     T2[:3, :3], T2[:3, 3] = R[h], t[h]
     return int(counts[h]), T2
+
+
+def _first_draws(i: np.ndarray, j: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """The pairs (i, j) without repeats, each at its first draw, in draw order: a pair drawn
+    again gives the same 4-dof hypothesis, and the best (first) one stays the same."""
+    _, first = np.unique(i * m + j, return_index=True)
+    first.sort()
+    return i[first], j[first]
 
 
 def _yaw_hypotheses(src, dst, i, j) -> tuple[np.ndarray, np.ndarray] | None:
