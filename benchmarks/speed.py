@@ -1,6 +1,7 @@
 """Speed benchmark of the compiled core, all goals in one run.
 
     python -m benchmarks.speed [--seeds 4] [--reps 3] [--no-maps] [--update-docs]
+    python -m benchmarks.speed --only threads --reps 2   # just the localize / BLAS-thread part
 
 1. register (neighbor + RANSAC + IRLS) vs KISS-Matcher (`prune_and_solve`) vs sgloc's plain
    numpy pipeline (the reference of the compiled kernels), on synthetic correspondence sets
@@ -55,6 +56,8 @@ COOL_DOWN_S = 0.005
 BURST = 3
 #: The plain numpy pipeline: one burst per set (it takes seconds at m = 10,000).
 REFERENCE = "sgloc numpy reference"
+#: The parts of the benchmark (`--only`).
+PARTS = ("register", "threads", "startup", "maps")
 
 
 def numpy_reference(src, dst, rng):
@@ -440,9 +443,12 @@ def report_maps(maps, cap_gb) -> list[str]:
 
 def report(reg, threads, startup, cli, maps, args) -> list[str]:
     lines = ["# Speed of the compiled core", ""]
-    lines += report_register(reg, args)
-    lines += report_threads(threads, args)
-    lines += report_startup(startup, cli)
+    if reg:
+        lines += report_register(reg, args)
+    if threads:
+        lines += report_threads(threads, args)
+    if startup:
+        lines += report_startup(startup, cli)
     if maps:
         lines += report_maps(maps, args.cap_gb)
     return lines
@@ -458,18 +464,22 @@ def main() -> None:
     ap.add_argument("--cap-gb", type=float, default=6.0)
     ap.add_argument("--load", action="store_true", help="a busy process during the BLAS test")
     ap.add_argument("--update-docs", action="store_true", help="write docs/speed_benchmark.md")
+    ap.add_argument("--only", nargs="+", choices=PARTS, default=list(PARTS),
+                    help="run only these parts (never written to docs/)")  # fmt: skip
     args = ap.parse_args()
     from sgloc import kernels
 
     kernels.FORCE = "compiled"  # in-process timings: the kernels (see the Start-up section)
-    reg = run_register(args.seeds, args.reps)
-    threads = run_threads(args.reps, args.load)
-    startup = run_startup(args.startup_runs)
-    cli = run_cli(args.startup_runs + 2)
-    maps = [] if args.no_maps else run_maps(args.maps, args.cap_gb)
+    parts = set(args.only)
+    reg = run_register(args.seeds, args.reps) if "register" in parts else []
+    threads = run_threads(args.reps, args.load) if "threads" in parts else []
+    startup = run_startup(args.startup_runs) if "startup" in parts else {}
+    cli = run_cli(args.startup_runs + 2) if "startup" in parts else []
+    maps = run_maps(args.maps, args.cap_gb) if "maps" in parts and not args.no_maps else []
     text = "\n".join(report(reg, threads, startup, cli, maps, args))
     print(text)
-    out = Path("docs" if args.update_docs else "results") / "speed_benchmark.md"
+    partial = parts != set(PARTS)
+    out = Path("docs" if args.update_docs and not partial else "results") / "speed_benchmark.md"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)
     print(f"wrote {out}")
