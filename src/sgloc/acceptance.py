@@ -493,7 +493,7 @@ def assess(
     moved = src @ transform[:3, :3].T + transform[:3, 3]
     res2 = np.sum((moved - dst) ** 2, axis=1)
     inl = res2 < r**2
-    k = int(np.unique(cand[inl, 0]).size)
+    k = int(np.count_nonzero(np.bincount(cand[inl, 0])))  # distinct query objects
     n_classes = max(query.n_classes, target.n_classes)
     chance = _ChanceModel(target, r, n_classes)
     qi = cand[:, 0]

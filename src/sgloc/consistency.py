@@ -221,7 +221,12 @@ class ConsistentPairs:
             return
         from sgloc.kernels.triangles import upper_counts
 
-        self._keep_words = pack_rows(self.keep[None, :])[0]
+        if keep is None:  # every column: the first m bits set
+            self._keep_words = np.full(bits.shape[1], np.iinfo(np.uint64).max, dtype=np.uint64)
+            if m % 64 and m:
+                self._keep_words[-1] = np.uint64((1 << (m % 64)) - 1)
+        else:
+            self._keep_words = pack_rows(self.keep[None, :])[0]
         if self._keep_words.shape[0] < bits.shape[1]:  # m = 0: no words at all
             self._keep_words = np.zeros(bits.shape[1], dtype=np.uint64)
         counts = upper_counts(bits, self._keep_words, self.keep)
