@@ -144,9 +144,31 @@ def airsim_maps():
     return SemanticGraph.load(d / "cloud1.pcd"), SemanticGraph.load(d / "cloud2.pcd")
 
 
+#: Rounds of the threads part per --reps: every case and thread setting takes a turn of 5
+#: calls per round, so a burst of load from other jobs falls on all of them alike.
+THREAD_ROUNDS = 10
+#: The localize case also run on the numpy references (`sgloc.kernels.FORCE`).
+REFERENCE_CASE = "localize, Airsim maps, numpy references"
+
+
+def _on_references(call):
+    """`call` with every kernel replaced by its numpy reference."""
+    from sgloc import kernels
+
+    def run():
+        kernels.FORCE = "reference"
+        try:
+            return call()
+        finally:
+            kernels.FORCE = "compiled"
+
+    return run
+
+
 def run_threads(reps: int, load: bool) -> list[dict]:
-    """register and localize (Airsim maps) with the default BLAS threads vs one, in
-    alternating blocks of 5 calls; with `load`, a busy process competes for the cores."""
+    """register and localize (Airsim maps) with the default BLAS threads vs one, and localize
+    on the numpy references: in rounds where every case and setting takes a turn of 5 calls;
+    with `load`, a busy process competes for the cores."""
     from sgloc import localize
 
     q, t = airsim_maps()
@@ -161,33 +183,33 @@ def run_threads(reps: int, load: bool) -> list[dict]:
     cases["localize, Airsim maps, new graph objects"] = lambda: localize(
         q.subgraph(np.arange(len(q))), t.subgraph(np.arange(len(t))), seed=0
     )
+    cases[REFERENCE_CASE] = _on_references(cases["localize, Airsim maps"])
     ctl = ThreadpoolController()
+    times = {(name, label): [] for name in cases for label in ("default", "1")}
+    stages = {name: {} for name in cases}
+    for call in cases.values():
+        call()  # warm-up
     busy = subprocess.Popen([sys.executable, "-c", _LOAD]) if load else None
-    rows = []
     try:
-        for name, call in cases.items():
-            call()
-            times = {"default": [], "1": []}
-            stages = {}
-            for _ in range(reps * 4):
-                for label in times:
-                    lim = ctl.limit(limits=1, user_api="blas") if label == "1" else None
-                    for _ in range(5):
-                        t0 = time.perf_counter()
-                        res = call()
-                        times[label].append((time.perf_counter() - t0) * 1e3)
-                        if label == "default" and hasattr(res, "confidence"):
-                            for k, v in res.timings.items():
-                                stages.setdefault(k, []).append(v * 1e3)
-                    if lim is not None:
-                        lim.restore_original_limits()
-            rows += [{"case": name, "threads": k, "ms": v, "stages": stages if k == "default"
-                      else {}} for k, v in times.items()]  # fmt: skip
+        for _ in range(reps * THREAD_ROUNDS):
+            for (name, label), out in times.items():
+                lim = ctl.limit(limits=1, user_api="blas") if label == "1" else None
+                for _ in range(5):
+                    t0 = time.perf_counter()
+                    res = cases[name]()
+                    out.append((time.perf_counter() - t0) * 1e3)
+                    if label == "default" and hasattr(res, "confidence"):
+                        for k, v in res.timings.items():
+                            stages[name].setdefault(k, []).append(v * 1e3)
+                if lim is not None:
+                    lim.restore_original_limits()
     finally:
         if busy is not None:
             busy.kill()
             busy.wait()
-    return rows
+    return [{"case": name, "threads": label, "ms": v,
+             "stages": stages[name] if label == "default" else {}}
+            for (name, label), v in times.items()]  # fmt: skip
 
 
 _FIRST_CALL = """
@@ -360,12 +382,15 @@ def report_register(reg, args) -> list[str]:
 def report_threads(threads, args) -> list[str]:
     load = " plus one busy process competing for the cores" if args.load else ""
     lines = ["## Threads and the whole localize", "",
-             "The default BLAS threads vs one (threadpoolctl), alternating blocks of 5 calls on "
-             f"the same input; the machine is shared with other jobs{load}. `localize` runs "
+             "The default BLAS threads vs one (threadpoolctl), in rounds where every call and "
+             f"setting takes a turn of 5 calls on the same input ({args.reps * THREAD_ROUNDS} "
+             "rounds), so that bursts of load fall on all alike; the machine is shared with "
+             f"other jobs{load}. `localize` runs "
              "Guo's Airsim maps (cloud1 against cloud2, 318 and 328 objects) with default "
              "settings; with the same graph objects every call (a map localized against "
              "several others is described once: descriptors are cached per graph) and with "
-             "new graph objects per call (descriptors computed every time).", "",
+             "new graph objects per call (descriptors computed every time); and with every "
+             "compiled kernel replaced by its numpy reference (same results).", "",
              "| call | BLAS threads | ms median (min – max) | stages, ms (medians) |",
              "|---|---|---|---|"]  # fmt: skip
     for r in threads:
@@ -378,6 +403,10 @@ def report_threads(threads, args) -> list[str]:
         out.append(f"- {case}: {med:.3g} ms median with the default threads (<= 2 ms: "
                    f"{_verdict(med <= 2.0)}); one thread {one:.3g} ms (default / one "
                    f"{med / one:.2f}).")  # fmt: skip
+    ref, ours = by[(REFERENCE_CASE, "default")], by[("localize, Airsim maps", "default")]
+    out.append(f"- localize on the numpy references: {ref:.3g} ms median with the default "
+               f"threads; the compiled kernels take {ours / ref:.2f} of that, measured in the "
+               "same rounds.")  # fmt: skip
     return lines + ["", *out, ""]
 
 
