@@ -159,7 +159,7 @@ class _ChanceModel:
     same-class target objects within the radius of each moved query object."""
 
     def __init__(self, target: SemanticGraph, radius: float, n_classes: int) -> None:
-        self.positions = target.positions
+        self.positions = np.ascontiguousarray(target.positions, dtype=np.float64)
         self.labels = target.labels
         self.n_classes = n_classes
         self.class_count = np.bincount(target.labels, minlength=n_classes).astype(np.float64)

@@ -137,6 +137,11 @@ def _top_k(
     return q[order], t[order], s[order], f[order]
 
 
+def _as_matrix(D):
+    """A CSR matrix as it is, anything else as a float64 array."""
+    return D if sparse.issparse(D) else np.asarray(D, dtype=np.float64)
+
+
 def _use_kernel(desc_q, desc_t) -> bool:
     """Whether `_top_k` runs the compiled kernel: dense descriptors, and compiled kernels in
     use for a problem of this size (`sgloc.kernels.use_compiled`: asked once per matching)."""
@@ -238,6 +243,7 @@ def match_flagged(
         raise ValueError(f"unknown matching strategy {cfg.strategy!r}; use one of {STRATEGIES}")
     if flag_ratio is not None and cfg.max_ratio is not None and flag_ratio > cfg.max_ratio:
         return (*match_descriptors(desc_q, desc_t, labels_q, labels_t, cfg), None)
+    desc_q, desc_t = _as_matrix(desc_q), _as_matrix(desc_t)
     if cfg.strategy == "top_k" and _use_kernel(desc_q, desc_t):  # no BLAS products
         return _match(desc_q, desc_t, labels_q, labels_t, cfg, flag_ratio, compiled=True)
     with _one_blas_thread():
