@@ -259,3 +259,39 @@ def test_near_counts_equal_kd_tree_reference(seed, radius):
     np.testing.assert_array_equal(alone, ref[0])
     empty = model.near_counts(np.zeros((0, 3)), (None, usage))
     assert [x.shape for x in empty] == [(0, 6), (0, 6)]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_yaw_runner_up_equals_reference(monkeypatch, seed):
+    """The compiled 4-dof runner-up search (`sgloc.kernels.runner_up`) finds the alternative
+    the numpy branch finds: the same inlier count and transform (to rounding)."""
+    from sgloc.acceptance import AcceptanceConfig, _consistency, _runner_up
+    from sgloc.consistency import ConsistentPairs
+    from sgloc.estimation import _rot_z
+    from sgloc.geometry import apply, make_transform
+
+    rng = np.random.default_rng(seed)
+    src = rng.uniform(-80, 80, (150, 3)) * [1, 1, 0.05]
+    T = make_transform(_rot_z(np.array([0.3]))[0], np.array([5.0, -2.0, 0.5]))
+    T_alt = make_transform(_rot_z(np.array([1.9]))[0], np.array([-30.0, 12.0, 0.0]))
+    outliers = rng.uniform(-80, 80, (40, 3))
+    dst = np.concatenate([apply(T, src[:60]), apply(T_alt, src[60:110]), outliers])
+    dst += rng.normal(0, 0.5, dst.shape)
+    radius = 5.0 if seed < 3 else 0.01  # (a radius that leaves no inliers at all)
+    res2 = np.sum((apply(T, src) - dst) ** 2, axis=1)
+    exclude = res2 < (2 * radius) ** 2
+    bits, _ = _consistency(src, dst, radius)
+    cfg = AcceptanceConfig(distinct_rotation=5.0 + 10 * seed)
+    out = {}
+    for path in ("reference", "compiled"):
+        monkeypatch.setattr(kernels, "FORCE", path)
+        edges = ConsistentPairs(bits)
+        out[path] = _runner_up(src, dst, T, exclude, bits, edges, radius, cfg,
+                               np.random.default_rng(seed), dof=4)  # fmt: skip
+    (ka, Ta), (kb, Tb) = out["reference"], out["compiled"]
+    assert ka == kb
+    assert (Ta is None) == (Tb is None)
+    if Ta is not None:
+        np.testing.assert_allclose(Ta, Tb, rtol=0, atol=1e-9)
+    if seed < 3:
+        assert ka >= 40  # the second alignment is found

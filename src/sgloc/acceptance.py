@@ -347,6 +347,8 @@ def _runner_up(
     if kept.size == 0:
         return 0, None
     i, j = kept.at(rng.integers(0, kept.size, cfg.runner_up_samples))
+    if dof == 4 and use_compiled(len(src)):
+        return _compiled_yaw_runner_up(src, dst, T, exclude, i, j, radius, cfg)
     if dof == 4:
         hyp = _yaw_hypotheses(src, dst, *_first_draws(i, j, len(src)))
     else:
@@ -368,6 +370,29 @@ def _runner_up(
     T2 = np.eye(4)
     T2[:3, :3], T2[:3, 3] = R[h], t[h]
     return int(counts[h]), T2
+
+
+def _compiled_yaw_runner_up(
+    src, dst, T, exclude, i, j, radius, cfg
+) -> tuple[int, np.ndarray | None]:
+    """`_runner_up`'s dof=4 branch from the drawn pairs (i, j) on, in one compiled pass
+    (`sgloc.kernels.runner_up`): the same alternative, its residuals equal to rounding."""
+    from sgloc.kernels.runner_up import best_yaw_alternative
+
+    c = src[exclude].mean(axis=0) if exclude.any() else src.mean(axis=0)
+    count, T2, found = best_yaw_alternative(
+        np.ascontiguousarray(src, dtype=np.float64),
+        np.ascontiguousarray(dst, dtype=np.float64),
+        i,
+        j,
+        ~exclude,
+        np.ascontiguousarray(T, dtype=np.float64),
+        c,
+        float(cfg.distinct_translation),
+        float(cfg.distinct_rotation),
+        float(radius),
+    )
+    return (int(count), T2) if found else (0, None)
 
 
 def _first_draws(i: np.ndarray, j: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:
