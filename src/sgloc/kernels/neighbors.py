@@ -49,7 +49,20 @@ def near_class_counts(
     order = np.argsort(keys)
     sorted_keys = keys[order]
     n_x = sorted_keys[-1] // n_y + 2
+    # Points in cell order (contiguous scans), and, when the grid is small, the start of each
+    # cell's run in a table instead of a binary search per query point and column.
+    px, py, pz = points[order, 0], points[order, 1], points[order, 2]
+    lab = labels[order]
     use_weights = weights.shape[0] == n
+    w = weights[order] if use_weights else weights
+    n_cells = (n_x + 1) * n_y
+    dense = n_cells <= 8 * n + 4096
+    start = np.zeros(n_cells + 1 if dense else 1, dtype=np.int64)
+    if dense:
+        for s in range(n):
+            start[sorted_keys[s] + 1] += 1
+        for c in range(n_cells):
+            start[c + 1] += start[c]
     r2 = radius * radius
     for i in range(n_q):
         qx, qy, qz = query[i, 0], query[i, 1], query[i, 2]
@@ -58,16 +71,19 @@ def near_class_counts(
             continue  # a cell away from every point: nothing within the radius (or NaN)
         cx, cy = np.int64(fx), np.int64(fy)
         for dx_cell in range(-1, 2):
+            if cx + dx_cell < 0 or cx + dx_cell > n_x:
+                continue
             lo_key = (cx + dx_cell) * n_y + max(cy - 1, 0)
             hi_key = (cx + dx_cell) * n_y + min(cy + 1, n_y - 1)
-            start = np.searchsorted(sorted_keys, lo_key)
-            for s in range(start, n):
-                if sorted_keys[s] > hi_key:
-                    break
-                j = order[s]
-                dx, dy, dz = qx - points[j, 0], qy - points[j, 1], qz - points[j, 2]
+            if dense:
+                lo, hi = start[lo_key], start[hi_key + 1]
+            else:
+                lo = np.searchsorted(sorted_keys, lo_key)
+                hi = np.searchsorted(sorted_keys, hi_key, side="right")
+            for s in range(lo, hi):
+                dx, dy, dz = qx - px[s], qy - py[s], qz - pz[s]
                 if dx * dx + dy * dy + dz * dz <= r2:
-                    counts[i, labels[j]] += 1.0
+                    counts[i, lab[s]] += 1.0
                     if use_weights:
-                        weighted[i, labels[j]] += weights[j]
+                        weighted[i, lab[s]] += w[s]
     return counts, weighted
