@@ -472,6 +472,13 @@ def report_maps(maps, cap_gb) -> list[str]:
 
 def report(reg, threads, startup, cli, maps, args) -> list[str]:
     lines = ["# Speed of the compiled core", ""]
+    if args.loads:
+        first, last = args.loads[0], args.loads[-1]
+        lines += [f"Machine load while this ran: 1-minute load average {first:.2f} at the start, "
+                  f"{last:.2f} at the end, {max(args.loads):.2f} at most between the parts, on "
+                  f"{os.cpu_count()} cores (other jobs share them: single calls can be several "
+                  "times slower than on an idle machine; the ratios within a table are measured "
+                  "in the same process and rounds).", ""]  # fmt: skip
     if reg:
         lines += report_register(reg, args)
     if threads:
@@ -500,11 +507,16 @@ def main() -> None:
 
     kernels.FORCE = "compiled"  # in-process timings: the kernels (see the Start-up section)
     parts = set(args.only)
+    args.loads = [os.getloadavg()[0]]
     reg = run_register(args.seeds, args.reps) if "register" in parts else []
+    args.loads.append(os.getloadavg()[0])
     threads = run_threads(args.reps, args.load) if "threads" in parts else []
+    args.loads.append(os.getloadavg()[0])
     startup = run_startup(args.startup_runs) if "startup" in parts else {}
     cli = run_cli(args.startup_runs + 2) if "startup" in parts else []
+    args.loads.append(os.getloadavg()[0])
     maps = run_maps(args.maps, args.cap_gb) if "maps" in parts and not args.no_maps else []
+    args.loads.append(os.getloadavg()[0])
     text = "\n".join(report(reg, threads, startup, cli, maps, args))
     print(text)
     partial = parts != set(PARTS)

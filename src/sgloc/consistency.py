@@ -20,7 +20,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from sgloc.errors import UnknownNameError
-from sgloc.kernels import use_compiled
+from sgloc.kernels import one_blas_thread, use_compiled
 
 #: Side of the square tiles computed at once: 512 x 512 float32 = 1 MB per temporary (L2-sized).
 TILE = 512
@@ -84,10 +84,11 @@ def consistent_blocks(
         rows = slice(i0, min(m, i0 + TILE))
         for j0 in range(i0, m, TILE):
             cols = slice(j0, min(m, j0 + TILE))
-            dq = As[rows] @ Bs[cols].T
+            with one_blas_thread():  # (512 x 5 products: a second thread only waits)
+                dq = As[rows] @ Bs[cols].T
+                dt = At[rows] @ Bt[cols].T
             np.maximum(dq, 0.0, out=dq)  # rounding can make a tiny square negative
             np.sqrt(dq, out=dq)
-            dt = At[rows] @ Bt[cols].T
             np.maximum(dt, 0.0, out=dt)
             np.sqrt(dt, out=dt)
             if form == "distance":

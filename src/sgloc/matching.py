@@ -13,7 +13,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy import sparse
 
-from sgloc.kernels import use_compiled
+from sgloc.kernels import one_blas_thread, use_compiled
 from sgloc.validation import validate_settings
 
 #: Similarities held at once per block (8 MB of float64).
@@ -194,20 +194,6 @@ def _all_pairs(Q, T, labels_q, labels_t, cap: int, min_sim: float) -> tuple[np.n
     return q[order], t[order], s[order]
 
 
-_BLAS_CONTROLLER = None
-
-
-def _one_blas_thread():
-    """A context holding BLAS to one thread: the block products here are small, and a second
-    BLAS thread on a busy machine costs more than it gives (threadpoolctl, set up once)."""
-    global _BLAS_CONTROLLER
-    if _BLAS_CONTROLLER is None:
-        from threadpoolctl import ThreadpoolController
-
-        _BLAS_CONTROLLER = ThreadpoolController()
-    return _BLAS_CONTROLLER.limit(limits=1, user_api="blas")
-
-
 def match_descriptors(
     desc_q,
     desc_t,
@@ -246,7 +232,7 @@ def match_flagged(
     desc_q, desc_t = _as_matrix(desc_q), _as_matrix(desc_t)
     if cfg.strategy == "top_k" and _use_kernel(desc_q, desc_t):  # no BLAS products
         return _match(desc_q, desc_t, labels_q, labels_t, cfg, flag_ratio, compiled=True)
-    with _one_blas_thread():
+    with one_blas_thread():  # small block products
         return _match(desc_q, desc_t, labels_q, labels_t, cfg, flag_ratio)
 
 

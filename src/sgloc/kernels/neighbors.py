@@ -19,7 +19,6 @@ _CELL_MARGIN = 1.0 + 2.0**-10
 _MAX_CELLS = 2**30
 
 
-@njit(cache=True, nogil=True)
 def near_class_counts(
     query: np.ndarray,
     points: np.ndarray,
@@ -31,23 +30,65 @@ def near_class_counts(
     """(counts, weighted), each (n_query, n_classes) float64: per query point (n_query,3) and
     class c, the number of `points` (n,3) of label c within `radius` (distance <= radius), and
     the sum of their `weights` (n,) (an empty `weights`: the second array stays zero)."""
-    n_q = query.shape[0]
-    counts = np.zeros((n_q, n_classes))
-    weighted = np.zeros((n_q, n_classes))
+    if len(points) == 0 or len(query) == 0:
+        return np.zeros((len(query), n_classes)), np.zeros((len(query), n_classes))
+    keys, x0, y0, cell, n_y = _cell_keys(points, radius)
+    # numpy's sort: numba's sort and search helpers are better kept out of cached kernels
+    # (their generated symbols can clash with another cached kernel's in one process).
+    order = np.argsort(keys, kind="stable")
+    grid = (order, keys[order], x0, y0, cell, n_y)
+    return _counts_in_cells(query, points, labels, n_classes, radius, weights, *grid)
+
+
+@njit(cache=True, nogil=True)
+def _cell_keys(points: np.ndarray, radius: float) -> tuple[np.ndarray, float, float, float, int]:
+    """(keys, x0, y0, cell, n_y): each point's xy cell as cx * n_y + cy (cells `cell` >= radius
+    wide from (x0, y0), one spare row and column on each side)."""
     n = points.shape[0]
-    if n == 0 or n_q == 0:
-        return counts, weighted
     x0, y0 = points[:, 0].min(), points[:, 1].min()
     extent = max(points[:, 0].max() - x0, points[:, 1].max() - y0)
     cell = max(radius * _CELL_MARGIN, extent / _MAX_CELLS)
-    n_y = np.int64(np.floor((points[:, 1].max() - y0) / cell)) + 3  # y cells, one spare each side
+    n_y = np.int64(np.floor((points[:, 1].max() - y0) / cell)) + 3
     keys = np.empty(n, dtype=np.int64)
     for j in range(n):
         cx = np.int64(np.floor((points[j, 0] - x0) / cell)) + 1
         cy = np.int64(np.floor((points[j, 1] - y0) / cell)) + 1
         keys[j] = cx * n_y + cy
-    order = np.argsort(keys)
-    sorted_keys = keys[order]
+    return keys, x0, y0, cell, n_y
+
+
+@njit(cache=True, nogil=True)
+def _first_at_least(sorted_keys: np.ndarray, key: int) -> int:
+    """The first position of sorted_keys holding a value >= key (binary search)."""
+    lo, hi = 0, sorted_keys.shape[0]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if sorted_keys[mid] < key:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True, nogil=True)
+def _counts_in_cells(
+    query: np.ndarray,
+    points: np.ndarray,
+    labels: np.ndarray,
+    n_classes: int,
+    radius: float,
+    weights: np.ndarray,
+    order: np.ndarray,
+    sorted_keys: np.ndarray,
+    x0: float,
+    y0: float,
+    cell: float,
+    n_y: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """`near_class_counts` on the grid of `_cell_keys` (`order` sorts the keys)."""
+    n_q, n = query.shape[0], points.shape[0]
+    counts = np.zeros((n_q, n_classes))
+    weighted = np.zeros((n_q, n_classes))
     n_x = sorted_keys[-1] // n_y + 2
     # Points in cell order (contiguous scans), and, when the grid is small, the start of each
     # cell's run in a table instead of a binary search per query point and column.
@@ -78,8 +119,8 @@ def near_class_counts(
             if dense:
                 lo, hi = start[lo_key], start[hi_key + 1]
             else:
-                lo = np.searchsorted(sorted_keys, lo_key)
-                hi = np.searchsorted(sorted_keys, hi_key, side="right")
+                lo = _first_at_least(sorted_keys, lo_key)
+                hi = _first_at_least(sorted_keys, hi_key + 1)
             for s in range(lo, hi):
                 dx, dy, dz = qx - px[s], qy - py[s], qz - pz[s]
                 if dx * dx + dy * dy + dz * dz <= r2:
