@@ -194,6 +194,7 @@ def run_threads(reps: int, load: bool) -> list[dict]:
         for _ in range(reps * THREAD_ROUNDS):
             for (name, label), out in times.items():
                 lim = ctl.limit(limits=1, user_api="blas") if label == "1" else None
+                time.sleep(COOL_DOWN_S)  # threads the previous block left spinning settle
                 for _ in range(5):
                     t0 = time.perf_counter()
                     res = cases[name]()
@@ -384,7 +385,8 @@ def report_threads(threads, args) -> list[str]:
     lines = ["## Threads and the whole localize", "",
              "The default BLAS threads vs one (threadpoolctl), in rounds where every call and "
              f"setting takes a turn of 5 calls on the same input ({args.reps * THREAD_ROUNDS} "
-             "rounds), so that bursts of load fall on all alike; the machine is shared with "
+             f"rounds; each turn after an untimed {COOL_DOWN_S * 1e3:g} ms pause), so that "
+             "bursts of load fall on all alike; the machine is shared with "
              f"other jobs{load}. `localize` runs "
              "Guo's Airsim maps (cloud1 against cloud2, 318 and 328 objects) with default "
              "settings; with the same graph objects every call (a map localized against "
