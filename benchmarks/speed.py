@@ -1,6 +1,7 @@
 """Speed benchmark of the compiled core, all goals in one run.
 
     python -m benchmarks.speed [--seeds 4] [--reps 3] [--no-maps] [--update-docs]
+    python -m benchmarks.speed --only threads --reps 2   # just the localize / BLAS-thread part
 
 1. register (neighbor + RANSAC + IRLS) vs KISS-Matcher (`prune_and_solve`) vs sgloc's plain
    numpy pipeline (the reference of the compiled kernels), on synthetic correspondence sets
@@ -55,6 +56,8 @@ COOL_DOWN_S = 0.005
 BURST = 3
 #: The plain numpy pipeline: one burst per set (it takes seconds at m = 10,000).
 REFERENCE = "sgloc numpy reference"
+#: The parts of the benchmark (`--only`).
+PARTS = ("register", "threads", "startup", "maps")
 
 
 def numpy_reference(src, dst, rng):
@@ -141,9 +144,31 @@ def airsim_maps():
     return SemanticGraph.load(d / "cloud1.pcd"), SemanticGraph.load(d / "cloud2.pcd")
 
 
+#: Rounds of the threads part per --reps: every case and thread setting takes a turn of 5
+#: calls per round, so a burst of load from other jobs falls on all of them alike.
+THREAD_ROUNDS = 10
+#: The localize case also run on the numpy references (`sgloc.kernels.FORCE`).
+REFERENCE_CASE = "localize, Airsim maps, numpy references"
+
+
+def _on_references(call):
+    """`call` with every kernel replaced by its numpy reference."""
+    from sgloc import kernels
+
+    def run():
+        kernels.FORCE = "reference"
+        try:
+            return call()
+        finally:
+            kernels.FORCE = "compiled"
+
+    return run
+
+
 def run_threads(reps: int, load: bool) -> list[dict]:
-    """register and localize (Airsim maps) with the default BLAS threads vs one, in
-    alternating blocks of 5 calls; with `load`, a busy process competes for the cores."""
+    """register and localize (Airsim maps) with the default BLAS threads vs one, and localize
+    on the numpy references: in rounds where every case and setting takes a turn of 5 calls;
+    with `load`, a busy process competes for the cores."""
     from sgloc import localize
 
     q, t = airsim_maps()
@@ -158,33 +183,34 @@ def run_threads(reps: int, load: bool) -> list[dict]:
     cases["localize, Airsim maps, new graph objects"] = lambda: localize(
         q.subgraph(np.arange(len(q))), t.subgraph(np.arange(len(t))), seed=0
     )
+    cases[REFERENCE_CASE] = _on_references(cases["localize, Airsim maps"])
     ctl = ThreadpoolController()
+    times = {(name, label): [] for name in cases for label in ("default", "1")}
+    stages = {name: {} for name in cases}
+    for call in cases.values():
+        call()  # warm-up
     busy = subprocess.Popen([sys.executable, "-c", _LOAD]) if load else None
-    rows = []
     try:
-        for name, call in cases.items():
-            call()
-            times = {"default": [], "1": []}
-            stages = {}
-            for _ in range(reps * 4):
-                for label in times:
-                    lim = ctl.limit(limits=1, user_api="blas") if label == "1" else None
-                    for _ in range(5):
-                        t0 = time.perf_counter()
-                        res = call()
-                        times[label].append((time.perf_counter() - t0) * 1e3)
-                        if label == "default" and hasattr(res, "confidence"):
-                            for k, v in res.timings.items():
-                                stages.setdefault(k, []).append(v * 1e3)
-                    if lim is not None:
-                        lim.restore_original_limits()
-            rows += [{"case": name, "threads": k, "ms": v, "stages": stages if k == "default"
-                      else {}} for k, v in times.items()]  # fmt: skip
+        for _ in range(reps * THREAD_ROUNDS):
+            for (name, label), out in times.items():
+                lim = ctl.limit(limits=1, user_api="blas") if label == "1" else None
+                time.sleep(COOL_DOWN_S)  # threads the previous block left spinning settle
+                for _ in range(5):
+                    t0 = time.perf_counter()
+                    res = cases[name]()
+                    out.append((time.perf_counter() - t0) * 1e3)
+                    if label == "default" and hasattr(res, "confidence"):
+                        for k, v in res.timings.items():
+                            stages[name].setdefault(k, []).append(v * 1e3)
+                if lim is not None:
+                    lim.restore_original_limits()
     finally:
         if busy is not None:
             busy.kill()
             busy.wait()
-    return rows
+    return [{"case": name, "threads": label, "ms": v,
+             "stages": stages[name] if label == "default" else {}}
+            for (name, label), v in times.items()]  # fmt: skip
 
 
 _FIRST_CALL = """
@@ -357,12 +383,16 @@ def report_register(reg, args) -> list[str]:
 def report_threads(threads, args) -> list[str]:
     load = " plus one busy process competing for the cores" if args.load else ""
     lines = ["## Threads and the whole localize", "",
-             "The default BLAS threads vs one (threadpoolctl), alternating blocks of 5 calls on "
-             f"the same input; the machine is shared with other jobs{load}. `localize` runs "
+             "The default BLAS threads vs one (threadpoolctl), in rounds where every call and "
+             f"setting takes a turn of 5 calls on the same input ({args.reps * THREAD_ROUNDS} "
+             f"rounds; each turn after an untimed {COOL_DOWN_S * 1e3:g} ms pause), so that "
+             "bursts of load fall on all alike; the machine is shared with "
+             f"other jobs{load}. `localize` runs "
              "Guo's Airsim maps (cloud1 against cloud2, 318 and 328 objects) with default "
              "settings; with the same graph objects every call (a map localized against "
              "several others is described once: descriptors are cached per graph) and with "
-             "new graph objects per call (descriptors computed every time).", "",
+             "new graph objects per call (descriptors computed every time); and with every "
+             "compiled kernel replaced by its numpy reference (same results).", "",
              "| call | BLAS threads | ms median (min – max) | stages, ms (medians) |",
              "|---|---|---|---|"]  # fmt: skip
     for r in threads:
@@ -375,6 +405,10 @@ def report_threads(threads, args) -> list[str]:
         out.append(f"- {case}: {med:.3g} ms median with the default threads (<= 2 ms: "
                    f"{_verdict(med <= 2.0)}); one thread {one:.3g} ms (default / one "
                    f"{med / one:.2f}).")  # fmt: skip
+    ref, ours = by[(REFERENCE_CASE, "default")], by[("localize, Airsim maps", "default")]
+    out.append(f"- localize on the numpy references: {ref:.3g} ms median with the default "
+               f"threads; the compiled kernels take {ours / ref:.2f} of that, measured in the "
+               "same rounds.")  # fmt: skip
     return lines + ["", *out, ""]
 
 
@@ -440,9 +474,19 @@ def report_maps(maps, cap_gb) -> list[str]:
 
 def report(reg, threads, startup, cli, maps, args) -> list[str]:
     lines = ["# Speed of the compiled core", ""]
-    lines += report_register(reg, args)
-    lines += report_threads(threads, args)
-    lines += report_startup(startup, cli)
+    if args.loads:
+        first, last = args.loads[0], args.loads[-1]
+        lines += [f"Machine load while this ran: 1-minute load average {first:.2f} at the start, "
+                  f"{last:.2f} at the end, {max(args.loads):.2f} at most between the parts, on "
+                  f"{os.cpu_count()} cores (other jobs share them: single calls can be several "
+                  "times slower than on an idle machine; the ratios within a table are measured "
+                  "in the same process and rounds).", ""]  # fmt: skip
+    if reg:
+        lines += report_register(reg, args)
+    if threads:
+        lines += report_threads(threads, args)
+    if startup:
+        lines += report_startup(startup, cli)
     if maps:
         lines += report_maps(maps, args.cap_gb)
     return lines
@@ -458,18 +502,27 @@ def main() -> None:
     ap.add_argument("--cap-gb", type=float, default=6.0)
     ap.add_argument("--load", action="store_true", help="a busy process during the BLAS test")
     ap.add_argument("--update-docs", action="store_true", help="write docs/speed_benchmark.md")
+    ap.add_argument("--only", nargs="+", choices=PARTS, default=list(PARTS),
+                    help="run only these parts (never written to docs/)")  # fmt: skip
     args = ap.parse_args()
     from sgloc import kernels
 
     kernels.FORCE = "compiled"  # in-process timings: the kernels (see the Start-up section)
-    reg = run_register(args.seeds, args.reps)
-    threads = run_threads(args.reps, args.load)
-    startup = run_startup(args.startup_runs)
-    cli = run_cli(args.startup_runs + 2)
-    maps = [] if args.no_maps else run_maps(args.maps, args.cap_gb)
+    parts = set(args.only)
+    args.loads = [os.getloadavg()[0]]
+    reg = run_register(args.seeds, args.reps) if "register" in parts else []
+    args.loads.append(os.getloadavg()[0])
+    threads = run_threads(args.reps, args.load) if "threads" in parts else []
+    args.loads.append(os.getloadavg()[0])
+    startup = run_startup(args.startup_runs) if "startup" in parts else {}
+    cli = run_cli(args.startup_runs + 2) if "startup" in parts else []
+    args.loads.append(os.getloadavg()[0])
+    maps = run_maps(args.maps, args.cap_gb) if "maps" in parts and not args.no_maps else []
+    args.loads.append(os.getloadavg()[0])
     text = "\n".join(report(reg, threads, startup, cli, maps, args))
     print(text)
-    out = Path("docs" if args.update_docs else "results") / "speed_benchmark.md"
+    partial = parts != set(PARTS)
+    out = Path("docs" if args.update_docs and not partial else "results") / "speed_benchmark.md"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)
     print(f"wrote {out}")

@@ -7,6 +7,7 @@ import pytest
 from scipy.spatial.distance import cdist
 
 from sgloc import kernels
+from sgloc.acceptance import _ChanceModel
 from sgloc.consistency import (
     common_partner_count,
     consistency_bits,
@@ -17,6 +18,8 @@ from sgloc.consistency import (
     unpack_rows,
 )
 from sgloc.errors import UnknownNameError
+from sgloc.graph import SemanticGraph
+from sgloc.matching import MatchingConfig, match_descriptors, match_flagged
 from sgloc.rejection import NeighborRejector
 from sgloc.rejection.neighbor import prune_bits, prune_by_support, prune_by_support_reference
 from sgloc.sim.correspondences import make_correspondences
@@ -61,7 +64,7 @@ def test_consistency_at_tau_equal_to_actual_distances(form):
     dst = src + rng.normal(0, 1.0, src.shape)
     dq, dt = cdist(src, src), cdist(dst, dst)
     values = np.abs(dq - dt) if form == "distance" else dq
-    for tau in values[np.triu_indices(300, 1)][:: 4001][:6]:
+    for tau in values[np.triu_indices(300, 1)][::4001][:6]:
         ref = dense_reference(src, dst, tau, form)
         assert np.array_equal(consistency_matrix(src, dst, tau, form), ref)
 
@@ -128,8 +131,10 @@ def test_edges_and_triangles_equal_numpy():
         pi, pj = consistent_pairs(bits, R.sum(axis=1))
         assert np.array_equal(pi, ref_i) and np.array_equal(pj, ref_j)
         assert common_partner_count(bits, pi, pj) == common
-        assert common % 3 == 0 and common // 3 == np.trace(
-            np.linalg.matrix_power(R.astype(np.int64), 3)) // 6
+        assert (
+            common % 3 == 0
+            and common // 3 == np.trace(np.linalg.matrix_power(R.astype(np.int64), 3)) // 6
+        )
 
 
 @pytest.mark.parametrize("m, ratio", [(1, 0.0), (3, 0.0), (300, 0.8), (1000, 0.5), (2000, 0.9)])
@@ -174,3 +179,119 @@ def test_clique_kernels_equal_numpy():
         cs = make_correspondences(m, ratio, np.random.default_rng(m), kind)
         ref = rej.max_clique(consistency_bool(cs.src, cs.dst, rej.tau, "distance"))
         assert np.array_equal(rej(cs.src, cs.dst), ref)
+
+
+def _descriptor_pair(seed: int, n_q: int, n_t: int, d: int = 24):
+    """Sparse-ish non-negative descriptors with exact ties (duplicated rows), zero rows, and
+    class ids that are large, unsorted and partly present on one side only."""
+    rng = np.random.default_rng(seed)
+    dq = rng.random((n_q, d)) * (rng.random((n_q, d)) < 0.4)
+    dt = rng.random((n_t, d)) * (rng.random((n_t, d)) < 0.4)
+    dt[1::7] = dt[::7][: len(dt[1::7])]  # duplicated targets: tied similarities
+    dq[3::11] = dt[5::11][: len(dq[3::11])]  # exact copies: similarity 1
+    dq[::13] = 0.0
+    ids = np.array([7, 1_000_003, 2, 40])
+    lq = ids[rng.integers(0, 3, n_q)]
+    lt = ids[rng.integers(1, 4, n_t)]
+    return dq, dt, lq, lt
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize(
+    "cfg, flag_ratio",
+    [
+        (MatchingConfig(), None),
+        (MatchingConfig(), 0.8),
+        (MatchingConfig(min_similarity=0.2, top_k=3), 0.9),
+        (MatchingConfig(min_similarity=0.3, top_k=2, mutual=True), None),
+        (MatchingConfig(min_similarity=0.1, top_k=4, max_ratio=0.9), 0.7),
+        (MatchingConfig(min_similarity=0.0, max_ratio=0.95), None),
+    ],
+)
+def test_compiled_top_k_equals_reference(monkeypatch, seed, cfg, flag_ratio):
+    """The kernel (`sgloc.kernels.matching`) keeps the same candidates, in the same order, with
+    the same flags and similarities to rounding, as the numpy blocks (ties included)."""
+    dq, dt, lq, lt = _descriptor_pair(seed, 90 + 17 * seed, 120)
+    out = {}
+    for path in ("reference", "compiled"):
+        monkeypatch.setattr(kernels, "FORCE", path)
+        out[path] = match_flagged(dq, dt, lq, lt, cfg, flag_ratio)
+    (ma, sa, fa), (mb, sb, fb) = out["reference"], out["compiled"]
+    assert len(ma) > 20
+    np.testing.assert_array_equal(ma, mb)
+    np.testing.assert_allclose(sa, sb, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(fa, fb)
+
+
+def test_compiled_top_k_handles_empty_and_disjoint_classes(monkeypatch):
+    monkeypatch.setattr(kernels, "FORCE", "compiled")
+    d = np.ones((3, 4))
+    m, s = match_descriptors(d, d, np.array([0, 0, 0]), np.array([1, 1, 1]))
+    assert m.shape == (0, 2) and s.shape == (0,)
+    m, s = match_descriptors(d[:0], d, np.zeros(0, int), np.array([1, 1, 1]))
+    assert m.shape == (0, 2)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("radius", [0.7, 5.0, 40.0])
+def test_near_counts_equal_kd_tree_reference(seed, radius):
+    """The compiled per-class neighbour counts (`sgloc.kernels.neighbors`) equal scipy's
+    cKDTree ones, also for pairs exactly `radius` apart (counted: distance <= radius), far
+    away and coincident points, and a large coordinate offset."""
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform(-60, 60, (400, 3)) * [1, 1, 0.1] + [3e5, -2e5, 10]
+    pts[:40, :2] = np.round(pts[:40, :2])  # an integer lattice: exact distances occur
+    labels = rng.integers(0, 5, len(pts))
+    moved = np.concatenate([pts[:40] + [3.0, 4.0, 0.0], pts[40:60],  # 5 m apart, coincident
+                            rng.uniform(-90, 90, (300, 3)) + [3e5, -2e5, 10],
+                            [[1e6, 1e6, 0.0], [-1e6, 3e5, 5.0]]])  # fmt: skip
+    usage = rng.integers(0, 4, len(pts)).astype(np.float64)
+    model = _ChanceModel(SemanticGraph(pts, labels), radius, 6)
+    assert model.compiled
+    got = model.near_counts(moved, (None, usage))
+    ref = model.near_counts_reference(moved, (None, usage))
+    assert got[0][40:60].sum() >= 20  # coincident points
+    if radius == 5.0:
+        assert got[0][:40].sum() >= 40  # exactly the radius apart: counted
+    for a, b in zip(got, ref, strict=True):
+        np.testing.assert_array_equal(a, b)
+    (alone,) = model.near_counts(moved)
+    np.testing.assert_array_equal(alone, ref[0])
+    empty = model.near_counts(np.zeros((0, 3)), (None, usage))
+    assert [x.shape for x in empty] == [(0, 6), (0, 6)]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_yaw_runner_up_equals_reference(monkeypatch, seed):
+    """The compiled 4-dof runner-up search (`sgloc.kernels.runner_up`) finds the alternative
+    the numpy branch finds: the same inlier count and transform (to rounding)."""
+    from sgloc.acceptance import AcceptanceConfig, _consistency, _runner_up
+    from sgloc.consistency import ConsistentPairs
+    from sgloc.estimation import _rot_z
+    from sgloc.geometry import apply, make_transform
+
+    rng = np.random.default_rng(seed)
+    src = rng.uniform(-80, 80, (150, 3)) * [1, 1, 0.05]
+    T = make_transform(_rot_z(np.array([0.3]))[0], np.array([5.0, -2.0, 0.5]))
+    T_alt = make_transform(_rot_z(np.array([1.9]))[0], np.array([-30.0, 12.0, 0.0]))
+    outliers = rng.uniform(-80, 80, (40, 3))
+    dst = np.concatenate([apply(T, src[:60]), apply(T_alt, src[60:110]), outliers])
+    dst += rng.normal(0, 0.5, dst.shape)
+    radius = 5.0 if seed < 3 else 0.01  # (a radius that leaves no inliers at all)
+    res2 = np.sum((apply(T, src) - dst) ** 2, axis=1)
+    exclude = res2 < (2 * radius) ** 2
+    bits, _ = _consistency(src, dst, radius)
+    cfg = AcceptanceConfig(distinct_rotation=5.0 + 10 * seed)
+    out = {}
+    for path in ("reference", "compiled"):
+        monkeypatch.setattr(kernels, "FORCE", path)
+        edges = ConsistentPairs(bits)
+        out[path] = _runner_up(src, dst, T, exclude, bits, edges, radius, cfg,
+                               np.random.default_rng(seed), dof=4)  # fmt: skip
+    (ka, Ta), (kb, Tb) = out["reference"], out["compiled"]
+    assert ka == kb
+    assert (Ta is None) == (Tb is None)
+    if Ta is not None:
+        np.testing.assert_allclose(Ta, Tb, rtol=0, atol=1e-9)
+    if seed < 3:
+        assert ka >= 40  # the second alignment is found

@@ -107,3 +107,4 @@ def test_matching_memory_is_linear_in_the_vertices():
     tracemalloc.stop()
     assert len(m) == 2 * n
     assert peak < 60e6, peak
+

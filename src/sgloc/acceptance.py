@@ -76,6 +76,7 @@ from sgloc.estimation import (
 )
 from sgloc.geometry import apply
 from sgloc.graph import SemanticGraph
+from sgloc.kernels import use_compiled
 from sgloc.validation import validate_settings
 
 _LN10 = np.log(10.0)
@@ -185,24 +186,47 @@ class _ChanceModel:
     same-class target objects within the radius of each moved query object."""
 
     def __init__(self, target: SemanticGraph, radius: float, n_classes: int) -> None:
-        from scipy.spatial import cKDTree
-
-        self.tree = cKDTree(target.positions)
+        self.positions = np.ascontiguousarray(target.positions, dtype=np.float64)
         self.labels = target.labels
         self.n_classes = n_classes
         self.class_count = np.bincount(target.labels, minlength=n_classes).astype(np.float64)
         self.radius = radius
+        # The neighbour search: compiled (a grid per call) or by KD-trees (the reference).
+        self.compiled = use_compiled(len(target))
+        self.tree = None
 
     def near_counts(
         self, moved: np.ndarray, weights: tuple[np.ndarray | None, ...] = (None,)
     ) -> list[np.ndarray]:
         """For each entry of `weights`: (n, n_classes) number (None) or summed weights of the
-        class-c target objects within the radius of each point of `moved` (n,3)."""
+        class-c target objects within the radius (distance <= radius) of each point of `moved`
+        (n,3)."""
+        if self.compiled and len(weights) <= 2 and weights[0] is None:
+            from sgloc.kernels.neighbors import near_class_counts
+
+            w = weights[1] if len(weights) == 2 else None
+            counts, summed = near_class_counts(
+                np.ascontiguousarray(moved, dtype=np.float64),
+                self.positions,
+                np.asarray(self.labels, dtype=np.int64),
+                self.n_classes,
+                float(self.radius),
+                np.zeros(0) if w is None else np.asarray(w, dtype=np.float64),
+            )
+            return [counts, summed][: len(weights)]
+        return self.near_counts_reference(moved, weights)
+
+    def near_counts_reference(
+        self, moved: np.ndarray, weights: tuple[np.ndarray | None, ...] = (None,)
+    ) -> list[np.ndarray]:
+        """`near_counts` by KD-trees (scipy), the reference of the compiled search."""
         n, k = len(moved), self.n_classes
         if n == 0:
             return [np.zeros((0, k)) for _ in weights]
         from scipy.spatial import cKDTree
 
+        if self.tree is None:
+            self.tree = cKDTree(self.positions)
         pairs = cKDTree(moved).sparse_distance_matrix(self.tree, self.radius, output_type="ndarray")
         i, j = pairs["i"], pairs["j"]
         cell = i * k + self.labels[j]
@@ -350,8 +374,10 @@ def _runner_up(
     if kept.size == 0:
         return 0, None
     i, j = kept.at(rng.integers(0, kept.size, cfg.runner_up_samples))
+    if dof == 4 and use_compiled(len(src)):
+        return _compiled_yaw_runner_up(src, dst, T, exclude, i, j, radius, cfg)
     if dof == 4:
-        hyp = _yaw_hypotheses(src, dst, i, j)
+        hyp = _yaw_hypotheses(src, dst, *_first_draws(i, j, len(src)))
     else:
         hyp = _triplet_hypotheses(src, dst, i, j, consistency, free, rng, max_tilt)
     if hyp is None:
@@ -371,6 +397,37 @@ def _runner_up(
     T2 = np.eye(4)
     T2[:3, :3], T2[:3, 3] = R[h], t[h]
     return int(counts[h]), T2
+
+
+def _compiled_yaw_runner_up(
+    src, dst, T, exclude, i, j, radius, cfg
+) -> tuple[int, np.ndarray | None]:
+    """`_runner_up`'s dof=4 branch from the drawn pairs (i, j) on, in one compiled pass
+    (`sgloc.kernels.runner_up`): the same alternative, its residuals equal to rounding."""
+    from sgloc.kernels.runner_up import best_yaw_alternative
+
+    c = src[exclude].mean(axis=0) if exclude.any() else src.mean(axis=0)
+    count, T2, found = best_yaw_alternative(
+        np.ascontiguousarray(src, dtype=np.float64),
+        np.ascontiguousarray(dst, dtype=np.float64),
+        i,
+        j,
+        ~exclude,
+        np.ascontiguousarray(T, dtype=np.float64),
+        c,
+        float(cfg.distinct_translation),
+        float(cfg.distinct_rotation),
+        float(radius),
+    )
+    return (int(count), T2) if found else (0, None)
+
+
+def _first_draws(i: np.ndarray, j: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """The pairs (i, j) without repeats, each at its first draw, in draw order: a pair drawn
+    again gives the same 4-dof hypothesis, and the best (first) one stays the same."""
+    _, first = np.unique(i * m + j, return_index=True)
+    first.sort()
+    return i[first], j[first]
 
 
 def _yaw_hypotheses(src, dst, i, j) -> tuple[np.ndarray, np.ndarray] | None:
@@ -488,7 +545,7 @@ def assess(
     moved = src @ transform[:3, :3].T + transform[:3, 3]
     res2 = np.sum((moved - dst) ** 2, axis=1)
     inl = res2 < r**2
-    k = int(np.unique(cand[inl, 0]).size)
+    k = int(np.count_nonzero(np.bincount(cand[inl, 0])))  # distinct query objects
     n_classes = max(query.n_classes, target.n_classes)
     chance = _ChanceModel(target, r, n_classes)
     qi = cand[:, 0]

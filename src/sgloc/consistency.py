@@ -20,7 +20,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from sgloc.errors import UnknownNameError
-from sgloc.kernels import use_compiled
+from sgloc.kernels import one_blas_thread, use_compiled
 
 #: Side of the square tiles computed at once: 512 x 512 float32 = 1 MB per temporary (L2-sized).
 TILE = 512
@@ -84,10 +84,11 @@ def consistent_blocks(
         rows = slice(i0, min(m, i0 + TILE))
         for j0 in range(i0, m, TILE):
             cols = slice(j0, min(m, j0 + TILE))
-            dq = As[rows] @ Bs[cols].T
+            with one_blas_thread():  # (512 x 5 products: a second thread only waits)
+                dq = As[rows] @ Bs[cols].T
+                dt = At[rows] @ Bt[cols].T
             np.maximum(dq, 0.0, out=dq)  # rounding can make a tiny square negative
             np.sqrt(dq, out=dq)
-            dt = At[rows] @ Bt[cols].T
             np.maximum(dt, 0.0, out=dt)
             np.sqrt(dt, out=dt)
             if form == "distance":
@@ -221,7 +222,12 @@ class ConsistentPairs:
             return
         from sgloc.kernels.triangles import upper_counts
 
-        self._keep_words = pack_rows(self.keep[None, :])[0]
+        if keep is None:  # every column: the first m bits set
+            self._keep_words = np.full(bits.shape[1], np.iinfo(np.uint64).max, dtype=np.uint64)
+            if m % 64 and m:
+                self._keep_words[-1] = np.uint64((1 << (m % 64)) - 1)
+        else:
+            self._keep_words = pack_rows(self.keep[None, :])[0]
         if self._keep_words.shape[0] < bits.shape[1]:  # m = 0: no words at all
             self._keep_words = np.zeros(bits.shape[1], dtype=np.uint64)
         counts = upper_counts(bits, self._keep_words, self.keep)

@@ -13,6 +13,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy import sparse
 
+from sgloc.kernels import one_blas_thread, use_compiled
 from sgloc.validation import validate_settings
 
 #: Similarities held at once per block (8 MB of float64).
@@ -88,26 +89,32 @@ def cosine_similarity(desc_q, desc_t, labels_q: np.ndarray, labels_t: np.ndarray
 
 
 def _top_k(
-    Q,
-    T,
+    desc_q,
+    desc_t,
     labels_q,
     labels_t,
     k: int,
     min_sim: float,
     max_ratio: float | None = None,
     flag_ratio: float | None = None,
+    compiled: bool = False,
 ) -> tuple[np.ndarray, ...]:
     """Per query row its k most similar same-class targets with similarity >= min_sim and > 0
     (and passing the ratio test when max_ratio is set): (query idx, target idx, score, flag),
-    ordered by query, then score descending; flag: the query passes the ratio test at
-    `flag_ratio` (all True when it is None)."""
+    ordered by query, then score descending, then target; flag: the query passes the ratio
+    test at `flag_ratio` (all True when it is None). Of equally similar targets the lower
+    index ranks first. `compiled`: by the kernel (dense descriptors only, `_use_kernel`)."""
+    if compiled:
+        return _compiled_top_k(desc_q, desc_t, labels_q, labels_t, k, min_sim, max_ratio,
+                               flag_ratio)  # fmt: skip
+    Q, T = _row_normalised(desc_q), _row_normalised(desc_t)
     out_q, out_t, out_s, out_f = [], [], [], []
     for rows, it, S in _blocks(Q, T, labels_q, labels_t):
         kk = min(k, S.shape[1])
         if kk == 1:
             best = np.argmax(S, axis=1)[:, None]
         else:
-            best = np.argpartition(-S, kk - 1, axis=1)[:, :kk]
+            best = np.argsort(-S, axis=1, kind="stable")[:, :kk]
         sc = np.take_along_axis(S, best, axis=1)
         flag = np.ones(len(rows), dtype=bool)
         if (max_ratio is not None or flag_ratio is not None) and S.shape[1] > 1:
@@ -130,6 +137,42 @@ def _top_k(
     return q[order], t[order], s[order], f[order]
 
 
+def _as_matrix(D):
+    """A CSR matrix as it is, anything else as a float64 array."""
+    return D if sparse.issparse(D) else np.asarray(D, dtype=np.float64)
+
+
+def _use_kernel(desc_q, desc_t) -> bool:
+    """Whether `_top_k` runs the compiled kernel: dense descriptors, and compiled kernels in
+    use for a problem of this size (`sgloc.kernels.use_compiled`: asked once per matching)."""
+    if sparse.issparse(desc_q) or sparse.issparse(desc_t):
+        return False
+    return use_compiled(max(len(desc_q), len(desc_t)))
+
+
+def _compiled_top_k(desc_q, desc_t, labels_q, labels_t, k, min_sim, max_ratio, flag_ratio):
+    """`_top_k` by `sgloc.kernels.matching.top_k_same_class` (same candidates; similarities
+    equal to rounding)."""
+    from sgloc.kernels.matching import top_k_same_class
+
+    labels_q = np.asarray(labels_q, dtype=np.int64)
+    labels_t = np.asarray(labels_t, dtype=np.int64)
+    order_q = np.argsort(labels_q, kind="stable")
+    order_t = np.argsort(labels_t, kind="stable")
+    return top_k_same_class(
+        np.ascontiguousarray(desc_q, dtype=np.float64),
+        np.ascontiguousarray(desc_t, dtype=np.float64),
+        order_q,
+        labels_q[order_q],
+        order_t,
+        labels_t[order_t],
+        int(k),
+        float(min_sim),
+        np.nan if max_ratio is None else float(max_ratio),
+        np.nan if flag_ratio is None else float(flag_ratio),
+    )
+
+
 def _all_pairs(Q, T, labels_q, labels_t, cap: int, min_sim: float) -> tuple[np.ndarray, ...]:
     """Every same-class pair with similarity >= min_sim and > 0, the `cap` most similar,
     ordered by query, then score descending. Holds at most 2 * cap pairs between blocks."""
@@ -149,20 +192,6 @@ def _all_pairs(Q, T, labels_q, labels_t, cap: int, min_sim: float) -> tuple[np.n
             q, t, s = q[top], t[top], s[top]
     order = np.lexsort((t, -s, q))
     return q[order], t[order], s[order]
-
-
-_BLAS_CONTROLLER = None
-
-
-def _one_blas_thread():
-    """A context holding BLAS to one thread: the block products here are small, and a second
-    BLAS thread on a busy machine costs more than it gives (threadpoolctl, set up once)."""
-    global _BLAS_CONTROLLER
-    if _BLAS_CONTROLLER is None:
-        from threadpoolctl import ThreadpoolController
-
-        _BLAS_CONTROLLER = ThreadpoolController()
-    return _BLAS_CONTROLLER.limit(limits=1, user_api="blas")
 
 
 def match_descriptors(
@@ -200,27 +229,38 @@ def match_flagged(
         raise ValueError(f"unknown matching strategy {cfg.strategy!r}; use one of {STRATEGIES}")
     if flag_ratio is not None and cfg.max_ratio is not None and flag_ratio > cfg.max_ratio:
         return (*match_descriptors(desc_q, desc_t, labels_q, labels_t, cfg), None)
-    with _one_blas_thread():
+    desc_q, desc_t = _as_matrix(desc_q), _as_matrix(desc_t)
+    if cfg.strategy == "top_k" and _use_kernel(desc_q, desc_t):  # no BLAS products
+        return _match(desc_q, desc_t, labels_q, labels_t, cfg, flag_ratio, compiled=True)
+    with one_blas_thread():  # small block products
         return _match(desc_q, desc_t, labels_q, labels_t, cfg, flag_ratio)
 
 
 def _match(
-    desc_q, desc_t, labels_q, labels_t, cfg: MatchingConfig, flag_ratio: float | None = None
+    desc_q,
+    desc_t,
+    labels_q,
+    labels_t,
+    cfg: MatchingConfig,
+    flag_ratio: float | None = None,
+    compiled: bool = False,
 ) -> tuple[np.ndarray, ...]:
-    Q, T = _row_normalised(desc_q), _row_normalised(desc_t)
-    if Q.shape[0] == 0 or T.shape[0] == 0:
+    if desc_q.shape[0] == 0 or desc_t.shape[0] == 0:
         return np.zeros((0, 2), dtype=np.int64), np.zeros(0), np.zeros(0, bool)
     min_sim = float(cfg.min_similarity)
     if cfg.strategy == "all":
+        Q, T = _row_normalised(desc_q), _row_normalised(desc_t)
         q, t, s = _all_pairs(Q, T, labels_q, labels_t, max(int(cfg.max_candidates), 1), min_sim)
         f = np.ones(len(q), dtype=bool)
     else:
         k = max(int(cfg.top_k), 1)
-        q, t, s, f = _top_k(Q, T, labels_q, labels_t, k, min_sim, cfg.max_ratio, flag_ratio)
+        args = (labels_q, labels_t, k, min_sim, cfg.max_ratio, flag_ratio, compiled)
+        q, t, s, f = _top_k(desc_q, desc_t, *args)
         if cfg.mutual and q.size:
             # j's best k queries (any similarity), by the same blocks with the roles swapped.
-            tq, qq, _, _ = _top_k(T, Q, labels_t, labels_q, k, -np.inf)
-            n_q = Q.shape[0]
+            back_args = (labels_t, labels_q, k, -np.inf, None, None, compiled)
+            tq, qq, _, _ = _top_k(desc_t, desc_q, *back_args)
+            n_q = desc_q.shape[0]
             back = np.isin(t * n_q + q, tq * n_q + qq)
             q, t, s, f = q[back], t[back], s[back], f[back]
     return np.stack([q, t], axis=1).astype(np.int64), s, f

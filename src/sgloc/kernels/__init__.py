@@ -36,3 +36,18 @@ def use_compiled(size: int) -> bool:
         return True
     _reference_calls += 1
     return _reference_calls > REFERENCE_CALLS
+
+
+_BLAS_CONTROLLER = None
+
+
+def one_blas_thread():
+    """A context holding BLAS to one thread, for the small matrix products of the numpy paths:
+    a second BLAS thread on a busy machine costs more than it gives (threadpoolctl, set up
+    once per process)."""
+    global _BLAS_CONTROLLER
+    if _BLAS_CONTROLLER is None:
+        from threadpoolctl import ThreadpoolController
+
+        _BLAS_CONTROLLER = ThreadpoolController()
+    return _BLAS_CONTROLLER.limit(limits=1, user_api="blas")

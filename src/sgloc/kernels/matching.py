@@ -1,0 +1,182 @@
+"""Per-query top-k of same-class cosine similarities in one pass (numba).
+
+The compiled `sgloc.matching._top_k` for dense descriptors: no similarity block leaves the
+kernel, only the kept candidates. Classes are walked on label-sorted index lists, so any class
+ids work; a class's target descriptors are normalised into one transposed buffer, and each
+query row's similarities are accumulated feature by feature over it (vectorised across the
+targets, four features per pass; zero features skipped). Similarities equal the numpy blocks'
+to rounding (the sum over features runs in order, as BLAS's does, without fused multiply-adds).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def inverse_norms(D: np.ndarray) -> np.ndarray:
+    """1 / the Euclidean norm of each row of D (n,d), 0 for an all-zero row; the squares summed
+    in order, four rows at a time (independent sums: no wait on one long chain)."""
+    n, d = D.shape
+    out = np.zeros(n)
+    for i0 in range(0, n, 4):
+        s0 = s1 = s2 = s3 = 0.0
+        i1, i2, i3 = min(i0 + 1, n - 1), min(i0 + 2, n - 1), min(i0 + 3, n - 1)
+        for f in range(d):
+            a, b, c, e = D[i0, f], D[i1, f], D[i2, f], D[i3, f]
+            s0 += a * a
+            s1 += b * b
+            s2 += c * c
+            s3 += e * e
+        sums = (s0, s1, s2, s3)
+        for r in range(min(4, n - i0)):
+            if sums[r] > 0:
+                out[i0 + r] = 1.0 / np.sqrt(sums[r])
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _similarities(sim: np.ndarray, Tt: np.ndarray, x: np.ndarray, nz: np.ndarray) -> None:
+    """sim[j] = sum over the features f in nz (ascending) of x[f] * Tt[f, j], added in that
+    order; four features per pass over sim (one load and store of sim[j] per four terms)."""
+    sim[:] = 0.0
+    p = 0
+    while p + 4 <= nz.shape[0]:
+        f0, f1, f2, f3 = nz[p], nz[p + 1], nz[p + 2], nz[p + 3]
+        x0, x1, x2, x3 = x[f0], x[f1], x[f2], x[f3]
+        r0, r1, r2, r3 = Tt[f0], Tt[f1], Tt[f2], Tt[f3]
+        for j in range(sim.shape[0]):
+            acc = sim[j]
+            acc += x0 * r0[j]
+            acc += x1 * r1[j]
+            acc += x2 * r2[j]
+            acc += x3 * r3[j]
+            sim[j] = acc
+        p += 4
+    while p < nz.shape[0]:
+        f0 = nz[p]
+        x0, r0 = x[f0], Tt[f0]
+        for j in range(sim.shape[0]):
+            sim[j] += x0 * r0[j]
+        p += 1
+
+
+@njit(cache=True, nogil=True)
+def _insert(best_s: np.ndarray, best_j: np.ndarray, n: int, s: float, j: int) -> int:
+    """Insert (s, j) into the n entries of best_* kept sorted by score descending, then target
+    ascending, at most len(best_s) entries; returns the new count."""
+    kk = best_s.shape[0]
+    if n == kk and not (s > best_s[n - 1] or (s == best_s[n - 1] and j < best_j[n - 1])):
+        return n
+    pos = min(n, kk - 1)
+    while pos > 0 and (s > best_s[pos - 1] or (s == best_s[pos - 1] and j < best_j[pos - 1])):
+        if pos < kk:
+            best_s[pos], best_j[pos] = best_s[pos - 1], best_j[pos - 1]
+        pos -= 1
+    best_s[pos], best_j[pos] = s, j
+    return min(n + 1, kk)
+
+
+@njit(cache=True, nogil=True)
+def top_k_same_class(
+    Q: np.ndarray,
+    T: np.ndarray,
+    order_q: np.ndarray,
+    sorted_q: np.ndarray,
+    order_t: np.ndarray,
+    sorted_t: np.ndarray,
+    k: int,
+    min_sim: float,
+    max_ratio: float,
+    flag_ratio: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per query row its k most similar same-class target rows (cosine similarity of the rows
+    of Q (n_q,d) and T (n_t,d); a zero row is similar to nothing), kept when similarity >=
+    min_sim and > 0.
+
+    order_* / sorted_*: a stable argsort of each side's labels and the sorted labels.
+    max_ratio / flag_ratio (NaN: unset): a query row whose best similarity s_1 and second s_2
+    (same class) fail (1 - s_1) <= ratio * (1 - s_2) keeps no candidate (max_ratio) / is
+    flagged False (flag_ratio); a class with one target passes both.
+    Returns (query idx, target idx, score, flag), ordered by query, then score descending,
+    then target; among equal scores the lower target index ranks first.
+    """
+    n_q, d = Q.shape
+    inv_q, inv_t = inverse_norms(Q), inverse_norms(T)
+    out_j = np.full((n_q, k), -1, dtype=np.int64)
+    out_s = np.zeros((n_q, k))
+    out_n = np.zeros(n_q, dtype=np.int64)
+    out_f = np.ones(n_q, dtype=np.bool_)
+    test_ratio = not (np.isnan(max_ratio) and np.isnan(flag_ratio))
+    qn = np.empty(d)
+    nz = np.empty(d, dtype=np.int64)
+    best_s, best_j = np.empty(k), np.empty(k, dtype=np.int64)
+    a, b = 0, 0
+    while a < order_q.shape[0] and b < order_t.shape[0]:
+        if sorted_q[a] < sorted_t[b]:
+            a += 1
+            continue
+        if sorted_q[a] > sorted_t[b]:
+            b += 1
+            continue
+        c = sorted_q[a]
+        a_end, b_end = a, b
+        while a_end < order_q.shape[0] and sorted_q[a_end] == c:
+            a_end += 1
+        while b_end < order_t.shape[0] and sorted_t[b_end] == c:
+            b_end += 1
+        n_t = b_end - b
+        it = order_t[b:b_end]
+        Tt = np.empty((d, n_t))  # the class's normalised target rows, transposed
+        for j in range(n_t):
+            w = inv_t[it[j]]
+            for f in range(d):
+                Tt[f, j] = T[it[j], f] * w
+        sim = np.empty(n_t)
+        kk = min(k, n_t)
+        for r in range(a, a_end):
+            i = order_q[r]
+            w = inv_q[i]
+            n_nz = 0
+            for f in range(d):
+                qn[f] = Q[i, f] * w
+                nz[n_nz] = f
+                n_nz += qn[f] != 0.0
+            _similarities(sim, Tt, qn, nz[:n_nz])
+            s1, s2, j1 = -np.inf, -np.inf, 0
+            for j in range(n_t):
+                s = sim[j]
+                if s > s1:
+                    s1, s2, j1 = s, s1, j
+                elif s > s2:
+                    s2 = s
+            if kk == 1:
+                best_s[0], best_j[0] = s1, j1
+            else:
+                n = 0
+                for j in range(n_t):
+                    n = _insert(best_s[:kk], best_j[:kk], n, sim[j], j)
+            if test_ratio and n_t > 1:
+                if not np.isnan(max_ratio) and not (1.0 - s1) <= max_ratio * (1.0 - s2):
+                    continue
+                if not np.isnan(flag_ratio):
+                    out_f[i] = (1.0 - s1) <= flag_ratio * (1.0 - s2)
+            m = 0
+            for h in range(kk):
+                if best_s[h] >= min_sim and best_s[h] > 0:
+                    out_j[i, m], out_s[i, m] = it[best_j[h]], best_s[h]
+                    m += 1
+            out_n[i] = m
+        a, b = a_end, b_end
+    total = out_n.sum()
+    q = np.empty(total, dtype=np.int64)
+    t = np.empty(total, dtype=np.int64)
+    s = np.empty(total)
+    flag = np.empty(total, dtype=np.bool_)
+    p = 0
+    for i in range(n_q):
+        for h in range(out_n[i]):
+            q[p], t[p], s[p], flag[p] = i, out_j[i, h], out_s[i, h], out_f[i]
+            p += 1
+    return q, t, s, flag

@@ -1,0 +1,130 @@
+"""Per-class counts of the points near each query point (numba): the acceptance test's
+chance model without a KD-tree per call.
+
+The points are bucketed on an xy grid of cells at least the radius wide (sorted cell keys), so
+each query point scans the 3 x 3 cells around its own. A pair counts when its squared distance
+dx*dx + dy*dy + dz*dz <= radius * radius, in float64, the test (and the rounding) of
+scipy's cKDTree.sparse_distance_matrix.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+#: Cells are this much wider than the radius, so that rounding in the cell index never puts
+#: two points within the radius more than one cell apart.
+_CELL_MARGIN = 1.0 + 2.0**-10
+#: Largest number of cells per axis (cell keys stay far inside int64).
+_MAX_CELLS = 2**30
+
+
+def near_class_counts(
+    query: np.ndarray,
+    points: np.ndarray,
+    labels: np.ndarray,
+    n_classes: int,
+    radius: float,
+    weights: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(counts, weighted), each (n_query, n_classes) float64: per query point (n_query,3) and
+    class c, the number of `points` (n,3) of label c within `radius` (distance <= radius), and
+    the sum of their `weights` (n,) (an empty `weights`: the second array stays zero)."""
+    if len(points) == 0 or len(query) == 0:
+        return np.zeros((len(query), n_classes)), np.zeros((len(query), n_classes))
+    keys, x0, y0, cell, n_y = _cell_keys(points, radius)
+    # numpy's sort: numba's sort and search helpers are better kept out of cached kernels
+    # (their generated symbols can clash with another cached kernel's in one process).
+    order = np.argsort(keys, kind="stable")
+    grid = (order, keys[order], x0, y0, cell, n_y)
+    return _counts_in_cells(query, points, labels, n_classes, radius, weights, *grid)
+
+
+@njit(cache=True, nogil=True)
+def _cell_keys(points: np.ndarray, radius: float) -> tuple[np.ndarray, float, float, float, int]:
+    """(keys, x0, y0, cell, n_y): each point's xy cell as cx * n_y + cy (cells `cell` >= radius
+    wide from (x0, y0), one spare row and column on each side)."""
+    n = points.shape[0]
+    x0, y0 = points[:, 0].min(), points[:, 1].min()
+    extent = max(points[:, 0].max() - x0, points[:, 1].max() - y0)
+    cell = max(radius * _CELL_MARGIN, extent / _MAX_CELLS)
+    n_y = np.int64(np.floor((points[:, 1].max() - y0) / cell)) + 3
+    keys = np.empty(n, dtype=np.int64)
+    for j in range(n):
+        cx = np.int64(np.floor((points[j, 0] - x0) / cell)) + 1
+        cy = np.int64(np.floor((points[j, 1] - y0) / cell)) + 1
+        keys[j] = cx * n_y + cy
+    return keys, x0, y0, cell, n_y
+
+
+@njit(cache=True, nogil=True)
+def _first_at_least(sorted_keys: np.ndarray, key: int) -> int:
+    """The first position of sorted_keys holding a value >= key (binary search)."""
+    lo, hi = 0, sorted_keys.shape[0]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if sorted_keys[mid] < key:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True, nogil=True)
+def _counts_in_cells(
+    query: np.ndarray,
+    points: np.ndarray,
+    labels: np.ndarray,
+    n_classes: int,
+    radius: float,
+    weights: np.ndarray,
+    order: np.ndarray,
+    sorted_keys: np.ndarray,
+    x0: float,
+    y0: float,
+    cell: float,
+    n_y: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """`near_class_counts` on the grid of `_cell_keys` (`order` sorts the keys)."""
+    n_q, n = query.shape[0], points.shape[0]
+    counts = np.zeros((n_q, n_classes))
+    weighted = np.zeros((n_q, n_classes))
+    n_x = sorted_keys[-1] // n_y + 2
+    # Points in cell order (contiguous scans), and, when the grid is small, the start of each
+    # cell's run in a table instead of a binary search per query point and column.
+    px, py, pz = points[order, 0], points[order, 1], points[order, 2]
+    lab = labels[order]
+    use_weights = weights.shape[0] == n
+    w = weights[order] if use_weights else weights
+    n_cells = (n_x + 1) * n_y
+    dense = n_cells <= 8 * n + 4096
+    start = np.zeros(n_cells + 1 if dense else 1, dtype=np.int64)
+    if dense:
+        for s in range(n):
+            start[sorted_keys[s] + 1] += 1
+        for c in range(n_cells):
+            start[c + 1] += start[c]
+    r2 = radius * radius
+    for i in range(n_q):
+        qx, qy, qz = query[i, 0], query[i, 1], query[i, 2]
+        fx, fy = np.floor((qx - x0) / cell) + 1, np.floor((qy - y0) / cell) + 1
+        if not (fx >= 0 and fx <= n_x and fy >= 0 and fy <= n_y - 1):
+            continue  # a cell away from every point: nothing within the radius (or NaN)
+        cx, cy = np.int64(fx), np.int64(fy)
+        for dx_cell in range(-1, 2):
+            if cx + dx_cell < 0 or cx + dx_cell > n_x:
+                continue
+            lo_key = (cx + dx_cell) * n_y + max(cy - 1, 0)
+            hi_key = (cx + dx_cell) * n_y + min(cy + 1, n_y - 1)
+            if dense:
+                lo, hi = start[lo_key], start[hi_key + 1]
+            else:
+                lo = _first_at_least(sorted_keys, lo_key)
+                hi = _first_at_least(sorted_keys, hi_key + 1)
+            for s in range(lo, hi):
+                dx, dy, dz = qx - px[s], qy - py[s], qz - pz[s]
+                if dx * dx + dy * dy + dz * dz <= r2:
+                    counts[i, lab[s]] += 1.0
+                    if use_weights:
+                        weighted[i, lab[s]] += w[s]
+    return counts, weighted
