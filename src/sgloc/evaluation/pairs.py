@@ -192,9 +192,10 @@ def make_pair_source(name: str, **params: Any) -> PairSource:
     if cls is None:
         path = Path(name)
         if not path.is_dir():
+            names = ", ".join(sorted({*PAIR_SOURCES, *ALIASES}))
             raise UnknownNameError(
-                f"unknown dataset {name!r}; choose one of {', '.join(dataset_names())} or give a "
-                "folder holding two graph files or an Airsim-layout run with ground_truth.txt."
+                f"unknown dataset {name!r}; choose one of {names} or give a folder holding two "
+                "graph files or an Airsim-layout run with ground_truth.txt."
             )
         if (path / "CameraParams").is_dir():
             cls = SynthiaPairs
@@ -211,18 +212,3 @@ def make_pair_source(name: str, **params: Any) -> PairSource:
     src = cls(**params)
     return src.resolved() if hasattr(src, "resolved") else src
 
-
-def dataset_names() -> list[str]:
-    """Every name `make_pair_source` accepts (registered sources and aliases)."""
-    return sorted(set(PAIR_SOURCES) | set(ALIASES))
-
-
-__all__ = [
-    "ALIASES",
-    "AirsimGuoPairs",
-    "GraphFilePairs",
-    "ObjectWorldPairs",
-    "SynthiaPairs",
-    "dataset_names",
-    "make_pair_source",
-]

@@ -146,11 +146,7 @@ def route_overlap(xy_query: np.ndarray, xy_target: np.ndarray, radius: float) ->
     """Fraction of the query route's length (positions (n,2) or (n,3) along the route, metres)
     that passes within `radius` of the target route's positions. The one overlap definition of
     the evaluation (`window_overlaps` computes it for many windows at once)."""
-    from scipy.spatial import cKDTree
-
-    step = np.linalg.norm(np.diff(xy_query, axis=0), axis=1)
-    near = cKDTree(xy_target).query(xy_query[:-1], distance_upper_bound=radius)[0] < radius
-    return float((step * near).sum() / max(step.sum(), 1e-9))
+    return float(window_overlaps(xy_query, xy_target, np.array([0]), len(xy_query), radius)[0])
 
 
 def window_overlaps(
