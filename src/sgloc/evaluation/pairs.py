@@ -26,6 +26,7 @@ from sgloc.evaluation.scenes import (
     MovedTargetSource,
     Pair,
     PairSource,
+    extracted_graph,
     load_graph_cached,
     register_pair_source,
     route_overlap,
@@ -33,7 +34,6 @@ from sgloc.evaluation.scenes import (
 )
 from sgloc.geometry import invert
 from sgloc.graph import DEFAULT_EDGE_RADIUS, SemanticGraph
-from sgloc.presets import extraction_preset
 
 GRAPH_SUFFIXES = (".pcd", ".json", ".npz")
 
@@ -122,20 +122,6 @@ def _camera_poses(root: str, camera: str) -> np.ndarray:
     return make_dataset("synthia", root, camera=camera).poses
 
 
-@functools.lru_cache(maxsize=64)
-def _synthia_graph(
-    root: str, camera: str, first: int, last: int, edge_radius: float
-) -> SemanticGraph:
-    """One camera's graph from frames first..last (inclusive), in its first frame's optical
-    frame (the `synthia` extraction preset: objects only)."""
-    from sgloc.datasets import make_dataset
-    from sgloc.extraction import build_graph
-
-    ds = make_dataset("synthia", root, camera=camera, frames=(first, last), start_frame=True)
-    g = build_graph(ds, extraction_preset("synthia"), name=f"{camera}[{first}-{last}]")
-    return g.with_edge_radius(edge_radius)
-
-
 @register_pair_source("synthia")
 @dataclass(frozen=True)
 class SynthiaPairs(MovedTargetSource):
@@ -174,8 +160,13 @@ class SynthiaPairs(MovedTargetSource):
     def maps(self, seed: int) -> tuple[SemanticGraph, SemanticGraph, np.ndarray, dict[str, Any]]:
         a, b, ov = self.windows()
         PA, PB = (_camera_poses(self.root, c) for c in CAMERAS)
-        target = _synthia_graph(self.root, CAMERAS[0], *a, self.edge_radius)
-        query = _synthia_graph(self.root, CAMERAS[1], *b, self.edge_radius)
+
+        def graph(camera: str, w: tuple[int, int]) -> SemanticGraph:
+            sel = {"camera": camera, "frames": w, "start_frame": True}
+            name = f"{camera}[{w[0]}-{w[1]}]"
+            return extracted_graph("synthia", self.root, name, self.edge_radius, **sel)
+
+        target, query = graph(CAMERAS[0], a), graph(CAMERAS[1], b)
         info = {"overlap": round(ov, 4), "frames_a": f"{a[0]}-{a[1]}", "frames_b": f"{b[0]}-{b[1]}"}
         return query, target, invert(PA[a[0]]) @ PB[b[0]], info
 
@@ -211,4 +202,3 @@ def make_pair_source(name: str, **params: Any) -> PairSource:
         )
     src = cls(**params)
     return src.resolved() if hasattr(src, "resolved") else src
-
