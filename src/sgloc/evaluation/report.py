@@ -181,8 +181,22 @@ def table1_markdown(summary: Sequence[dict[str, Any]], with_paper: bool = True) 
         ])  # fmt: skip
         p = PAPER_TABLE1.get((s["descriptor"], s["rejection"]))
         if with_paper and p:
-            body.append([f"{label} (paper)", 100, "-", p["final"], p["recall"], p["precision"],
-                         p["rejection"], p["ransac"], p["total"], "-", p["te"], p["re"]])
+            body.append(
+                [
+                    f"{label} (paper)",
+                    100,
+                    "-",
+                    p["final"],
+                    p["recall"],
+                    p["precision"],
+                    p["rejection"],
+                    p["ransac"],
+                    p["total"],
+                    "-",
+                    p["te"],
+                    p["re"],
+                ]
+            )
     return markdown_table(header, body)
 
 

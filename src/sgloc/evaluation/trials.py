@@ -27,9 +27,6 @@ from sgloc.localizer import Localizer
 #: Stream index of the localizer's random numbers (RANSAC, random walks) within a trial seed.
 LOCALIZER_STREAM = 1
 
-#: Columns holding wall-clock times: they differ between runs; everything else is reproducible.
-TIMING_PREFIX = "t_"
-
 
 @dataclass
 class TrialTask:
@@ -64,17 +61,6 @@ class TrialTask:
 STAGES = ("descriptors", "matching", "rejection", "ransac", "estimation", "total")
 
 
-_SOURCES: dict[tuple, Any] = {}
-
-
-def _source(dataset: str, params: dict[str, Any]):
-    """The pair source, built once per process (sources cache their loaded graphs)."""
-    key = (dataset, tuple(sorted((k, repr(v)) for k, v in params.items())))
-    if key not in _SOURCES:
-        _SOURCES[key] = make_pair_source(dataset, **params)
-    return _SOURCES[key]
-
-
 @functools.cache
 def limit_blas_threads() -> None:
     """Limit BLAS/OpenMP to one thread in this process (once). Trials are small matrix work:
@@ -97,7 +83,7 @@ def run_task(task: TrialTask) -> dict[str, Any]:
     BLAS runs single-threaded in the calling process from then on (see `limit_blas_threads`).
     """
     limit_blas_threads()
-    pair = _source(task.dataset, task.dataset_params)(task.seed)
+    pair = make_pair_source(task.dataset, **task.dataset_params)(task.seed)
     cfg = LocalizerConfig.from_dict(task.config)
     localizer = Localizer(cfg)
     clock = time.thread_time if task.clock == "cpu" else time.perf_counter
@@ -140,30 +126,23 @@ Progress = Callable[[int], None]
 def prepare_tasks(tasks: Sequence[TrialTask]) -> list[TrialTask]:
     """The first trial of each distinct world the trials need, for sources whose pairs come
     from an expensive disk-cached world (a `world(seed)` method, e.g. a rendered city); empty
-    for the others. Run them with `run_tasks(..., fn=run_prepare)` to build each world once."""
+    for the others. Run them first (`run_tasks`) to build each world once."""
     first: dict[tuple, TrialTask] = {}
     for t in tasks:
-        src = _source(t.dataset, t.dataset_params)
+        src = make_pair_source(t.dataset, **t.dataset_params)
         if hasattr(src, "world"):
             key = (t.dataset, repr(sorted(t.dataset_params.items())), src.world(t.seed))
             first.setdefault(key, t)
     return list(first.values())
 
 
-def run_prepare(task: TrialTask) -> None:
-    """Build the task's pair once, so that its world is in the cache (picklable entry point)."""
-    _source(task.dataset, task.dataset_params)(task.seed)
-
-
 def run_tasks(
-    tasks: Sequence[Any],
+    tasks: Sequence[TrialTask],
     workers: int | None = None,
     scheduler: Any = None,
     progress: Progress | None = None,
-    fn: Callable[[Any], Any] = run_task,
-) -> list[Any]:
-    """Run trials (`fn` of each task, default `run_task`) and return the results in the
-    order of `tasks`.
+) -> list[dict[str, Any]]:
+    """Run trials (`run_task` of each task) and return their rows in the order of `tasks`.
 
     workers: local processes (default: the number of CPUs; 1 runs in this process).
     scheduler: a Dask scheduler address ("tcp://host:8786") or a `distributed.Client`; when
@@ -173,16 +152,16 @@ def run_tasks(
     tasks = list(tasks)
     tick = progress or (lambda n: None)
     if scheduler is not None:
-        return _run_dask(tasks, scheduler, tick, fn)
+        return _run_dask(tasks, scheduler, tick)
     workers = workers or os.cpu_count() or 1
     if workers <= 1 or len(tasks) <= 1:
         rows = []
         for t in tasks:
-            rows.append(fn(t))
+            rows.append(run_task(t))
             tick(1)
         return rows
     with ProcessPoolExecutor(max_workers=min(workers, len(tasks))) as pool:
-        return _collect([pool.submit(fn, t) for t in tasks], as_completed, tick)
+        return _collect([pool.submit(run_task, t) for t in tasks], as_completed, tick)
 
 
 def _collect(futures: list[Any], completed: Callable, tick: Progress) -> list[Any]:
@@ -195,7 +174,7 @@ def _collect(futures: list[Any], completed: Callable, tick: Progress) -> list[An
     return rows
 
 
-def _run_dask(tasks: list[Any], scheduler: Any, tick: Progress, fn: Callable) -> list[Any]:
+def _run_dask(tasks: list[TrialTask], scheduler: Any, tick: Progress) -> list[dict[str, Any]]:
     from sgloc.optional import require
 
     require("distributed", "dask", "--scheduler (running trials on a Dask cluster)")
@@ -211,12 +190,12 @@ def _run_dask(tasks: list[Any], scheduler: Any, tick: Progress, fn: Callable) ->
             "`dask scheduler` and `dask worker ADDRESS`) or drop --scheduler to run locally."
         ) from None
     try:
-        return _collect(client.map(fn, tasks, pure=False), dask_completed, tick)
+        return _collect(client.map(run_task, tasks, pure=False), dask_completed, tick)
     finally:
         if own:
             client.close()
 
 
 def reproducible_part(row: dict[str, Any]) -> dict[str, Any]:
-    """A row without its timing columns: what must be identical for the same task."""
-    return {k: v for k, v in row.items() if not k.startswith(TIMING_PREFIX)}
+    """A row without its timing columns (t_*): what must be identical for the same task."""
+    return {k: v for k, v in row.items() if not k.startswith("t_")}
