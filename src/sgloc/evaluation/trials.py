@@ -131,8 +131,7 @@ def prepare_tasks(tasks: Sequence[TrialTask]) -> list[TrialTask]:
     for t in tasks:
         src = make_pair_source(t.dataset, **t.dataset_params)
         if hasattr(src, "world"):
-            key = (t.dataset, repr(sorted(t.dataset_params.items())), src.world(t.seed))
-            first.setdefault(key, t)
+            first.setdefault((src, src.world(t.seed)), t)
     return list(first.values())
 
 
