@@ -28,7 +28,7 @@ import numpy as np  # noqa: E402
 
 from sgloc import localize  # noqa: E402
 from sgloc.estimation import fit_rigid, irls_refine, tilt_deg  # noqa: E402
-from sgloc.evaluation.pairs import AirsimGuoPairs, airsim_guo_maps  # noqa: E402
+from sgloc.evaluation.pairs import AirsimGuoPairs  # noqa: E402
 from sgloc.geometry import invert, transform_error  # noqa: E402
 from sgloc.graph import SemanticGraph  # noqa: E402
 
@@ -285,7 +285,7 @@ def trials_section(rows: dict, trials: int) -> list[str]:
 
 
 def report(trials: int) -> str:
-    q, t = airsim_guo_maps()
+    q, t, _, _ = AirsimGuoPairs().resolved().maps(0)
     axes = axes_of(q.positions[true_pairs(q, t, 5.0)[:, 0]])
     commit = subprocess.run(
         ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=False
