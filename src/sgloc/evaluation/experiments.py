@@ -39,6 +39,7 @@ from sgloc.evaluation.trials import (
     LOCALIZER_STREAM,
     TrialTask,
     prepare_tasks,
+    run_prepare,
     run_tasks,
 )
 from sgloc.localizer import Localizer
@@ -238,7 +239,8 @@ def run_experiment(
     else:
         prep = prepare_tasks(tasks)  # e.g. render each synthetic world once, in parallel
         if prep:
-            run_tasks(prep, workers, scheduler, _ticker(progress, len(prep), "preparing worlds"))
+            tick = _ticker(progress, len(prep), "preparing worlds")
+            run_tasks(prep, workers, scheduler, tick, fn=run_prepare)
         rows = run_tasks(tasks, workers, scheduler, _ticker(progress, len(tasks), "trials"))
     wall = time.perf_counter() - t0
     files = [write_csv(rows, folder / "trials.csv")]

@@ -126,7 +126,7 @@ Progress = Callable[[int], None]
 def prepare_tasks(tasks: Sequence[TrialTask]) -> list[TrialTask]:
     """The first trial of each distinct world the trials need, for sources whose pairs come
     from an expensive disk-cached world (a `world(seed)` method, e.g. a rendered city); empty
-    for the others. Run them first (`run_tasks`) to build each world once."""
+    for the others. Run them with `run_tasks(..., fn=run_prepare)` to build each world once."""
     first: dict[tuple, TrialTask] = {}
     for t in tasks:
         src = make_pair_source(t.dataset, **t.dataset_params)
@@ -135,13 +135,21 @@ def prepare_tasks(tasks: Sequence[TrialTask]) -> list[TrialTask]:
     return list(first.values())
 
 
+def run_prepare(task: TrialTask) -> None:
+    """Build the task's pair once, so that its world is in the cache (picklable entry point;
+    no localization, which would change the kernels a later trial of this process runs)."""
+    make_pair_source(task.dataset, **task.dataset_params)(task.seed)
+
+
 def run_tasks(
     tasks: Sequence[TrialTask],
     workers: int | None = None,
     scheduler: Any = None,
     progress: Progress | None = None,
-) -> list[dict[str, Any]]:
-    """Run trials (`run_task` of each task) and return their rows in the order of `tasks`.
+    fn: Callable[[TrialTask], Any] = run_task,
+) -> list[Any]:
+    """Run trials (`fn` of each task, default `run_task`) and return the results in the order
+    of `tasks`.
 
     workers: local processes (default: the number of CPUs; 1 runs in this process).
     scheduler: a Dask scheduler address ("tcp://host:8786") or a `distributed.Client`; when
@@ -151,16 +159,16 @@ def run_tasks(
     tasks = list(tasks)
     tick = progress or (lambda n: None)
     if scheduler is not None:
-        return _run_dask(tasks, scheduler, tick)
+        return _run_dask(tasks, scheduler, tick, fn)
     workers = workers or os.cpu_count() or 1
     if workers <= 1 or len(tasks) <= 1:
         rows = []
         for t in tasks:
-            rows.append(run_task(t))
+            rows.append(fn(t))
             tick(1)
         return rows
     with ProcessPoolExecutor(max_workers=min(workers, len(tasks))) as pool:
-        return _collect([pool.submit(run_task, t) for t in tasks], as_completed, tick)
+        return _collect([pool.submit(fn, t) for t in tasks], as_completed, tick)
 
 
 def _collect(futures: list[Any], completed: Callable, tick: Progress) -> list[Any]:
@@ -173,7 +181,7 @@ def _collect(futures: list[Any], completed: Callable, tick: Progress) -> list[An
     return rows
 
 
-def _run_dask(tasks: list[TrialTask], scheduler: Any, tick: Progress) -> list[dict[str, Any]]:
+def _run_dask(tasks: list[TrialTask], scheduler: Any, tick: Progress, fn: Callable) -> list[Any]:
     from sgloc.optional import require
 
     require("distributed", "dask", "--scheduler (running trials on a Dask cluster)")
@@ -189,7 +197,7 @@ def _run_dask(tasks: list[TrialTask], scheduler: Any, tick: Progress) -> list[di
             "`dask scheduler` and `dask worker ADDRESS`) or drop --scheduler to run locally."
         ) from None
     try:
-        return _collect(client.map(run_task, tasks, pure=False), dask_completed, tick)
+        return _collect(client.map(fn, tasks, pure=False), dask_completed, tick)
     finally:
         if own:
             client.close()
