@@ -148,11 +148,9 @@ class SynthiaPairs(MovedTargetSource):
             a, b = (0, len(PA) - 1), (0, len(PB) - 1)
             return a, b, route_overlap(xb, xa, self.radius)
         n = min(self.length, len(PA), len(PB))
-        a = (0, n - 1)
-        starts = np.arange(0, len(PB) - n + 1)
-        ovs = window_overlaps(xb, xa[:n], starts, n, self.radius)
-        s = int(starts[np.argmin(np.abs(ovs - self.overlap))])
-        return a, (s, s + n - 1), float(ovs[s])
+        ovs = window_overlaps(xb, xa[:n], np.arange(len(PB) - n + 1), n, self.radius)
+        s = int(np.argmin(np.abs(ovs - self.overlap)))
+        return (0, n - 1), (s, s + n - 1), float(ovs[s])
 
     def maps(self, seed: int) -> tuple[SemanticGraph, SemanticGraph, np.ndarray, dict[str, Any]]:
         a, b, ov = self.windows()
