@@ -203,15 +203,12 @@ def _unknown(name: str) -> UnknownNameError:
 
 
 def _ticker(progress: Callable | None, total: int, phase: str) -> Callable[[int], None]:
-    """A `run_tasks` progress callback that reports (done, total, phase) to `progress`."""
-    done = [0]
-
-    def tick(n: int) -> None:
-        done[0] += n
-        if progress:
-            progress(done[0], total, phase)
-
-    return tick
+    """A `run_tasks` progress callback that reports (done, total, phase) to `progress`, starting
+    with (0, total, phase)."""
+    done = itertools.count(1)  # run_tasks ticks one trial at a time
+    if progress:
+        progress(0, total, phase)
+    return (lambda n: progress(next(done), total, phase)) if progress else (lambda n: None)
 
 
 def run_experiment(
@@ -227,12 +224,11 @@ def run_experiment(
 
     progress(done, total, phase) is called as trials (and world preparations) finish.
     """
-    opt = options or ExperimentOptions()
     if name not in EXPERIMENTS:
         raise _unknown(name)
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
-    opt = resolved_options(dataset, opt)  # fails early on a bad dataset name
+    opt = resolved_options(dataset, options or ExperimentOptions())  # fails early on a bad name
     if name == "matches":
         return _matches(dataset, folder, opt)
     sweep = make_sweep(name, dataset, opt)
@@ -243,9 +239,8 @@ def run_experiment(
     else:
         prep = prepare_tasks(tasks)  # e.g. render each synthetic world once, in parallel
         if prep:
-            tick_prep = _ticker(progress, len(prep), "preparing worlds")
-            tick_prep(0)
-            run_tasks(prep, workers, scheduler, tick_prep, fn=run_prepare)
+            tick = _ticker(progress, len(prep), "preparing worlds")
+            run_tasks(prep, workers, scheduler, tick, fn=run_prepare)
         rows = run_tasks(tasks, workers, scheduler, _ticker(progress, len(tasks), "trials"))
     wall = time.perf_counter() - t0
     files = [write_csv(rows, folder / "trials.csv")]
@@ -273,8 +268,7 @@ def run_experiment(
 
 
 def _cell_name(settings: dict[str, Any], params: dict[str, Any]) -> str:
-    items = {**settings, **params}
-    return ",".join(f"{k}={v}" for k, v in items.items())
+    return ",".join(f"{k}={v}" for k, v in {**settings, **params}.items())
 
 
 def _outputs(

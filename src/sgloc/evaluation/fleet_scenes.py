@@ -128,7 +128,6 @@ def expected_placeable(
         for j in range(i + 1, n):
             d, k = cKDTree(world[j]).query(world[i], distance_upper_bound=link_radius)
             ok = np.isfinite(d)
-            same = ok.copy()
-            same[ok] = scene.graphs[i].labels[ok] == scene.graphs[j].labels[k[ok]]
+            same = scene.graphs[i].labels[ok] == scene.graphs[j].labels[k[ok]]
             out[i, j] = out[j, i] = same.sum() >= min_shared
     return out

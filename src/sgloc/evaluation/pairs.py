@@ -26,6 +26,7 @@ from sgloc.evaluation.scenes import (
     MovedTargetSource,
     Pair,
     PairSource,
+    extracted_graph,
     load_graph_cached,
     register_pair_source,
     route_overlap,
@@ -33,7 +34,6 @@ from sgloc.evaluation.scenes import (
 )
 from sgloc.geometry import invert
 from sgloc.graph import DEFAULT_EDGE_RADIUS, SemanticGraph
-from sgloc.presets import extraction_preset
 
 GRAPH_SUFFIXES = (".pcd", ".json", ".npz")
 
@@ -84,10 +84,7 @@ class GraphFilePairs(MovedTargetSource):
                     f"{root}: expected two graph files (query.* and target.*, or exactly two "
                     f"{'/'.join(GRAPH_SUFFIXES)} files), found {len(found)}."
                 )
-        for p in (q, t):
-            if not p.is_file():
-                raise DatasetError(f"{p}: no such graph file.")
-        return q, t
+        return q, t  # a missing file: SemanticGraph.load names it
 
     def maps(self, seed: int) -> tuple[SemanticGraph, SemanticGraph, np.ndarray, dict[str, Any]]:
         q, t = (load_graph_cached(str(p.resolve()), self.edge_radius) for p in self.files())
@@ -122,20 +119,6 @@ def _camera_poses(root: str, camera: str) -> np.ndarray:
     return make_dataset("synthia", root, camera=camera).poses
 
 
-@functools.lru_cache(maxsize=64)
-def _synthia_graph(
-    root: str, camera: str, first: int, last: int, edge_radius: float
-) -> SemanticGraph:
-    """One camera's graph from frames first..last (inclusive), in its first frame's optical
-    frame (the `synthia` extraction preset: objects only)."""
-    from sgloc.datasets import make_dataset
-    from sgloc.extraction import build_graph
-
-    ds = make_dataset("synthia", root, camera=camera, frames=(first, last), start_frame=True)
-    g = build_graph(ds, extraction_preset("synthia"), name=f"{camera}[{first}-{last}]")
-    return g.with_edge_radius(edge_radius)
-
-
 @register_pair_source("synthia")
 @dataclass(frozen=True)
 class SynthiaPairs(MovedTargetSource):
@@ -165,17 +148,20 @@ class SynthiaPairs(MovedTargetSource):
             a, b = (0, len(PA) - 1), (0, len(PB) - 1)
             return a, b, route_overlap(xb, xa, self.radius)
         n = min(self.length, len(PA), len(PB))
-        a = (0, n - 1)
-        starts = np.arange(0, len(PB) - n + 1)
-        ovs = window_overlaps(xb, xa[:n], starts, n, self.radius)
-        s = int(starts[np.argmin(np.abs(ovs - self.overlap))])
-        return a, (s, s + n - 1), float(ovs[s])
+        ovs = window_overlaps(xb, xa[:n], np.arange(len(PB) - n + 1), n, self.radius)
+        s = int(np.argmin(np.abs(ovs - self.overlap)))
+        return (0, n - 1), (s, s + n - 1), float(ovs[s])
 
     def maps(self, seed: int) -> tuple[SemanticGraph, SemanticGraph, np.ndarray, dict[str, Any]]:
         a, b, ov = self.windows()
         PA, PB = (_camera_poses(self.root, c) for c in CAMERAS)
-        target = _synthia_graph(self.root, CAMERAS[0], *a, self.edge_radius)
-        query = _synthia_graph(self.root, CAMERAS[1], *b, self.edge_radius)
+
+        def graph(camera: str, w: tuple[int, int]) -> SemanticGraph:
+            sel = {"camera": camera, "frames": w, "start_frame": True}
+            name = f"{camera}[{w[0]}-{w[1]}]"
+            return extracted_graph("synthia", self.root, name, self.edge_radius, **sel)
+
+        target, query = graph(CAMERAS[0], a), graph(CAMERAS[1], b)
         info = {"overlap": round(ov, 4), "frames_a": f"{a[0]}-{a[1]}", "frames_b": f"{b[0]}-{b[1]}"}
         return query, target, invert(PA[a[0]]) @ PB[b[0]], info
 
@@ -192,9 +178,10 @@ def make_pair_source(name: str, **params: Any) -> PairSource:
     if cls is None:
         path = Path(name)
         if not path.is_dir():
+            names = ", ".join(sorted({*PAIR_SOURCES, *ALIASES}))
             raise UnknownNameError(
-                f"unknown dataset {name!r}; choose one of {', '.join(dataset_names())} or give a "
-                "folder holding two graph files or an Airsim-layout run with ground_truth.txt."
+                f"unknown dataset {name!r}; choose one of {names} or give a folder holding two "
+                "graph files or an Airsim-layout run with ground_truth.txt."
             )
         if (path / "CameraParams").is_dir():
             cls = SynthiaPairs
@@ -210,19 +197,3 @@ def make_pair_source(name: str, **params: Any) -> PairSource:
         )
     src = cls(**params)
     return src.resolved() if hasattr(src, "resolved") else src
-
-
-def dataset_names() -> list[str]:
-    """Every name `make_pair_source` accepts (registered sources and aliases)."""
-    return sorted(set(PAIR_SOURCES) | set(ALIASES))
-
-
-__all__ = [
-    "ALIASES",
-    "AirsimGuoPairs",
-    "GraphFilePairs",
-    "ObjectWorldPairs",
-    "SynthiaPairs",
-    "dataset_names",
-    "make_pair_source",
-]

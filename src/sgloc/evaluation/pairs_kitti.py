@@ -43,16 +43,11 @@ def kitti_sequence(root: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     P = read_kitti_poses(Path(root) / "poses_00.txt")
     Tr = np.eye(4)
     Tr[:3] = TR_KITTI_00
-    pairs, Ms = [], []
-    for name in KITTI_LC_FILES:
-        f = Path(root) / name
-        if f.is_file():
-            a = np.loadtxt(f, skiprows=1, ndmin=2)
-            pairs.append(a[:, [1, 3]].astype(np.int64))
-            Ms.append(a[:, 4:20].reshape(-1, 4, 4))
-    if not pairs:
+    found = [f for f in (Path(root) / name for name in KITTI_LC_FILES) if f.is_file()]
+    if not found:
         raise DatasetError(f"{root}: no kitti_lc_test_*.txt revisit files.")
-    ij, M = np.concatenate(pairs), np.concatenate(Ms)
+    a = np.concatenate([np.loadtxt(f, skiprows=1, ndmin=2) for f in found])
+    ij, M = a[:, [1, 3]].astype(np.int64), a[:, 4:20].reshape(-1, 4, 4)
     swap = ij[:, 0] > ij[:, 1]
     ij[swap] = ij[swap][:, ::-1]
     M[swap] = np.linalg.inv(M[swap])

@@ -10,7 +10,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from sgloc.evaluation.scenes import MovedTargetSource, register_pair_source
+from sgloc.evaluation.scenes import MovedTargetSource, extracted_graph, register_pair_source
 from sgloc.graph import SemanticGraph
 from sgloc.presets import localizer_settings as preset_settings
 
@@ -35,6 +35,7 @@ def _code_hash() -> str:
     return h.hexdigest()[:8]
 
 
+@functools.lru_cache(maxsize=64)
 def city_graphs(
     world: int,
     overlap: float,
@@ -49,15 +50,12 @@ def city_graphs(
     any_code_version: use the newest cached graphs of that run even when an earlier version of
     the sim or extraction code made them (the cache key names it; rendering takes minutes)."""
     stem = f"city-w{world}-o{overlap:g}-{width}x{height}-L{length:g}"
-    if any_code_version:
-        cached = evaluation_cache_dir().glob(f"{stem}-*.npz")
-        found = sorted(cached, key=lambda p: p.stat().st_mtime)
-        if found:
-            return _read_city(found[-1])
-    return _city_graphs(stem, world, overlap, width, height, length)
-
-
-def _read_city(path: Path) -> tuple[SemanticGraph, SemanticGraph, np.ndarray]:
+    path = evaluation_cache_dir() / f"{stem}-{_code_hash()}.npz"
+    found = sorted(path.parent.glob(f"{stem}-*.npz"), key=lambda p: p.stat().st_mtime)
+    if any_code_version and found:
+        path = found[-1]
+    elif not path.is_file():
+        _render_city(path, world, overlap, width, height, length)
     z, key = np.load(path), path.stem
     return (
         SemanticGraph(z["q_pos"], z["q_lab"], name=f"{key}:query"),
@@ -66,26 +64,20 @@ def _read_city(path: Path) -> tuple[SemanticGraph, SemanticGraph, np.ndarray]:
     )
 
 
-@functools.lru_cache(maxsize=64)
-def _city_graphs(
-    stem: str, world: int, overlap: float, width: int, height: int, length: float
-) -> tuple[SemanticGraph, SemanticGraph, np.ndarray]:
-    key = f"{stem}-{_code_hash()}"
-    path = evaluation_cache_dir() / f"{key}.npz"
-    if path.is_file():
-        return _read_city(path)
+def _render_city(
+    path: Path, world: int, overlap: float, width: int, height: int, length: float
+) -> None:
+    """Render the city run, extract both robots' graphs and save them at `path` (atomically)."""
     from sgloc.extraction import build_graph
     from sgloc.sim.run import QUERY, TARGET, make_synthetic_run
 
     run = make_synthetic_run(seed=world, overlap=overlap, width=width, height=height, length=length)
-    t = build_graph(run.frames(TARGET), name=f"{key}:target")
-    q = build_graph(run.frames(QUERY), name=f"{key}:query")
-    T = run.ground_truth
+    t, q = build_graph(run.frames(TARGET)), build_graph(run.frames(QUERY))
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(f".{np.random.default_rng().integers(1 << 30)}.tmp.npz")
+    T = run.ground_truth
     np.savez(tmp, q_pos=q.positions, q_lab=q.labels, t_pos=t.positions, t_lab=t.labels, T=T)
     tmp.replace(path)
-    return q, t, T
 
 
 @register_pair_source("city")
@@ -116,19 +108,6 @@ class CityPairs(MovedTargetSource):
         return q, t, T0, {"overlap": self.overlap, "world": w}
 
 
-@functools.lru_cache(maxsize=8)
-def _airsim_run_graphs(root: str, target: str, query: str) -> tuple[SemanticGraph, ...]:
-    """(query graph, target graph) extracted from an Airsim-layout run, once per process."""
-    from sgloc.datasets import make_dataset
-    from sgloc.extraction import build_graph
-
-    graphs = []
-    for robot in (query, target):
-        ds = make_dataset("airsim", root, robot=robot)
-        graphs.append(build_graph(ds, name=f"{Path(root).name}:{robot}"))
-    return tuple(graphs)
-
-
 @register_pair_source("airsim-run")
 @dataclass(frozen=True)
 class AirsimRunPairs(MovedTargetSource):
@@ -144,5 +123,9 @@ class AirsimRunPairs(MovedTargetSource):
     def maps(self, seed: int) -> tuple[SemanticGraph, SemanticGraph, np.ndarray, dict[str, Any]]:
         from sgloc.sim.airsim_writer import read_ground_truth
 
-        q, t = _airsim_run_graphs(self.root, self.target, self.query)
+        name = Path(self.root).name
+        q, t = (
+            extracted_graph("airsim", self.root, f"{name}:{r}", robot=r)
+            for r in (self.query, self.target)
+        )
         return q, t, read_ground_truth(self.root), {}

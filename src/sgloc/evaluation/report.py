@@ -15,7 +15,7 @@ import json
 import math
 import platform
 import subprocess
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -27,8 +27,8 @@ from sgloc.data import PROJECT_ROOT
 
 #: The paper's Table 1 (Airsim, T_error = 5 m; i7-9700, C++): descriptor, rejection -> values.
 PAPER_TABLE1: dict[tuple[str, str], dict[str, str]] = {
-    setting: dict(zip(("final", "recall", "precision", "rejection", "ransac", "total", "te", "re"),
-                      values, strict=True))
+    setting: dict(zip(("final matches", "recall %", "precision %", "rejection ms", "RANSAC ms",
+                       "total ms", "trans. err m", "rot. err deg"), values, strict=True))
     for setting, values in {
         ("histogram", "none"): ("67.84+-1.55", "85.2", "77.3", "-", "19.2", "19.2", "3.02+-0.91",
                                 "0.41+-0.32"),
@@ -152,62 +152,56 @@ FAILURES = "failures (not loc. + wrong)"
 SETTING_LABEL = {"histogram": "Histogram", "fast": "Fast", "random_walk": "Random Walk"}
 
 
-def _failures(s: dict[str, Any]) -> str:
-    return f"{s['failures']} ({s['not_localized']} + {s['wrong']})"
-
-
 def setting_label(descriptor: str, rejection: str) -> str:
     """'Histogram' / 'Histogram + neighbor' style row names."""
     base = SETTING_LABEL.get(descriptor, descriptor)
     return base if rejection == "none" else f"{base} + {rejection}"
 
 
+#: Table columns: header -> the cell of a summary row (`summarize`).
+COLUMNS: dict[str, Callable[[dict[str, Any]], Any]] = {
+    "trials": lambda s: s["trials"],
+    "achieved overlap": lambda s: fmt(s["achieved_overlap"]),
+    FAILURES: lambda s: f"{s['failures']} ({s['not_localized']} + {s['wrong']})",
+    "final matches": lambda s: pm(s["final_mean"], s["final_std"]),
+    "final": lambda s: fmt(s["final_mean"], 1),
+    "recall %": lambda s: fmt(100 * s["recall"], 1),
+    "precision %": lambda s: fmt(100 * s["precision"], 1),
+    "rejection ms": lambda s: fmt(s["rejection_ms"]) if s["rejection"] != "none" else "-",
+    "RANSAC ms": lambda s: fmt(s["ransac_ms"]),
+    "total ms": lambda s: fmt(s["total_ms"]),
+    "pipeline ms": lambda s: fmt(s["pipeline_ms"]),
+    "trans. err m": lambda s: pm(s["te_mean"], s["te_std"]),
+    "median trans. err m": lambda s: fmt(s["te_median"]),
+    "rot. err deg": lambda s: pm(s["re_mean"], s["re_std"]),
+}
+
+
 def table1_markdown(summary: Sequence[dict[str, Any]], with_paper: bool = True) -> str:
     """Table 1 layout for a descriptor x rejection summary; the paper's row under each of ours
     (when `with_paper` and the paper has that setting)."""
     header = [
-        "setting", "trials", FAILURES, "final matches", "recall %", "precision %", "rejection ms",
+        "trials", FAILURES, "final matches", "recall %", "precision %", "rejection ms",
         "RANSAC ms", "total ms", "pipeline ms", "trans. err m", "rot. err deg",
     ]  # fmt: skip
     body = []
     for s in summary:
         label = setting_label(s["descriptor"], s["rejection"])
-        body.append([
-            f"**{label}** (ours)", s["trials"], _failures(s), pm(s["final_mean"], s["final_std"]),
-            fmt(100 * s["recall"], 1), fmt(100 * s["precision"], 1),
-            fmt(s["rejection_ms"]) if s["rejection"] != "none" else "-", fmt(s["ransac_ms"]),
-            fmt(s["total_ms"]), fmt(s["pipeline_ms"]), pm(s["te_mean"], s["te_std"]),
-            pm(s["re_mean"], s["re_std"]),
-        ])  # fmt: skip
+        body.append([f"**{label}** (ours)", *(COLUMNS[h](s) for h in header)])
         p = PAPER_TABLE1.get((s["descriptor"], s["rejection"]))
         if with_paper and p:
-            body.append([f"{label} (paper)", 100, "-", p["final"], p["recall"], p["precision"],
-                         p["rejection"], p["ransac"], p["total"], "-", p["te"], p["re"]])
-    return markdown_table(header, body)
+            paper = {"trials": 100, **p}
+            body.append([f"{label} (paper)", *(paper.get(h, "-") for h in header)])
+    return markdown_table(["setting", *header], body)
 
 
 def sweep_markdown(summary: Sequence[dict[str, Any]], by: Sequence[str]) -> str:
     """A compact table for sweeps: one row per cell."""
     extra = ["achieved overlap"] if summary and "achieved_overlap" in summary[0] else []
-    header = [*by, *extra, "trials", FAILURES, "final", "recall %", "precision %", "total ms",
+    header = [*extra, "trials", FAILURES, "final", "recall %", "precision %", "total ms",
               "trans. err m", "median trans. err m", "rot. err deg"]  # fmt: skip
-    body = [
-        [
-            *(s[k] for k in by),
-            *([fmt(s["achieved_overlap"])] if extra else []),
-            s["trials"],
-            _failures(s),
-            fmt(s["final_mean"], 1),
-            fmt(100 * s["recall"], 1),
-            fmt(100 * s["precision"], 1),
-            fmt(s["total_ms"]),
-            pm(s["te_mean"], s["te_std"]),
-            fmt(s["te_median"]),
-            pm(s["re_mean"], s["re_std"]),
-        ]
-        for s in summary
-    ]
-    return markdown_table(header, body)
+    body = [[*(s[k] for k in by), *(COLUMNS[h](s) for h in header)] for s in summary]
+    return markdown_table([*by, *header], body)
 
 
 # -- config -----------------------------------------------------------------------------------

@@ -21,7 +21,8 @@ import numpy as np
 
 from sgloc.evaluation.metrics import pose_errors
 from sgloc.geometry import invert, random_rigid_transform
-from sgloc.graph import SemanticGraph
+from sgloc.graph import DEFAULT_EDGE_RADIUS, SemanticGraph
+from sgloc.presets import extraction_preset
 
 #: Stream index of the pair's random numbers within a trial seed.
 PAIR_STREAM = 0
@@ -79,6 +80,19 @@ def pair_rng(seed: int) -> np.random.Generator:
 def load_graph_cached(path: str, edge_radius: float) -> SemanticGraph:
     """Load a graph file once per process (graphs are immutable, so sharing is safe)."""
     return SemanticGraph.load(path, edge_radius=edge_radius)
+
+
+@functools.lru_cache(maxsize=512)
+def extracted_graph(
+    dataset: str, root: str, name: str, edge_radius: float = DEFAULT_EDGE_RADIUS, **selection: Any
+) -> SemanticGraph:
+    """The graph extracted, with the data set's extraction preset, from the frames of
+    `make_dataset(dataset, root, **selection)`; once per process."""
+    from sgloc.datasets import make_dataset
+    from sgloc.extraction import build_graph
+
+    graph = build_graph(make_dataset(dataset, root, **selection), extraction_preset(dataset), name)
+    return graph.with_edge_radius(edge_radius)
 
 
 def move_target(
@@ -146,11 +160,7 @@ def route_overlap(xy_query: np.ndarray, xy_target: np.ndarray, radius: float) ->
     """Fraction of the query route's length (positions (n,2) or (n,3) along the route, metres)
     that passes within `radius` of the target route's positions. The one overlap definition of
     the evaluation (`window_overlaps` computes it for many windows at once)."""
-    from scipy.spatial import cKDTree
-
-    step = np.linalg.norm(np.diff(xy_query, axis=0), axis=1)
-    near = cKDTree(xy_target).query(xy_query[:-1], distance_upper_bound=radius)[0] < radius
-    return float((step * near).sum() / max(step.sum(), 1e-9))
+    return float(window_overlaps(xy_query, xy_target, np.array([0]), len(xy_query), radius)[0])
 
 
 def window_overlaps(

@@ -27,9 +27,6 @@ from sgloc.localizer import Localizer
 #: Stream index of the localizer's random numbers (RANSAC, random walks) within a trial seed.
 LOCALIZER_STREAM = 1
 
-#: Columns holding wall-clock times: they differ between runs; everything else is reproducible.
-TIMING_PREFIX = "t_"
-
 
 @dataclass
 class TrialTask:
@@ -64,17 +61,6 @@ class TrialTask:
 STAGES = ("descriptors", "matching", "rejection", "ransac", "estimation", "total")
 
 
-_SOURCES: dict[tuple, Any] = {}
-
-
-def _source(dataset: str, params: dict[str, Any]):
-    """The pair source, built once per process (sources cache their loaded graphs)."""
-    key = (dataset, tuple(sorted((k, repr(v)) for k, v in params.items())))
-    if key not in _SOURCES:
-        _SOURCES[key] = make_pair_source(dataset, **params)
-    return _SOURCES[key]
-
-
 @functools.cache
 def limit_blas_threads() -> None:
     """Limit BLAS/OpenMP to one thread in this process (once). Trials are small matrix work:
@@ -97,7 +83,7 @@ def run_task(task: TrialTask) -> dict[str, Any]:
     BLAS runs single-threaded in the calling process from then on (see `limit_blas_threads`).
     """
     limit_blas_threads()
-    pair = _source(task.dataset, task.dataset_params)(task.seed)
+    pair = make_pair_source(task.dataset, **task.dataset_params)(task.seed)
     cfg = LocalizerConfig.from_dict(task.config)
     localizer = Localizer(cfg)
     clock = time.thread_time if task.clock == "cpu" else time.perf_counter
@@ -143,27 +129,27 @@ def prepare_tasks(tasks: Sequence[TrialTask]) -> list[TrialTask]:
     for the others. Run them with `run_tasks(..., fn=run_prepare)` to build each world once."""
     first: dict[tuple, TrialTask] = {}
     for t in tasks:
-        src = _source(t.dataset, t.dataset_params)
+        src = make_pair_source(t.dataset, **t.dataset_params)
         if hasattr(src, "world"):
-            key = (t.dataset, repr(sorted(t.dataset_params.items())), src.world(t.seed))
-            first.setdefault(key, t)
+            first.setdefault((src, src.world(t.seed)), t)
     return list(first.values())
 
 
 def run_prepare(task: TrialTask) -> None:
-    """Build the task's pair once, so that its world is in the cache (picklable entry point)."""
-    _source(task.dataset, task.dataset_params)(task.seed)
+    """Build the task's pair once, so that its world is in the cache (picklable entry point;
+    no localization, which would change the kernels a later trial of this process runs)."""
+    make_pair_source(task.dataset, **task.dataset_params)(task.seed)
 
 
 def run_tasks(
-    tasks: Sequence[Any],
+    tasks: Sequence[TrialTask],
     workers: int | None = None,
     scheduler: Any = None,
     progress: Progress | None = None,
-    fn: Callable[[Any], Any] = run_task,
+    fn: Callable[[TrialTask], Any] = run_task,
 ) -> list[Any]:
-    """Run trials (`fn` of each task, default `run_task`) and return the results in the
-    order of `tasks`.
+    """Run trials (`fn` of each task, default `run_task`) and return the results in the order
+    of `tasks`.
 
     workers: local processes (default: the number of CPUs; 1 runs in this process).
     scheduler: a Dask scheduler address ("tcp://host:8786") or a `distributed.Client`; when
@@ -195,7 +181,7 @@ def _collect(futures: list[Any], completed: Callable, tick: Progress) -> list[An
     return rows
 
 
-def _run_dask(tasks: list[Any], scheduler: Any, tick: Progress, fn: Callable) -> list[Any]:
+def _run_dask(tasks: list[TrialTask], scheduler: Any, tick: Progress, fn: Callable) -> list[Any]:
     from sgloc.optional import require
 
     require("distributed", "dask", "--scheduler (running trials on a Dask cluster)")
@@ -218,5 +204,5 @@ def _run_dask(tasks: list[Any], scheduler: Any, tick: Progress, fn: Callable) ->
 
 
 def reproducible_part(row: dict[str, Any]) -> dict[str, Any]:
-    """A row without its timing columns: what must be identical for the same task."""
-    return {k: v for k, v in row.items() if not k.startswith(TIMING_PREFIX)}
+    """A row without its timing columns (t_*): what must be identical for the same task."""
+    return {k: v for k, v in row.items() if not k.startswith("t_")}
