@@ -123,7 +123,17 @@ def test_paper_preset_rejection_is_alg1_as_written(seed):
     assert differs > 0  # the default bound is another rule, and these sets tell them apart
 
 
-def test_literal_and_remaining_bounds_differ_on_an_even_count():
+@pytest.fixture(params=["compiled", "reference"])
+def kernel_path(request, monkeypatch):
+    """Each bound on both paths: the compiled kernel and the numpy reference that a process's
+    first small problems run."""
+    from sgloc import kernels
+
+    monkeypatch.setattr(kernels, "FORCE", request.param)
+    return request.param
+
+
+def test_literal_and_remaining_bounds_differ_on_an_even_count(kernel_path):
     # A path 0-1-2 and an isolated 3 (supports without M_ii: 1, 2, 1, 0). Both rules remove
     # 3 at r = 4 ("remaining": 0 < 0.5 * 3; "literal": 1 + 0 < 0.5 * 4) and stop at r = 3.
     M = np.zeros((4, 4), dtype=bool)
@@ -137,7 +147,7 @@ def test_literal_and_remaining_bounds_differ_on_an_even_count():
     assert prune_by_support(E, 0.5, bound="literal").tolist() == [2, 3]
 
 
-def test_literal_bound_on_matrices_of_any_width():
+def test_literal_bound_on_matrices_of_any_width(kernel_path):
     # Word boundaries of the packed rows: the literal rule appends one match.
     rng = np.random.default_rng(3)
     for m in (63, 64, 65, 127, 128):

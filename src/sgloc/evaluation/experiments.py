@@ -23,7 +23,7 @@ import numpy as np
 
 from sgloc.config import LocalizerConfig
 from sgloc.errors import UnknownNameError
-from sgloc.evaluation.metrics import FAILURE_M, T_P, correct_matches, pose_errors
+from sgloc.evaluation.metrics import FAILURE_M, T_P, correct_matches
 from sgloc.evaluation.pairs import make_pair_source
 from sgloc.evaluation.report import (
     fmt,
@@ -321,7 +321,7 @@ def _matches(dataset: str, folder: Path, opt: ExperimentOptions) -> ExperimentOu
     md = f"# matches on {dataset} (seed {seed})\n\n"
     md += markdown_table(["stage", "matches", "correct"], body)
     for rej, res in results.items():
-        te, re = pose_errors(res.transform, T_gt)
+        te, re = pair.own_frame_errors(res.transform)
         md += f"\n{rej}: localized={res.success}, translation error {fmt(te)} m, "
         md += f"rotation error {fmt(re)} deg"
     (folder / "table.md").write_text(md + "\n")

@@ -48,6 +48,29 @@ def prune_bits(
     bits: np.ndarray, degree: np.ndarray, eta: float, bound: str = "remaining"
 ) -> np.ndarray:
     """`prune_by_support` on bit-packed rows and their counts (`consistency_bits` output)."""
+    if bound not in BOUNDS:
+        raise ValueError(f"unknown bound {bound!r}; use one of {BOUNDS}")
+    m = len(degree)
+    if bound == "remaining" or m == 0:
+        return _prune_remaining(bits, degree, eta)
+    # The literal bound: remove while 1 + V_i < eta * r (V_i without M_ii). The rule of
+    # "remaining", V_i < eta * (r - 1), run with one extra match consistent with every match, is
+    # exactly that: the extra one adds 1 to every support and to r, and, having the largest
+    # possible support, is never removed before a real match (eta <= 1; ties go to the lower
+    # index).
+    n_words = (m + 1 + 63) // 64
+    wide = np.zeros((m + 1, n_words), dtype=np.uint64)
+    wide[:m, : bits.shape[1]] = bits
+    wide[:m, m // 64] |= np.uint64(1) << np.uint64(m % 64)
+    wide[m] = pack_rows(np.arange(m + 1)[None, :] < m)[0]
+    support = np.append(np.asarray(degree, dtype=np.int64) + 1, m)
+    kept = _prune_remaining(wide, support, eta)
+    return kept[kept < m]
+
+
+def _prune_remaining(bits: np.ndarray, degree: np.ndarray, eta: float) -> np.ndarray:
+    """The "remaining" rule on packed rows: compiled, or the numpy reference for a process's
+    first small problems (`sgloc.kernels.use_compiled`)."""
     from sgloc.kernels import use_compiled
 
     if not use_compiled(len(bits)):
@@ -56,23 +79,7 @@ def prune_bits(
         return prune_by_support_reference(unpack_rows(bits, len(bits)), eta)
     from sgloc.kernels.prune import prune_bits as kernel
 
-    if bound not in BOUNDS:
-        raise ValueError(f"unknown bound {bound!r}; use one of {BOUNDS}")
-    m = len(degree)
-    if bound == "remaining" or m == 0:
-        return kernel(bits, degree, float(eta))
-    # The literal bound: remove while 1 + V_i < eta * r (V_i without M_ii). The kernel's rule
-    # V_i < eta * (r - 1), run with one extra match consistent with every match, is exactly
-    # that: the extra one adds 1 to every support and to r, and, having the largest possible
-    # support, is never removed before a real match (eta <= 1; ties go to the lower index).
-    n_words = (m + 1 + 63) // 64
-    wide = np.zeros((m + 1, n_words), dtype=np.uint64)
-    wide[:m, : bits.shape[1]] = bits
-    wide[:m, m // 64] |= np.uint64(1) << np.uint64(m % 64)
-    wide[m] = pack_rows(np.arange(m + 1)[None, :] < m)[0]
-    support = np.append(np.asarray(degree, dtype=np.int64) + 1, m)
-    kept = kernel(wide, support, float(eta))
-    return kept[kept < m]
+    return kernel(bits, degree, float(eta))
 
 
 def prune_by_support_reference(M: np.ndarray, eta: float) -> np.ndarray:
