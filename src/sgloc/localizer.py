@@ -28,6 +28,7 @@ from sgloc.estimation import (
 from sgloc.graph import SemanticGraph
 from sgloc.matching import match_descriptors, match_flagged
 from sgloc.rejection import make_rejector
+from sgloc.verification import verify_small_query
 
 MIN_VERTICES = 3
 
@@ -193,6 +194,18 @@ class Localizer:
             transform = transform if verdict.accepted else None
             timings["acceptance"] = clock() - t5
             timings["total"] += timings["acceptance"]
+        if transform is None and _verifies(cfg, len(query)):
+            # A small query's candidates are too few to decide: check its whole geometry.
+            t6 = clock()
+            check = verify_small_query(
+                query, target, dq, dt, cfg.acceptance, cfg.matching.min_similarity,
+                cfg.ransac.max_tilt,
+            )
+            if check.accepted:
+                transform, final, reason = check.transform, check.matches, ""
+                confidence = check.confidence
+            timings["verification"] = clock() - t6
+            timings["total"] += timings["verification"]
         if len(candidates) < 3 and transform is None:
             reason = (
                 f"only {len(candidates)} candidate match(es) between the graphs (fewer than "
@@ -210,6 +223,13 @@ class Localizer:
             confidence=confidence,
         )
         return canonical.restore(result)  # the caller's vertex indices and config
+
+
+def _verifies(cfg: LocalizerConfig, n_query: int) -> bool:
+    """Whether a refused query is verified against the whole map (sgloc.verification): the
+    acceptance test on, 4-dof model, fewer than `small_query` objects."""
+    a = cfg.acceptance
+    return a.enabled and a.verify_small and cfg.ransac.dof == 4 and n_query < a.small_query
 
 
 def _final_fit(
