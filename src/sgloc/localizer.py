@@ -201,8 +201,12 @@ class Localizer:
                 query, target, dq, dt, cfg.acceptance, cfg.matching.min_similarity,
                 cfg.ransac.max_tilt,
             )
+            # The same final fit as RANSAC's inliers get, on the co-located objects.
+            fitted = None
             if check.accepted:
-                transform, final, reason = check.transform, check.matches, ""
+                fitted = _final_fit(query, target, check.matches, None, cfg)[0]
+            if fitted is not None:
+                transform, final, reason = fitted, check.matches, ""
                 confidence = check.confidence
             timings["verification"] = clock() - t6
             timings["total"] += timings["verification"]

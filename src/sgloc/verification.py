@@ -204,8 +204,9 @@ def verify_small_query(
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R[order[0]], t[order[0]]
     T, dist, j = _refine(query, tpos, tree, T, max_tilt)
-    chance = _ChanceModel(target, float(cfg.verify_density_radius), max(
-        query.n_classes, target.n_classes))
+    chance = _ChanceModel(
+        target, float(cfg.verify_density_radius), max(query.n_classes, target.n_classes)
+    )
     lam = _local_chance(chance, query, T, r)
     lg_best, k = _log10_nfa(dist, lam, n_tests, r)
     # Runner-up: the best hypothesis distinct from the refit (at the query's centroid).
