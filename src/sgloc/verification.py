@@ -42,6 +42,7 @@ from sgloc.acceptance import (
     inlier_spread,
     nfa_over_radii,
 )
+from sgloc.distinctive import spatially_distinct
 from sgloc.estimation import fit_rigid, yaw_from_pairs
 from sgloc.graph import SemanticGraph
 from sgloc.matching import MatchingConfig, match_descriptors
@@ -50,6 +51,13 @@ from sgloc.matching import MatchingConfig, match_descriptors
 REFINE_ROUNDS = 3
 #: Distinct hypotheses refined in the search for the runner-up (the best scored first).
 RUNNER_UPS = 4
+#: Co-located pairs that must be distinctive best matches: the minimal sample (a pair) that the
+#: whole geometry then extends.
+MIN_DISTINCT_SUPPORT = 2
+#: The chance model is optimistic by about this factor on real roadside objects (the best of 283
+#: one-scan queries against maps they never saw reached NFA 10^-3.5, chance expects ~10^-2.5):
+#: the verification requires 1 - confidence this many times below 1 - min_confidence.
+OPTIMISM = 10.0
 
 
 @dataclass
@@ -175,6 +183,103 @@ def _log10_nfa(d: np.ndarray, lam: float, n_tests: int, radius: float) -> tuple[
     return lg, k
 
 
+def _scored_hypotheses(
+    graph: SemanticGraph, tpos: np.ndarray, tree: _ClassTree, cand: np.ndarray, cap: int
+) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
+    """Pair hypotheses of `graph` (positions in its own frame) onto the target from candidates
+    `cand` (graph index, target index), best first: (R, t, consistent pairs, order)."""
+    R, t, n_tests = _pair_hypotheses(graph.positions, tpos, cand, tree.radius, cap)
+    if len(R) == 0:
+        return R, t, n_tests, np.zeros(0, np.int64)
+    moved = np.einsum("hij,nj->hni", R, graph.positions) + t[:, None, :]
+    d, _ = tree.nearest(moved, graph.labels)
+    hit = np.isfinite(d)
+    r = tree.radius
+    score = hit.sum(axis=1) - np.where(hit, d, r).sum(axis=1) / (r * (len(graph) + 1))
+    return R, t, n_tests, np.argsort(-score, kind="stable")
+
+
+def _best_distinct(
+    graph: SemanticGraph,
+    hyps: tuple[np.ndarray, np.ndarray, np.ndarray],
+    T: np.ndarray,
+    context: tuple,
+    n_tests: int,
+) -> tuple[float, int]:
+    """(log10 NFA, co-located count) of the best of the RUNNER_UPS best-scored hypotheses
+    `hyps` = (R, t, order) that, refined, stay distinct from T at the centroid of `graph`
+    (inf, 0: none)."""
+    R, t, order = hyps
+    tpos, tree, chance, max_tilt, degrees = context
+    r = tree.radius
+    c = graph.positions.mean(axis=0)
+    distinct = _distinct_batch(R, t, T, c, 2.0 * r, degrees)
+    best = (np.inf, 0)
+    for h in order[distinct[order]][:RUNNER_UPS]:
+        T2 = np.eye(4)
+        T2[:3, :3], T2[:3, 3] = R[h], t[h]
+        T2, d2, _ = _refine(graph, tpos, tree, T2, max_tilt)
+        if _distinct(T2, T, c, 2.0 * r, degrees):
+            lg2, k2 = _log10_nfa(d2, _local_chance(chance, graph, T2, r), n_tests, r)
+            best = min(best, (lg2, k2))
+    return best
+
+
+def _self_rival(
+    target: SemanticGraph,
+    desc_t,
+    placed: np.ndarray,
+    context: tuple,
+    cfg: AcceptanceConfig,
+    min_similarity: float,
+    n_tests: int,
+) -> tuple[float, int]:
+    """The target objects the query landed on (`placed`), matched against the rest of the
+    target: (log10 NFA, count) of the best other place where the same constellation fits. A
+    world built of copies (repeated blocks, repeated roadside rows) fits a query wherever one
+    copy is; if the map holds another copy, the place is ambiguous whatever the query."""
+    tpos, tree = context[0], context[1]
+    if len(placed) < 3:
+        return np.inf, 0
+    sub = SemanticGraph(tpos[placed], target.labels[placed])
+    k = int(cfg.verify_top_k) + 1
+    matching = MatchingConfig(top_k=k, min_similarity=min_similarity)
+    cand, _ = match_descriptors(desc_t[placed], desc_t, sub.labels, target.labels, matching)
+    cand = cand[cand[:, 1] != placed[cand[:, 0]]]  # not itself
+    R, t, _, order = _scored_hypotheses(sub, tpos, tree, cand, cfg.verify_hypotheses)
+    if len(R) == 0:
+        return np.inf, 0
+    return _best_distinct(sub, (R, t, order), np.eye(4), context, n_tests)
+
+
+def _distinct_support(
+    query: SemanticGraph,
+    target: SemanticGraph,
+    desc_q,
+    desc_t,
+    matches: np.ndarray,
+    cfg: AcceptanceConfig,
+    min_similarity: float,
+) -> int:
+    """How many co-located (query, target) pairs `matches` are the query object's best
+    descriptor match and pass the acceptance test's distinctiveness filter for this query size
+    (`AcceptanceConfig.ratio_for`, `exclusion_for`; `sgloc.distinctive`)."""
+    if len(matches) == 0:
+        return 0
+    best, _ = match_descriptors(
+        desc_q, desc_t, query.labels, target.labels, MatchingConfig(min_similarity=min_similarity)
+    )
+    ratio = cfg.ratio_for(len(query))
+    if ratio is not None:
+        exclusion = cfg.exclusion_for(len(query))
+        keep = spatially_distinct(
+            desc_q, desc_t, target.labels, target.positions, best, ratio, exclusion
+        )
+        best = best[keep]
+    n_t = len(target) + 1
+    return int(np.isin(matches[:, 0] * n_t + matches[:, 1], best[:, 0] * n_t + best[:, 1]).sum())
+
+
 def verify_small_query(
     query: SemanticGraph,
     target: SemanticGraph,
@@ -192,46 +297,42 @@ def verify_small_query(
     matching = MatchingConfig(top_k=int(cfg.verify_top_k), min_similarity=min_similarity)
     cand, _ = match_descriptors(desc_q, desc_t, query.labels, target.labels, matching)
     tpos = target.positions
-    R, t, n_tests = _pair_hypotheses(query.positions, tpos, cand, r, cfg.verify_hypotheses)
+    tree = _ClassTree(target, r)
+    R, t, n_tests, order = _scored_hypotheses(query, tpos, tree, cand, cfg.verify_hypotheses)
     if len(R) == 0:
         return Verification(False, None, 0.0, empty, "no consistent pair of candidates")
-    tree = _ClassTree(target, r)
-    moved = np.einsum("hij,nj->hni", R, query.positions) + t[:, None, :]
-    d, _ = tree.nearest(moved, query.labels)
-    hit = np.isfinite(d)
-    score = hit.sum(axis=1) - np.where(hit, d, r).sum(axis=1) / (r * (len(query) + 1))
-    order = np.argsort(-score)
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R[order[0]], t[order[0]]
     T, dist, j = _refine(query, tpos, tree, T, max_tilt)
-    chance = _ChanceModel(
-        target, float(cfg.verify_density_radius), max(query.n_classes, target.n_classes)
-    )
+    n_classes = max(query.n_classes, target.n_classes)
+    chance = _ChanceModel(target, float(cfg.verify_density_radius), n_classes)
     lam = _local_chance(chance, query, T, r)
     lg_best, k = _log10_nfa(dist, lam, n_tests, r)
-    # Runner-up: the best hypothesis distinct from the refit (at the query's centroid).
-    c = query.positions.mean(axis=0)
-    distinct = _distinct_batch(R, t, T, c, 2.0 * r, cfg.distinct_rotation)
-    lg_second, k2 = np.inf, 0
-    for h in order[distinct[order]][:RUNNER_UPS]:
-        T2 = np.eye(4)
-        T2[:3, :3], T2[:3, 3] = R[h], t[h]
-        T2, d2, _ = _refine(query, tpos, tree, T2, max_tilt)
-        if _distinct(T2, T, c, 2.0 * r, cfg.distinct_rotation):
-            lg2, kk = _log10_nfa(d2, _local_chance(chance, query, T2, r), n_tests, r)
-            if lg2 < lg_second:
-                lg_second, k2 = lg2, kk
     ok = np.isfinite(dist)
     matches = np.column_stack([np.flatnonzero(ok), j[ok]]).astype(np.int64)
     spread = inlier_spread(tpos[j[ok]], dof=4)
-    nfa1 = 10.0 ** min(lg_best, 300.0)
-    ratio = 0.0 if not np.isfinite(lg_second) else 10.0 ** min(lg_best - lg_second, 300.0)
-    confidence = float(np.clip(1.0 / (1.0 + nfa1 + ratio), 0.0, 1.0))
     min_spread = cfg.min_spread * DOF4_SPREAD_FACTOR
+    # Runner-up: another alignment of the query, or another place of the map like this one.
+    context = (tpos, tree, chance, max_tilt, cfg.distinct_rotation)
+    lg_second, k2 = _best_distinct(query, (R, t, order), T, context, n_tests)
+    required = 1.0 - (1.0 - cfg.min_confidence) / OPTIMISM
+    lg_self, k_self = np.inf, 0
+    if spread >= min_spread and (required >= 1.0 or lg_best < np.log10(1.0 / required - 1.0)):
+        placed = np.unique(j[ok])
+        lg_self, k_self = _self_rival(
+            target, desc_t, placed, context, cfg, min_similarity, n_tests
+        )
+    lg_rival = min(lg_second, lg_self)
+    support = _distinct_support(query, target, desc_q, desc_t, matches, cfg, min_similarity)
+    nfa1 = 10.0 ** min(lg_best, 300.0)
+    ratio = 0.0 if not np.isfinite(lg_rival) else 10.0 ** min(lg_best - lg_rival, 300.0)
+    confidence = float(np.clip(1.0 / (1.0 + nfa1 + ratio), 0.0, 1.0))
     details = {
         "candidates": len(cand), "hypotheses": n_tests, "colocated": int(ok.sum()),
         "fit_colocated": k, "expected_chance": lam, "log10_nfa": lg_best,
-        "runner_up_colocated": k2, "runner_up_log10_nfa": float(lg_second), "spread_m": spread,
+        "runner_up_colocated": k2, "runner_up_log10_nfa": float(lg_second),
+        "distinct_support": support, "self_rival_colocated": k_self,
+        "self_rival_log10_nfa": float(lg_self), "spread_m": spread,
     }  # fmt: skip
     reason = ""
     if spread < min_spread:
@@ -240,10 +341,16 @@ def verify_small_query(
             f"the {int(ok.sum())} objects of the query that fit the map lie within a few metres "
             f"(spread {spread:.1f} m < {min_spread:g} m); too little of the map agrees"
         )
-    elif confidence < cfg.min_confidence:
+    elif support < MIN_DISTINCT_SUPPORT:
+        reason = (
+            f"{int(ok.sum())} of the query's {len(query)} objects fit the map, but only {support} "
+            f"of them match their target distinctively (< {MIN_DISTINCT_SUPPORT}): a place "
+            "without distinctive objects cannot be told from its look-alikes"
+        )
+    elif confidence < required:
         reason = (
             f"{int(ok.sum())} of the query's {len(query)} objects fit the map, which chance or "
-            f"another place explains as well (confidence {confidence:.6g} < min_confidence "
-            f"{cfg.min_confidence})"
+            f"another place explains as well (confidence {confidence:.6g} < {required:.6g}, "
+            "min_confidence for a verified small query)"
         )
     return Verification(not reason, T, confidence, matches, reason, details)
