@@ -10,23 +10,27 @@ cheap to check instead, as relocalization systems do:
    transform (x, y, z, yaw);
 3. score: per hypothesis, the query objects (all of them, not only the matched ones) that land
    within `radius` of a target object of their class (one KD-tree for all classes: the class is
-   a fourth coordinate), the summed squared distance breaking ties;
-4. refine: the best is re-fitted (yaw-only least squares) to the nearest same-class target of
-   each query object within the radius, a few rounds;
+   a fourth coordinate; heights count Z_SCALE), the summed squared distance breaking ties;
+4. refine: the best is re-fitted (the 4-dof model's least squares, tilted up to `max_tilt`) to
+   the nearest same-class target of each query object within the radius, a few rounds;
 5. decide, a-contrario: k = co-located query objects after the refit. Chance model: query
    object i, placed at random near its hypothesised place, lands within r of one of the N_i
    same-class target objects within `verify_density_radius` R of it with probability
    p_i = 1 - exp(-N_i (r / R)^2) (the local density of its class; the object's own partner
    counts in N_i). NFA = (consistent pairs: the hypotheses) * P(Poisson(sum p_i) >= k - 2)
    (two objects fix a hypothesis), evaluated at 1/4, 1/2 and all of the radius
-   (`sgloc.acceptance.nfa_over_radii`). The runner-up is the best of a few refined hypotheses
-   more than 2 * radius (at the query's centroid) or `distinct_rotation` degrees away from the
-   best; confidence = 1 / (1 + NFA + NFA / NFA_runner_up) as in `sgloc.acceptance`, and the
-   co-located objects must extend along their first xy axis as there (spread gate).
+   (`sgloc.acceptance.nfa_over_radii`). Rivals: the best of a few refined hypotheses more
+   than 2 * radius (at the query's centroid) or `distinct_rotation` degrees away from the best,
+   and the best other place of the target where the constellation the query landed on fits
+   again (a world built of copies, such as regular blocks or roadside rows, has such places;
+   a query cannot tell the copies apart). confidence = 1 / (1 + NFA + NFA / NFA_rival) as in
+   `sgloc.acceptance`, accepted when >= 1 - (1 - min_confidence) / OPTIMISM, when at least
+   MIN_DISTINCT_SUPPORT co-located pairs are distinctive best matches (the acceptance test's
+   filter for the query's size: a place without one distinctive pair is not recognisable),
+   and when the co-located objects extend along their first xy axis as there (spread gate).
    Roadside rows are lines, where an area density underestimates the chance: on one-scan
-   queries against maps they never saw the model is optimistic (the best of 283 such pairs
-   reached NFA 10^-3.5, docs/acceptance.md), which the runner-up (a row shifted by a spacing)
-   and the strict `min_confidence` absorb.
+   queries against maps they never saw the model is optimistic by about a decade (the best of
+   283 such pairs reached NFA 10^-3.5, docs/acceptance.md), hence OPTIMISM.
 """
 
 from __future__ import annotations
