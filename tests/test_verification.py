@@ -121,3 +121,60 @@ def test_localizer_verifies_only_refused_small_queries(monkeypatch, rng):
     assert len(big) >= 30
     localize(big, target)
     assert calls == []
+
+
+def test_place_copied_elsewhere_in_the_map_is_refused(rng):
+    """A map holding two copies of the query's place: the query fits both, so it must refuse
+    (and it accepts when the copy is absent)."""
+    from sgloc.descriptors import make_descriptor
+
+    base = _scattered_map(rng, n=500)
+    block = np.flatnonzero(np.linalg.norm(base.positions[:, :2] - [80.0, 80.0], axis=1) < 30.0)
+    far = np.linalg.norm(base.positions[:, :2] - [220.0, 220.0], axis=1) >= 35.0
+    keep = np.flatnonzero(far)  # clear the copy's place
+    copy = base.positions[block] + [140.0, 140.0, 0.0]
+    twice = SemanticGraph(
+        np.concatenate([base.positions[keep], copy]),
+        np.concatenate([base.labels[keep], base.labels[block]]),
+    )
+    once = SemanticGraph(base.positions[keep], base.labels[keep])
+    T = _yaw(20.0, [10.0, 5.0, 0.0])
+    query, _ = _query_of(once, np.array([80.0, 80.0]), 24.0, T, rng, noise=0.05)
+    assert 10 <= len(query) < 30
+    desc = make_descriptor("distance_histogram")
+    dq = desc(query, 3, rng)
+    ok = verify_small_query(query, once, dq, desc(once, 3, rng), AcceptanceConfig())
+    assert ok.accepted, ok.reason
+    assert transform_error(ok.transform, T)[0] < 1.0
+    v = verify_small_query(query, twice, dq, desc(twice, 3, rng), AcceptanceConfig())
+    assert not v.accepted
+    assert v.confidence < 0.9
+
+
+def test_self_rival_finds_the_other_copy_of_a_place(rng):
+    from sgloc.acceptance import _ChanceModel
+    from sgloc.descriptors import make_descriptor
+    from sgloc.verification import _ClassTree, _self_rival
+
+    base = _scattered_map(rng, n=500)
+    block = np.flatnonzero(np.linalg.norm(base.positions[:, :2] - [80.0, 80.0], axis=1) < 24.0)
+    keep = np.flatnonzero(np.linalg.norm(base.positions[:, :2] - [220.0, 220.0], axis=1) >= 35)
+    n_keep = len(keep)
+    pos = np.concatenate([base.positions[keep], base.positions[block] + [140.0, 140.0, 0.0]])
+    target = SemanticGraph(pos, np.concatenate([base.labels[keep], base.labels[block]]))
+    placed = np.flatnonzero(np.isin(keep, block))  # the original block, inside the target
+    dt = make_descriptor("distance_histogram")(target, 3, rng)
+    cfg = AcceptanceConfig()
+    tree = _ClassTree(target, cfg.verify_radius)
+    chance = _ChanceModel(target, cfg.verify_density_radius, 3)
+    context = (target.positions, tree, chance, 15.0, cfg.distinct_rotation)
+    lg, k = _self_rival(target, dt, placed, context, cfg, 0.5, 100)
+    assert k >= len(placed) - 1 and lg < -3
+    # Without the copy, nothing else in the map fits the block.
+    alone = SemanticGraph(target.positions[:n_keep], target.labels[:n_keep])
+    tree = _ClassTree(alone, cfg.verify_radius)
+    chance = _ChanceModel(alone, cfg.verify_density_radius, 3)
+    context = (alone.positions, tree, chance, 15.0, cfg.distinct_rotation)
+    dt = make_descriptor("distance_histogram")(alone, 3, rng)
+    lg, k = _self_rival(alone, dt, placed, context, cfg, 0.5, 100)
+    assert k <= 4
