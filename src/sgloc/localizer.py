@@ -259,6 +259,7 @@ def _final_fit(
             return None, _tilt_reason(tilt, max_tilt)
     if cfg.robust_refit:
         scaled = cfg.class_scale != "none"
+        plain = transform
         transform = irls_refine(
             src,
             dst,
@@ -269,6 +270,9 @@ def _final_fit(
             classes=query.labels[final[:, 0]] if scaled else None,
             class_axes=cfg.class_scale if scaled else "full",
         )
+        if not np.all(np.isfinite(transform)):
+            # The compiled IRLS can fail on degenerate matches (several onto one target).
+            transform = plain
     if cfg.icp:
         transform = icp_refine(
             query.positions,
