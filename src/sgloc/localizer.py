@@ -208,6 +208,8 @@ class Localizer:
             if fitted is not None:
                 transform, final, reason = fitted, check.matches, ""
                 confidence = check.confidence
+            elif check.reason:
+                reason = f"{reason}; checked against the whole map: {check.reason}"
             timings["verification"] = clock() - t6
             timings["total"] += timings["verification"]
         if len(candidates) < 3 and transform is None:

@@ -348,8 +348,8 @@ def verify_small_query(
     elif support < MIN_DISTINCT_SUPPORT:
         reason = (
             f"{int(ok.sum())} of the query's {len(query)} objects fit the map, but only {support} "
-            f"of them match their target distinctively (< {MIN_DISTINCT_SUPPORT}): a place "
-            "without distinctive objects cannot be told from its look-alikes"
+            f"of them are distinctive best matches (< {MIN_DISTINCT_SUPPORT}): a place without "
+            "distinctive objects cannot be told from its look-alikes"
         )
     elif confidence < required:
         reason = (
