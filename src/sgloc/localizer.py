@@ -28,6 +28,7 @@ from sgloc.estimation import (
 from sgloc.graph import SemanticGraph
 from sgloc.matching import match_descriptors, match_flagged
 from sgloc.rejection import make_rejector
+from sgloc.verification import verify_small_query
 
 MIN_VERTICES = 3
 
@@ -193,6 +194,24 @@ class Localizer:
             transform = transform if verdict.accepted else None
             timings["acceptance"] = clock() - t5
             timings["total"] += timings["acceptance"]
+        if transform is None and _verifies(cfg, len(query)):
+            # A small query's candidates are too few to decide: check its whole geometry.
+            t6 = clock()
+            check = verify_small_query(
+                query, target, dq, dt, cfg.acceptance, cfg.matching.min_similarity,
+                cfg.ransac.max_tilt,
+            )
+            # The same final fit as RANSAC's inliers get, on the co-located objects.
+            fitted = None
+            if check.accepted:
+                fitted = _final_fit(query, target, check.matches, None, cfg)[0]
+            if fitted is not None:
+                transform, final, reason = fitted, check.matches, ""
+                confidence = check.confidence
+            elif check.reason:
+                reason = f"{reason}; checked against the whole map: {check.reason}"
+            timings["verification"] = clock() - t6
+            timings["total"] += timings["verification"]
         if len(candidates) < 3 and transform is None:
             reason = (
                 f"only {len(candidates)} candidate match(es) between the graphs (fewer than "
@@ -210,6 +229,13 @@ class Localizer:
             confidence=confidence,
         )
         return canonical.restore(result)  # the caller's vertex indices and config
+
+
+def _verifies(cfg: LocalizerConfig, n_query: int) -> bool:
+    """Whether a refused query is verified against the whole map (sgloc.verification): the
+    acceptance test on, 4-dof model, fewer than `small_query` objects."""
+    a = cfg.acceptance
+    return a.enabled and a.verify_small and cfg.ransac.dof == 4 and n_query < a.small_query
 
 
 def _final_fit(
@@ -235,6 +261,7 @@ def _final_fit(
             return None, _tilt_reason(tilt, max_tilt)
     if cfg.robust_refit:
         scaled = cfg.class_scale != "none"
+        plain = transform
         transform = irls_refine(
             src,
             dst,
@@ -245,6 +272,9 @@ def _final_fit(
             classes=query.labels[final[:, 0]] if scaled else None,
             class_axes=cfg.class_scale if scaled else "full",
         )
+        if not np.all(np.isfinite(transform)):
+            # The compiled IRLS can fail on degenerate matches (several onto one target).
+            transform = plain
     if cfg.icp:
         transform = icp_refine(
             query.positions,

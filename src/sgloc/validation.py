@@ -261,6 +261,11 @@ SETTINGS: dict[str, dict[str, Any]] = {
         "small_query": _int(0, MAX_VERTICES),
         "small_distinct_ratio": _real(0.0, 1.0, low_open=True, none_ok=True),
         "small_exclusion": _real(0.0, MAX_COORDINATE, unit="m"),
+        "verify_small": lambda name, value: check_bool(name, value),
+        "verify_top_k": _int(1, 1000),
+        "verify_radius": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
+        "verify_density_radius": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
+        "verify_hypotheses": _int(1, MAX_ITERATIONS),
     },
     "DistanceHistogramDescriptor": {
         "radius": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),

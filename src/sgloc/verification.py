@@ -1,0 +1,360 @@
+"""Verification against the whole map, for small queries (one scan, a short stretch).
+
+A small query's descriptor candidates are too few to carry the decision: an object sees only
+part of its neighbourhood, so its best match is often not its partner. Its whole geometry is
+cheap to check instead, as relocalization systems do:
+
+1. candidates: each query object's `top_k` most similar same-class target objects;
+2. hypotheses: every pair of candidates (two query objects, two target objects) whose distances
+   agree within 2 * radius and whose query objects are >= 2 * radius apart in xy fixes a 4-dof
+   transform (x, y, z, yaw);
+3. score: per hypothesis, the query objects (all of them, not only the matched ones) that land
+   within `radius` of a target object of their class (one KD-tree for all classes: the class is
+   a fourth coordinate; heights count Z_SCALE), the summed squared distance breaking ties;
+4. refine: the best is re-fitted (the 4-dof model's least squares, tilted up to `max_tilt`) to
+   the nearest same-class target of each query object within the radius, a few rounds;
+5. decide, a-contrario: k = co-located query objects after the refit. Chance model: query
+   object i, placed at random near its hypothesised place, lands within r of one of the N_i
+   same-class target objects within `verify_density_radius` R of it with probability
+   p_i = 1 - exp(-N_i (r / R)^2) (the local density of its class; the object's own partner
+   counts in N_i). NFA = (consistent pairs: the hypotheses) * P(Poisson(sum p_i) >= k - 2)
+   (two objects fix a hypothesis), evaluated at 1/4, 1/2 and all of the radius
+   (`sgloc.acceptance.nfa_over_radii`). Rivals: the best of a few refined hypotheses more
+   than 2 * radius (at the query's centroid) or `distinct_rotation` degrees away from the best,
+   and the best other place of the target where the constellation the query landed on fits
+   again (a world built of copies, such as regular blocks or roadside rows, has such places;
+   a query cannot tell the copies apart). confidence = 1 / (1 + NFA + NFA / NFA_rival) as in
+   `sgloc.acceptance`, accepted when >= 1 - (1 - min_confidence) / OPTIMISM, when at least
+   MIN_DISTINCT_SUPPORT co-located pairs are distinctive best matches (the acceptance test's
+   filter for the query's size: a place without one distinctive pair is not recognisable),
+   and when the co-located objects extend along their first xy axis as there (spread gate).
+   Roadside rows are lines, where an area density underestimates the chance: on one-scan
+   queries against maps they never saw the model is optimistic by about a decade (the best of
+   283 such pairs reached NFA 10^-3.5, docs/acceptance.md), hence OPTIMISM.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sgloc.acceptance import (
+    DOF4_SPREAD_FACTOR,
+    AcceptanceConfig,
+    _ChanceModel,
+    inlier_spread,
+    nfa_over_radii,
+)
+from sgloc.distinctive import spatially_distinct
+from sgloc.estimation import fit_rigid, yaw_from_pairs
+from sgloc.graph import SemanticGraph
+from sgloc.matching import MatchingConfig, match_descriptors
+
+#: Rounds of nearest-neighbour re-association and refit of the best hypothesis.
+REFINE_ROUNDS = 3
+#: Distinct hypotheses refined in the search for the runner-up (the best scored first).
+RUNNER_UPS = 4
+#: Co-located pairs that must be distinctive best matches: the minimal sample (a pair) that the
+#: whole geometry then extends.
+MIN_DISTINCT_SUPPORT = 2
+#: The chance model is optimistic by about this factor on real roadside objects (the best of 283
+#: one-scan queries against maps they never saw reached NFA 10^-3.5, chance expects ~10^-2.5):
+#: the verification requires 1 - confidence this many times below 1 - min_confidence.
+OPTIMISM = 10.0
+
+
+@dataclass
+class Verification:
+    """Outcome of `verify_small_query`: `accepted`, `transform` T_target_query (None when no
+    hypothesis), `confidence` in [0, 1], `matches` (k,2) the co-located (query, target) objects,
+    `reason` (empty if accepted), `details` (counts, log10 NFA, spread)."""
+
+    accepted: bool
+    transform: np.ndarray | None
+    confidence: float
+    matches: np.ndarray
+    reason: str = ""
+    details: dict = field(default_factory=dict)
+
+
+#: Heights count this much in the co-location distance: a yaw-only hypothesis of maps whose
+#: gravity differs by a few degrees (up to max_tilt) is metres off in height 30 m away.
+Z_SCALE = 0.25
+
+
+class _ClassTree:
+    """Nearest same-class target object of many points at once: one KD-tree over the target
+    objects with the class as a fourth coordinate, spaced beyond any distance asked for; heights
+    scaled by Z_SCALE."""
+
+    def __init__(self, target: SemanticGraph, radius: float) -> None:
+        from scipy.spatial import cKDTree
+
+        p = target.positions * (1.0, 1.0, Z_SCALE)
+        self.offset = 4.0 * (float(np.abs(p).max(initial=0.0)) + radius) + 1.0
+        self.tree = cKDTree(np.column_stack([p, target.labels * self.offset]))
+        self.radius = radius
+
+    def nearest(self, points: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """points (..., n, 3), labels (n,) -> (distance (..., n), inf beyond the radius; target
+        index (..., n), len(target) beyond it)."""
+        shape = points.shape[:-1]
+        lab = np.broadcast_to(labels * self.offset, shape)[..., None]
+        q = np.concatenate([points * (1.0, 1.0, Z_SCALE), lab], axis=-1).reshape(-1, 4)
+        d, j = self.tree.query(q, distance_upper_bound=self.radius)
+        return d.reshape(shape), j.reshape(shape)
+
+
+def _pair_hypotheses(
+    qpos: np.ndarray, tpos: np.ndarray, cand: np.ndarray, radius: float, cap: int
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """4-dof hypotheses (R (H,3,3), t (H,3)) from the candidate pairs consistent in distance,
+    at most `cap` (the most similar pairs first: `cand` is sorted by query, then similarity);
+    and the number of consistent pairs (the tests)."""
+    m = len(cand)
+    ii, jj = np.triu_indices(m, 1)
+    two_objects = cand[ii, 0] != cand[jj, 0]
+    ii, jj = ii[two_objects], jj[two_objects]
+    S = np.stack([qpos[cand[ii, 0]], qpos[cand[jj, 0]]], axis=1)
+    D = np.stack([tpos[cand[ii, 1]], tpos[cand[jj, 1]]], axis=1)
+    dq = np.linalg.norm(S[:, 1] - S[:, 0], axis=1)
+    dt = np.linalg.norm(D[:, 1] - D[:, 0], axis=1)
+    xy = np.linalg.norm(S[:, 1, :2] - S[:, 0, :2], axis=1)
+    ok = (np.abs(dq - dt) < 2.0 * radius) & (xy >= 2.0 * radius) & (cand[ii, 1] != cand[jj, 1])
+    n_tests = int(ok.sum())
+    S, D = S[ok], D[ok]
+    if len(S) > cap:
+        S, D = S[:cap], D[:cap]
+    if len(S) == 0:
+        return np.zeros((0, 3, 3)), np.zeros((0, 3)), 0
+    R, t = yaw_from_pairs(S, D)
+    return R, t, n_tests
+
+
+def _refine(
+    query: SemanticGraph,
+    tpos: np.ndarray,
+    tree: _ClassTree,
+    T: np.ndarray,
+    max_tilt: float | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Re-associate each query object with its nearest same-class target within the radius and
+    refit (4-dof model: tilted up to `max_tilt` degrees), REFINE_ROUNDS times; (T, distances
+    (n,), target index (n,))."""
+    q = query.positions
+    for _ in range(REFINE_ROUNDS):
+        d, j = tree.nearest(q @ T[:3, :3].T + T[:3, 3], query.labels)
+        ok = np.isfinite(d)
+        if ok.sum() < 2:
+            break
+        T = fit_rigid(q[ok], tpos[j[ok]], None, dof=4, max_tilt=max_tilt)
+    d, j = tree.nearest(q @ T[:3, :3].T + T[:3, 3], query.labels)
+    return T, d, j
+
+
+def _distinct_batch(
+    R: np.ndarray, t: np.ndarray, T: np.ndarray, c: np.ndarray, metres: float, degrees: float
+) -> np.ndarray:
+    """(H,) bool: hypotheses (R, t) that move point `c` more than `metres` away from where T
+    moves it, or turn more than `degrees` from T."""
+    shift = np.linalg.norm(np.einsum("hij,j->hi", R, c) + t - (T[:3, :3] @ c + T[:3, 3]), axis=1)
+    cosang = (np.einsum("hij,ij->h", R, T[:3, :3]) - 1.0) / 2.0
+    turn = np.degrees(np.arccos(np.clip(cosang, -1.0, 1.0)))
+    return (shift > metres) | (turn > degrees)
+
+
+def _distinct(T2: np.ndarray, T: np.ndarray, c: np.ndarray, metres: float, degrees: float) -> bool:
+    return bool(_distinct_batch(T2[None, :3, :3], T2[None, :3, 3], T, c, metres, degrees)[0])
+
+
+def _local_chance(
+    chance: _ChanceModel, query: SemanticGraph, T: np.ndarray, radius: float
+) -> float:
+    """Expected chance co-locations of the query under T: sum over objects of
+    1 - exp(-N_i (radius / R)^2), N_i = same-class target objects within R = chance.radius of
+    the moved object (the local density of its class times the disc of the radius)."""
+    moved = query.positions @ T[:3, :3].T + T[:3, 3]
+    (counts,) = chance.near_counts(moved)
+    n = counts[np.arange(len(query)), query.labels]
+    return float(np.sum(1.0 - np.exp(-n * (radius / chance.radius) ** 2)))
+
+
+def _log10_nfa(d: np.ndarray, lam: float, n_tests: int, radius: float) -> tuple[float, int]:
+    """(log10 NFA, co-located count at the best radius) of per-object distances `d`."""
+    d2 = np.where(np.isfinite(d), d, np.inf) ** 2
+    lg, k, _ = nfa_over_radii(d2, radius, lam, 0, max(n_tests, 1), sample=2)
+    return lg, k
+
+
+def _scored_hypotheses(
+    graph: SemanticGraph, tpos: np.ndarray, tree: _ClassTree, cand: np.ndarray, cap: int
+) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
+    """Pair hypotheses of `graph` (positions in its own frame) onto the target from candidates
+    `cand` (graph index, target index), best first: (R, t, consistent pairs, order)."""
+    R, t, n_tests = _pair_hypotheses(graph.positions, tpos, cand, tree.radius, cap)
+    if len(R) == 0:
+        return R, t, n_tests, np.zeros(0, np.int64)
+    moved = np.einsum("hij,nj->hni", R, graph.positions) + t[:, None, :]
+    d, _ = tree.nearest(moved, graph.labels)
+    hit = np.isfinite(d)
+    r = tree.radius
+    score = hit.sum(axis=1) - np.where(hit, d, r).sum(axis=1) / (r * (len(graph) + 1))
+    return R, t, n_tests, np.argsort(-score, kind="stable")
+
+
+def _best_distinct(
+    graph: SemanticGraph,
+    hyps: tuple[np.ndarray, np.ndarray, np.ndarray],
+    T: np.ndarray,
+    context: tuple,
+    n_tests: int,
+) -> tuple[float, int]:
+    """(log10 NFA, co-located count) of the best of the RUNNER_UPS best-scored hypotheses
+    `hyps` = (R, t, order) that, refined, stay distinct from T at the centroid of `graph`
+    (inf, 0: none)."""
+    R, t, order = hyps
+    tpos, tree, chance, max_tilt, degrees = context
+    r = tree.radius
+    c = graph.positions.mean(axis=0)
+    distinct = _distinct_batch(R, t, T, c, 2.0 * r, degrees)
+    best = (np.inf, 0)
+    for h in order[distinct[order]][:RUNNER_UPS]:
+        T2 = np.eye(4)
+        T2[:3, :3], T2[:3, 3] = R[h], t[h]
+        T2, d2, _ = _refine(graph, tpos, tree, T2, max_tilt)
+        if _distinct(T2, T, c, 2.0 * r, degrees):
+            lg2, k2 = _log10_nfa(d2, _local_chance(chance, graph, T2, r), n_tests, r)
+            best = min(best, (lg2, k2))
+    return best
+
+
+def _self_rival(
+    target: SemanticGraph,
+    desc_t,
+    placed: np.ndarray,
+    context: tuple,
+    cfg: AcceptanceConfig,
+    min_similarity: float,
+    n_tests: int,
+) -> tuple[float, int]:
+    """The target objects the query landed on (`placed`), matched against the rest of the
+    target: (log10 NFA, count) of the best other place where the same constellation fits. A
+    world built of copies (repeated blocks, repeated roadside rows) fits a query wherever one
+    copy is; if the map holds another copy, the place is ambiguous whatever the query."""
+    tpos, tree = context[0], context[1]
+    if len(placed) < 3:
+        return np.inf, 0
+    sub = SemanticGraph(tpos[placed], target.labels[placed])
+    k = int(cfg.verify_top_k) + 1
+    matching = MatchingConfig(top_k=k, min_similarity=min_similarity)
+    cand, _ = match_descriptors(desc_t[placed], desc_t, sub.labels, target.labels, matching)
+    cand = cand[cand[:, 1] != placed[cand[:, 0]]]  # not itself
+    R, t, _, order = _scored_hypotheses(sub, tpos, tree, cand, cfg.verify_hypotheses)
+    if len(R) == 0:
+        return np.inf, 0
+    return _best_distinct(sub, (R, t, order), np.eye(4), context, n_tests)
+
+
+def _distinct_support(
+    query: SemanticGraph,
+    target: SemanticGraph,
+    desc_q,
+    desc_t,
+    matches: np.ndarray,
+    cfg: AcceptanceConfig,
+    min_similarity: float,
+) -> int:
+    """How many co-located (query, target) pairs `matches` are the query object's best
+    descriptor match and pass the acceptance test's distinctiveness filter for this query size
+    (`AcceptanceConfig.ratio_for`, `exclusion_for`; `sgloc.distinctive`)."""
+    if len(matches) == 0:
+        return 0
+    best, _ = match_descriptors(
+        desc_q, desc_t, query.labels, target.labels, MatchingConfig(min_similarity=min_similarity)
+    )
+    ratio = cfg.ratio_for(len(query))
+    if ratio is not None:
+        exclusion = cfg.exclusion_for(len(query))
+        keep = spatially_distinct(
+            desc_q, desc_t, target.labels, target.positions, best, ratio, exclusion
+        )
+        best = best[keep]
+    n_t = len(target) + 1
+    return int(np.isin(matches[:, 0] * n_t + matches[:, 1], best[:, 0] * n_t + best[:, 1]).sum())
+
+
+def verify_small_query(
+    query: SemanticGraph,
+    target: SemanticGraph,
+    desc_q,
+    desc_t,
+    config: AcceptanceConfig | None = None,
+    min_similarity: float = 0.5,
+    max_tilt: float | None = 15.0,
+) -> Verification:
+    """Localize a small `query` by checking its whole geometry against `target` (module
+    docstring); desc_q, desc_t: the graphs' vertex descriptors (dense or CSR). 4-dof motion."""
+    cfg = config or AcceptanceConfig()
+    r = float(cfg.verify_radius)
+    empty = np.zeros((0, 2), np.int64)
+    matching = MatchingConfig(top_k=int(cfg.verify_top_k), min_similarity=min_similarity)
+    cand, _ = match_descriptors(desc_q, desc_t, query.labels, target.labels, matching)
+    tpos = target.positions
+    tree = _ClassTree(target, r)
+    R, t, n_tests, order = _scored_hypotheses(query, tpos, tree, cand, cfg.verify_hypotheses)
+    if len(R) == 0:
+        return Verification(False, None, 0.0, empty, "no consistent pair of candidates")
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R[order[0]], t[order[0]]
+    T, dist, j = _refine(query, tpos, tree, T, max_tilt)
+    n_classes = max(query.n_classes, target.n_classes)
+    chance = _ChanceModel(target, float(cfg.verify_density_radius), n_classes)
+    lam = _local_chance(chance, query, T, r)
+    lg_best, k = _log10_nfa(dist, lam, n_tests, r)
+    ok = np.isfinite(dist)
+    matches = np.column_stack([np.flatnonzero(ok), j[ok]]).astype(np.int64)
+    spread = inlier_spread(tpos[j[ok]], dof=4)
+    min_spread = cfg.min_spread * DOF4_SPREAD_FACTOR
+    # Runner-up: another alignment of the query, or another place of the map like this one.
+    context = (tpos, tree, chance, max_tilt, cfg.distinct_rotation)
+    lg_second, k2 = _best_distinct(query, (R, t, order), T, context, n_tests)
+    required = 1.0 - (1.0 - cfg.min_confidence) / OPTIMISM
+    lg_self, k_self = np.inf, 0
+    if spread >= min_spread and (required >= 1.0 or lg_best < np.log10(1.0 / required - 1.0)):
+        placed = np.unique(j[ok])
+        lg_self, k_self = _self_rival(
+            target, desc_t, placed, context, cfg, min_similarity, n_tests
+        )
+    lg_rival = min(lg_second, lg_self)
+    support = _distinct_support(query, target, desc_q, desc_t, matches, cfg, min_similarity)
+    nfa1 = 10.0 ** min(lg_best, 300.0)
+    ratio = 0.0 if not np.isfinite(lg_rival) else 10.0 ** min(lg_best - lg_rival, 300.0)
+    confidence = float(np.clip(1.0 / (1.0 + nfa1 + ratio), 0.0, 1.0))
+    details = {
+        "candidates": len(cand), "hypotheses": n_tests, "colocated": int(ok.sum()),
+        "fit_colocated": k, "expected_chance": lam, "log10_nfa": lg_best,
+        "runner_up_colocated": k2, "runner_up_log10_nfa": float(lg_second),
+        "distinct_support": support, "self_rival_colocated": k_self,
+        "self_rival_log10_nfa": float(lg_self), "spread_m": spread,
+    }  # fmt: skip
+    reason = ""
+    if spread < min_spread:
+        confidence = 0.0
+        reason = (
+            f"the {int(ok.sum())} objects of the query that fit the map lie within a few metres "
+            f"(spread {spread:.1f} m < {min_spread:g} m); too little of the map agrees"
+        )
+    elif support < MIN_DISTINCT_SUPPORT:
+        reason = (
+            f"{int(ok.sum())} of the query's {len(query)} objects fit the map, but only {support} "
+            f"of them are distinctive best matches (< {MIN_DISTINCT_SUPPORT}): a place without "
+            "distinctive objects cannot be told from its look-alikes"
+        )
+    elif confidence < required:
+        reason = (
+            f"{int(ok.sum())} of the query's {len(query)} objects fit the map, which chance or "
+            f"another place explains as well (confidence {confidence:.6g} < {required:.6g}, "
+            "min_confidence for a verified small query)"
+        )
+    return Verification(not reason, T, confidence, matches, reason, details)

@@ -1,0 +1,180 @@
+"""Verification of a small query against the whole map (sgloc.verification)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+import sgloc.localizer as localizer_module
+from sgloc import SemanticGraph, localize
+from sgloc.acceptance import AcceptanceConfig
+from sgloc.geometry import make_transform, transform_error
+from sgloc.verification import Verification, verify_small_query
+
+
+def _yaw(deg: float, t) -> np.ndarray:
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    return make_transform(np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]]), np.asarray(t, float))
+
+
+def _scattered_map(rng, n=400, size=300.0) -> SemanticGraph:
+    xy = rng.uniform(0, size, (n, 2))
+    pos = np.column_stack([xy, rng.uniform(0, 3, n)])
+    return SemanticGraph(pos, rng.integers(0, 3, n))
+
+
+def _query_of(target: SemanticGraph, centre, radius, T_target_query, rng, noise=0.15):
+    """The target objects within `radius` of `centre`, seen in a query frame (positions
+    T^-1 p + noise); returns (query graph, their target indices)."""
+    keep = np.flatnonzero(np.linalg.norm(target.positions[:, :2] - centre, axis=1) < radius)
+    inv = np.linalg.inv(T_target_query)
+    p = target.positions[keep] @ inv[:3, :3].T + inv[:3, 3]
+    p = p + rng.normal(0, noise, p.shape)
+    return SemanticGraph(p, target.labels[keep]), keep
+
+
+def test_small_query_with_two_right_candidates_is_localized_by_its_geometry(rng):
+    target = _scattered_map(rng)
+    T = _yaw(70.0, [40.0, -25.0, 1.0])
+    query, partner = _query_of(target, np.array([150.0, 150.0]), 28.0, T, rng)
+    assert 10 <= len(query) < 30
+    # Descriptors: random per target object; each query object copies a *wrong* same-class
+    # target's descriptor, except two that copy their partner's: two right top-1 candidates.
+    dt = rng.normal(size=(len(target), 32))
+    dq = np.empty((len(query), 32))
+    right = {int(np.argmin(query.positions[:, 0])), int(np.argmax(query.positions[:, 0]))}
+    for i, j in enumerate(partner):
+        same = np.flatnonzero((target.labels == target.labels[j]) & (np.arange(len(target)) != j))
+        dq[i] = dt[j] if i in right else dt[rng.choice(same)]
+    top1 = np.argmax(np.where(target.labels[None, :] == query.labels[:, None], dq @ dt.T, -np.inf),
+                     axis=1)  # fmt: skip
+    assert (top1 == partner).sum() == 2  # too few for the 5-inlier minimum of RANSAC
+
+    v = verify_small_query(query, target, dq, dt, AcceptanceConfig())
+    assert isinstance(v, Verification)
+    assert v.accepted, v.reason
+    dtr, drot = transform_error(v.transform, T)
+    assert dtr < 0.5 and drot < 0.5
+    assert v.confidence >= 0.9999
+    # The co-located objects are the true partners.
+    assert len(v.matches) >= len(query) - 1
+    assert np.array_equal(partner[v.matches[:, 0]], v.matches[:, 1])
+
+
+def _road(length=400.0, spacing=8.0, width=12.0) -> SemanticGraph:
+    """Two rows of identical poles along a straight road, and trees halfway between them."""
+    x = np.arange(0.0, length, spacing)
+    poles = [np.column_stack([x, np.full_like(x, y), np.zeros_like(x)]) for y in (0.0, width)]
+    trees = np.column_stack([x + spacing / 2, np.full_like(x, -4.0), np.full_like(x, 1.0)])
+    pos = np.concatenate([*poles, trees])
+    labels = np.repeat([0, 0, 1], len(x))
+    return SemanticGraph(pos, labels)
+
+
+def test_repetitive_road_is_refused(rng):
+    target = _road()
+    T = _yaw(-35.0, [100.0, 20.0, 0.0])
+    # A stretch of the same road: fits the target everywhere along it, one spacing apart.
+    query, _ = _query_of(target, np.array([200.0, 6.0]), 22.0, T, rng, noise=0.05)
+    assert 10 <= len(query) < 30
+    n_classes = 2
+    from sgloc.descriptors import make_descriptor
+
+    desc = make_descriptor("distance_histogram")
+    dq = desc(query, n_classes, rng)
+    dt = desc(target, n_classes, rng)
+    v = verify_small_query(query, target, dq, dt, AcceptanceConfig())
+    assert not v.accepted
+    assert v.confidence < 0.9
+    assert "another place" in v.reason or "few metres" in v.reason
+    assert not localize(query, target).success
+
+
+def test_random_small_query_against_unrelated_map_is_refused(rng):
+    target = _scattered_map(rng)
+    other = _scattered_map(np.random.default_rng(99))
+    query, _ = _query_of(other, np.array([150.0, 150.0]), 30.0, np.eye(4), rng)
+    dq = rng.normal(size=(len(query), 16))
+    dt = rng.normal(size=(len(target), 16))
+    v = verify_small_query(query, target, dq, dt, AcceptanceConfig())
+    assert not v.accepted and v.reason
+
+
+def test_localizer_verifies_only_refused_small_queries(monkeypatch, rng):
+    calls = []
+    real = localizer_module.verify_small_query
+
+    def spy(query, *args, **kwargs):
+        calls.append(len(query))
+        return real(query, *args, **kwargs)
+
+    monkeypatch.setattr(localizer_module, "verify_small_query", spy)
+    target = _scattered_map(rng)
+    other = _scattered_map(np.random.default_rng(5))
+    small, _ = _query_of(other, np.array([150.0, 150.0]), 28.0, np.eye(4), rng)
+    res = localize(small, target)
+    assert not res.success and calls == [len(small)]
+    assert "verification" in res.timings
+    calls.clear()
+    assert not localize(small, target, verify_small=False).success and calls == []
+    assert not localize(small, target, dof=6, max_tilt=None).success and calls == []
+    big, _ = _query_of(other, np.array([150.0, 150.0]), 60.0, np.eye(4), rng)
+    assert len(big) >= 30
+    localize(big, target)
+    assert calls == []
+
+
+def test_place_copied_elsewhere_in_the_map_is_refused(rng):
+    """A map holding two copies of the query's place: the query fits both, so it must refuse
+    (and it accepts when the copy is absent)."""
+    from sgloc.descriptors import make_descriptor
+
+    base = _scattered_map(rng, n=500)
+    block = np.flatnonzero(np.linalg.norm(base.positions[:, :2] - [80.0, 80.0], axis=1) < 30.0)
+    far = np.linalg.norm(base.positions[:, :2] - [220.0, 220.0], axis=1) >= 35.0
+    keep = np.flatnonzero(far)  # clear the copy's place
+    copy = base.positions[block] + [140.0, 140.0, 0.0]
+    twice = SemanticGraph(
+        np.concatenate([base.positions[keep], copy]),
+        np.concatenate([base.labels[keep], base.labels[block]]),
+    )
+    once = SemanticGraph(base.positions[keep], base.labels[keep])
+    T = _yaw(20.0, [10.0, 5.0, 0.0])
+    query, _ = _query_of(once, np.array([80.0, 80.0]), 24.0, T, rng, noise=0.05)
+    assert 10 <= len(query) < 30
+    desc = make_descriptor("distance_histogram")
+    dq = desc(query, 3, rng)
+    ok = verify_small_query(query, once, dq, desc(once, 3, rng), AcceptanceConfig())
+    assert ok.accepted, ok.reason
+    assert transform_error(ok.transform, T)[0] < 1.0
+    v = verify_small_query(query, twice, dq, desc(twice, 3, rng), AcceptanceConfig())
+    assert not v.accepted
+    assert v.confidence < 0.9
+
+
+def test_self_rival_finds_the_other_copy_of_a_place(rng):
+    from sgloc.acceptance import _ChanceModel
+    from sgloc.descriptors import make_descriptor
+    from sgloc.verification import _ClassTree, _self_rival
+
+    base = _scattered_map(rng, n=500)
+    block = np.flatnonzero(np.linalg.norm(base.positions[:, :2] - [80.0, 80.0], axis=1) < 24.0)
+    keep = np.flatnonzero(np.linalg.norm(base.positions[:, :2] - [220.0, 220.0], axis=1) >= 35)
+    n_keep = len(keep)
+    pos = np.concatenate([base.positions[keep], base.positions[block] + [140.0, 140.0, 0.0]])
+    target = SemanticGraph(pos, np.concatenate([base.labels[keep], base.labels[block]]))
+    placed = np.flatnonzero(np.isin(keep, block))  # the original block, inside the target
+    dt = make_descriptor("distance_histogram")(target, 3, rng)
+    cfg = AcceptanceConfig()
+    tree = _ClassTree(target, cfg.verify_radius)
+    chance = _ChanceModel(target, cfg.verify_density_radius, 3)
+    context = (target.positions, tree, chance, 15.0, cfg.distinct_rotation)
+    lg, k = _self_rival(target, dt, placed, context, cfg, 0.5, 100)
+    assert k >= len(placed) - 1 and lg < -3
+    # Without the copy, nothing else in the map fits the block.
+    alone = SemanticGraph(target.positions[:n_keep], target.labels[:n_keep])
+    tree = _ClassTree(alone, cfg.verify_radius)
+    chance = _ChanceModel(alone, cfg.verify_density_radius, 3)
+    context = (alone.positions, tree, chance, 15.0, cfg.distinct_rotation)
+    dt = make_descriptor("distance_histogram")(alone, 3, rng)
+    lg, k = _self_rival(alone, dt, placed, context, cfg, 0.5, 100)
+    assert k <= 4
