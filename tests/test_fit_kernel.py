@@ -41,3 +41,19 @@ def test_compiled_refit_refuses_unknown_axes(monkeypatch):
     src = np.random.default_rng(0).uniform(-10, 10, (10, 3))
     with pytest.raises(ValueError, match="axes"):
         _refit("compiled", monkeypatch, src, src, np.eye(4), classes=np.zeros(10), class_axes="x")
+
+
+@pytest.mark.parametrize("path", ["compiled", "reference"])
+@pytest.mark.parametrize("dof,max_tilt", MODELS)
+def test_refit_on_degenerate_matches_is_a_rotation(monkeypatch, path, dof, max_tilt):
+    # Every match on one target point (H = 0), and collinear points (rank 1): the fit is not
+    # unique, but it must still be a finite proper rotation, never NaN.
+    rng = np.random.default_rng(7)
+    src = rng.uniform(-20, 20, (8, 3))
+    line = np.c_[np.arange(8.0), np.zeros(8), np.zeros(8)]
+    for s, d in ((src, np.repeat(src[:1] + 3.0, 8, axis=0)), (line, line + [1.0, 2.0, 0.0])):
+        T = _refit(path, monkeypatch, s, d, np.eye(4), None, dof=dof, max_tilt=max_tilt)
+        R = T[:3, :3]
+        assert np.isfinite(T).all()
+        np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-9)
+        assert np.linalg.det(R) == pytest.approx(1.0)

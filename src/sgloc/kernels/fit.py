@@ -97,7 +97,8 @@ def _symmetric_eigen(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 @njit(cache=True, nogil=True)
 def rotation_from_covariance(H: np.ndarray) -> np.ndarray:
     """The rotation R maximising trace(R H) (Kabsch: H = sum w (s - cs)(d - cd)^T), as
-    V diag(1, 1, det) U^T from H = U S V^T; H must have rank >= 2 (non-collinear points).
+    V diag(1, 1, det) U^T from H = U S V^T. It is unique when H has rank >= 2 (non-collinear
+    points); otherwise one of the rotations that fit equally well (identity when H = 0).
 
     With proper bases (third columns the cross products of the first two) the reflection
     guard is implicit: R = V' U'^T."""
@@ -111,9 +112,18 @@ def rotation_from_covariance(H: np.ndarray) -> np.ndarray:
     for a in range(3):
         u1[a] = H[a, 0] * v1[0] + H[a, 1] * v1[1] + H[a, 2] * v1[2]
         u2[a] = H[a, 0] * v2[0] + H[a, 1] * v2[1] + H[a, 2] * v2[2]
-    u1 /= np.sqrt(np.sum(u1 * u1))
+    n1 = np.sqrt(np.sum(u1 * u1))
+    if not n1 > 0.0:  # H = 0 (e.g. every match on one target point): any rotation fits
+        return np.eye(3)
+    u1 /= n1
     u2 -= np.sum(u1 * u2) * u1
-    u2 /= np.sqrt(np.sum(u2 * u2))
+    n2 = np.sqrt(np.sum(u2 * u2))
+    if not n2 > 1e-12 * n1:  # rank 1: the rotation about u1 is free; complete the basis
+        u2[:] = 0.0
+        u2[np.argmin(np.abs(u1))] = 1.0
+        u2 -= np.sum(u1 * u2) * u1
+        n2 = np.sqrt(np.sum(u2 * u2))
+    u2 /= n2
     v2 -= np.sum(v1 * v2) * v1
     v2 /= np.sqrt(np.sum(v2 * v2))
     v3, u3 = _cross(v1, v2), _cross(u1, u2)
