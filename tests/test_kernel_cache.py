@@ -1,0 +1,30 @@
+"""numba's on-disk cache never mixes up the kernel modules: compiled one module per process into
+a fresh cache, then loaded together in one process in several orders, each kernel still equals
+its numpy reference (`benchmarks/kernel_cache.py`; about 30-60 s, mostly compiling)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
+
+import kernel_cache  # noqa: E402
+
+
+def test_cached_kernels_loaded_together_in_any_order_equal_references(tmp_path):
+    helpers = kernel_cache.populate(tmp_path, workers=2)
+    assert set(helpers) == set(kernel_cache.MODULES)
+    # The names whose body numba's symbol does not fix stay out of every kernel ...
+    assert kernel_cache.sort_search_helpers(tmp_path) == {}
+    # ... and no other numba function is defined twice with two bodies: a clash waiting for the
+    # per-process counters of two compiling processes to line up.
+    assert kernel_cache.clashing_helpers(helpers) == {}
+    for names in kernel_cache.orders(kernel_cache.MODULES, n_random=2):
+        run = kernel_cache.run_probe(names, tmp_path)
+        assert run.passed, f"{' '.join(names)}: {run.why}"
+
+
+def test_clashing_helpers_flags_one_name_with_two_bodies():
+    helpers = {"a": {"f": "1", "g": "2"}, "b": {"f": "1", "g": "3"}, "c": {"h": "4"}}
+    assert kernel_cache.clashing_helpers(helpers) == {"g": ["a", "b"]}
