@@ -7,6 +7,12 @@ processes load the modules from that cache in the given orders, calling each mod
 right after its import and comparing them with the numpy references; a process that loaded
 anything by compiling instead of from the cache fails too (the check would prove nothing).
 
+Whether two cached modules clash depends on numba's per-process function counter lining up in
+the processes that compiled them, so two order-free checks come first: no cached kernel holds a
+numba sort/search helper, and no numba function is defined by two modules with two bodies.
+`--shift MODULE=N` lines counters up on purpose (a module whose helpers clash with another's
+then gives wrong results or crashes in the load orders).
+
     python benchmarks/kernel_cache.py                   # forward, reverse, 4 random orders
     python benchmarks/kernel_cache.py --pairs           # also every ordered pair, one process each
     python benchmarks/kernel_cache.py --probe clique triangles   # one process, this order
@@ -397,6 +403,7 @@ def orders(names: tuple[str, ...], n_random: int, seed: int = 0) -> list[list[st
 
 
 def _uid_starts(items: list[str]) -> dict[str, int]:
+    """{"clique": 23} from ["clique=23"]."""
     out = {}
     for item in items:
         name, _, value = item.partition("=")
@@ -405,7 +412,7 @@ def _uid_starts(items: list[str]) -> dict[str, int]:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--probe", nargs="+", choices=MODULES, help="run these checks, in order")
     ap.add_argument("--compile", action="store_true", help="(with --probe) compiling is fine")
     ap.add_argument("--uid-start", default="", help=argparse.SUPPRESS)

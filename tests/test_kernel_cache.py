@@ -25,6 +25,14 @@ def test_cached_kernels_loaded_together_in_any_order_equal_references(tmp_path):
         assert run.passed, f"{' '.join(names)}: {run.why}"
 
 
+def test_every_cached_kernel_module_is_checked():
+    import sgloc.kernels
+
+    folder = Path(sgloc.kernels.__file__).parent
+    cached = {p.stem for p in folder.glob("*.py") if "njit(cache=True" in p.read_text()}
+    assert cached == set(kernel_cache.MODULES)
+
+
 def test_clashing_helpers_flags_one_name_with_two_bodies():
     helpers = {"a": {"f": "1", "g": "2"}, "b": {"f": "1", "g": "3"}, "c": {"h": "4"}}
     assert kernel_cache.clashing_helpers(helpers) == {"g": ["a", "b"]}
