@@ -31,10 +31,11 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -277,24 +278,28 @@ def sort_search_helpers(cache_dir: Path) -> dict[str, set[str]]:
     return found
 
 
+def defined_numba_functions(functions: Iterable[Any]) -> dict[str, str]:
+    """The numba functions the compiled code of `functions` (numba dispatchers compiled in
+    this process) defines: the name without the counter tag -> a hash of the body (counter
+    tags, global suffixes, attribute and metadata numbers dropped)."""
+    defined = {}
+    for function in functions:
+        for ir in function.inspect_llvm().values():
+            for symbol, body in _NUMBA_DEFINE.findall(ir):
+                body = _GLOBAL_SUFFIX.sub(r"\1", _UID_TAG.sub("", body))
+                body = re.sub(r"[#!]\d+", "", body)
+                defined[_UID_TAG.sub("", symbol)] = hashlib.sha1(body.encode()).hexdigest()[:16]
+    return defined
+
+
 def numba_helpers(names: list[str]) -> dict[str, dict[str, str]]:
-    """Per kernel module (compiled in this process), the numba functions its code defines: the
-    name without the counter tag -> a hash of the body (counter tags, attribute and metadata
-    numbers dropped)."""
+    """Per kernel module (compiled in this process), `defined_numba_functions` of its kernels."""
     from numba.core.dispatcher import Dispatcher
 
     out = {}
     for name in names:
-        defined = out.setdefault(name, {})
-        for value in vars(sys.modules[f"sgloc.kernels.{name}"]).values():
-            if not isinstance(value, Dispatcher):
-                continue
-            for ir in value.inspect_llvm().values():
-                for symbol, body in _NUMBA_DEFINE.findall(ir):
-                    body = _GLOBAL_SUFFIX.sub(r"\1", _UID_TAG.sub("", body))
-                    body = re.sub(r"[#!]\d+", "", body)
-                    digest = hashlib.sha1(body.encode()).hexdigest()[:16]
-                    defined[_UID_TAG.sub("", symbol)] = digest
+        found = vars(sys.modules[f"sgloc.kernels.{name}"]).values()
+        out[name] = defined_numba_functions(v for v in found if isinstance(v, Dispatcher))
     return out
 
 

@@ -14,7 +14,7 @@ import kernel_cache  # noqa: E402
 
 def test_cached_kernels_loaded_together_in_any_order_equal_references(tmp_path):
     helpers = kernel_cache.populate(tmp_path, workers=2)
-    assert set(helpers) == set(kernel_cache.MODULES)
+    assert set(helpers) == set(kernel_cache.MODULES) and any(helpers.values())
     # The names whose body numba's symbol does not fix stay out of every kernel ...
     assert kernel_cache.sort_search_helpers(tmp_path) == {}
     # ... and no other numba function is defined twice with two bodies: a clash waiting for the
@@ -31,6 +31,23 @@ def test_every_cached_kernel_module_is_checked():
     folder = Path(sgloc.kernels.__file__).parent
     cached = {p.stem for p in folder.glob("*.py") if "njit(cache=True" in p.read_text()}
     assert cached == set(kernel_cache.MODULES)
+
+
+def test_sort_and_argsort_helpers_are_one_name_with_two_bodies():
+    """The hazard itself (numba 0.68): np.sort and np.argsort of an int64 array compile helpers
+    of one name (up to the counter) and different bodies; the check sees them."""
+    import numpy as np
+    from numba import njit
+
+    sort, argsort = njit(lambda x: np.sort(x)), njit(lambda x: np.argsort(x))
+    x = np.array([3, 1, 2])
+    assert np.array_equal(sort(x), [1, 2, 3]) and np.array_equal(argsort(x), [1, 2, 0])
+    helpers = {
+        "sorts": kernel_cache.defined_numba_functions([sort]),
+        "argsorts": kernel_cache.defined_numba_functions([argsort]),
+    }
+    clashes = kernel_cache.clashing_helpers(helpers)
+    assert any("quicksort" in name for name in clashes), sorted(clashes)
 
 
 def test_clashing_helpers_flags_one_name_with_two_bodies():
