@@ -9,6 +9,17 @@ Loading numba and the cached kernels costs a process about 0.7 s once. The first
 problems of a process (`use_compiled`) therefore run the numpy references, which give the same
 results: a one-shot run on small maps (the command line) never pays that, while a process that
 keeps working, or meets a large problem, loads the kernels.
+
+Rule for every kernel here: no numba sort or search (np.sort, np.argsort, ndarray.sort,
+np.searchsorted, ...) inside a cached kernel: sort in numpy before the call, or write the loop
+(a binary search, marking). numba names the helpers it generates for them by their element
+types and a per-process counter, not by what they do (sort or argsort, left or right side), and
+the names are shared between modules: two kernel modules cached by different processes can
+each define one name with its own body, and a process loading both runs the first body for
+both (wrong results, or a crash). `benchmarks/kernel_cache.py` (run by the test suite) checks
+that no cached kernel holds such a helper, that no numba function is defined by two modules
+with two bodies, and that the modules loaded together from one cache, in any order, equal
+their references.
 """
 
 from __future__ import annotations

@@ -79,5 +79,21 @@ def greedy_clique(bits: np.ndarray, rank: np.ndarray, seeds: np.ndarray) -> np.n
             for w in range(n_words):
                 cand[w] &= bits[u, w]
         if size > best.shape[0]:
-            best = np.sort(clique[:size].copy())
+            best = _sorted_members(clique[:size], bits.shape[0])
     return best
+
+
+@njit(cache=True, nogil=True)
+def _sorted_members(members: np.ndarray, m: int) -> np.ndarray:
+    """The distinct vertices `members` (< m) in ascending order, by marking them (no sort:
+    see the `sgloc.kernels` rule on numba's sort helpers)."""
+    mark = np.zeros(m, dtype=np.bool_)
+    for v in members:
+        mark[v] = True
+    out = np.empty(members.shape[0], dtype=np.int64)
+    n = 0
+    for v in range(m):
+        if mark[v]:
+            out[n] = v
+            n += 1
+    return out

@@ -70,6 +70,21 @@ def upper_counts(bits: np.ndarray, keep_words: np.ndarray, keep_rows: np.ndarray
 
 
 @njit(cache=True, nogil=True)
+def _last_at_most(sorted_values: np.ndarray, value: int) -> int:
+    """The last position of sorted_values holding a value <= `value` (-1 if none): numpy's
+    searchsorted(side="right") - 1, as a plain binary search (see the `sgloc.kernels` rule on
+    numba's sort and search helpers)."""
+    lo, hi = 0, sorted_values.shape[0]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if sorted_values[mid] <= value:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo - 1
+
+
+@njit(cache=True, nogil=True)
 def edges_at(
     bits: np.ndarray, keep_words: np.ndarray, row_start: np.ndarray, ks: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -82,7 +97,7 @@ def edges_at(
     x = np.uint64(0)
     for n in range(ks.shape[0]):
         k = ks[n]
-        r = np.searchsorted(row_start, k, side="right") - 1
+        r = _last_at_most(row_start, k)
         if r != row:  # the first kept partner of row r: its lowest set bit right of r
             row, w, seen = r, (r + 1) // WORD, 0
             shift = np.uint64((r + 1) % WORD)

@@ -1,0 +1,464 @@
+"""Guard of numba's on-disk cache: kernel modules loaded from one cache, in any order in one
+process, each still equal its numpy reference (no wrong result, no crash).
+
+Each kernel module is first compiled in a fresh process of its own, with a fresh
+NUMBA_CACHE_DIR (as happens when a user's runs touch the kernels one by one). Then fresh
+processes load the modules from that cache in the given orders, calling each module's kernels
+right after its import and comparing them with the numpy references; a process that loaded
+anything by compiling instead of from the cache fails too (the check would prove nothing).
+
+Whether two cached modules clash depends on numba's per-process function counter lining up in
+the processes that compiled them, so two order-free checks come first: no cached kernel holds a
+numba sort/search helper, and no numba function is defined by two modules with two bodies.
+`--shift MODULE=N` lines counters up on purpose (a module whose helpers clash with another's
+then gives wrong results or crashes in the load orders).
+
+    python benchmarks/kernel_cache.py                   # forward, reverse, 4 random orders
+    python benchmarks/kernel_cache.py --pairs           # also every ordered pair, one process each
+    python benchmarks/kernel_cache.py --probe clique triangles   # one process, this order
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import hashlib
+import itertools
+import json
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import sgloc
+
+#: The kernel modules under `sgloc.kernels` with compiled (cached) code.
+MODULES = (
+    "clique", "consistency", "fit", "matching", "neighbors",
+    "prune", "ransac", "runner_up", "spectral", "triangles",
+)  # fmt: skip
+
+
+@contextlib.contextmanager
+def _forced(path: str) -> Iterator[None]:
+    """Every `sgloc.kernels.use_compiled` answers for `path` ("compiled" or "reference")."""
+    from sgloc import kernels
+
+    old, kernels.FORCE = kernels.FORCE, path
+    try:
+        yield
+    finally:
+        kernels.FORCE = old
+
+
+def _graph(m: int, p: float, seed: int) -> np.ndarray:
+    """A random symmetric bool adjacency (m,m), empty diagonal."""
+    R = np.triu(np.random.default_rng(seed).random((m, m)) < p, 1)
+    return R | R.T
+
+
+def _matches(m: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    from sgloc.sim.correspondences import make_correspondences
+
+    cs = make_correspondences(m, 0.7, np.random.default_rng(seed), "structured")
+    return np.ascontiguousarray(cs.src), np.ascontiguousarray(cs.dst)
+
+
+def check_clique() -> None:
+    from sgloc.consistency import pack_rows
+    from sgloc.kernels import clique
+    from sgloc.rejection.clique import core_numbers, greedy_clique
+
+    for m, p in [(70, 0.3), (200, 0.8)]:
+        R = _graph(m, p, m)
+        bits, degree = pack_rows(R), R.sum(axis=1)
+        core = clique.core_numbers(bits, degree)
+        assert np.array_equal(core, core_numbers(R)), "core numbers"
+        rank = core * (m + 1) + degree
+        seeds = np.argsort(-rank, kind="stable")[:16]
+        got = clique.greedy_clique(bits, rank, seeds)
+        assert np.array_equal(got, greedy_clique(R, rank, seeds)), "greedy clique"
+
+
+def check_consistency() -> None:
+    from sgloc.consistency import consistency_bool, unpack_rows
+    from sgloc.kernels import consistency
+
+    src, dst = _matches(150, 1)
+    for neighbor in (False, True):
+        bits, degree = consistency.consistency_bits(src, dst, 4.0, neighbor)
+        form = "neighbor" if neighbor else "distance"
+        ref = consistency_bool(src, dst, 4.0, form)
+        assert np.array_equal(unpack_rows(bits, len(src)), ref), form
+        assert np.array_equal(degree, ref.sum(axis=1)), form
+
+
+def check_fit() -> None:
+    import sgloc.kernels.fit  # noqa: F401 (loaded first, then called through the estimation)
+    from sgloc.estimation import irls_refine, weighted_kabsch
+    from sgloc.geometry import apply, random_rigid_transform
+
+    rng = np.random.default_rng(2)
+    src = rng.uniform(-80, 80, (60, 3)) * [1, 1, 0.1]
+    dst = apply(random_rigid_transform(rng, 50.0, 5.0), src) + rng.normal(0, 0.5, (60, 3))
+    dst[:10] += rng.normal(0, 10, (10, 3))
+    T0, w, classes = weighted_kabsch(src, dst), rng.uniform(0.5, 2, 60), rng.integers(0, 4, 60)
+    for kw in ({"dof": 6}, {"dof": 4, "max_tilt": 15.0}, {"dof": 6, "classes": classes}):
+        out = {}
+        for path in ("compiled", "reference"):
+            with _forced(path):
+                out[path] = irls_refine(src, dst, T0, w, **kw)
+        assert np.abs(out["compiled"] - out["reference"]).max() < 1e-9, f"irls {kw}"
+
+
+def check_matching() -> None:
+    import sgloc.kernels.matching  # noqa: F401 (loaded first, then called through matching)
+    from sgloc.matching import MatchingConfig, match_flagged
+
+    rng = np.random.default_rng(3)
+    dq = rng.random((60, 16)) * (rng.random((60, 16)) < 0.5)
+    dt = rng.random((80, 16)) * (rng.random((80, 16)) < 0.5)
+    lq, lt = rng.integers(0, 3, 60) * 7, rng.integers(0, 3, 80) * 7
+    cfg = MatchingConfig(min_similarity=0.1, top_k=3)
+    out = {}
+    for path in ("compiled", "reference"):
+        with _forced(path):
+            out[path] = match_flagged(dq, dt, lq, lt, cfg, 0.8)
+    (ma, sa, fa), (mb, sb, fb) = out["compiled"], out["reference"]
+    assert len(ma) > 20 and np.array_equal(ma, mb) and np.array_equal(fa, fb), "candidates"
+    assert np.abs(sa - sb).max() < 1e-12, "similarities"
+
+
+def check_neighbors() -> None:
+    from sgloc.acceptance import _ChanceModel
+    from sgloc.graph import SemanticGraph
+    from sgloc.kernels.neighbors import near_class_counts
+
+    rng = np.random.default_rng(4)
+    pts = rng.uniform(-60, 60, (300, 3)) * [1, 1, 0.1]
+    labels = rng.integers(0, 5, 300)
+    moved = np.concatenate([pts[:100] + [3.0, 4.0, 0.0], rng.uniform(-90, 90, (100, 3))])
+    usage = rng.integers(0, 4, 300).astype(np.float64)
+    with _forced("reference"):
+        model = _ChanceModel(SemanticGraph(pts, labels), 5.0, 5)
+    got = near_class_counts(moved, model.positions, labels.astype(np.int64), 5, 5.0, usage)
+    ref = model.near_counts_reference(moved, (None, usage))
+    assert got[0].sum() > 100
+    for a, b in zip(got, ref, strict=True):
+        assert np.array_equal(a, b), "near counts"
+
+
+def check_prune() -> None:
+    from sgloc.consistency import pack_rows
+    from sgloc.kernels.prune import prune_bits
+    from sgloc.rejection.neighbor import prune_by_support_reference
+
+    for m, p in [(65, 0.3), (300, 0.6)]:
+        R = _graph(m, p, m + 1)
+        for eta in (0.2, 0.5, 0.8):
+            got = prune_bits(pack_rows(R), R.sum(axis=1), eta)
+            assert np.array_equal(got, prune_by_support_reference(R, eta)), f"prune {eta}"
+
+
+def check_ransac() -> None:
+    from sgloc.estimation import RansacConfig, ransac_reference
+    from sgloc.geometry import apply, make_transform
+    from sgloc.kernels import ransac
+
+    rng = np.random.default_rng(5)
+    src = rng.uniform([-80, -80, 0], [80, 80, 10], (120, 3))
+    c, s = np.cos(0.7), np.sin(0.7)
+    T = make_transform(np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]]), np.array([5.0, 3, 1]))
+    dst = apply(T, src) + rng.normal(0, 0.3, src.shape)
+    dst[:50] = rng.uniform([-100, -100, 0], [100, 100, 10], (50, 3))
+    for scoring in ("msac", "count"):
+        cfg = RansacConfig(threshold=3.0, scoring=scoring, dof=4, max_tilt=15.0)
+        a = ransac.ransac(src, dst, cfg, np.random.default_rng(1))
+        b = ransac_reference(src, dst, cfg, np.random.default_rng(1))
+        assert np.array_equal(a.inliers, b.inliers), f"ransac inliers ({scoring})"
+        assert np.abs(a.transform - b.transform).max() < 1e-9, f"ransac transform ({scoring})"
+
+
+def check_runner_up() -> None:
+    from sgloc.acceptance import AcceptanceConfig, _compiled_yaw_runner_up, _consistency, _runner_up
+    from sgloc.consistency import ConsistentPairs
+    from sgloc.estimation import _rot_z
+    from sgloc.geometry import apply, make_transform
+    from sgloc.kernels import runner_up  # noqa: F401 (loaded first, then called as acceptance does)
+
+    rng = np.random.default_rng(6)
+    src = rng.uniform(-80, 80, (120, 3)) * [1, 1, 0.05]
+    T = make_transform(_rot_z(np.array([0.3]))[0], np.array([5.0, -2.0, 0.5]))
+    T_alt = make_transform(_rot_z(np.array([1.9]))[0], np.array([-30.0, 12.0, 0.0]))
+    dst = np.concatenate([apply(T, src[:50]), apply(T_alt, src[50:90]), src[90:] + 40.0])
+    dst += rng.normal(0, 0.5, dst.shape)
+    exclude = np.sum((apply(T, src) - dst) ** 2, axis=1) < 100.0
+    cfg = AcceptanceConfig()
+    with _forced("reference"):  # the same draws as `_runner_up` makes, listed in numpy
+        bits, _ = _consistency(src, dst, 5.0)
+        edges = ConsistentPairs(bits)
+        kept = edges.within(~exclude)
+        i, j = kept.at(np.random.default_rng(7).integers(0, kept.size, cfg.runner_up_samples))
+        ref = _runner_up(src, dst, T, exclude, bits, edges, 5.0, cfg, np.random.default_rng(7), 4)
+    got = _compiled_yaw_runner_up(src, dst, T, exclude, i, j, 5.0, cfg)
+    assert got[0] == ref[0] >= 30, "runner-up inliers"
+    assert np.abs(got[1] - ref[1]).max() < 1e-9, "runner-up transform"
+
+
+def check_spectral() -> None:
+    from sgloc.consistency import consistency_bool, pack_rows
+    from sgloc.kernels import spectral
+    from sgloc.rejection import SpectralRejector
+
+    rej = SpectralRejector()
+    src, dst = _matches(300, 8)
+    M = consistency_bool(src, dst, rej.tau, "distance")
+    bits, degree = pack_rows(M), M.sum(axis=1)
+    csr = spectral.affinity_csr(src, dst, bits, degree, float(rej.sigma))
+    x = spectral.leading_eigenvector(*csr, 200, 1e-6)
+    order = np.argsort(-x, kind="stable")
+    got = spectral.greedy_select(x, order, bits, rej.min_ratio, rej.min_agreement)
+    assert len(got) > 50 and np.array_equal(got, rej.reference(src, dst)), "spectral"
+
+
+def check_triangles() -> None:
+    from sgloc.consistency import pack_rows
+    from sgloc.kernels import triangles
+
+    for m, p in [(5, 0.5), (130, 0.1), (300, 0.6)]:
+        R = _graph(m, p, m + 2)
+        bits, degree = pack_rows(R), R.sum(axis=1)
+        ii, jj = triangles.upper_edges(bits, degree)
+        ref_i, ref_j = np.nonzero(np.triu(R))
+        assert np.array_equal(ii, ref_i) and np.array_equal(jj, ref_j), "upper edges"
+        assert triangles.common_counts(bits, ii, jj) == (R[ref_i] & R[ref_j]).sum(), "common"
+        keep = np.random.default_rng(m).random(m) < 0.7
+        keep_words = pack_rows(keep[None, :])[0]
+        counts = triangles.upper_counts(bits, keep_words, keep)
+        K = np.triu(R & keep[:, None] & keep[None, :], 1)
+        assert np.array_equal(counts, K.sum(axis=1)), "upper counts"
+        row_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        ks = np.arange(0, row_start[-1], 3, dtype=np.int64)
+        ki, kj = triangles.edges_at(bits, keep_words, row_start, ks)
+        ref_i, ref_j = np.nonzero(K)
+        assert np.array_equal(ki, ref_i[ks]) and np.array_equal(kj, ref_j[ks]), "edges at"
+
+
+CHECKS: dict[str, Callable[[], None]] = {name: globals()[f"check_{name}"] for name in MODULES}
+
+#: numba's generated sort and search helpers: their symbol names hold the element types and a
+#: per-process counter, not what the code does (sort or argsort, left or right side), so two
+#: cached modules compiled in different processes can define one name with two bodies.
+SORT_SEARCH_HELPER = re.compile(rb"_ZN5numba(?:(?!_ZN)\w)*?(?:sort|search)(?:(?!_ZN)\w)*?B\d+v\d+B")
+#: The per-process counter in a numba symbol name (an Itanium ABI tag "v<n>").
+_UID_TAG = re.compile(r"B\d+v\d+")
+#: The ".<n>" LLVM appends to a global's name already taken in the module (constants).
+_GLOBAL_SUFFIX = re.compile(r"(@[\w.$]+?)(?:\.\d+)+(?=[\s,()]|$)")
+#: A function definition of numba's own (not sgloc's) in LLVM IR: its name and its body.
+_NUMBA_DEFINE = re.compile(r'^define [^@]*@"?(_ZN5numba[^"(]+)"?\((.*?)^}', re.M | re.S)
+
+
+def sort_search_helpers(cache_dir: Path) -> dict[str, set[str]]:
+    """Per cache file under cache_dir, the numba sort/search helper symbols its object code
+    holds (`sgloc.kernels` keeps none)."""
+    found = {}
+    for path in sorted(Path(cache_dir).rglob("*.nbc")):
+        names = {m.decode() for m in SORT_SEARCH_HELPER.findall(path.read_bytes())}
+        if names:
+            found[path.name] = names
+    return found
+
+
+def defined_numba_functions(functions: Iterable[Any]) -> dict[str, str]:
+    """The numba functions the compiled code of `functions` (numba dispatchers compiled in
+    this process) defines: the name without the counter tag -> a hash of the body (counter
+    tags, global suffixes, attribute and metadata numbers dropped)."""
+    defined = {}
+    for function in functions:
+        for ir in function.inspect_llvm().values():
+            for symbol, body in _NUMBA_DEFINE.findall(ir):
+                body = _GLOBAL_SUFFIX.sub(r"\1", _UID_TAG.sub("", body))
+                body = re.sub(r"[#!]\d+", "", body)
+                defined[_UID_TAG.sub("", symbol)] = hashlib.sha1(body.encode()).hexdigest()[:16]
+    return defined
+
+
+def numba_helpers(names: list[str]) -> dict[str, dict[str, str]]:
+    """Per kernel module (compiled in this process), `defined_numba_functions` of its kernels."""
+    from numba.core.dispatcher import Dispatcher
+
+    out = {}
+    for name in names:
+        found = vars(sys.modules[f"sgloc.kernels.{name}"]).values()
+        out[name] = defined_numba_functions(v for v in found if isinstance(v, Dispatcher))
+    return out
+
+
+def clashing_helpers(helpers: dict[str, dict[str, str]]) -> dict[str, list[str]]:
+    """The numba functions (name without the counter tag) that two kernel modules define with
+    different bodies -> those modules: one counter value away from a clash in a process that
+    loads both from the cache."""
+    bodies: dict[str, dict[str, str]] = {}
+    for module, defined in helpers.items():
+        for symbol, digest in defined.items():
+            bodies.setdefault(symbol, {})[module] = digest
+    return {s: sorted(b) for s, b in bodies.items() if len(set(b.values())) > 1}
+
+
+def cache_misses() -> dict[str, int]:
+    """Per loaded kernel module, the specialisations its dispatchers compiled (not loaded)."""
+    from numba.core.dispatcher import Dispatcher
+
+    out = {}
+    for name in MODULES:
+        module = sys.modules.get(f"sgloc.kernels.{name}")
+        if module is None:
+            continue
+        found = [v for v in vars(module).values() if isinstance(v, Dispatcher)]
+        out[name] = sum(sum(d.stats.cache_misses.values()) for d in found)
+    return out
+
+
+def probe(names: list[str], expect_cached: bool) -> None:
+    """In this process: import each kernel module in turn and check it at once. Compiling
+    (not expect_cached): then print the numba functions each module defines (`numba_helpers`)."""
+    with _forced("reference"):  # the references stay numpy: no kernel module loads unasked
+        for name in names:
+            CHECKS[name]()
+            print(f"ok {name}", flush=True)
+    if expect_cached:
+        compiled = {k: v for k, v in cache_misses().items() if v}
+        assert not compiled, f"compiled instead of loaded from the cache: {compiled}"
+    else:
+        print("helpers " + json.dumps(numba_helpers(names)), flush=True)
+
+
+@dataclass
+class ProbeRun:
+    """One `probe` process: passed, why not, and (compiling) the numba functions defined."""
+
+    passed: bool
+    why: str
+    helpers: dict[str, dict[str, str]]
+
+
+def run_probe(
+    names: list[str], cache_dir: Path, compile: bool = False, uid_start: int | None = None
+) -> ProbeRun:
+    """`probe(names)` in a fresh process on NUMBA_CACHE_DIR=cache_dir. uid_start: the first
+    value of numba's per-process function counter (to line counters up on purpose)."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache_dir))
+    src_dir = str(Path(sgloc.__file__).resolve().parent.parent)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (src_dir, env.get("PYTHONPATH")) if p)
+    cmd = [sys.executable, __file__, "--probe", *names] + ["--compile"] * compile
+    if uid_start is not None:
+        cmd += ["--uid-start", str(uid_start)]
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=900)
+    lines = proc.stdout.splitlines()
+    helpers = {}
+    for line in lines:
+        if line.startswith("helpers "):
+            helpers = json.loads(line.removeprefix("helpers "))
+    if proc.returncode == 0:
+        return ProbeRun(True, "", helpers)
+    passed = [line.split()[1] for line in lines if line.startswith("ok ")]
+    failed = names[len(passed)] if len(passed) < len(names) else "(after the checks)"
+    tail = (proc.stderr.strip().splitlines() or [""])[-1]
+    how = f"signal {-proc.returncode}" if proc.returncode < 0 else f"exit {proc.returncode}"
+    return ProbeRun(False, f"{failed} failed after {passed}: {how}: {tail}", helpers)
+
+
+def populate(
+    cache_dir: Path,
+    names: tuple[str, ...] = MODULES,
+    uid_start: dict[str, int] | None = None,
+    workers: int = 1,
+) -> dict[str, dict[str, str]]:
+    """Compile each kernel module in a fresh process of its own into cache_dir (`workers` at a
+    time); the numba functions each defines (`numba_helpers`)."""
+
+    def one(name: str) -> ProbeRun:
+        return run_probe([name], cache_dir, compile=True, uid_start=(uid_start or {}).get(name))
+
+    with ThreadPoolExecutor(workers) as pool:
+        runs = dict(zip(names, pool.map(one, names), strict=True))
+    helpers = {}
+    for name, run in runs.items():
+        if not run.passed:
+            raise RuntimeError(f"compiling {name}: {run.why}")
+        helpers.update(run.helpers)
+    return helpers
+
+
+def orders(names: tuple[str, ...], n_random: int, seed: int = 0) -> list[list[str]]:
+    """Forward, reverse and `n_random` shuffled orders of all `names`."""
+    rng = np.random.default_rng(seed)
+    out = [list(names), list(reversed(names))]
+    out += [[names[k] for k in rng.permutation(len(names))] for _ in range(n_random)]
+    return out
+
+
+def _uid_starts(items: list[str]) -> dict[str, int]:
+    """{"clique": 23} from ["clique=23"]."""
+    out = {}
+    for item in items:
+        name, _, value = item.partition("=")
+        out[name] = int(value)
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--probe", nargs="+", choices=MODULES, help="run these checks, in order")
+    ap.add_argument("--compile", action="store_true", help="(with --probe) compiling is fine")
+    ap.add_argument("--uid-start", default="", help=argparse.SUPPRESS)
+    ap.add_argument("--pairs", action="store_true", help="also every ordered pair of modules")
+    ap.add_argument("--random", type=int, default=4, help="shuffled orders of all modules")
+    ap.add_argument("--workers", type=int, default=1, help="modules compiled at a time")
+    ap.add_argument(
+        "--shift", nargs="*", default=[], metavar="MODULE=N",
+        help="compile MODULE with numba's function counter starting at N (line up names)",
+    )  # fmt: skip
+    args = ap.parse_args()
+    if args.probe:
+        if args.uid_start:
+            from numba.core.bytecode import FunctionIdentity
+
+            FunctionIdentity._unique_ids = itertools.count(int(args.uid_start))
+        probe(args.probe, expect_cached=not args.compile)
+        return 0
+    runs = orders(MODULES, args.random)
+    if args.pairs:
+        runs += [list(p) for p in itertools.permutations(MODULES, 2)]
+    failures = 0
+    with tempfile.TemporaryDirectory(prefix="sgloc-numba-cache-") as tmp:
+        t0 = time.perf_counter()
+        helpers = populate(Path(tmp), uid_start=_uid_starts(args.shift), workers=args.workers)
+        print(f"cache populated, a process per module: {time.perf_counter() - t0:.1f} s")
+        for file, names in sort_search_helpers(Path(tmp)).items():
+            failures += 1
+            print(f"FAIL {file} holds numba sort/search helpers: {sorted(names)}")
+        for symbol, modules in clashing_helpers(helpers).items():
+            failures += 1
+            print(f"FAIL {symbol} defined with different bodies by {modules}")
+        t0 = time.perf_counter()
+        for names in runs:
+            run = run_probe(names, Path(tmp))
+            failures += not run.passed
+            status = "ok  " if run.passed else "FAIL"
+            print(f"{status} {' '.join(names)}" + ("" if run.passed else f"\n     {run.why}"))
+        print(f"{len(runs)} load orders, {failures} failures, {time.perf_counter() - t0:.1f} s")
+    return 1 if failures else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
