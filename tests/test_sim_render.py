@@ -46,10 +46,10 @@ def box_reference(o, dirs, center, half, yaw):
         for sign in (-1, 1):
             p0 = center + sign * half[k] * n
             denom = dirs @ n
-            with np.errstate(divide="ignore", invalid="ignore"):
+            with np.errstate(divide="ignore", invalid="ignore"):  # rays parallel to the face
                 t = ((p0 - o) @ n) / denom
-            hit = o + t[:, None] * dirs
-            local = (hit - center) @ axes.T
+                hit = o + t[:, None] * dirs
+                local = (hit - center) @ axes.T
             others = [j for j in range(3) if j != k]
             inside = np.all(np.abs(local[:, others]) <= half[others] + 1e-9, axis=1)
             ok = inside & (t > 0) & np.isfinite(t)
