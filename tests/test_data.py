@@ -152,3 +152,17 @@ def test_data_list_and_path(capsys, no_data):
     assert "sgloc data fetch kitti00" in out and "shipped" in out
     assert main(["data", "path", "airsim_guo"]) == 0
     assert capsys.readouterr().out.strip() == str(sd.sample_dir("airsim_guo"))
+
+
+def test_fetch_uses_a_verified_copy_already_in_a_data_folder(tmp_path, no_data, monkeypatch):
+    # A copy beside the checkout whose hashes match: nothing to download (the URL is dead).
+    checkout = tmp_path / "checkout-data"
+    shutil.copytree(sd.sample_dir("airsim_guo"), checkout / "airsim_guo")
+    monkeypatch.setattr(sd, "checkout_data_dir", lambda: checkout)
+    monkeypatch.setenv("SGLOC_DATA_URL", "http://127.0.0.1:9/")
+    assert sd.fetch("airsim_guo") == checkout / "airsim_guo"
+    assert not (no_data / "airsim_guo").exists()
+    # A copy whose file differs is not used: fetch tries to download (and fails here).
+    (checkout / "airsim_guo" / "cloud1.pcd").write_text("changed")
+    with pytest.raises(DatasetError):
+        sd.fetch("airsim_guo")

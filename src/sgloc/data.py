@@ -244,11 +244,26 @@ def is_complete(name: str, folder: Path | None = None) -> bool:
     return folder is not None and all((folder / f.name).is_file() for f in ds.files)
 
 
+def verified_copy(name: str) -> Path | None:
+    """The folder of a complete copy of data set `name` in one of `data_roots()` whose every
+    file matches its pinned sha256 (not the copy shipped in the package), or None."""
+    ds = dataset(name)
+    for root in data_roots():
+        folder = root / ds.name
+        if all((folder / f.name).is_file() and _sha256(folder / f.name) == f.sha256
+               for f in ds.files):  # fmt: skip
+            return folder
+    return None
+
+
 def fetch(name: str, dest: Path | None = None, progress: bool = False) -> Path:
     """Download data set `name` into `dest/<name>` (default `fetch_dir()`), each file checked
-    against its pinned sha256; files already there with the right hash are kept. Returns the
-    set's folder. Raises DatasetError when a download fails or a hash does not match."""
+    against its pinned sha256; files already there with the right hash are kept. Without
+    `dest`, a verified copy already in a data folder is used as it is. Returns the set's
+    folder. Raises DatasetError when a download fails or a hash does not match."""
     ds = dataset(name)
+    if dest is None and (found := verified_copy(ds.name)) is not None:
+        return found  # already in a data folder (e.g. beside a checkout): nothing to download
     folder = Path(dest if dest is not None else fetch_dir()) / ds.name
     folder.mkdir(parents=True, exist_ok=True)
     for f in ds.files:
