@@ -67,3 +67,18 @@ def test_on_consistency_bits():
 
     ref = consistent_pairs(bits, degree)
     assert all(np.array_equal(a, b) for a, b in zip(pairs.all(), ref, strict=True))
+
+
+def test_too_many_matches_is_a_clear_error(monkeypatch):
+    # The limit lowered so the check runs on a small set; register names the fix in one line.
+    import sgloc.consistency as consistency
+    from sgloc import register
+    from sgloc.errors import TooManyMatchesError
+
+    monkeypatch.setattr(consistency, "MAX_MATCHES", 50)
+    pts = np.random.default_rng(0).uniform(-50, 50, (51, 3))
+    with pytest.raises(TooManyMatchesError, match="51 matches are too many.*top_k"):
+        consistency_bits(pts, pts, 1.0)
+    with pytest.raises(TooManyMatchesError):
+        register(pts, pts + 1.0, noise_bound=1.0, seed=0)
+    consistency_bits(pts[:50], pts[:50], 1.0)  # at the limit: fine

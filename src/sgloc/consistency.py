@@ -19,8 +19,12 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from sgloc.errors import UnknownNameError
+from sgloc.errors import TooManyMatchesError, UnknownNameError
 from sgloc.kernels import one_blas_thread, use_compiled
+
+#: Most matches the pairwise consistency pass takes: its packed rows hold m^2 / 8 bytes
+#: (2.8 GB here), beside the two graphs; 100,000-vertex maps give about 100,000 at top_k=1.
+MAX_MATCHES = 150_000
 
 #: Side of the square tiles computed at once: 512 x 512 float32 = 1 MB per temporary (L2-sized).
 TILE = 512
@@ -135,6 +139,7 @@ def consistency_bits(
     (m,) int64. src, dst: (m,3) metres. Compiled, one pass over the pairs (small problems
     early in a process: the numpy tiles, `sgloc.kernels.use_compiled`)."""
     check_form(form)
+    check_match_count(len(src))
     if not use_compiled(len(src)):
         M = consistency_bool(src, dst, tau, form)
         return pack_rows(M), M.sum(axis=1, dtype=np.int64)
@@ -143,6 +148,16 @@ def consistency_bits(
     src = np.ascontiguousarray(src, dtype=np.float64)
     dst = np.ascontiguousarray(dst, dtype=np.float64)
     return kernel(src, dst, float(tau), form == "neighbor")
+
+
+def check_match_count(m: int) -> None:
+    """TooManyMatchesError when m matches exceed MAX_MATCHES (the packed rows' memory)."""
+    if m > MAX_MATCHES:
+        raise TooManyMatchesError(
+            f"{m:,} matches are too many for the pairwise consistency check (it would need "
+            f"{m * m / 8e9:.1f} GB; at most {MAX_MATCHES:,}): keep fewer candidates (lower "
+            "top_k or max_candidates, or raise min_similarity) or pass fewer correspondences."
+        )
 
 
 def pack_rows(M: np.ndarray) -> np.ndarray:

@@ -25,3 +25,7 @@ class DegenerateGeometryError(SglocError):
 
 class DatasetError(SglocError):
     """A dataset folder or file is missing or malformed."""
+
+
+class TooManyMatchesError(SglocError):
+    """More matches than the pairwise consistency pass can hold in memory."""
