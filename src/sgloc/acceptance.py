@@ -326,16 +326,6 @@ def nfa_over_radii(
     return best
 
 
-def consistent_triples(src: np.ndarray, dst: np.ndarray, radius: float) -> float:
-    """Number of candidate triples whose three pairwise distances agree within 2 * radius in
-    both graphs: the only triples that can all be inliers of one transform, hence the
-    hypotheses RANSAC can form (triangles of the pairwise-consistency graph: trace(M^3) / 6)."""
-    if len(src) < 3:
-        return 0.0
-    bits, _ = _consistency(src, dst, radius)
-    return _triangles(bits, ConsistentPairs(bits))
-
-
 def _consistency(src: np.ndarray, dst: np.ndarray, radius: float) -> tuple[np.ndarray, ...]:
     """Bit-packed rows and degrees (`sgloc.consistency.consistency_bits`) of the pairs whose
     distances agree within 2 * radius in both graphs (no diagonal)."""
