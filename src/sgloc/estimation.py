@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -350,7 +351,34 @@ def ransac_reference(
             needed = min(needed, _needed_draws(w, cfg.confidence, cfg.iterations, sample_size))
     if best_T is None:
         return RansacResult(None, reason=_no_hypothesis_reason(cfg))
-    T, inliers = _refit(best_T, src_c, dst_c, thr2, weights, cfg)
+    return finish(best_T, src, src_c, dst_c, cs, cd, weights, cfg)
+
+
+#: fit(src, dst, weights or None) -> T_dst_src under a motion model.
+Fit = Callable[[np.ndarray, np.ndarray, np.ndarray | None], np.ndarray]
+#: find(T, src, dst, thr2) -> sorted indices of the matches with squared residual < thr2.
+FindInliers = Callable[[np.ndarray, np.ndarray, np.ndarray, float], np.ndarray]
+
+
+def finish(
+    best_T: np.ndarray,
+    src: np.ndarray,
+    src_c: np.ndarray,
+    dst_c: np.ndarray,
+    cs: np.ndarray,
+    cd: np.ndarray,
+    weights: np.ndarray | None,
+    cfg: RansacConfig,
+    fit: Fit | None = None,
+    find: FindInliers | None = None,
+) -> RansacResult:
+    """RANSAC's last steps, shared by `ransac_reference` and the compiled loop: the best
+    hypothesis (4x4, between src_c = src - cs and dst_c = dst - cd) refit on its inliers, the
+    centring undone, and the result checked (enough inliers; dof=6: not degenerate). `fit`
+    and `find` default to `fit_rigid` under cfg's motion model and numpy residuals."""
+    m = len(src)
+    fit = fit or (lambda s, d, w: fit_rigid(s, d, w, cfg.dof, cfg.max_tilt))
+    T, inliers = _refit(best_T, src_c, dst_c, cfg, weights, fit, find or _inliers)
     # Undo the centring: T_dst_src = Tr(cd) @ T_c @ Tr(-cs).
     T = make_transform(T[:3, :3], T[:3, 3] + cd - T[:3, :3] @ cs)
     need = max(cfg.min_inliers, int(np.ceil(cfg.min_inlier_ratio * m)), 3)
@@ -418,13 +446,15 @@ def _refit(
     T: np.ndarray,
     src: np.ndarray,
     dst: np.ndarray,
-    thr2: float,
-    weights: np.ndarray | None,
     cfg: RansacConfig,
+    weights: np.ndarray | None,
+    fit: Fit,
+    find: FindInliers,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Refit T on its inliers `refit_rounds` times (inliers recomputed after each) while the
     inlier set does not shrink; (T, inliers)."""
-    inliers = _inliers(T, src, dst, thr2)
+    thr2 = cfg.threshold**2
+    inliers = find(T, src, dst, thr2)
     for _ in range(cfg.refit_rounds):
         if len(inliers) < 3:
             break
@@ -432,12 +462,12 @@ def _refit(
         try:
             if cfg.dof == 6:
                 check_not_degenerate(src[inliers], "matched points")
-            T_new = fit_rigid(src[inliers], dst[inliers], w, cfg.dof, cfg.max_tilt)
+            T_new = fit(src[inliers], dst[inliers], w)
         except DegenerateGeometryError:
             break
         if cfg.dof == 6 and cfg.max_tilt is not None and tilt_deg(T_new[:3, :3]) > cfg.max_tilt:
             break
-        new_inliers = _inliers(T_new, src, dst, thr2)
+        new_inliers = find(T_new, src, dst, thr2)
         if len(new_inliers) < len(inliers):
             break
         T, same = T_new, np.array_equal(new_inliers, inliers)

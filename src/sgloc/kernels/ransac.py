@@ -13,17 +13,16 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sgloc.errors import DegenerateGeometryError
 from sgloc.estimation import (
     COLLINEAR_RATIO,
     RansacConfig,
     RansacResult,
     _needed_draws,
-    check_not_degenerate,
+    _no_hypothesis_reason,
     draw_triplets,
+    finish,
 )
-from sgloc.geometry import make_transform
-from sgloc.kernels.fit import fit_model, kabsch
+from sgloc.kernels.fit import fit_model
 
 _BLOCK = 2_000_000  # as sgloc.estimation: hypotheses x matches per block
 
@@ -200,30 +199,16 @@ def ransac(
         raise ValueError(f"RANSAC dof must be 4 (x, y, z, yaw) or 6, got {cfg.dof!r}")
     cs, cd = src.mean(axis=0), dst.mean(axis=0)
     src_c, dst_c = np.ascontiguousarray(src - cs), np.ascontiguousarray(dst - cd)
-    thr2 = cfg.threshold**2
     best_T = _best_hypothesis(src_c, dst_c, cfg, rng)
     if best_T is None:
-        return RansacResult(
-            None,
-            reason="every RANSAC sample was collinear; the matched points lie (nearly) on a line",
-        )
-    if cfg.dof == 4:
-        T, inl = _refit_ground(best_T, src_c, dst_c, thr2, weights, cfg)
-    else:
-        T, inl = _refit_rigid(best_T, src_c, dst_c, thr2, weights, cfg)
-    T = make_transform(T[:3, :3], T[:3, 3] + cd - T[:3, :3] @ cs)
-    need = max(cfg.min_inliers, int(np.ceil(cfg.min_inlier_ratio * m)), 3)
-    if len(inl) < need:
-        return RansacResult(
-            None, inl, reason=f"best model has {len(inl)} inliers of {m} matches; at least "
-            f"{need} are needed",
-        )  # fmt: skip
-    if cfg.dof == 6:
-        try:
-            check_not_degenerate(src[inl], "inlier points")
-        except DegenerateGeometryError as e:
-            return RansacResult(None, inl, reason=str(e))
-    return RansacResult(T, inl)
+        return RansacResult(None, reason=_no_hypothesis_reason(cfg))
+    w_all = np.ones(m) if weights is None else np.asarray(weights, dtype=np.float64)
+    max_tilt = float(cfg.max_tilt or 0.0)
+
+    def fit(s: np.ndarray, d: np.ndarray, w: np.ndarray) -> np.ndarray:
+        return fit_model(s, d, w, cfg.dof, max_tilt)
+
+    return finish(best_T, src, src_c, dst_c, cs, cd, w_all, cfg, fit, inliers)
 
 
 def _best_hypothesis(
@@ -253,58 +238,3 @@ def _best_hypothesis(
             w = max_count / m
             needed = min(needed, _needed_draws(w, cfg.confidence, cfg.iterations, size))
     return best_T
-
-
-def _refit_rigid(
-    T: np.ndarray,
-    src_c: np.ndarray,
-    dst_c: np.ndarray,
-    thr2: float,
-    weights: np.ndarray | None,
-    cfg: RansacConfig,
-) -> tuple[np.ndarray, np.ndarray]:
-    """`sgloc.estimation`'s refit for dof=6 without max_tilt, with the compiled Kabsch."""
-    inl = inliers(T, src_c, dst_c, thr2)
-    w_all = np.ones(len(src_c)) if weights is None else np.asarray(weights, dtype=np.float64)
-    for _ in range(cfg.refit_rounds):
-        if len(inl) < 3:
-            break
-        try:
-            check_not_degenerate(src_c[inl], "matched points")
-        except DegenerateGeometryError:
-            break
-        T_new = kabsch(src_c[inl], dst_c[inl], w_all[inl])
-        new_inl = inliers(T_new, src_c, dst_c, thr2)
-        if len(new_inl) < len(inl):
-            break
-        T, same = T_new, np.array_equal(new_inl, inl)
-        inl = new_inl
-        if same:
-            break
-    return T, inl
-
-
-def _refit_ground(
-    T: np.ndarray,
-    src_c: np.ndarray,
-    dst_c: np.ndarray,
-    thr2: float,
-    weights: np.ndarray | None,
-    cfg: RansacConfig,
-) -> tuple[np.ndarray, np.ndarray]:
-    """`sgloc.estimation`'s refit for dof=4, with the compiled fit of the motion model."""
-    inl = inliers(T, src_c, dst_c, thr2)
-    w_all = np.ones(len(src_c)) if weights is None else np.asarray(weights, dtype=np.float64)
-    max_tilt = float(cfg.max_tilt or 0.0)
-    for _ in range(cfg.refit_rounds):
-        if len(inl) < 3:
-            break
-        T_new = fit_model(src_c[inl], dst_c[inl], w_all[inl], 4, max_tilt)
-        new_inl = inliers(T_new, src_c, dst_c, thr2)
-        if len(new_inl) < len(inl):
-            break
-        T, same = T_new, np.array_equal(new_inl, inl)
-        inl = new_inl
-        if same:
-            break
-    return T, inl
