@@ -135,6 +135,21 @@ def rotation_from_covariance(H: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
+def _centroids(
+    src: np.ndarray, dst: np.ndarray, weights: np.ndarray, total: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted centroids of src and dst (m,3), weights (m,) summing to `total` (the caller's
+    sum: kabsch and yaw_fit each keep their own summation order, hence their rounding)."""
+    cs, cd = np.zeros(3), np.zeros(3)
+    for i in range(src.shape[0]):
+        wi = weights[i] / total
+        for a in range(3):
+            cs[a] += wi * src[i, a]
+            cd[a] += wi * dst[i, a]
+    return cs, cd
+
+
+@njit(cache=True, nogil=True)
 def kabsch(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """T_dst_src (4x4) minimising sum_i w_i ||R src_i + t - dst_i||^2 (reflection guarded);
     src, dst (m,3) float64, weights (m,) with a positive sum."""
@@ -142,12 +157,7 @@ def kabsch(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> np.ndarray:
     total = 0.0
     for i in range(m):
         total += weights[i]
-    cs, cd = np.zeros(3), np.zeros(3)
-    for i in range(m):
-        wi = weights[i] / total
-        for a in range(3):
-            cs[a] += wi * src[i, a]
-            cd[a] += wi * dst[i, a]
+    cs, cd = _centroids(src, dst, weights, total)
     H = np.zeros((3, 3))
     for i in range(m):
         wi = weights[i] / total
@@ -206,12 +216,7 @@ def yaw_fit(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> np.ndarray
     """`sgloc.estimation.yaw_fit`: the weighted least-squares rotation about z and shift."""
     m = src.shape[0]
     total = weights.sum()
-    cs, cd = np.zeros(3), np.zeros(3)
-    for i in range(m):
-        wi = weights[i] / total
-        for a in range(3):
-            cs[a] += wi * src[i, a]
-            cd[a] += wi * dst[i, a]
+    cs, cd = _centroids(src, dst, weights, total)
     cross, dot = 0.0, 0.0
     for i in range(m):
         wi = weights[i] / total
