@@ -344,6 +344,17 @@ def _triangles(bits: np.ndarray, edges: ConsistentPairs) -> float:
     return float(scale * common_partner_count(bits, ii, jj) / 3.0)
 
 
+def distinct_from(
+    R: np.ndarray, t: np.ndarray, T: np.ndarray, c: np.ndarray, metres: float, degrees: float
+) -> np.ndarray:
+    """(B,) bool: the hypotheses (R (B,3,3), t (B,3)) that move point `c` (3,) more than
+    `metres` away from where T (4x4) moves it, or turn more than `degrees` from T."""
+    shift = np.linalg.norm(R @ c + t - (T[:3, :3] @ c + T[:3, 3]), axis=1)
+    cosang = (np.einsum("bij,ij->b", R, T[:3, :3]) - 1.0) / 2.0
+    turn = np.degrees(np.arccos(np.clip(cosang, -1.0, 1.0)))
+    return (shift > metres) | (turn > degrees)
+
+
 def _runner_up(
     src: np.ndarray,
     dst: np.ndarray,
@@ -386,10 +397,7 @@ def _runner_up(
     R, t = hyp
     # Distinctness, measured where it matters: at the centroid of T's support (query frame).
     c = src[exclude].mean(axis=0) if exclude.any() else src.mean(axis=0)
-    dtrans = np.linalg.norm(R @ c + t - (T[:3, :3] @ c + T[:3, 3]), axis=1)
-    cosang = (np.einsum("bij,ij->b", R, T[:3, :3]) - 1.0) / 2.0
-    drot = np.degrees(np.arccos(np.clip(cosang, -1.0, 1.0)))
-    distinct = (dtrans > cfg.distinct_translation) | (drot > cfg.distinct_rotation)
+    distinct = distinct_from(R, t, T, c, cfg.distinct_translation, cfg.distinct_rotation)
     if not distinct.any():
         return 0, None
     R, t = R[distinct], t[distinct]

@@ -43,6 +43,7 @@ from sgloc.acceptance import (
     DOF4_SPREAD_FACTOR,
     AcceptanceConfig,
     _ChanceModel,
+    distinct_from,
     inlier_spread,
     nfa_over_radii,
 )
@@ -153,19 +154,8 @@ def _refine(
     return T, d, j
 
 
-def _distinct_batch(
-    R: np.ndarray, t: np.ndarray, T: np.ndarray, c: np.ndarray, metres: float, degrees: float
-) -> np.ndarray:
-    """(H,) bool: hypotheses (R, t) that move point `c` more than `metres` away from where T
-    moves it, or turn more than `degrees` from T."""
-    shift = np.linalg.norm(np.einsum("hij,j->hi", R, c) + t - (T[:3, :3] @ c + T[:3, 3]), axis=1)
-    cosang = (np.einsum("hij,ij->h", R, T[:3, :3]) - 1.0) / 2.0
-    turn = np.degrees(np.arccos(np.clip(cosang, -1.0, 1.0)))
-    return (shift > metres) | (turn > degrees)
-
-
 def _distinct(T2: np.ndarray, T: np.ndarray, c: np.ndarray, metres: float, degrees: float) -> bool:
-    return bool(_distinct_batch(T2[None, :3, :3], T2[None, :3, 3], T, c, metres, degrees)[0])
+    return bool(distinct_from(T2[None, :3, :3], T2[None, :3, 3], T, c, metres, degrees)[0])
 
 
 def _local_chance(
@@ -217,7 +207,7 @@ def _best_distinct(
     tpos, tree, chance, max_tilt, degrees = context
     r = tree.radius
     c = graph.positions.mean(axis=0)
-    distinct = _distinct_batch(R, t, T, c, 2.0 * r, degrees)
+    distinct = distinct_from(R, t, T, c, 2.0 * r, degrees)
     best = (np.inf, 0)
     for h in order[distinct[order]][:RUNNER_UPS]:
         T2 = np.eye(4)
