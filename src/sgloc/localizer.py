@@ -273,7 +273,7 @@ def _final_fit(
             class_axes=cfg.class_scale if scaled else "full",
         )
         if not np.all(np.isfinite(transform)):
-            # The compiled IRLS can fail on degenerate matches (several onto one target).
+            # Never hand on a non-finite pose: keep the plain fit if the refit ever fails.
             transform = plain
     if cfg.icp:
         transform = icp_refine(
