@@ -12,14 +12,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from sgloc.matching import unit_rows
+
 #: Similarities held at once per block (8 MB of float64).
 _BLOCK_ENTRIES = 1 << 20
-
-
-def _unit_rows(D) -> np.ndarray:
-    D = D.toarray() if hasattr(D, "toarray") else np.asarray(D, dtype=np.float64)
-    norms = np.linalg.norm(D, axis=1)
-    return D * np.divide(1.0, norms, out=np.zeros_like(norms), where=norms > 0)[:, None]
 
 
 def spatially_distinct(
@@ -39,7 +35,7 @@ def spatially_distinct(
     out = np.ones(len(cand), dtype=bool)
     if len(cand) == 0:
         return out
-    Q, T = _unit_rows(desc_q), _unit_rows(desc_t)
+    Q, T = (unit_rows(D.toarray() if hasattr(D, "toarray") else D) for D in (desc_q, desc_t))
     tlab = labels_t[cand[:, 1]]
     for c in np.unique(tlab):
         rows = np.flatnonzero(tlab == c)

@@ -51,7 +51,8 @@ class MatchingConfig:
         return asdict(self)
 
 
-def _row_normalised(D) -> sparse.csr_array | np.ndarray:
+def unit_rows(D) -> sparse.csr_array | np.ndarray:
+    """Descriptor rows scaled to unit length (all-zero rows stay zero); CSR stays CSR."""
     if sparse.issparse(D):
         D = sparse.csr_array(D, dtype=np.float64)
         norms = np.sqrt(np.asarray(D.multiply(D).sum(axis=1)).ravel())
@@ -81,7 +82,7 @@ def cosine_similarity(desc_q, desc_t, labels_q: np.ndarray, labels_t: np.ndarray
     """(n_q, n_t) dense cosine similarity; 0 between vertices of different classes or without
     a descriptor (all-zero row). For inspection of small graphs: `match_descriptors` never
     builds this matrix."""
-    Q, T = _row_normalised(desc_q), _row_normalised(desc_t)
+    Q, T = unit_rows(desc_q), unit_rows(desc_t)
     S = np.zeros((Q.shape[0], T.shape[0]))
     for rows, it, block in _blocks(Q, T, labels_q, labels_t):
         S[np.ix_(rows, it)] = block
@@ -107,7 +108,7 @@ def _top_k(
     if compiled:
         return _compiled_top_k(desc_q, desc_t, labels_q, labels_t, k, min_sim, max_ratio,
                                flag_ratio)  # fmt: skip
-    Q, T = _row_normalised(desc_q), _row_normalised(desc_t)
+    Q, T = unit_rows(desc_q), unit_rows(desc_t)
     out_q, out_t, out_s, out_f = [], [], [], []
     for rows, it, S in _blocks(Q, T, labels_q, labels_t):
         kk = min(k, S.shape[1])
@@ -249,7 +250,7 @@ def _match(
         return np.zeros((0, 2), dtype=np.int64), np.zeros(0), np.zeros(0, bool)
     min_sim = float(cfg.min_similarity)
     if cfg.strategy == "all":
-        Q, T = _row_normalised(desc_q), _row_normalised(desc_t)
+        Q, T = unit_rows(desc_q), unit_rows(desc_t)
         q, t, s = _all_pairs(Q, T, labels_q, labels_t, max(int(cfg.max_candidates), 1), min_sim)
         f = np.ones(len(q), dtype=bool)
     else:
