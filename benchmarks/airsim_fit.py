@@ -29,6 +29,7 @@ import numpy as np  # noqa: E402
 from sgloc import localize  # noqa: E402
 from sgloc.estimation import fit_rigid, irls_refine, tilt_deg  # noqa: E402
 from sgloc.evaluation.pairs import AirsimGuoPairs  # noqa: E402
+from sgloc.evaluation.report import markdown_table  # noqa: E402
 from sgloc.geometry import invert, transform_error  # noqa: E402
 from sgloc.graph import SemanticGraph  # noqa: E402
 
@@ -67,16 +68,18 @@ def axes_of(points: np.ndarray) -> np.ndarray:
     return np.array([[along[0], along[1], 0.0], [-along[1], along[0], 0.0], [0.0, 0.0, 1.0]])
 
 
-def fit_row(name: str, T: np.ndarray, axes: np.ndarray, n: int | str) -> str:
+def table(header: list[str], body: list[list[Any]]) -> list[str]:
+    """A Markdown table as lines (`sgloc.evaluation.report.markdown_table`)."""
+    return markdown_table(header, body).splitlines()
+
+
+def fit_row(name: str, T: np.ndarray, axes: np.ndarray, n: int | str) -> list[Any]:
     t, r = transform_error(T, np.eye(4))
     a, c, z = axes @ T[:3, 3]
-    return f"| {name} | {n} | {t:.2f} | {r:.2f} | {a:+.2f} | {c:+.2f} | {z:+.2f} |"
+    return [name, n, f"{t:.2f}", f"{r:.2f}", f"{a:+.2f}", f"{c:+.2f}", f"{z:+.2f}"]
 
 
-FIT_HEADER = [
-    "| fit | pairs | trans. err m | rot. err deg | along m | across m | z m |",
-    "|---|---|---|---|---|---|---|",
-]
+FIT_HEADER = ["fit", "pairs", "trans. err m", "rot. err deg", "along m", "across m", "z m"]
 
 
 def true_pair_section(q: SemanticGraph, t: SemanticGraph, axes: np.ndarray) -> list[str]:
@@ -86,17 +89,17 @@ def true_pair_section(q: SemanticGraph, t: SemanticGraph, axes: np.ndarray) -> l
         "fit is the defaults' final-fit model (x, y, z, yaw; tilt up to 15 deg). Translation",
         "error at the Airsim origin, split along the overlap's long axis, across it and in z.",
         "",
-        *FIT_HEADER,
     ]
+    body = []
     for r in TRUE_PAIR_RADII:
         pairs = true_pairs(q, t, r)
         S, D = q.positions[pairs[:, 0]], t.positions[pairs[:, 1]]
         plain = fit_rigid(S, D, None, **MODEL)
-        lines.append(fit_row(f"r = {r:g} m", plain, axes, len(pairs)))
+        body.append(fit_row(f"r = {r:g} m", plain, axes, len(pairs)))
         lab = q.labels[pairs[:, 0]]
         scaled = irls_refine(S, D, plain, classes=lab, class_axes="height", **MODEL)
-        lines.append(fit_row(f"r = {r:g} m, IRLS with class height scales", scaled, axes, ""))
-    return lines
+        body.append(fit_row(f"r = {r:g} m, IRLS with class height scales", scaled, axes, ""))
+    return lines + table(FIT_HEADER, body)
 
 
 def class_section(q: SemanticGraph, t: SemanticGraph, axes: np.ndarray, r: float) -> list[str]:
@@ -110,14 +113,14 @@ def class_section(q: SemanticGraph, t: SemanticGraph, axes: np.ndarray, r: float
         "Query minus target under the ground truth (metres), along / across the overlap's axis "
         "and in z.",
         "",
-        "| class | pairs | mean along | mean across | mean z | rms |",
-        "|---|---|---|---|---|---|",
     ]
+    body = []
     for c in np.unique(lab):
         s = lab == c
         m, rms = res[s].mean(axis=0), np.sqrt(np.mean(np.sum(res[s] ** 2, axis=1)))
-        lines.append(f"| {c} | {s.sum()} | {m[0]:+.2f} | {m[1]:+.2f} | {m[2]:+.2f} | {rms:.2f} |")
-    return lines
+        body.append([c, s.sum(), f"{m[0]:+.2f}", f"{m[1]:+.2f}", f"{m[2]:+.2f}", f"{rms:.2f}"])
+    header = ["class", "pairs", "mean along", "mean across", "mean z", "rms"]
+    return lines + table(header, body)
 
 
 def shift_section(q: SemanticGraph, t: SemanticGraph, axes: np.ndarray) -> list[str]:
@@ -135,9 +138,7 @@ def shift_section(q: SemanticGraph, t: SemanticGraph, axes: np.ndarray) -> list[
         "Same-class mutual nearest neighbours within 2 m after shifting the query by s metres "
         "along the overlap's long axis (s = 0: the ground truth).",
         "",
-        "| s m | " + " | ".join(f"{s:+d}" for s in shifts) + " |",
-        "|---" * (len(shifts) + 1) + "|",
-        "| objects within 2 m | " + " | ".join(str(c) for c in counts) + " |",
+        *table(["s m", *(f"{s:+d}" for s in shifts)], [["objects within 2 m", *counts]]),
     ]
 
 
@@ -228,18 +229,17 @@ def inlier_section(q: SemanticGraph, t: SemanticGraph, axes: np.ndarray) -> list
         "columns: the translation error of the final fit (plain least squares) on the inliers "
         "without that class.",
         "",
-        "| class | inliers | mean along m | within 2 m | without it: trans. err m | along m |",
-        "|---|---|---|---|---|---|",
     ]
+    body = []
     for c in np.unique(lab):
         s = lab == c
         near = int(np.sum(np.linalg.norm(S[s] - D[s], axis=1) < 2.0))
         T = fit_rigid(S[~s], D[~s], None, **MODEL)
         err, along = transform_error(T, np.eye(4))[0], (axes @ T[:3, 3])[0]
-        lines.append(
-            f"| {c} | {s.sum()} | {res[s, 0].mean():+.2f} | {near} | {err:.2f} | {along:+.2f} |"
-        )
-    return lines
+        body.append([c, s.sum(), f"{res[s, 0].mean():+.2f}", near, f"{err:.2f}", f"{along:+.2f}"])
+    header = ["class", "inliers", "mean along m", "within 2 m", "without it: trans. err m",
+              "along m"]  # fmt: skip
+    return lines + table(header, body)
 
 
 def trials_section(rows: dict, trials: int) -> list[str]:
@@ -251,18 +251,18 @@ def trials_section(rows: dict, trials: int) -> list[str]:
         "origin split as above (signed mean); tilt: angle between the estimated and the true up "
         "axis; final: RANSAC inliers; near: share of them within 2 m under the ground truth.",
         "",
-        "| final fit | localized | trans. err m | rot. err deg | along m | across m | z m "
-        "| tilt deg | final | near % |",
-        "|---|---|---|---|---|---|---|---|---|---|",
     ]
+    body = []
     for name in VARIANTS:
         a = rows[name]
         ok = np.isfinite(a[:, 0])
         m = a[ok].mean(axis=0)
-        lines.append(
-            f"| {name} | {ok.sum()}/{len(a)} | {m[0]:.2f} | {m[1]:.2f} | {m[2]:+.2f} | "
-            f"{m[3]:+.2f} | {m[4]:+.2f} | {m[5]:.2f} | {m[6]:.0f} | {100 * m[7]:.0f} |"
-        )
+        body.append([name, f"{ok.sum()}/{len(a)}", f"{m[0]:.2f}", f"{m[1]:.2f}", f"{m[2]:+.2f}",
+                     f"{m[3]:+.2f}", f"{m[4]:+.2f}", f"{m[5]:.2f}", f"{m[6]:.0f}",
+                     f"{100 * m[7]:.0f}"])  # fmt: skip
+    header = ["final fit", "localized", "trans. err m", "rot. err deg", "along m", "across m",
+              "z m", "tilt deg", "final", "near %"]  # fmt: skip
+    lines += table(header, body)
     f = rows["refits"].mean(axis=0)
     k = len(TUKEY_WIDTHS)
     widths = ", ".join(f"{w:g}: {e:.2f}" for w, e in zip(TUKEY_WIDTHS, f[1 : 1 + k], strict=True))
