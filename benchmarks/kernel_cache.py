@@ -170,9 +170,8 @@ def check_prune() -> None:
 
 
 def check_ransac() -> None:
-    from sgloc.estimation import RansacConfig, ransac_reference
+    from sgloc.estimation import RansacConfig, ransac_compiled, ransac_reference
     from sgloc.geometry import apply, make_transform
-    from sgloc.kernels import ransac
 
     rng = np.random.default_rng(5)
     src = rng.uniform([-80, -80, 0], [80, 80, 10], (120, 3))
@@ -182,7 +181,7 @@ def check_ransac() -> None:
     dst[:50] = rng.uniform([-100, -100, 0], [100, 100, 10], (50, 3))
     for scoring in ("msac", "count"):
         cfg = RansacConfig(threshold=3.0, scoring=scoring, dof=4, max_tilt=15.0)
-        a = ransac.ransac(src, dst, cfg, np.random.default_rng(1))
+        a = ransac_compiled(src, dst, cfg, np.random.default_rng(1))
         b = ransac_reference(src, dst, cfg, np.random.default_rng(1))
         assert np.array_equal(a.inliers, b.inliers), f"ransac inliers ({scoring})"
         assert np.abs(a.transform - b.transform).max() < 1e-9, f"ransac transform ({scoring})"
@@ -191,14 +190,14 @@ def check_ransac() -> None:
 def check_runner_up() -> None:
     from sgloc.acceptance import AcceptanceConfig, _compiled_yaw_runner_up, _consistency, _runner_up
     from sgloc.consistency import ConsistentPairs
-    from sgloc.estimation import _rot_z
+    from sgloc.estimation import rot_z
     from sgloc.geometry import apply, make_transform
     from sgloc.kernels import runner_up  # noqa: F401 (loaded first, then called as acceptance does)
 
     rng = np.random.default_rng(6)
     src = rng.uniform(-80, 80, (120, 3)) * [1, 1, 0.05]
-    T = make_transform(_rot_z(np.array([0.3]))[0], np.array([5.0, -2.0, 0.5]))
-    T_alt = make_transform(_rot_z(np.array([1.9]))[0], np.array([-30.0, 12.0, 0.0]))
+    T = make_transform(rot_z(np.array([0.3]))[0], np.array([5.0, -2.0, 0.5]))
+    T_alt = make_transform(rot_z(np.array([1.9]))[0], np.array([-30.0, 12.0, 0.0]))
     dst = np.concatenate([apply(T, src[:50]), apply(T_alt, src[50:90]), src[90:] + 40.0])
     dst += rng.normal(0, 0.5, dst.shape)
     exclude = np.sum((apply(T, src) - dst) ** 2, axis=1) < 100.0

@@ -267,13 +267,13 @@ def test_yaw_runner_up_equals_reference(monkeypatch, seed):
     the numpy branch finds: the same inlier count and transform (to rounding)."""
     from sgloc.acceptance import AcceptanceConfig, _consistency, _runner_up
     from sgloc.consistency import ConsistentPairs
-    from sgloc.estimation import _rot_z
+    from sgloc.estimation import rot_z
     from sgloc.geometry import apply, make_transform
 
     rng = np.random.default_rng(seed)
     src = rng.uniform(-80, 80, (150, 3)) * [1, 1, 0.05]
-    T = make_transform(_rot_z(np.array([0.3]))[0], np.array([5.0, -2.0, 0.5]))
-    T_alt = make_transform(_rot_z(np.array([1.9]))[0], np.array([-30.0, 12.0, 0.0]))
+    T = make_transform(rot_z(np.array([0.3]))[0], np.array([5.0, -2.0, 0.5]))
+    T_alt = make_transform(rot_z(np.array([1.9]))[0], np.array([-30.0, 12.0, 0.0]))
     outliers = rng.uniform(-80, 80, (40, 3))
     dst = np.concatenate([apply(T, src[:60]), apply(T_alt, src[60:110]), outliers])
     dst += rng.normal(0, 0.5, dst.shape)

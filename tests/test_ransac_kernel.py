@@ -1,14 +1,13 @@
-"""The compiled 4-dof RANSAC (sgloc.kernels.ransac) against the numpy reference: same samples
-from the same generator, same inliers, same transform."""
+"""The compiled 4-dof RANSAC (sgloc.estimation.ransac_compiled) against the numpy reference:
+same samples from the same generator, same inliers, same transform."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from sgloc.estimation import RansacConfig, ransac_reference
+from sgloc.estimation import RansacConfig, ransac_compiled, ransac_reference
 from sgloc.geometry import make_transform
-from sgloc.kernels import ransac as compiled
 
 
 def ground_matches(m: int, outliers: float, seed: int, tilt_deg: float = 0.0):
@@ -45,7 +44,7 @@ def test_dof4_equals_numpy(outliers, scoring, max_tilt):
         src, dst = ground_matches(150, outliers, seed, tilt_deg=3.0 * (seed % 2))
         w = np.random.default_rng(seed).uniform(0.5, 2.0, len(src)) if seed % 3 == 0 else None
         a = ransac_reference(src, dst, cfg, np.random.default_rng(seed), w)
-        b = compiled.ransac(src, dst, cfg, np.random.default_rng(seed), w)
+        b = ransac_compiled(src, dst, cfg, np.random.default_rng(seed), w)
         same(a, b)
         if outliers < 0.9:
             assert b.transform is not None
@@ -55,7 +54,7 @@ def test_dof4_fixed_count_and_small_batches_equal_numpy():
     cfg = RansacConfig(dof=4, confidence=None, iterations=250, batch=7)
     src, dst = ground_matches(40, 0.6, 3)
     same(ransac_reference(src, dst, cfg, np.random.default_rng(1)),
-         compiled.ransac(src, dst, cfg, np.random.default_rng(1)))  # fmt: skip
+         ransac_compiled(src, dst, cfg, np.random.default_rng(1)))  # fmt: skip
 
 
 def test_dof4_degenerate_inputs_as_numpy():
@@ -64,13 +63,13 @@ def test_dof4_degenerate_inputs_as_numpy():
     stacked[:, 2] = np.arange(6.0)  # one vertical line: no pair fixes a yaw
     line = np.column_stack([np.arange(10.0), np.zeros(10), np.zeros(10)])
     for src in (stacked, line, line[:2]):
-        same(ransac_reference(src, src, cfg), compiled.ransac(src, src, cfg))
+        same(ransac_reference(src, src, cfg), ransac_compiled(src, src, cfg))
 
 
 def test_gravity_gated_rigid_model_is_refused():
     src, dst = ground_matches(20, 0.0, 0)
     with pytest.raises(ValueError, match="ransac_reference"):
-        compiled.ransac(src, dst, RansacConfig(dof=6, max_tilt=15.0))
+        ransac_compiled(src, dst, RansacConfig(dof=6, max_tilt=15.0))
 
 
 @pytest.mark.parametrize("max_tilt", [15.0, 2.0, None])

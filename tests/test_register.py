@@ -9,10 +9,16 @@ import sgloc
 from sgloc import kernels
 from sgloc.consistency import consistency_bool
 from sgloc.errors import SglocError, UnknownNameError
-from sgloc.estimation import RansacConfig, irls_refine, ransac, ransac_reference, weighted_kabsch
+from sgloc.estimation import (
+    RansacConfig,
+    irls_refine,
+    ransac,
+    ransac_compiled,
+    ransac_reference,
+    weighted_kabsch,
+)
 from sgloc.geometry import transform_error
 from sgloc.kernels import fit
-from sgloc.kernels import ransac as compiled_ransac
 from sgloc.rejection.neighbor import prune_by_support_reference
 from sgloc.sim.correspondences import make_correspondences
 
@@ -91,7 +97,7 @@ def test_compiled_ransac_equals_numpy(ratio, scoring):
     for seed in range(8):
         cs = make_correspondences(120, ratio, np.random.default_rng(seed))
         a = ransac_reference(cs.src, cs.dst, cfg, np.random.default_rng(seed))
-        b = compiled_ransac.ransac(cs.src, cs.dst, cfg, np.random.default_rng(seed))
+        b = ransac_compiled(cs.src, cs.dst, cfg, np.random.default_rng(seed))
         assert np.array_equal(a.inliers, b.inliers)
         assert (a.transform is None) == (b.transform is None)
         if a.transform is not None:
@@ -103,7 +109,7 @@ def test_compiled_ransac_degenerate_inputs_as_numpy():
     for src in (line, line[:2]):
         cfg = RansacConfig(dof=6, max_tilt=None)
         a = ransac_reference(src, src, cfg)
-        b = compiled_ransac.ransac(src, src, cfg)
+        b = ransac_compiled(src, src, cfg)
         assert a.transform is None and b.transform is None and a.reason == b.reason
 
 

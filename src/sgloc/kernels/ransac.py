@@ -1,30 +1,16 @@
-"""RANSAC's hot loops (numba): hypotheses from triplets or pairs, scoring, inliers, refits.
+"""RANSAC's hot loops (numba): hypotheses from triplets or pairs, scoring, inliers.
 
-`ransac` takes the same arguments, draws the same samples from the same generator and makes
-the same decisions as `sgloc.estimation.ransac_reference` for any rigid motion without a
-gravity gate (dof=6, max_tilt=None: triplets, refits by `kernels.fit`) and for the ground
-vehicle's model (dof=4: x, y, z, yaw from pairs; refits by `kernels.fit.fit_model`, the
-motion model of `sgloc.estimation.fit_rigid` with its tilt tolerance); each block of
-hypotheses is fitted and scored in one compiled call (no (B,m) residual matrix, no BLAS).
+The compiled scorer of `sgloc.estimation.ransac_compiled` (whose adaptive loop, samples and
+refits are those of `ransac_reference`): each block of hypotheses is fitted and scored in one
+compiled call (no (B,m) residual matrix, no BLAS), for any rigid motion without a gravity gate
+(dof=6, max_tilt=None: triplets) and for the ground vehicle's model (dof=4: x, y, z, yaw from
+pairs).
 """
 
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
-
-from sgloc.estimation import (
-    COLLINEAR_RATIO,
-    RansacConfig,
-    RansacResult,
-    _needed_draws,
-    _no_hypothesis_reason,
-    draw_triplets,
-    finish,
-)
-from sgloc.kernels.fit import fit_model
-
-_BLOCK = 2_000_000  # as sgloc.estimation: hypotheses x matches per block
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -82,14 +68,15 @@ def _score(
 
 @njit(cache=True, nogil=True)
 def score_block(
-    src: np.ndarray, dst: np.ndarray, samples: np.ndarray, thr2: float, msac: bool
+    src: np.ndarray, dst: np.ndarray, samples: np.ndarray, thr2: float, msac: bool, ratio: float
 ) -> tuple[bool, float, float, np.ndarray, int]:
     """Fit and score the hypotheses of `samples` (n,3) on centred src, dst (m,3).
 
     Returns (found, primary, secondary, T, max_count): the best hypothesis by (primary,
     secondary), first on ties, as `sgloc.estimation.ransac` orders them (msac: truncated cost,
     then -count; count: -count, then inlier residual), its 4x4 T, and the largest inlier count
-    of the block (for the adaptive stop); found=False when every sample is collinear.
+    of the block (for the adaptive stop); found=False when every sample is collinear (twice
+    its area at most `ratio` times its longest side squared, in source or target).
     """
     best_p, best_s, found, max_count = np.inf, np.inf, False, 0
     best_T = np.eye(4)
@@ -97,7 +84,7 @@ def score_block(
     for b in range(samples.shape[0]):
         for k in range(3):
             S[k], D[k] = src[samples[b, k]], dst[samples[b, k]]
-        if not (_non_collinear(S, COLLINEAR_RATIO) and _non_collinear(D, COLLINEAR_RATIO)):
+        if not (_non_collinear(S, ratio) and _non_collinear(D, ratio)):
             continue
         Fd, Fs = _frame(D), _frame(S)
         R = np.empty((3, 3))
@@ -151,14 +138,6 @@ def score_pair_block(
     return found, best_p, best_s, best_T, max_count
 
 
-def draw_pairs(m: int, n: int, rng: np.random.Generator) -> np.ndarray:
-    """(n,2) samples of 2 distinct indices in [0, m), drawn as `ransac_reference` draws them."""
-    i = rng.integers(0, m, n)
-    j = rng.integers(0, m - 1, n)
-    j += j >= i
-    return np.stack([i, j], axis=1)
-
-
 @njit(cache=True, nogil=True)
 def inliers(T: np.ndarray, src: np.ndarray, dst: np.ndarray, thr2: float) -> np.ndarray:
     """Sorted indices i with ||R src_i + t - dst_i||^2 < thr2."""
@@ -171,70 +150,3 @@ def inliers(T: np.ndarray, src: np.ndarray, dst: np.ndarray, thr2: float) -> np.
             r2 += e * e
         keep[i] = r2 < thr2
     return np.flatnonzero(keep)
-
-
-def ransac(
-    src: np.ndarray,
-    dst: np.ndarray,
-    config: RansacConfig | None = None,
-    rng: np.random.Generator | None = None,
-    weights: np.ndarray | None = None,
-) -> RansacResult:
-    """`sgloc.estimation.ransac_reference` with compiled blocks for dof=4 (any max_tilt) and
-    for dof=6 without max_tilt: same arguments, samples and result."""
-    cfg = config or RansacConfig()
-    if cfg.dof == 6 and cfg.max_tilt is not None:
-        raise ValueError("the compiled RANSAC has no gravity gate for dof=6: use ransac_reference")
-    rng = rng or np.random.default_rng(0)
-    src = np.asarray(src, dtype=np.float64)
-    dst = np.asarray(dst, dtype=np.float64)
-    m = len(src)
-    if m < 3:
-        return RansacResult(
-            None, reason=f"only {m} match(es) reached RANSAC; at least 3 are needed"
-        )
-    if cfg.scoring not in ("count", "msac"):
-        raise ValueError(f"unknown RANSAC scoring {cfg.scoring!r}; use 'count' or 'msac'")
-    if cfg.dof not in (4, 6):
-        raise ValueError(f"RANSAC dof must be 4 (x, y, z, yaw) or 6, got {cfg.dof!r}")
-    cs, cd = src.mean(axis=0), dst.mean(axis=0)
-    src_c, dst_c = np.ascontiguousarray(src - cs), np.ascontiguousarray(dst - cd)
-    best_T = _best_hypothesis(src_c, dst_c, cfg, rng)
-    if best_T is None:
-        return RansacResult(None, reason=_no_hypothesis_reason(cfg))
-    w_all = np.ones(m) if weights is None else np.asarray(weights, dtype=np.float64)
-    max_tilt = float(cfg.max_tilt or 0.0)
-
-    def fit(s: np.ndarray, d: np.ndarray, w: np.ndarray) -> np.ndarray:
-        return fit_model(s, d, w, cfg.dof, max_tilt)
-
-    return finish(best_T, src, src_c, dst_c, cs, cd, w_all, cfg, fit, inliers)
-
-
-def _best_hypothesis(
-    src_c: np.ndarray, dst_c: np.ndarray, cfg: RansacConfig, rng: np.random.Generator
-) -> np.ndarray | None:
-    """The best hypothesis (4x4, centred frames) over adaptively many blocks, or None."""
-    m, thr2, msac = len(src_c), cfg.threshold**2, cfg.scoring == "msac"
-    size = 2 if cfg.dof == 4 else 3
-    best_key, best_T, drawn, needed = (np.inf, np.inf), None, 0, cfg.iterations
-    batch = max(1, min(cfg.batch, _BLOCK // m))
-    while drawn < min(needed, cfg.iterations):
-        n = min(batch if drawn else min(batch, 16), cfg.iterations - drawn)
-        drawn += n
-        if size == 2:
-            found, p, s, T, max_count = score_pair_block(
-                src_c, dst_c, draw_pairs(m, n, rng), thr2, msac, 2.0 * cfg.threshold
-            )
-        else:
-            found, p, s, T, max_count = score_block(
-                src_c, dst_c, draw_triplets(m, n, rng), thr2, msac
-            )
-        if not found:
-            continue
-        if (p, s) < best_key:
-            best_key, best_T = (p, s), T
-        if cfg.confidence is not None:
-            w = max_count / m
-            needed = min(needed, _needed_draws(w, cfg.confidence, cfg.iterations, size))
-    return best_T
