@@ -154,6 +154,7 @@ def test_place_copied_elsewhere_in_the_map_is_refused(rng):
 def test_self_rival_finds_the_other_copy_of_a_place(rng):
     from sgloc.acceptance import _ChanceModel
     from sgloc.descriptors import make_descriptor
+    from sgloc.estimation import GROUND_VEHICLE
     from sgloc.verification import _ClassTree, _self_rival
 
     base = _scattered_map(rng, n=500)
@@ -167,14 +168,14 @@ def test_self_rival_finds_the_other_copy_of_a_place(rng):
     cfg = AcceptanceConfig()
     tree = _ClassTree(target, cfg.verify_radius)
     chance = _ChanceModel(target, cfg.verify_density_radius, 3)
-    context = (target.positions, tree, chance, 15.0, cfg.distinct_rotation)
+    context = (target.positions, tree, chance, GROUND_VEHICLE, cfg.distinct_rotation)
     lg, k = _self_rival(target, dt, placed, context, cfg, 0.5, 100)
     assert k >= len(placed) - 1 and lg < -3
     # Without the copy, nothing else in the map fits the block.
     alone = SemanticGraph(target.positions[:n_keep], target.labels[:n_keep])
     tree = _ClassTree(alone, cfg.verify_radius)
     chance = _ChanceModel(alone, cfg.verify_density_radius, 3)
-    context = (alone.positions, tree, chance, 15.0, cfg.distinct_rotation)
+    context = (alone.positions, tree, chance, GROUND_VEHICLE, cfg.distinct_rotation)
     dt = make_descriptor("distance_histogram")(alone, 3, rng)
     lg, k = _self_rival(alone, dt, placed, context, cfg, 0.5, 100)
     assert k <= 4

@@ -68,6 +68,8 @@ from sgloc.consistency import (
 )
 from sgloc.errors import SglocError
 from sgloc.estimation import (
+    ANY_RIGID,
+    MotionModel,
     non_collinear,
     rigid_from_triplets,
     squared_residuals,
@@ -529,8 +531,7 @@ def assess(
     radius: float,
     config: AcceptanceConfig | None = None,
     rng: np.random.Generator | None = None,
-    dof: int = 6,
-    max_tilt: float | None = None,
+    motion: MotionModel = ANY_RIGID,
 ) -> Assessment:
     """Score an estimated T_target_query against chance (module docstring).
 
@@ -539,8 +540,9 @@ def assess(
         candidates: (m,2) descriptor matches (query index, target index), before rejection.
         transform: the estimate T_target_query (4x4), or None when estimation failed.
         radius: inlier radius in metres (the RANSAC threshold unless config.radius is set).
-        dof, max_tilt: the motion model (as `RansacConfig`) of the runner-up hypotheses.
+        motion: the motion model (`MotionModel`) of the runner-up hypotheses.
     """
+    dof, max_tilt = motion.dof, motion.max_tilt
     cfg = config or AcceptanceConfig()
     rng = rng if rng is not None else np.random.default_rng(0)
     if transform is None:

@@ -15,19 +15,12 @@ from sgloc.canonical import CanonicalPair
 from sgloc.config import LocalizerConfig
 from sgloc.descriptors import make_descriptor
 from sgloc.distinctive import spatially_distinct
-from sgloc.errors import DegenerateGeometryError, InvalidGraphError, SglocError
-from sgloc.estimation import (
-    check_not_degenerate,
-    fit_rigid,
-    icp_refine,
-    irls_refine,
-    ransac,
-    tilt_deg,
-    weighted_kabsch,
-)
+from sgloc.errors import InvalidGraphError, SglocError
+from sgloc.estimation import FinalFit, PoseEstimate, estimate_pose, final_fit, icp_refine
 from sgloc.graph import SemanticGraph
 from sgloc.matching import match_descriptors, match_flagged
 from sgloc.rejection import make_rejector
+from sgloc.timing import StageTimer
 from sgloc.verification import verify_small_query
 
 MIN_VERTICES = 3
@@ -92,6 +85,37 @@ def _check_graph(graph: SemanticGraph, role: str) -> None:
         )
 
 
+#: The stages that draw random numbers.
+RANDOM_STAGES = ("descriptors", "ransac", "acceptance")
+
+
+def stage_streams(rng: np.random.Generator | int | None) -> dict[str, np.random.Generator]:
+    """The generator of each stage of RANDOM_STAGES (one shared by all)."""
+    return dict.fromkeys(RANDOM_STAGES, np.random.default_rng(rng))
+
+
+@dataclass
+class _Matched:
+    """The matching stage's output: candidates (m,2), their scores, the flags of the
+    acceptance test's ratio test (or None) and that ratio."""
+
+    candidates: np.ndarray
+    scores: np.ndarray
+    distinct: np.ndarray | None
+    flag_ratio: float | None
+
+
+@dataclass
+class _Outcome:
+    """What the acceptance step decided: the transform (None: refused), its matches, the
+    reason of a refusal and the confidence (None when not assessed)."""
+
+    transform: np.ndarray | None
+    matches: np.ndarray
+    reason: str
+    confidence: float | None
+
+
 class Localizer:
     """The pipeline with a fixed configuration; call it on (query, target) graphs."""
 
@@ -107,128 +131,174 @@ class Localizer:
         rng: np.random.Generator | int | None = 0,
         clock: Callable[[], float] = time.perf_counter,
     ) -> LocalizationResult:
-        """Localize `query` in `target`; `clock` (seconds) times the stages (e.g.
+        """Localize `query` in `target`. `rng`: a seed or generator, split into one stream
+        per random stage (`stage_streams`); `clock` (seconds) times the stages (e.g.
         time.thread_time for CPU time)."""
         _check_graph(query, "query")
         _check_graph(target, "target")
         # Canonical vertex order and class ids 0..L-1 (sgloc.canonical); undone by restore().
         canonical = CanonicalPair(query, target, self.config)
         query, target, cfg = canonical.query, canonical.target, canonical.config
-        rng = np.random.default_rng(rng)
-        timings: dict[str, float] = {}
-        t0 = clock()
-
+        streams, timer = stage_streams(rng), StageTimer(clock)
         n_classes = max(query.n_classes, target.n_classes)
-        dq = self.descriptor(query, n_classes, rng)
-        dt = self.descriptor(target, n_classes, rng)
-        t1 = clock()
-        timings["descriptors"] = t1 - t0
-
-        # Also flags the candidates the acceptance test counts (its ratio test): one pass.
-        flag_ratio = cfg.acceptance.ratio_for(len(query))
-        candidates, scores, distinct = match_flagged(
-            dq, dt, query.labels, target.labels, cfg.matching, flag_ratio
+        with timer("descriptors"):
+            dq = self.descriptor(query, n_classes, streams["descriptors"])
+            dt = self.descriptor(target, n_classes, streams["descriptors"])
+        with timer("matching"):
+            matched = _match(dq, dt, query, target, cfg)
+        c = matched.candidates
+        pose = estimate_pose(
+            query.positions[c[:, 0]], target.positions[c[:, 1]], self.rejector, cfg.ransac,
+            streams["ransac"], scores=matched.scores, weights=_match_weights(cfg, query, c,
+            n_classes), labels=query.labels[c[:, 0]], fit=_final_fit(cfg, query, target),
+            timer=timer,
+        )  # fmt: skip
+        outcome = self._accept(
+            query, target, cfg, (dq, dt), matched, pose, streams["acceptance"], timer
         )
-        t2 = clock()
-        timings["matching"] = t2 - t1
+        result = LocalizationResult(
+            success=outcome.transform is not None,
+            transform=outcome.transform,
+            matches=outcome.matches,
+            candidates=c,
+            survivors=c[pose.survivors],
+            scores=matched.scores,
+            timings=timer.timings,
+            reason=outcome.reason,
+            confidence=outcome.confidence,
+        )
+        return canonical.restore(result)  # the caller's vertex indices and config
 
-        src = query.positions[candidates[:, 0]]
-        dst = target.positions[candidates[:, 1]]
-        kept = self.rejector(src, dst, scores)
-        survivors = candidates[kept]
-        t3 = clock()
-        timings["rejection"] = t3 - t2
-
-        weights = None
-        if cfg.class_weights:
-            w = np.ones(n_classes)
-            for c, v in cfg.class_weights.items():
-                if 0 <= int(c) < n_classes:
-                    w[int(c)] = v
-            weights = w[query.labels[survivors[:, 0]]]
-        rs = ransac(src[kept], dst[kept], cfg.ransac, rng, weights)
-        t4 = clock()
-        timings["ransac"] = t4 - t3
-
-        transform, reason = None, rs.reason
-        final = survivors[rs.inliers] if rs.inliers.size else np.zeros((0, 2), np.int64)
-        if rs.transform is not None:
-            w_final = None if weights is None else weights[rs.inliers]
-            transform, reason = _final_fit(query, target, final, w_final, cfg)
-        t5 = clock()
-        timings["estimation"] = t5 - t4
-        timings["total"] = t5 - t0
+    def _accept(
+        self,
+        query: SemanticGraph,
+        target: SemanticGraph,
+        cfg: LocalizerConfig,
+        descriptors: tuple[Any, Any],
+        matched: _Matched,
+        pose: PoseEstimate,
+        rng: np.random.Generator,
+        timer: StageTimer,
+    ) -> _Outcome:
+        """The acceptance test of the pose (sgloc.acceptance) and, for a refused small query,
+        the whole-map verification (sgloc.verification)."""
+        (dq, dt), candidates = descriptors, matched.candidates
+        transform, reason, confidence = pose.transform, pose.reason, None
+        final = candidates[pose.inliers] if pose.inliers.size else np.zeros((0, 2), np.int64)
         if transform is None and not reason:
             reason = "no model accepted"
-        confidence = None
         if transform is not None and cfg.acceptance.enabled:
-            tested = candidates
-            if flag_ratio is not None:
-                # Only distinctive matches count as evidence: in a repetitive place near-tied
-                # matches line up with a wrong alignment as readily as with the right one.
-                exclusion = cfg.acceptance.exclusion_for(len(query))
-                if exclusion > 0:  # rivals only at other places (sgloc.distinctive)
-                    tested = candidates[
-                        spatially_distinct(
-                            dq, dt, target.labels, target.positions, candidates, flag_ratio,
-                            exclusion,
-                        )
-                    ]
-                elif distinct is not None:
-                    tested = candidates[distinct]
-                else:
-                    strict = dataclasses.replace(cfg.matching, max_ratio=flag_ratio)
-                    tested = match_descriptors(dq, dt, query.labels, target.labels, strict)[0]
-            verdict = assess(
-                query,
-                target,
-                tested,
-                transform,
-                cfg.ransac.threshold,
-                cfg.acceptance,
-                rng,
-                dof=cfg.ransac.dof,
-                max_tilt=cfg.ransac.max_tilt,
-            )
+            with timer("acceptance"):
+                tested = _evidence(dq, dt, query, target, matched, cfg)
+                verdict = assess(
+                    query, target, tested, transform, cfg.ransac.threshold, cfg.acceptance,
+                    rng, motion=cfg.ransac.motion,
+                )  # fmt: skip
             confidence, reason = verdict.confidence, verdict.reason
             transform = transform if verdict.accepted else None
-            timings["acceptance"] = clock() - t5
-            timings["total"] += timings["acceptance"]
         if transform is None and _verifies(cfg, len(query)):
             # A small query's candidates are too few to decide: check its whole geometry.
-            t6 = clock()
-            check = verify_small_query(
-                query, target, dq, dt, cfg.acceptance, cfg.matching.min_similarity,
-                cfg.ransac.max_tilt,
-            )
-            # The same final fit as RANSAC's inliers get, on the co-located objects.
-            fitted = None
-            if check.accepted:
-                fitted = _final_fit(query, target, check.matches, None, cfg)[0]
+            with timer("verification"):
+                check = verify_small_query(
+                    query, target, dq, dt, cfg.acceptance, cfg.matching.min_similarity,
+                    cfg.ransac.motion,
+                )  # fmt: skip
+                # The same final fit as RANSAC's inliers get, on the co-located objects.
+                fitted = None
+                if check.accepted:
+                    fitted = _fit_matches(query, target, check.matches, cfg)
             if fitted is not None:
                 transform, final, reason = fitted, check.matches, ""
                 confidence = check.confidence
             elif check.reason:
                 reason = f"{reason}; checked against the whole map: {check.reason}"
-            timings["verification"] = clock() - t6
-            timings["total"] += timings["verification"]
         if len(candidates) < 3 and transform is None:
             reason = (
                 f"only {len(candidates)} candidate match(es) between the graphs (fewer than "
                 "3); the maps may not overlap, or lower min_similarity"
             )
-        result = LocalizationResult(
-            success=transform is not None,
-            transform=transform,
-            matches=final if transform is not None else np.zeros((0, 2), np.int64),
-            candidates=candidates,
-            survivors=survivors,
-            scores=scores,
-            timings=timings,
-            reason="" if transform is not None else reason,
-            confidence=confidence,
+        if transform is None:
+            return _Outcome(None, np.zeros((0, 2), np.int64), reason, confidence)
+        return _Outcome(transform, final, "", confidence)
+
+
+def _match(
+    dq: Any, dt: Any, query: SemanticGraph, target: SemanticGraph, cfg: LocalizerConfig
+) -> _Matched:
+    """Candidate matches of the descriptors; also flags the candidates the acceptance test
+    counts (its ratio test) in the same pass."""
+    flag_ratio = cfg.acceptance.ratio_for(len(query))
+    candidates, scores, distinct = match_flagged(
+        dq, dt, query.labels, target.labels, cfg.matching, flag_ratio
+    )
+    return _Matched(candidates, scores, distinct, flag_ratio)
+
+
+def _evidence(
+    dq: Any,
+    dt: Any,
+    query: SemanticGraph,
+    target: SemanticGraph,
+    matched: _Matched,
+    cfg: LocalizerConfig,
+) -> np.ndarray:
+    """The candidates the acceptance test counts as evidence."""
+    candidates, flag_ratio = matched.candidates, matched.flag_ratio
+    if flag_ratio is None:
+        return candidates
+    # Only distinctive matches count as evidence: in a repetitive place near-tied matches
+    # line up with a wrong alignment as readily as with the right one.
+    exclusion = cfg.acceptance.exclusion_for(len(query))
+    if exclusion > 0:  # rivals only at other places (sgloc.distinctive)
+        keep = spatially_distinct(
+            dq, dt, target.labels, target.positions, candidates, flag_ratio, exclusion
         )
-        return canonical.restore(result)  # the caller's vertex indices and config
+        return candidates[keep]
+    if matched.distinct is not None:
+        return candidates[matched.distinct]
+    strict = dataclasses.replace(cfg.matching, max_ratio=flag_ratio)
+    return match_descriptors(dq, dt, query.labels, target.labels, strict)[0]
+
+
+def _match_weights(
+    cfg: LocalizerConfig, query: SemanticGraph, candidates: np.ndarray, n_classes: int
+) -> np.ndarray | None:
+    """Per candidate, the weight of its query object's class (cfg.class_weights), or None."""
+    if not cfg.class_weights:
+        return None
+    w = np.ones(n_classes)
+    for c, v in cfg.class_weights.items():
+        if 0 <= int(c) < n_classes:
+            w[int(c)] = v
+    return w[query.labels[candidates[:, 0]]]
+
+
+def _final_fit(cfg: LocalizerConfig, query: SemanticGraph, target: SemanticGraph) -> FinalFit:
+    """The final fit these settings ask for (robust refit, class scales, ICP)."""
+    icp = None
+    if cfg.icp:
+
+        def icp(T: np.ndarray) -> np.ndarray:
+            return icp_refine(
+                query.positions, query.labels, target.positions, target.labels, T,
+                cfg.icp_max_distance,
+            )  # fmt: skip
+
+    return FinalFit(
+        refine="irls" if cfg.robust_refit else "kabsch",
+        class_axes=None if cfg.class_scale == "none" else cfg.class_scale,
+        icp=icp,
+    )
+
+
+def _fit_matches(
+    query: SemanticGraph, target: SemanticGraph, matches: np.ndarray, cfg: LocalizerConfig
+) -> np.ndarray | None:
+    """The final fit of `matches` (k,2) (query index, target index), or None if refused."""
+    return final_fit(
+        query.positions[matches[:, 0]], target.positions[matches[:, 1]], cfg.ransac.motion,
+        cfg.ransac.threshold, None, query.labels[matches[:, 0]], _final_fit(cfg, query, target),
+    )[0]  # fmt: skip
 
 
 def _verifies(cfg: LocalizerConfig, n_query: int) -> bool:
@@ -236,91 +306,6 @@ def _verifies(cfg: LocalizerConfig, n_query: int) -> bool:
     acceptance test on, 4-dof model, fewer than `small_query` objects."""
     a = cfg.acceptance
     return a.enabled and a.verify_small and cfg.ransac.dof == 4 and n_query < a.small_query
-
-
-def _final_fit(
-    query: SemanticGraph,
-    target: SemanticGraph,
-    final: np.ndarray,
-    weights: np.ndarray | None,
-    cfg: LocalizerConfig,
-) -> tuple[np.ndarray | None, str]:
-    """The fit on RANSAC's inliers `final` (weighted least squares, then the optional robust
-    and ICP refinements) under the motion model; (transform or None, reason)."""
-    src, dst = query.positions[final[:, 0]], target.positions[final[:, 1]]
-    dof, max_tilt = cfg.ransac.dof, cfg.ransac.max_tilt
-    if dof == 6:
-        try:
-            check_not_degenerate(src, "matched points")
-        except DegenerateGeometryError as e:
-            return None, str(e)
-    transform = fit_rigid(src, dst, weights, dof, max_tilt)
-    if dof == 4 and max_tilt is not None:
-        tilt = _demanded_tilt(src, dst, weights, transform, cfg.ransac.threshold)
-        if tilt > max_tilt:
-            return None, _tilt_reason(tilt, max_tilt)
-    if cfg.robust_refit:
-        scaled = cfg.class_scale != "none"
-        plain = transform
-        transform = irls_refine(
-            src,
-            dst,
-            transform,
-            weights,
-            dof=dof,
-            max_tilt=max_tilt,
-            classes=query.labels[final[:, 0]] if scaled else None,
-            class_axes=cfg.class_scale if scaled else "full",
-        )
-        if not np.all(np.isfinite(transform)):
-            # Never hand on a non-finite pose: keep the plain fit if the refit ever fails.
-            transform = plain
-    if cfg.icp:
-        transform = icp_refine(
-            query.positions,
-            query.labels,
-            target.positions,
-            target.labels,
-            transform,
-            cfg.icp_max_distance,
-        )
-    if max_tilt is not None:
-        tilt = tilt_deg(transform[:3, :3])
-        if tilt > max(max_tilt, 1e-6):
-            return None, _tilt_reason(tilt, max_tilt)
-    return transform, ""
-
-
-def _demanded_tilt(
-    src: np.ndarray,
-    dst: np.ndarray,
-    weights: np.ndarray | None,
-    fit: np.ndarray,
-    threshold: float,
-) -> float:
-    """The tilt (degrees) the matches demand: that of their free rigid fit when it explains
-    them clearly better than the gravity-bound `fit` (RMS residual lower by more than a tenth
-    of the RANSAC threshold), else 0. A yaw-only fit of maps that do not share gravity is
-    wrong by their tilt; noisy heights on a narrow strip tilt the free fit without need."""
-    try:
-        free = weighted_kabsch(src, dst, weights)
-    except DegenerateGeometryError:
-        return 0.0  # (nearly) collinear: the tilt about their line is not observable
-
-    def rms(T: np.ndarray) -> float:
-        return float(np.sqrt(np.mean(np.sum((src @ T[:3, :3].T + T[:3, 3] - dst) ** 2, 1))))
-
-    if rms(fit) - rms(free) <= 0.1 * threshold:
-        return 0.0
-    return float(tilt_deg(free[:3, :3]))
-
-
-def _tilt_reason(tilt: float, max_tilt: float) -> str:
-    return (
-        f"the alignment tilts the up axis by {tilt:.0f} deg (> max_tilt {max_tilt} deg): the "
-        "maps do not share gravity (set max_tilt=None and dof=6 for any orientation), or one "
-        "is mirrored or upside down"
-    )
 
 
 def localize(

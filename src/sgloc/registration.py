@@ -4,27 +4,30 @@
     res.transform  # 4x4 T_dst_src, or None when res.success is False (res.reason says why)
 
 The drop-in for TEASER++ / KISS-Matcher's `solve` on given correspondences: outlier rejection
-(`sgloc.rejection`), RANSAC (`sgloc.estimation.ransac`) and a final robust fit on its inliers.
+(`sgloc.rejection`), RANSAC (`sgloc.estimation.ransac`) and a final robust fit on its inliers:
+`sgloc.estimation.estimate_pose`, the middle of `localize` too.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import time
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from sgloc.errors import SglocError, UnknownNameError
-from sgloc.estimation import RansacConfig, irls_refine, ransac, weighted_kabsch
-from sgloc.kernels import use_compiled
+from sgloc.estimation import (
+    ANY_RIGID,
+    REFINES,
+    FinalFit,
+    MotionModel,
+    RansacConfig,
+    estimate_pose,
+)
 from sgloc.registry import lookup
 from sgloc.rejection import REJECTORS, Rejector, make_rejector
-
-#: Final fits on RANSAC's inliers: "irls" (Tukey biweight, as `localize`), "kabsch" (least
-#: squares), "none" (RANSAC's own refit).
-REFINES = ("irls", "kabsch", "none")
+from sgloc.timing import StageTimer
 
 
 @dataclass
@@ -35,7 +38,7 @@ class RegistrationResult:
     transform: (4,4) T_dst_src (p_dst = R p_src + t), None when not successful.
     inliers: sorted indices of the input matches the transform explains (RANSAC's inliers).
     survivors: sorted indices of the matches kept by outlier rejection.
-    timings: seconds per stage: rejection, ransac, refine, total.
+    timings: seconds per stage: rejection, ransac, refine (the final fit), total.
     reason: why it failed ("" on success).
     """
 
@@ -61,7 +64,10 @@ def _rejector_fields(cls: type[Rejector]) -> set[str]:
 
 
 def _stage_settings(
-    rejection: str | Rejector, noise_bound: float, settings: dict[str, Any]
+    rejection: str | Rejector,
+    noise_bound: float,
+    motion: MotionModel,
+    settings: dict[str, Any],
 ) -> tuple[Rejector, RansacConfig]:
     """The rejector and RANSAC settings: tau and threshold default to 2 * noise_bound (two
     correct matches' pair distances differ by at most twice the noise bound); other settings
@@ -84,24 +90,9 @@ def _stage_settings(
         if "tau" in rej_fields:
             params.setdefault("tau", 2.0 * noise_bound)
         rej = make_rejector(rej_cls.name, **params)
-    # Correspondences may come in any orientation: any rigid motion unless told otherwise.
-    fields = {"threshold": 2.0 * noise_bound, "dof": 6, "max_tilt": None}
+    fields = {"threshold": 2.0 * noise_bound, "dof": motion.dof, "max_tilt": motion.max_tilt}
     fields |= {k: v for k, v in settings.items() if k in ransac_fields}
     return rej, RansacConfig(**fields)
-
-
-def _final_fit(src: np.ndarray, dst: np.ndarray, refine: str) -> np.ndarray:
-    """Least squares on the inliers, then the Tukey IRLS when refine == "irls" (the rule of
-    `sgloc.estimation.weighted_kabsch` / `irls_refine`, compiled: `sgloc.kernels.fit`; those
-    themselves for a small problem early in a process, `sgloc.kernels.use_compiled`)."""
-    if not use_compiled(len(src)):
-        T = weighted_kabsch(src, dst)  # RANSAC checked that the inliers are not degenerate
-        return irls_refine(src, dst, T) if refine == "irls" else T
-    from sgloc.kernels.fit import irls, kabsch
-
-    ones = np.ones(len(src))
-    T = kabsch(src, dst, ones)
-    return irls(src, dst, T, ones, 15) if refine == "irls" else T
 
 
 def register(
@@ -112,6 +103,7 @@ def register(
     seed: int | None = 0,
     refine: str = "irls",
     rng: np.random.Generator | None = None,
+    motion: MotionModel = ANY_RIGID,
     **settings: Any,
 ) -> RegistrationResult:
     """Rigid transform T_dst_src from matched points src[i] <-> dst[i] ((m,3) each, metres).
@@ -121,11 +113,16 @@ def register(
     noise_bound: metres; the largest residual of a correct match. Sets the consistency
         tolerance tau and the RANSAC inlier threshold to 2 * noise_bound unless given.
     seed / rng: RANSAC's randomness (rng wins when given).
-    refine: final fit on RANSAC's inliers: "irls" (Tukey M-estimator), "kabsch", "none".
+    refine: final fit on RANSAC's inliers: "irls" (Tukey M-estimator), "kabsch", "none"
+        (`sgloc.estimation.FinalFit`).
+    motion: the motion model (`sgloc.estimation.MotionModel`); by default any rigid motion,
+        as correspondences may come in any orientation. The flat settings dof= and max_tilt=
+        override its fields.
     settings: rejector parameters (tau, eta, form, ...) and RansacConfig fields (threshold,
         iterations, confidence, min_inliers, ...).
+
+    Rejection, RANSAC and the final fit are `sgloc.estimation.estimate_pose`, as in `localize`.
     """
-    t0 = time.perf_counter()
     src, dst = _points(src, "src"), _points(dst, "dst")
     if len(src) != len(dst):
         raise SglocError(
@@ -136,29 +133,17 @@ def register(
         raise SglocError(f"noise_bound must be > 0 metres, got {noise_bound}.")
     if refine not in REFINES:
         raise UnknownNameError(f"unknown refine {refine!r}; choose one of {', '.join(REFINES)}.")
-    rej, cfg = _stage_settings(rejection, noise_bound, settings)
-    rng = rng if rng is not None else np.random.default_rng(seed)
-    timings: dict[str, float] = {}
-
-    t1 = time.perf_counter()
-    kept = np.asarray(rej(src, dst, None), dtype=np.int64) if len(src) else np.zeros(0, np.int64)
-    t2 = time.perf_counter()
-    timings["rejection"] = t2 - t1
-    rs = ransac(src[kept], dst[kept], cfg, rng)
-    t3 = time.perf_counter()
-    timings["ransac"] = t3 - t2
-    inliers = kept[rs.inliers]
-    T = rs.transform
-    if T is not None and refine != "none":
-        T = _final_fit(src[inliers], dst[inliers], refine)
-    t4 = time.perf_counter()
-    timings["refine"] = t4 - t3
-    timings["total"] = t4 - t0
+    rej, cfg = _stage_settings(rejection, noise_bound, motion, settings)
+    timer = StageTimer(names={"estimation": "refine"})
+    pose = estimate_pose(
+        src, dst, rej, cfg, rng if rng is not None else np.random.default_rng(seed),
+        fit=FinalFit(refine=refine), timer=timer,
+    )  # fmt: skip
     return RegistrationResult(
-        success=T is not None,
-        transform=T,
-        inliers=inliers,
-        survivors=kept,
-        timings=timings,
-        reason=rs.reason if T is None else "",
+        success=pose.transform is not None,
+        transform=pose.transform,
+        inliers=pose.inliers,
+        survivors=pose.survivors,
+        timings=timer.timings,
+        reason=pose.reason,
     )

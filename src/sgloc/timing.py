@@ -9,15 +9,20 @@ from contextlib import contextmanager
 
 class StageTimer:
     """Times the stages of one run: `with timer("ransac"): ...` adds the seconds `clock` saw
-    pass to timings["ransac"]; `timings` ends with "total", the sum of the stages."""
+    pass to timings["ransac"]; `timings` ends with "total", the sum of the stages. `names`
+    reports stages under other names ({"estimation": "refine"})."""
 
-    def __init__(self, clock: Callable[[], float] = time.perf_counter) -> None:
+    def __init__(
+        self, clock: Callable[[], float] = time.perf_counter, names: dict[str, str] | None = None
+    ) -> None:
         self.clock = clock
+        self.names = names or {}
         self._stages: dict[str, float] = {}
 
     @contextmanager
     def __call__(self, stage: str) -> Iterator[None]:
         start = self.clock()
+        stage = self.names.get(stage, stage)
         try:
             yield
         finally:

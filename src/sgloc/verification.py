@@ -48,7 +48,7 @@ from sgloc.acceptance import (
     nfa_over_radii,
 )
 from sgloc.distinctive import spatially_distinct
-from sgloc.estimation import fit_rigid, yaw_from_pairs
+from sgloc.estimation import GROUND_VEHICLE, MotionModel, fit_rigid, yaw_from_pairs
 from sgloc.graph import SemanticGraph
 from sgloc.matching import MatchingConfig, match_descriptors
 
@@ -138,18 +138,18 @@ def _refine(
     tpos: np.ndarray,
     tree: _ClassTree,
     T: np.ndarray,
-    max_tilt: float | None,
+    motion: MotionModel,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Re-associate each query object with its nearest same-class target within the radius and
-    refit (4-dof model: tilted up to `max_tilt` degrees), REFINE_ROUNDS times; (T, distances
-    (n,), target index (n,))."""
+    refit under `motion` (the 4-dof model, tilted up to its max_tilt degrees), REFINE_ROUNDS
+    times; (T, distances (n,), target index (n,))."""
     q = query.positions
     for _ in range(REFINE_ROUNDS):
         d, j = tree.nearest(q @ T[:3, :3].T + T[:3, 3], query.labels)
         ok = np.isfinite(d)
         if ok.sum() < 2:
             break
-        T = fit_rigid(q[ok], tpos[j[ok]], None, dof=4, max_tilt=max_tilt)
+        T = fit_rigid(q[ok], tpos[j[ok]], None, motion.dof, motion.max_tilt)
     d, j = tree.nearest(q @ T[:3, :3].T + T[:3, 3], query.labels)
     return T, d, j
 
@@ -204,7 +204,7 @@ def _best_distinct(
     `hyps` = (R, t, order) that, refined, stay distinct from T at the centroid of `graph`
     (inf, 0: none)."""
     R, t, order = hyps
-    tpos, tree, chance, max_tilt, degrees = context
+    tpos, tree, chance, motion, degrees = context
     r = tree.radius
     c = graph.positions.mean(axis=0)
     distinct = distinct_from(R, t, T, c, 2.0 * r, degrees)
@@ -212,7 +212,7 @@ def _best_distinct(
     for h in order[distinct[order]][:RUNNER_UPS]:
         T2 = np.eye(4)
         T2[:3, :3], T2[:3, 3] = R[h], t[h]
-        T2, d2, _ = _refine(graph, tpos, tree, T2, max_tilt)
+        T2, d2, _ = _refine(graph, tpos, tree, T2, motion)
         if _distinct(T2, T, c, 2.0 * r, degrees):
             lg2, k2 = _log10_nfa(d2, _local_chance(chance, graph, T2, r), n_tests, r)
             best = min(best, (lg2, k2))
@@ -281,10 +281,13 @@ def verify_small_query(
     desc_t,
     config: AcceptanceConfig | None = None,
     min_similarity: float = 0.5,
-    max_tilt: float | None = 15.0,
+    motion: MotionModel = GROUND_VEHICLE,
 ) -> Verification:
     """Localize a small `query` by checking its whole geometry against `target` (module
-    docstring); desc_q, desc_t: the graphs' vertex descriptors (dense or CSR). 4-dof motion."""
+    docstring); desc_q, desc_t: the graphs' vertex descriptors (dense or CSR). `motion`: a 4-dof
+    model (the hypotheses are rotations about z), its max_tilt bounding the refits."""
+    if motion.dof != 4:
+        raise ValueError(f"the whole-map verification needs the 4-dof motion model, got {motion}")
     cfg = config or AcceptanceConfig()
     r = float(cfg.verify_radius)
     empty = np.zeros((0, 2), np.int64)
@@ -297,17 +300,17 @@ def verify_small_query(
         return Verification(False, None, 0.0, empty, "no consistent pair of candidates")
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R[order[0]], t[order[0]]
-    T, dist, j = _refine(query, tpos, tree, T, max_tilt)
+    T, dist, j = _refine(query, tpos, tree, T, motion)
     n_classes = max(query.n_classes, target.n_classes)
     chance = _ChanceModel(target, float(cfg.verify_density_radius), n_classes)
     lam = _local_chance(chance, query, T, r)
     lg_best, k = _log10_nfa(dist, lam, n_tests, r)
     ok = np.isfinite(dist)
     matches = np.column_stack([np.flatnonzero(ok), j[ok]]).astype(np.int64)
-    spread = inlier_spread(tpos[j[ok]], dof=4)
+    spread = inlier_spread(tpos[j[ok]], dof=motion.dof)
     min_spread = cfg.min_spread * DOF4_SPREAD_FACTOR
     # Runner-up: another alignment of the query, or another place of the map like this one.
-    context = (tpos, tree, chance, max_tilt, cfg.distinct_rotation)
+    context = (tpos, tree, chance, motion, cfg.distinct_rotation)
     lg_second, k2 = _best_distinct(query, (R, t, order), T, context, n_tests)
     required = 1.0 - (1.0 - cfg.min_confidence) / OPTIMISM
     lg_self, k_self = np.inf, 0

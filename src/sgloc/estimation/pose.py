@@ -65,10 +65,10 @@ def estimate_pose(
 ) -> PoseEstimate:
     """T_dst_src from matches src[i] <-> dst[i] ((m,3) each, metres): outlier rejection
     (`rejector`, given the match `scores`), RANSAC (`config`, its motion model, `rng`), then
-    the final fit (`fit`) on RANSAC's inliers under the same motion model.
+    the final fit (`fit`, `final_fit`) on RANSAC's inliers under the same motion model.
 
     weights: (m,) per-match weights of RANSAC's refits and the final fit (None: equal).
-    labels: (m,) class of each match, for `fit.class_axes`.
+    labels: (m,) class of each match, for `fit.class_axes` (unused without).
     timer: times the stages "rejection", "ransac" and "estimation" (the final fit).
     """
     timer = timer or StageTimer()
@@ -83,7 +83,7 @@ def estimate_pose(
     with timer("estimation"):
         T, reason = rs.transform, rs.reason
         if T is not None and fit.refine != "none":
-            classes = labels[inliers] if labels is not None and fit.class_axes else None
+            classes = None if labels is None else labels[inliers]
             w_in = None if w is None else w[rs.inliers]
             T, reason = final_fit(
                 src[inliers], dst[inliers], config.motion, config.threshold, w_in, classes, fit
@@ -119,8 +119,8 @@ def final_fit(
     if fit.refine == "irls":
         plain = transform
         transform = irls_refine(
-            src, dst, transform, weights, dof=dof, max_tilt=max_tilt, classes=classes,
-            class_axes=fit.class_axes or "full",
+            src, dst, transform, weights, dof=dof, max_tilt=max_tilt,
+            classes=classes if fit.class_axes else None, class_axes=fit.class_axes or "full",
         )  # fmt: skip
         if not np.all(np.isfinite(transform)):
             # Never hand on a non-finite pose: keep the plain fit if the refit ever fails.
