@@ -85,13 +85,21 @@ def _check_graph(graph: SemanticGraph, role: str) -> None:
         )
 
 
-#: The stages that draw random numbers.
+#: The stages that draw random numbers, each from its own stream, spawned in this order from
+#: the seed (`stage_streams`): changing one stage's draws (e.g. n_walks of the random-walk
+#: descriptor) leaves every other stage's samples as they were.
 RANDOM_STAGES = ("descriptors", "ransac", "acceptance")
 
 
 def stage_streams(rng: np.random.Generator | int | None) -> dict[str, np.random.Generator]:
-    """The generator of each stage of RANDOM_STAGES (one shared by all)."""
-    return dict.fromkeys(RANDOM_STAGES, np.random.default_rng(rng))
+    """One independent generator per stage of RANDOM_STAGES: from `np.random.SeedSequence(
+    seed).spawn` for a seed (None: fresh entropy), from `Generator.spawn` for a generator."""
+    if isinstance(rng, np.random.Generator):
+        children = rng.spawn(len(RANDOM_STAGES))
+    else:
+        seeds = np.random.SeedSequence(rng).spawn(len(RANDOM_STAGES))
+        children = [np.random.default_rng(s) for s in seeds]
+    return dict(zip(RANDOM_STAGES, children, strict=True))
 
 
 @dataclass
