@@ -56,7 +56,7 @@ could only lower it) and the confidence reported is 1 / (1 + NFA_best).
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -156,9 +156,6 @@ class AcceptanceConfig:
             raise SglocError(f"acceptance radius must be > 0 m or None, got {self.radius}.")
         if float(self.min_spread) < 0:
             raise SglocError(f"min_spread must be >= 0 m, got {self.min_spread}.")
-
-    def get_params(self) -> dict:
-        return asdict(self)
 
     def ratio_for(self, n_query: int) -> float | None:
         """The distinctiveness ratio for a query graph of `n_query` objects (None: every

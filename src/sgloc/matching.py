@@ -8,7 +8,7 @@ the kept candidates leave a block.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import sparse
@@ -46,9 +46,6 @@ class MatchingConfig:
 
     def __post_init__(self) -> None:
         validate_settings(self)  # type, range, finiteness of every field (sgloc.validation)
-
-    def get_params(self) -> dict:
-        return asdict(self)
 
 
 def unit_rows(D) -> sparse.csr_array | np.ndarray:

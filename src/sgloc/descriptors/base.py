@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import sparse
@@ -32,9 +31,6 @@ class Descriptor:
         self, graph: SemanticGraph, n_classes: int, rng: np.random.Generator
     ) -> DescriptorMatrix:
         raise NotImplementedError
-
-    def get_params(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 def one_hot(labels: np.ndarray, n_classes: int) -> sparse.csr_array:

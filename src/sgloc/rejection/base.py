@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -28,9 +27,6 @@ class Rejector:
         self, src: np.ndarray, dst: np.ndarray, scores: np.ndarray | None = None
     ) -> np.ndarray:
         raise NotImplementedError
-
-    def get_params(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 @dataclass
