@@ -128,3 +128,18 @@ def test_kernels_import_nothing_of_sgloc_but_kernels():
             for name in names:
                 inside = name == "sgloc.kernels" or name.startswith("sgloc.kernels.")
                 assert inside or not name.startswith("sgloc"), f"{path.name} imports {name}"
+
+
+def test_the_config_holds_the_motion_model_as_flat_settings(tmp_path):
+    """dof= and max_tilt= stay the settings users write (flat, presets, config files); the
+    config hands them on as one MotionModel."""
+    from sgloc.config import LocalizerConfig
+
+    assert LocalizerConfig().motion == GROUND_VEHICLE
+    flat = LocalizerConfig().with_overrides(dof=6, max_tilt=None)
+    assert flat.motion == ANY_RIGID
+    path = tmp_path / "c.yaml"
+    path.write_text("ransac:\n  dof: 6\n  max_tilt: 5\n")
+    assert LocalizerConfig.load(path).motion == MotionModel(6, 5.0)
+    flat.save(tmp_path / "c.json")
+    assert LocalizerConfig.load(tmp_path / "c.json").motion == ANY_RIGID

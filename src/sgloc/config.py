@@ -13,7 +13,7 @@ import yaml
 from sgloc.acceptance import AcceptanceConfig
 from sgloc.descriptors import DESCRIPTORS, Descriptor, make_descriptor
 from sgloc.errors import SglocError, UnknownNameError
-from sgloc.estimation import RansacConfig
+from sgloc.estimation import MotionModel, RansacConfig
 from sgloc.matching import MatchingConfig
 from sgloc.registry import registered_name
 from sgloc.rejection import REJECTORS, Rejector, make_rejector
@@ -68,6 +68,12 @@ class LocalizerConfig:
         validate_localizer_settings(self)  # type and range of the top-level settings
         # Fail early on unknown parameters and bad values (the typed objects check them).
         _ = self.descriptor_config, self.rejector_config
+
+    @property
+    def motion(self) -> MotionModel:
+        """The motion model (`MotionModel`) of these settings: RANSAC's `dof` and `max_tilt`,
+        which the final fit, the acceptance test and the verification assume too."""
+        return self.ransac.motion
 
     @property
     def descriptor_config(self) -> Descriptor:

@@ -156,11 +156,17 @@ class Localizer:
             matched = _match(dq, dt, query, target, cfg)
         c = matched.candidates
         pose = estimate_pose(
-            query.positions[c[:, 0]], target.positions[c[:, 1]], self.rejector, cfg.ransac,
-            streams["ransac"], scores=matched.scores, weights=_match_weights(cfg, query, c,
-            n_classes), labels=query.labels[c[:, 0]], fit=_final_fit(cfg, query, target),
+            query.positions[c[:, 0]],
+            target.positions[c[:, 1]],
+            self.rejector,
+            cfg.ransac,
+            streams["ransac"],
+            scores=matched.scores,
+            weights=_match_weights(cfg, query, c, n_classes),
+            labels=query.labels[c[:, 0]],
+            fit=_final_fit(cfg, query, target),
             timer=timer,
-        )  # fmt: skip
+        )
         outcome = self._accept(
             query, target, cfg, (dq, dt), matched, pose, streams["acceptance"], timer
         )
@@ -200,7 +206,7 @@ class Localizer:
                 tested = _evidence(dq, dt, query, target, matched, cfg)
                 verdict = assess(
                     query, target, tested, transform, cfg.ransac.threshold, cfg.acceptance,
-                    rng, motion=cfg.ransac.motion,
+                    rng, motion=cfg.motion,
                 )  # fmt: skip
             confidence, reason = verdict.confidence, verdict.reason
             transform = transform if verdict.accepted else None
@@ -209,7 +215,7 @@ class Localizer:
             with timer("verification"):
                 check = verify_small_query(
                     query, target, dq, dt, cfg.acceptance, cfg.matching.min_similarity,
-                    cfg.ransac.motion,
+                    cfg.motion,
                 )  # fmt: skip
                 # The same final fit as RANSAC's inliers get, on the co-located objects.
                 fitted = None
@@ -304,7 +310,7 @@ def _fit_matches(
 ) -> np.ndarray | None:
     """The final fit of `matches` (k,2) (query index, target index), or None if refused."""
     return final_fit(
-        query.positions[matches[:, 0]], target.positions[matches[:, 1]], cfg.ransac.motion,
+        query.positions[matches[:, 0]], target.positions[matches[:, 1]], cfg.motion,
         cfg.ransac.threshold, None, query.labels[matches[:, 0]], _final_fit(cfg, query, target),
     )[0]  # fmt: skip
 
@@ -313,7 +319,7 @@ def _verifies(cfg: LocalizerConfig, n_query: int) -> bool:
     """Whether a refused query is verified against the whole map (sgloc.verification): the
     acceptance test on, 4-dof model, fewer than `small_query` objects."""
     a = cfg.acceptance
-    return a.enabled and a.verify_small and cfg.ransac.dof == 4 and n_query < a.small_query
+    return a.enabled and a.verify_small and cfg.motion.dof == 4 and n_query < a.small_query
 
 
 def localize(
@@ -340,7 +346,8 @@ def localize(
         ransac_threshold: RANSAC inlier distance T_error, metres (default 5).
             The motion model defaults to a ground vehicle's (dof=4: x, y, z, yaw; maps share
             gravity up to max_tilt=15 deg); dof=6, max_tilt=None allows any rigid motion.
-        seed: seed of the random generator (RANSAC, random walks); ignored when `rng` is given.
+        seed: seed of the random generators, one stream per random stage (random walks,
+            RANSAC, acceptance: `stage_streams`); ignored when `rng` is given.
         config: a full LocalizerConfig to start from; arguments given here override it.
         preset: named settings applied over `config` (sgloc.presets: "paper" = the paper's own
             pipeline, "guo" = its baseline, "default", dataset presets).

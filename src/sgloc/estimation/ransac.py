@@ -302,7 +302,7 @@ def finish(
     fit: Fit | None = None,
     find: FindInliers | None = None,
 ) -> RansacResult:
-    """RANSAC's last steps, shared by `ransac_reference` and the compiled loop: the best
+    """RANSAC's last steps, shared by `ransac_reference` and `ransac_compiled`: the best
     hypothesis (4x4, between src_c = src - cs and dst_c = dst - cd) refit on its inliers, the
     centring undone, and the result checked (enough inliers; dof=6: not degenerate). `fit`
     and `find` default to `fit_rigid` under cfg's motion model and numpy residuals."""
