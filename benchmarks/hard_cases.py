@@ -510,7 +510,9 @@ def new_config_keys() -> dict[str, Any]:
     flat: dict[str, Any] = {}
     for key, value in LocalizerConfig().to_dict().items():
         if isinstance(value, dict) and key in {"matching", "ransac", "acceptance"}:
-            flat |= {f"{key}.{k}": v for k, v in value.items()}
+            for name, v in value.items():  # the acceptance groups by their fields' flat names
+                items = v.items() if isinstance(v, dict) else [(name, v)]
+                flat |= {f"{key}.{k}": x for k, x in items}
         else:
             flat[key] = value
     return {k: v for k, v in flat.items() if k not in PREVIOUS_CONFIG_KEYS}

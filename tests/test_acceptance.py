@@ -8,6 +8,8 @@ import pytest
 from sgloc import SemanticGraph, localize
 from sgloc.acceptance import (
     AcceptanceConfig,
+    ChanceModel,
+    EvidenceConfig,
     assess,
     inlier_spread,
     log10_nfa,
@@ -164,11 +166,11 @@ def test_an_object_with_several_candidate_targets_is_one_inlier(rng):
 
 
 def test_permutation_null_leaves_the_candidate_out():
-    from sgloc.acceptance import _ChanceModel, permutation_lambda
+    from sgloc.acceptance import permutation_lambda
 
     target = SemanticGraph(np.array([[0.0, 0, 0], [50, 0, 0], [100, 0, 0], [150, 0, 0]]),
                            np.array([0, 0, 0, 1]))  # fmt: skip
-    chance = _ChanceModel(target, 2.0, 2)
+    chance = ChanceModel(target, 2.0, 2)
     # Two class-0 candidates, each an inlier on its own target, far from the other's target:
     # under the leave-one-out null neither expects an inlier (with itself in, each would 1/2).
     lam = permutation_lambda(np.array([1.0, 1.0]), np.array([True, True]), np.array([0, 0]),
@@ -182,11 +184,11 @@ def test_permutation_null_leaves_the_candidate_out():
 
 
 def test_small_queries_use_the_small_query_ratio():
-    cfg = AcceptanceConfig(distinct_ratio=0.8, small_query=30, small_distinct_ratio=0.85)
+    cfg = EvidenceConfig(distinct_ratio=0.8, small_query=30, small_distinct_ratio=0.85)
     assert cfg.ratio_for(29) == 0.85 and cfg.ratio_for(30) == 0.8 and cfg.ratio_for(500) == 0.8
-    assert AcceptanceConfig(small_query=0).ratio_for(3) == 0.8  # 0: no query is small
-    assert AcceptanceConfig(small_distinct_ratio=None).ratio_for(5) is None  # all candidates
-    assert AcceptanceConfig(distinct_ratio=None).ratio_for(5) is None  # filter off altogether
+    assert EvidenceConfig(small_query=0).ratio_for(3) == 0.8  # 0: no query is small
+    assert EvidenceConfig(small_distinct_ratio=None).ratio_for(5) is None  # all candidates
+    assert EvidenceConfig(distinct_ratio=None).ratio_for(5) is None  # filter off altogether
 
 
 def _pair_positions(query, target, candidates) -> set:
@@ -197,16 +199,14 @@ def _pair_positions(query, target, candidates) -> set:
 
 
 def _tested_candidates(monkeypatch, query, target, **settings) -> set:
-    """The candidates the localizer hands to the acceptance test (`_pair_positions`)."""
-    import sgloc.localizer as loc
-
+    """The candidates the acceptance stage hands to its test (`_pair_positions`)."""
     seen = []
 
     def spy(q, t, tested, *args, **kwargs):
         seen.append(_pair_positions(q, t, tested))
         return assess(q, t, tested, *args, **kwargs)
 
-    monkeypatch.setattr(loc, "assess", spy)
+    monkeypatch.setattr("sgloc.acceptance.stage.assess", spy)
     localize(query, target, seed=0, **settings)
     assert seen, "the acceptance test was not reached"
     return seen[0]
@@ -214,8 +214,8 @@ def _tested_candidates(monkeypatch, query, target, **settings) -> set:
 
 @pytest.mark.parametrize("n_query", [20, 60])
 def test_localizer_tests_a_small_query_with_the_looser_ratio(monkeypatch, n_query):
+    from sgloc.acceptance import spatially_distinct
     from sgloc.descriptors import DistanceHistogramDescriptor
-    from sgloc.distinctive import spatially_distinct
     from sgloc.matching import MatchingConfig, match_descriptors
 
     # A repetitive map (one 60 m block of 40 objects tiled 4 x 4, jittered by 1 m): near ties.
@@ -236,5 +236,5 @@ def test_localizer_tests_a_small_query_with_the_looser_ratio(monkeypatch, n_quer
     # Small queries: ratio 0.85 against rivals farther than 10 m from the candidate's target.
     loose = cand[spatially_distinct(dq, dt, target.labels, target.positions, cand, 0.85, 10.0)]
     assert len(loose) > len(strict)  # the two tests differ on this map: the check can fail
-    expected = loose if n_query < AcceptanceConfig().small_query else strict
+    expected = loose if n_query < EvidenceConfig().small_query else strict
     assert tested == _pair_positions(query, target, expected)

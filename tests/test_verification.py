@@ -1,14 +1,21 @@
-"""Verification of a small query against the whole map (sgloc.verification)."""
+"""Verification of a small query against the whole map (sgloc.acceptance.verification)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-import sgloc.localizer as localizer_module
+import sgloc.acceptance.stage as stage_module
 from sgloc import SemanticGraph, localize
-from sgloc.acceptance import AcceptanceConfig
+from sgloc.acceptance import (
+    AcceptanceConfig,
+    ChanceModel,
+    ClassTree,
+    SearchContext,
+    Verification,
+    self_rival,
+    verify_small_query,
+)
 from sgloc.geometry import make_transform, transform_error
-from sgloc.verification import Verification, verify_small_query
 
 
 def _yaw(deg: float, t) -> np.ndarray:
@@ -101,13 +108,13 @@ def test_random_small_query_against_unrelated_map_is_refused(rng):
 
 def test_localizer_verifies_only_refused_small_queries(monkeypatch, rng):
     calls = []
-    real = localizer_module.verify_small_query
+    real = stage_module.verify_small_query
 
     def spy(query, *args, **kwargs):
         calls.append(len(query))
         return real(query, *args, **kwargs)
 
-    monkeypatch.setattr(localizer_module, "verify_small_query", spy)
+    monkeypatch.setattr(stage_module, "verify_small_query", spy)
     target = _scattered_map(rng)
     other = _scattered_map(np.random.default_rng(5))
     small, _ = _query_of(other, np.array([150.0, 150.0]), 28.0, np.eye(4), rng)
@@ -152,9 +159,7 @@ def test_place_copied_elsewhere_in_the_map_is_refused(rng):
 
 
 def test_self_rival_finds_the_other_copy_of_a_place(rng):
-    from sgloc.acceptance import _ChanceModel
     from sgloc.descriptors import make_descriptor
-    from sgloc.verification import _ClassTree, _self_rival
 
     base = _scattered_map(rng, n=500)
     block = np.flatnonzero(np.linalg.norm(base.positions[:, :2] - [80.0, 80.0], axis=1) < 24.0)
@@ -165,16 +170,16 @@ def test_self_rival_finds_the_other_copy_of_a_place(rng):
     placed = np.flatnonzero(np.isin(keep, block))  # the original block, inside the target
     dt = make_descriptor("distance_histogram")(target, 3, rng)
     cfg = AcceptanceConfig()
-    tree = _ClassTree(target, cfg.verify_radius)
-    chance = _ChanceModel(target, cfg.verify_density_radius, 3)
-    context = (target.positions, tree, chance, 15.0, cfg.distinct_rotation)
-    lg, k = _self_rival(target, dt, placed, context, cfg, 0.5, 100)
+    tree = ClassTree(target, cfg.verification.verify_radius)
+    chance = ChanceModel(target, cfg.verification.verify_density_radius, 3)
+    context = SearchContext(target.positions, tree, chance, 15.0, cfg.distinct_rotation)
+    lg, k = self_rival(target, dt, placed, context, cfg, 0.5, 100)
     assert k >= len(placed) - 1 and lg < -3
     # Without the copy, nothing else in the map fits the block.
     alone = SemanticGraph(target.positions[:n_keep], target.labels[:n_keep])
-    tree = _ClassTree(alone, cfg.verify_radius)
-    chance = _ChanceModel(alone, cfg.verify_density_radius, 3)
-    context = (alone.positions, tree, chance, 15.0, cfg.distinct_rotation)
+    tree = ClassTree(alone, cfg.verification.verify_radius)
+    chance = ChanceModel(alone, cfg.verification.verify_density_radius, 3)
+    context = SearchContext(alone.positions, tree, chance, 15.0, cfg.distinct_rotation)
     dt = make_descriptor("distance_histogram")(alone, 3, rng)
-    lg, k = _self_rival(alone, dt, placed, context, cfg, 0.5, 100)
+    lg, k = self_rival(alone, dt, placed, context, cfg, 0.5, 100)
     assert k <= 4

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -10,11 +9,10 @@ from typing import Any
 
 import numpy as np
 
-from sgloc.acceptance import assess
+from sgloc.acceptance import accept
 from sgloc.canonical import CanonicalPair
 from sgloc.config import LocalizerConfig
 from sgloc.descriptors import make_descriptor
-from sgloc.distinctive import spatially_distinct
 from sgloc.errors import DegenerateGeometryError, InvalidGraphError, SglocError
 from sgloc.estimation import (
     check_not_degenerate,
@@ -26,9 +24,8 @@ from sgloc.estimation import (
     weighted_kabsch,
 )
 from sgloc.graph import SemanticGraph
-from sgloc.matching import match_descriptors, match_flagged
+from sgloc.matching import match_flagged
 from sgloc.rejection import make_rejector
-from sgloc.verification import verify_small_query
 
 MIN_VERTICES = 3
 
@@ -125,7 +122,7 @@ class Localizer:
         timings["descriptors"] = t1 - t0
 
         # Also flags the candidates the acceptance test counts (its ratio test): one pass.
-        flag_ratio = cfg.acceptance.ratio_for(len(query))
+        flag_ratio = cfg.acceptance.evidence.ratio_for(len(query))
         candidates, scores, distinct = match_flagged(
             dq, dt, query.labels, target.labels, cfg.matching, flag_ratio
         )
@@ -158,84 +155,28 @@ class Localizer:
         t5 = clock()
         timings["estimation"] = t5 - t4
         timings["total"] = t5 - t0
-        if transform is None and not reason:
-            reason = "no model accepted"
-        confidence = None
-        if transform is not None and cfg.acceptance.enabled:
-            tested = candidates
-            if flag_ratio is not None:
-                # Only distinctive matches count as evidence: in a repetitive place near-tied
-                # matches line up with a wrong alignment as readily as with the right one.
-                exclusion = cfg.acceptance.exclusion_for(len(query))
-                if exclusion > 0:  # rivals only at other places (sgloc.distinctive)
-                    tested = candidates[
-                        spatially_distinct(
-                            dq, dt, target.labels, target.positions, candidates, flag_ratio,
-                            exclusion,
-                        )
-                    ]
-                elif distinct is not None:
-                    tested = candidates[distinct]
-                else:
-                    strict = dataclasses.replace(cfg.matching, max_ratio=flag_ratio)
-                    tested = match_descriptors(dq, dt, query.labels, target.labels, strict)[0]
-            verdict = assess(
-                query,
-                target,
-                tested,
-                transform,
-                cfg.ransac.threshold,
-                cfg.acceptance,
-                rng,
-                dof=cfg.ransac.dof,
-                max_tilt=cfg.ransac.max_tilt,
-            )
-            confidence, reason = verdict.confidence, verdict.reason
-            transform = transform if verdict.accepted else None
-            timings["acceptance"] = clock() - t5
-            timings["total"] += timings["acceptance"]
-        if transform is None and _verifies(cfg, len(query)):
-            # A small query's candidates are too few to decide: check its whole geometry.
-            t6 = clock()
-            check = verify_small_query(
-                query, target, dq, dt, cfg.acceptance, cfg.matching.min_similarity,
-                cfg.ransac.max_tilt,
-            )
-            # The same final fit as RANSAC's inliers get, on the co-located objects.
-            fitted = None
-            if check.accepted:
-                fitted = _final_fit(query, target, check.matches, None, cfg)[0]
-            if fitted is not None:
-                transform, final, reason = fitted, check.matches, ""
-                confidence = check.confidence
-            elif check.reason:
-                reason = f"{reason}; checked against the whole map: {check.reason}"
-            timings["verification"] = clock() - t6
-            timings["total"] += timings["verification"]
-        if len(candidates) < 3 and transform is None:
-            reason = (
-                f"only {len(candidates)} candidate match(es) between the graphs (fewer than "
-                "3); the maps may not overlap, or lower min_similarity"
-            )
+        verdict = accept(
+            query, target, dq, dt, candidates, distinct, transform, final, reason,
+            radius=cfg.ransac.threshold, config=cfg.acceptance, matching=cfg.matching,
+            dof=cfg.ransac.dof, max_tilt=cfg.ransac.max_tilt, rng=rng, clock=clock,
+            # A verified small query gets the same final fit as RANSAC's inliers.
+            refit=lambda matches: _final_fit(query, target, matches, None, cfg)[0],
+        )  # fmt: skip
+        for stage, seconds in verdict.timings.items():
+            timings[stage] = seconds
+            timings["total"] += seconds
         result = LocalizationResult(
-            success=transform is not None,
-            transform=transform,
-            matches=final if transform is not None else np.zeros((0, 2), np.int64),
+            success=verdict.accepted,
+            transform=verdict.transform,
+            matches=verdict.matches,
             candidates=candidates,
             survivors=survivors,
             scores=scores,
             timings=timings,
-            reason="" if transform is not None else reason,
-            confidence=confidence,
+            reason=verdict.reason,
+            confidence=verdict.confidence,
         )
         return canonical.restore(result)  # the caller's vertex indices and config
-
-
-def _verifies(cfg: LocalizerConfig, n_query: int) -> bool:
-    """Whether a refused query is verified against the whole map (sgloc.verification): the
-    acceptance test on, 4-dof model, fewer than `small_query` objects."""
-    a = cfg.acceptance
-    return a.enabled and a.verify_small and cfg.ransac.dof == 4 and n_query < a.small_query
 
 
 def _final_fit(
