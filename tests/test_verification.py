@@ -183,3 +183,43 @@ def test_self_rival_finds_the_other_copy_of_a_place(rng):
     dt = make_descriptor("distance_histogram")(alone, 3, rng)
     lg, k = self_rival(alone, dt, placed, context, cfg, 0.5, 100)
     assert k <= 4
+
+
+def test_accept_takes_the_verified_alignment_through_the_callers_refit(rng):
+    """`accept` on a small query estimation could not localize: the whole-map verification
+    finds the alignment; the verdict carries the co-located matches the caller's `refit` was
+    given, and a refit that fails leaves the query refused with the estimation's reason."""
+    from sgloc.acceptance import accept
+
+    target = _scattered_map(rng)
+    T = _yaw(30.0, [20.0, -10.0, 0.5])
+    query, partner = _query_of(target, np.array([150.0, 150.0]), 28.0, T, rng, noise=0.05)
+    assert 10 <= len(query) < 30
+    from sgloc.descriptors import make_descriptor
+
+    desc = make_descriptor("distance_histogram")
+    dq, dt = desc(query, 3, rng), desc(target, 3, rng)
+    empty = np.zeros((0, 2), np.int64)
+    given = []
+
+    def refit(matches):
+        given.append(matches)
+        return np.eye(4)
+
+    kw = {"radius": 5.0, "dof": 4, "max_tilt": 15.0, "rng": np.random.default_rng(0)}
+    v = accept(query, target, dq, dt, empty, None, None, empty, "ransac failed", refit=refit, **kw)
+    assert v.accepted and v.verified and v.reason == "" and v.assessment is None
+    assert np.array_equal(v.transform, np.eye(4))  # the caller's refit is the result
+    assert len(given) == 1 and np.array_equal(given[0], v.matches)
+    assert np.array_equal(partner[v.matches[:, 0]], v.matches[:, 1])
+    assert v.confidence == v.verification.confidence >= 0.9999
+    assert set(v.timings) == {"verification"}
+    plain = accept(query, target, dq, dt, empty, None, None, empty, "x", **kw)
+    assert transform_error(plain.transform, T)[0] < 0.5  # without refit: the verification's own
+    failed = accept(query, target, dq, dt, empty, None, None, empty, "x", refit=lambda m: None,
+                    **kw)  # fmt: skip
+    assert not failed.accepted and failed.transform is None and len(failed.matches) == 0
+    assert failed.reason.startswith("only 0 candidate")  # fewer than 3 candidates: said so
+    six = accept(query, target, dq, dt, np.zeros((5, 2), np.int64), None, None, empty, "x",
+                 **(kw | {"dof": 6}))  # fmt: skip
+    assert not six.accepted and six.verification is None and six.reason == "x"

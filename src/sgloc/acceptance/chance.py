@@ -19,7 +19,7 @@ _LN10 = np.log(10.0)
 _TRIANGLE_EDGES = 2048
 #: The precision-adapted inlier radius is at least this fraction of the radius.
 MIN_RADIUS_FRACTION = 0.1
-#: NFAs are capped at 10^300 (beyond, 1 / (1 + NFA) is 0 anyway).
+#: NFAs are capped at 10^300 (10.0 ** x overflows beyond about 308).
 _MAX_LOG10 = 300.0
 
 

@@ -123,15 +123,21 @@ def accept(
         t0 = clock()
         _verify(verdict, query, target, desc_q, desc_t, cfg, matching, max_tilt, refit)
         verdict.timings["verification"] = clock() - t0
-    if not verdict.accepted:
-        verdict.transform, verdict.matches = None, np.zeros((0, 2), np.int64)
-        if len(candidates) < MIN_CANDIDATES:
-            verdict.reason = (
-                f"only {len(candidates)} candidate match(es) between the graphs (fewer than "
-                f"{MIN_CANDIDATES}); the maps may not overlap, or lower min_similarity"
-            )
-    else:
+    return _settled(verdict, len(candidates))
+
+
+def _settled(verdict: Verdict, n_candidates: int) -> Verdict:
+    """The verdict as handed on: no reason when accepted; no transform and no matches when
+    refused, and the reason of too few candidates when that was the cause."""
+    if verdict.accepted:
         verdict.reason = ""
+        return verdict
+    verdict.transform, verdict.matches = None, np.zeros((0, 2), np.int64)
+    if n_candidates < MIN_CANDIDATES:
+        verdict.reason = (
+            f"only {n_candidates} candidate match(es) between the graphs (fewer than "
+            f"{MIN_CANDIDATES}); the maps may not overlap, or lower min_similarity"
+        )
     return verdict
 
 
