@@ -705,7 +705,8 @@ query from the later visit; the others alternate):
   trajectories stay >= {gap:g} m apart everywhere; any accept is wrong;
 - scan_negatives: {scan_neg} more negatives, each one scan (at least 3 objects) against 300
   scans, drawn as the negatives (tuning: added as evidence for the whole-map verification of
-  small queries, `sgloc.verification`, whose settings were chosen on them and the tuning pairs).
+  small queries, `sgloc.acceptance.verification`, whose settings were chosen on them and the
+  tuning pairs).
 Ground truth: the poses chained through the revisit's refined transform M (p_j = M p_i,
 LiDAR frames). Checked per pair (overlap objects = query objects with a same-class target
 object within {near:g} m under the GT): refining the GT by mutual-nearest-neighbour ICP must move
