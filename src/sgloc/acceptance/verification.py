@@ -320,12 +320,10 @@ def verify_small_query(
     n_classes = max(query.n_classes, target.n_classes)
     chance = ChanceModel(target, float(vcfg.verify_density_radius), n_classes)
     context = SearchContext(target.positions, tree, chance, max_tilt, cfg.distinct_rotation)
-    details = _evidence(query, target, desc_t, fit, (R, t, order), context, cfg,
-                        min_similarity, n_tests)  # fmt: skip
-    details["candidates"] = len(cand)
-    details["distinct_support"] = _distinct_support(
-        query, target, desc_q, desc_t, fit.matches, cfg, min_similarity
-    )
+    evidence = _evidence(query, target, desc_t, fit, (R, t, order), context, cfg,
+                         min_similarity, n_tests)  # fmt: skip
+    support = _distinct_support(query, target, desc_q, desc_t, fit.matches, cfg, min_similarity)
+    details = {"candidates": len(cand), **evidence, "distinct_support": support}
     return _decide(query, fit, details, cfg)
 
 
@@ -361,10 +359,9 @@ def _evidence(
         lg_self, k_self = self_rival(target, desc_t, placed, context, cfg, min_similarity,
                                      n_tests)  # fmt: skip
     return {
-        "candidates": 0, "hypotheses": n_tests, "colocated": int(ok.sum()),
-        "fit_colocated": k, "expected_chance": lam, "log10_nfa": lg_best,
-        "runner_up_colocated": k2, "runner_up_log10_nfa": float(lg_second),
-        "distinct_support": 0, "self_rival_colocated": k_self,
+        "hypotheses": n_tests, "colocated": int(ok.sum()), "fit_colocated": k,
+        "expected_chance": lam, "log10_nfa": lg_best, "runner_up_colocated": k2,
+        "runner_up_log10_nfa": float(lg_second), "self_rival_colocated": k_self,
         "self_rival_log10_nfa": float(lg_self), "spread_m": spread,
     }  # fmt: skip
 
