@@ -42,7 +42,8 @@ class LocalizerConfig:
     icp: refine the final transform by mutual-nearest-neighbour ICP on all objects of the two
         graphs (not in the paper's pipeline; see docs/core_benchmark.md for its effect).
     icp_max_distance: ICP pairing radius (metres).
-    acceptance: the test behind `success` (sgloc.acceptance; strictness = min_confidence).
+    acceptance: the test behind `success` (sgloc.acceptance; strictness = min_confidence),
+        with its `evidence` and `verification` groups (their fields keep their flat names).
     """
 
     descriptor: str | Descriptor | dict[str, Any] = "distance_histogram"
