@@ -510,7 +510,9 @@ def new_config_keys() -> dict[str, Any]:
     flat: dict[str, Any] = {}
     for key, value in LocalizerConfig().to_dict().items():
         if isinstance(value, dict) and key in {"matching", "ransac", "acceptance"}:
-            flat |= {f"{key}.{k}": v for k, v in value.items()}
+            for name, v in value.items():  # the acceptance groups by their fields' flat names
+                items = v.items() if isinstance(v, dict) else [(name, v)]
+                flat |= {f"{key}.{k}": x for k, x in items}
         else:
             flat[key] = value
     return {k: v for k, v in flat.items() if k not in PREVIOUS_CONFIG_KEYS}
@@ -703,7 +705,8 @@ query from the later visit; the others alternate):
   trajectories stay >= {gap:g} m apart everywhere; any accept is wrong;
 - scan_negatives: {scan_neg} more negatives, each one scan (at least 3 objects) against 300
   scans, drawn as the negatives (tuning: added as evidence for the whole-map verification of
-  small queries, `sgloc.verification`, whose settings were chosen on them and the tuning pairs).
+  small queries, `sgloc.acceptance.verification`, whose settings were chosen on them and the
+  tuning pairs).
 Ground truth: the poses chained through the revisit's refined transform M (p_j = M p_i,
 LiDAR frames). Checked per pair (overlap objects = query objects with a same-class target
 object within {near:g} m under the GT): refining the GT by mutual-nearest-neighbour ICP must move

@@ -139,7 +139,7 @@ def check_matching() -> None:
 
 
 def check_neighbors() -> None:
-    from sgloc.acceptance import _ChanceModel
+    from sgloc.acceptance import ChanceModel
     from sgloc.graph import SemanticGraph
     from sgloc.kernels.neighbors import near_class_counts
 
@@ -149,7 +149,7 @@ def check_neighbors() -> None:
     moved = np.concatenate([pts[:100] + [3.0, 4.0, 0.0], rng.uniform(-90, 90, (100, 3))])
     usage = rng.integers(0, 4, 300).astype(np.float64)
     with _forced("reference"):
-        model = _ChanceModel(SemanticGraph(pts, labels), 5.0, 5)
+        model = ChanceModel(SemanticGraph(pts, labels), 5.0, 5)
     got = near_class_counts(moved, model.positions, labels.astype(np.int64), 5, 5.0, usage)
     ref = model.near_counts_reference(moved, (None, usage))
     assert got[0].sum() > 100
@@ -188,7 +188,8 @@ def check_ransac() -> None:
 
 
 def check_runner_up() -> None:
-    from sgloc.acceptance import AcceptanceConfig, _compiled_yaw_runner_up, _consistency, _runner_up
+    from sgloc.acceptance import AcceptanceConfig, pair_consistency
+    from sgloc.acceptance import runner_up as search_runner_up
     from sgloc.consistency import ConsistentPairs
     from sgloc.estimation import rot_z
     from sgloc.geometry import apply, make_transform
@@ -202,13 +203,14 @@ def check_runner_up() -> None:
     dst += rng.normal(0, 0.5, dst.shape)
     exclude = np.sum((apply(T, src) - dst) ** 2, axis=1) < 100.0
     cfg = AcceptanceConfig()
-    with _forced("reference"):  # the same draws as `_runner_up` makes, listed in numpy
-        bits, _ = _consistency(src, dst, 5.0)
-        edges = ConsistentPairs(bits)
-        kept = edges.within(~exclude)
-        i, j = kept.at(np.random.default_rng(7).integers(0, kept.size, cfg.runner_up_samples))
-        ref = _runner_up(src, dst, T, exclude, bits, edges, 5.0, cfg, np.random.default_rng(7), 4)
-    got = _compiled_yaw_runner_up(src, dst, T, exclude, i, j, 5.0, cfg)
+    bits, _ = pair_consistency(src, dst, 5.0)
+    out = {}
+    for path in ("reference", "compiled"):  # the same draws, searched in numpy or compiled
+        with _forced(path):
+            edges = ConsistentPairs(bits)
+            rng = np.random.default_rng(7)
+            out[path] = search_runner_up(src, dst, T, exclude, bits, edges, 5.0, cfg, rng, 4)
+    ref, got = out["reference"], out["compiled"]
     assert got[0] == ref[0] >= 30, "runner-up inliers"
     assert np.abs(got[1] - ref[1]).max() < 1e-9, "runner-up transform"
 

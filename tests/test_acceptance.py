@@ -8,6 +8,8 @@ import pytest
 from sgloc import SemanticGraph, localize
 from sgloc.acceptance import (
     AcceptanceConfig,
+    ChanceModel,
+    EvidenceConfig,
     assess,
     inlier_spread,
     log10_nfa,
@@ -164,11 +166,11 @@ def test_an_object_with_several_candidate_targets_is_one_inlier(rng):
 
 
 def test_permutation_null_leaves_the_candidate_out():
-    from sgloc.acceptance import _ChanceModel, permutation_lambda
+    from sgloc.acceptance import permutation_lambda
 
     target = SemanticGraph(np.array([[0.0, 0, 0], [50, 0, 0], [100, 0, 0], [150, 0, 0]]),
                            np.array([0, 0, 0, 1]))  # fmt: skip
-    chance = _ChanceModel(target, 2.0, 2)
+    chance = ChanceModel(target, 2.0, 2)
     # Two class-0 candidates, each an inlier on its own target, far from the other's target:
     # under the leave-one-out null neither expects an inlier (with itself in, each would 1/2).
     lam = permutation_lambda(np.array([1.0, 1.0]), np.array([True, True]), np.array([0, 0]),
@@ -182,11 +184,11 @@ def test_permutation_null_leaves_the_candidate_out():
 
 
 def test_small_queries_use_the_small_query_ratio():
-    cfg = AcceptanceConfig(distinct_ratio=0.8, small_query=30, small_distinct_ratio=0.85)
+    cfg = EvidenceConfig(distinct_ratio=0.8, small_query=30, small_distinct_ratio=0.85)
     assert cfg.ratio_for(29) == 0.85 and cfg.ratio_for(30) == 0.8 and cfg.ratio_for(500) == 0.8
-    assert AcceptanceConfig(small_query=0).ratio_for(3) == 0.8  # 0: no query is small
-    assert AcceptanceConfig(small_distinct_ratio=None).ratio_for(5) is None  # all candidates
-    assert AcceptanceConfig(distinct_ratio=None).ratio_for(5) is None  # filter off altogether
+    assert EvidenceConfig(small_query=0).ratio_for(3) == 0.8  # 0: no query is small
+    assert EvidenceConfig(small_distinct_ratio=None).ratio_for(5) is None  # all candidates
+    assert EvidenceConfig(distinct_ratio=None).ratio_for(5) is None  # filter off altogether
 
 
 def _pair_positions(query, target, candidates) -> set:
@@ -197,16 +199,14 @@ def _pair_positions(query, target, candidates) -> set:
 
 
 def _tested_candidates(monkeypatch, query, target, **settings) -> set:
-    """The candidates the localizer hands to the acceptance test (`_pair_positions`)."""
-    import sgloc.localizer as loc
-
+    """The candidates the acceptance stage hands to its test (`_pair_positions`)."""
     seen = []
 
     def spy(q, t, tested, *args, **kwargs):
         seen.append(_pair_positions(q, t, tested))
         return assess(q, t, tested, *args, **kwargs)
 
-    monkeypatch.setattr(loc, "assess", spy)
+    monkeypatch.setattr("sgloc.acceptance.stage.assess", spy)
     localize(query, target, seed=0, **settings)
     assert seen, "the acceptance test was not reached"
     return seen[0]
@@ -214,8 +214,8 @@ def _tested_candidates(monkeypatch, query, target, **settings) -> set:
 
 @pytest.mark.parametrize("n_query", [20, 60])
 def test_localizer_tests_a_small_query_with_the_looser_ratio(monkeypatch, n_query):
+    from sgloc.acceptance import spatially_distinct
     from sgloc.descriptors import DistanceHistogramDescriptor
-    from sgloc.distinctive import spatially_distinct
     from sgloc.matching import MatchingConfig, match_descriptors
 
     # A repetitive map (one 60 m block of 40 objects tiled 4 x 4, jittered by 1 m): near ties.
@@ -236,5 +236,119 @@ def test_localizer_tests_a_small_query_with_the_looser_ratio(monkeypatch, n_quer
     # Small queries: ratio 0.85 against rivals farther than 10 m from the candidate's target.
     loose = cand[spatially_distinct(dq, dt, target.labels, target.positions, cand, 0.85, 10.0)]
     assert len(loose) > len(strict)  # the two tests differ on this map: the check can fail
-    expected = loose if n_query < AcceptanceConfig().small_query else strict
+    expected = loose if n_query < EvidenceConfig().small_query else strict
     assert tested == _pair_positions(query, target, expected)
+
+
+def test_the_localizer_makes_one_acceptance_call(monkeypatch, airsim_graphs):
+    """`accept` is the stage's one entry point: one call per localization, whose verdict is
+    the result."""
+    import sgloc.localizer as loc
+    from sgloc.acceptance import accept
+
+    verdicts = []
+
+    def spy(*args, **kwargs):
+        verdicts.append(accept(*args, **kwargs))
+        return verdicts[-1]
+
+    monkeypatch.setattr(loc, "accept", spy)
+    c1, c2 = airsim_graphs
+    for q in (c1, cut_shared_area(c1, c2, np.eye(4), 25.0)):
+        verdicts.clear()
+        res = localize(q, c2, seed=0)
+        assert len(verdicts) == 1
+        v = verdicts[0]
+        assert (res.success, res.confidence, res.reason) == (v.accepted, v.confidence, v.reason)
+        assert v.assessment is not None and "acceptance" in v.timings
+        assert len(res.matches) == len(v.matches)
+    assert not verdicts[0].accepted and len(verdicts[0].matches) == 0  # the cut pair: refused
+
+
+def test_accept_without_the_test_passes_the_estimate_through(rng):
+    from sgloc.acceptance import accept
+
+    g = SemanticGraph(rng.uniform(0, 100, (20, 3)), rng.integers(0, 3, 20))
+    d = rng.normal(size=(20, 8))
+    cand = np.column_stack([np.arange(20)] * 2)
+    off = AcceptanceConfig(enabled=False)
+    v = accept(g, g, d, d, cand, None, np.eye(4), cand[:5], radius=2.0, config=off)
+    assert v.accepted and v.confidence is None and v.reason == "" and len(v.matches) == 5
+    v = accept(g, g, d, d, cand[:2], None, None, cand[:0], "", radius=2.0, config=off)
+    assert not v.accepted and v.transform is None and "only 2 candidate" in v.reason
+    v = accept(g, g, d, d, cand, None, None, cand[:0], "", radius=2.0, config=off)
+    assert v.reason == "no model accepted" and v.timings == {}
+
+
+def test_select_evidence_by_query_size(rng):
+    """Ratio None: every candidate; exclusion 0: the matching's flags, or without them the
+    candidates of the ratio re-match; small query: the spatial ratio test."""
+    from sgloc.acceptance import select_evidence
+    from sgloc.matching import MatchingConfig, match_descriptors, match_flagged
+
+    target = SemanticGraph(rng.uniform(0, 200, (120, 3)), rng.integers(0, 3, 120))
+    query = target.subgraph(np.arange(40))
+    dt = rng.normal(size=(120, 16))
+    dq = dt[:40] + rng.normal(0, 0.8, (40, 16))
+    m = MatchingConfig()
+    cand, _, flags = match_flagged(dq, dt, query.labels, target.labels, m, 0.8)
+    assert 0 < flags.sum() < len(cand)  # the filter does something here
+    big = EvidenceConfig(small_query=10)
+    got = select_evidence(query, target, dq, dt, cand, flags, m, big)
+    assert np.array_equal(got, cand[flags])
+    rematch = select_evidence(query, target, dq, dt, cand, None, m, big)
+    strict = match_descriptors(dq, dt, query.labels, target.labels, MatchingConfig(max_ratio=0.8))
+    assert np.array_equal(rematch, strict[0]) and np.array_equal(rematch, got)
+    every = EvidenceConfig(distinct_ratio=None)
+    assert np.array_equal(select_evidence(query, target, dq, dt, cand, flags, m, every), cand)
+    small = EvidenceConfig(small_query=100)
+    keep = spatially_distinct_of(dq, dt, target, cand, 0.85, 10.0)
+    assert np.array_equal(select_evidence(query, target, dq, dt, cand, flags, m, small),
+                          cand[keep])  # fmt: skip
+
+
+def spatially_distinct_of(dq, dt, target, cand, ratio, exclusion):
+    from sgloc.acceptance import spatially_distinct
+
+    return spatially_distinct(dq, dt, target.labels, target.positions, cand, ratio, exclusion)
+
+
+def test_acceptance_settings_flat_nested_and_by_group():
+    """Each job has its config; the flat names, the stage-qualified ones and old flat mappings
+    (YAML files, presets) still land in the right group."""
+    from sgloc.acceptance import VerificationConfig
+
+    flat = {"min_confidence": 0.5, "distinct_ratio": None, "verify_top_k": 3}
+    nested = {"min_confidence": 0.5, "evidence": {"distinct_ratio": None},
+              "verification": VerificationConfig(verify_top_k=3)}  # fmt: skip
+    a = AcceptanceConfig.from_settings(flat)
+    assert a == AcceptanceConfig.from_settings(nested)
+    assert a.evidence.distinct_ratio is None and a.verification.verify_top_k == 3
+    cfg = LocalizerConfig().with_overrides(
+        distinct_ratio=None, acceptance_verify_top_k=3, min_confidence=0.5
+    )
+    assert cfg.acceptance == a
+    assert LocalizerConfig.from_dict({"acceptance": flat}).acceptance == a  # an old flat file
+    assert LocalizerConfig.from_dict(cfg.to_dict()) == cfg
+    assert LocalizerConfig().with_overrides(**cfg.flat_settings()) == cfg
+    assert LocalizerConfig().with_overrides(acceptance=flat).acceptance == a  # a preset's form
+    from sgloc.errors import SglocError
+
+    with pytest.raises(SglocError, match="acceptance"):
+        AcceptanceConfig.from_settings({"evidence": 3})
+    with pytest.raises(SglocError, match="acceptance.small_query"):
+        localize(*_tiny_pair(), small_query=-1)
+
+
+def _tiny_pair():
+    g = SemanticGraph(np.array([[0.0, 0, 0], [5, 0, 0], [0, 7, 0], [3, 3, 1]]), np.zeros(4, int))
+    return g, g
+
+
+def test_confidence_is_one_formula():
+    from sgloc.acceptance import confidence
+
+    assert confidence(-2.0) == pytest.approx(1 / 1.01)
+    assert confidence(-6.0, -6.0) == pytest.approx(0.5, abs=1e-5)  # two alike: ambiguous
+    assert confidence(-6.0, -1.0) > 0.9999 > 0.5 > confidence(-6.0, -6.5)
+    assert confidence(400.0) <= 1e-300 and confidence(-400.0, np.inf) == 1.0  # no overflow

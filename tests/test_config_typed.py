@@ -110,14 +110,18 @@ def test_one_registry_style_for_names():
 
 def test_acceptance_uses_the_consistency_layer_not_rejection():
     import ast
-    import inspect
+    from pathlib import Path
 
     import sgloc.acceptance
 
-    tree = ast.parse(inspect.getsource(sgloc.acceptance))
-    imported = {
-        node.module for node in ast.walk(tree) if isinstance(node, ast.ImportFrom) and node.module
-    }
+    imported = set()
+    for path in Path(sgloc.acceptance.__file__).parent.glob("*.py"):
+        tree = ast.parse(path.read_text())
+        imported |= {
+            node.module
+            for node in ast.walk(tree)
+            if isinstance(node, ast.ImportFrom) and node.module
+        }
     assert "sgloc.consistency" in imported
     assert not any(m.startswith("sgloc.rejection") for m in imported)
 

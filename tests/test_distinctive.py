@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sgloc.distinctive import spatially_distinct
+from sgloc.acceptance import spatially_distinct
 
 # Query 0 matches target 0 (cosine 0.95); target 1 is a near tie (0.94), target 2 a clearly
 # worse object (0.5). All of one class.

@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.distance import cdist
 
 from sgloc import kernels
-from sgloc.acceptance import _ChanceModel
+from sgloc.acceptance import ChanceModel
 from sgloc.consistency import (
     common_partner_count,
     consistency_bits,
@@ -246,7 +246,7 @@ def test_near_counts_equal_kd_tree_reference(seed, radius):
                             rng.uniform(-90, 90, (300, 3)) + [3e5, -2e5, 10],
                             [[1e6, 1e6, 0.0], [-1e6, 3e5, 5.0]]])  # fmt: skip
     usage = rng.integers(0, 4, len(pts)).astype(np.float64)
-    model = _ChanceModel(SemanticGraph(pts, labels), radius, 6)
+    model = ChanceModel(SemanticGraph(pts, labels), radius, 6)
     assert model.compiled
     got = model.near_counts(moved, (None, usage))
     ref = model.near_counts_reference(moved, (None, usage))
@@ -265,7 +265,7 @@ def test_near_counts_equal_kd_tree_reference(seed, radius):
 def test_yaw_runner_up_equals_reference(monkeypatch, seed):
     """The compiled 4-dof runner-up search (`sgloc.kernels.runner_up`) finds the alternative
     the numpy branch finds: the same inlier count and transform (to rounding)."""
-    from sgloc.acceptance import AcceptanceConfig, _consistency, _runner_up
+    from sgloc.acceptance import AcceptanceConfig, pair_consistency, runner_up
     from sgloc.consistency import ConsistentPairs
     from sgloc.estimation import rot_z
     from sgloc.geometry import apply, make_transform
@@ -280,13 +280,13 @@ def test_yaw_runner_up_equals_reference(monkeypatch, seed):
     radius = 5.0 if seed < 3 else 0.01  # (a radius that leaves no inliers at all)
     res2 = np.sum((apply(T, src) - dst) ** 2, axis=1)
     exclude = res2 < (2 * radius) ** 2
-    bits, _ = _consistency(src, dst, radius)
+    bits, _ = pair_consistency(src, dst, radius)
     cfg = AcceptanceConfig(distinct_rotation=5.0 + 10 * seed)
     out = {}
     for path in ("reference", "compiled"):
         monkeypatch.setattr(kernels, "FORCE", path)
         edges = ConsistentPairs(bits)
-        out[path] = _runner_up(src, dst, T, exclude, bits, edges, radius, cfg,
+        out[path] = runner_up(src, dst, T, exclude, bits, edges, radius, cfg,
                                np.random.default_rng(seed), dof=4)  # fmt: skip
     (ka, Ta), (kb, Tb) = out["reference"], out["compiled"]
     assert ka == kb

@@ -1,14 +1,22 @@
-"""Verification of a small query against the whole map (sgloc.verification)."""
+"""Verification of a small query against the whole map (sgloc.acceptance.verification)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-import sgloc.localizer as localizer_module
+import sgloc.acceptance.stage as stage_module
 from sgloc import SemanticGraph, localize
-from sgloc.acceptance import AcceptanceConfig
+from sgloc.acceptance import (
+    AcceptanceConfig,
+    ChanceModel,
+    ClassTree,
+    SearchContext,
+    Verification,
+    self_rival,
+    verify_small_query,
+)
+from sgloc.estimation import ANY_RIGID, GROUND_VEHICLE
 from sgloc.geometry import make_transform, transform_error
-from sgloc.verification import Verification, verify_small_query
 
 
 def _yaw(deg: float, t) -> np.ndarray:
@@ -101,13 +109,13 @@ def test_random_small_query_against_unrelated_map_is_refused(rng):
 
 def test_localizer_verifies_only_refused_small_queries(monkeypatch, rng):
     calls = []
-    real = localizer_module.verify_small_query
+    real = stage_module.verify_small_query
 
     def spy(query, *args, **kwargs):
         calls.append(len(query))
         return real(query, *args, **kwargs)
 
-    monkeypatch.setattr(localizer_module, "verify_small_query", spy)
+    monkeypatch.setattr(stage_module, "verify_small_query", spy)
     target = _scattered_map(rng)
     other = _scattered_map(np.random.default_rng(5))
     small, _ = _query_of(other, np.array([150.0, 150.0]), 28.0, np.eye(4), rng)
@@ -152,10 +160,7 @@ def test_place_copied_elsewhere_in_the_map_is_refused(rng):
 
 
 def test_self_rival_finds_the_other_copy_of_a_place(rng):
-    from sgloc.acceptance import _ChanceModel
     from sgloc.descriptors import make_descriptor
-    from sgloc.estimation import GROUND_VEHICLE
-    from sgloc.verification import _ClassTree, _self_rival
 
     base = _scattered_map(rng, n=500)
     block = np.flatnonzero(np.linalg.norm(base.positions[:, :2] - [80.0, 80.0], axis=1) < 24.0)
@@ -166,16 +171,56 @@ def test_self_rival_finds_the_other_copy_of_a_place(rng):
     placed = np.flatnonzero(np.isin(keep, block))  # the original block, inside the target
     dt = make_descriptor("distance_histogram")(target, 3, rng)
     cfg = AcceptanceConfig()
-    tree = _ClassTree(target, cfg.verify_radius)
-    chance = _ChanceModel(target, cfg.verify_density_radius, 3)
-    context = (target.positions, tree, chance, GROUND_VEHICLE, cfg.distinct_rotation)
-    lg, k = _self_rival(target, dt, placed, context, cfg, 0.5, 100)
+    tree = ClassTree(target, cfg.verification.verify_radius)
+    chance = ChanceModel(target, cfg.verification.verify_density_radius, 3)
+    context = SearchContext(target.positions, tree, chance, 15.0, cfg.distinct_rotation)
+    lg, k = self_rival(target, dt, placed, context, cfg, 0.5, 100)
     assert k >= len(placed) - 1 and lg < -3
     # Without the copy, nothing else in the map fits the block.
     alone = SemanticGraph(target.positions[:n_keep], target.labels[:n_keep])
-    tree = _ClassTree(alone, cfg.verify_radius)
-    chance = _ChanceModel(alone, cfg.verify_density_radius, 3)
-    context = (alone.positions, tree, chance, GROUND_VEHICLE, cfg.distinct_rotation)
+    tree = ClassTree(alone, cfg.verification.verify_radius)
+    chance = ChanceModel(alone, cfg.verification.verify_density_radius, 3)
+    context = SearchContext(alone.positions, tree, chance, 15.0, cfg.distinct_rotation)
     dt = make_descriptor("distance_histogram")(alone, 3, rng)
-    lg, k = _self_rival(alone, dt, placed, context, cfg, 0.5, 100)
+    lg, k = self_rival(alone, dt, placed, context, cfg, 0.5, 100)
     assert k <= 4
+
+
+def test_accept_takes_the_verified_alignment_through_the_callers_refit(rng):
+    """`accept` on a small query estimation could not localize: the whole-map verification
+    finds the alignment; the verdict carries the co-located matches the caller's `refit` was
+    given, and a refit that fails leaves the query refused with the estimation's reason."""
+    from sgloc.acceptance import accept
+
+    target = _scattered_map(rng)
+    T = _yaw(30.0, [20.0, -10.0, 0.5])
+    query, partner = _query_of(target, np.array([150.0, 150.0]), 28.0, T, rng, noise=0.05)
+    assert 10 <= len(query) < 30
+    from sgloc.descriptors import make_descriptor
+
+    desc = make_descriptor("distance_histogram")
+    dq, dt = desc(query, 3, rng), desc(target, 3, rng)
+    empty = np.zeros((0, 2), np.int64)
+    given = []
+
+    def refit(matches):
+        given.append(matches)
+        return np.eye(4)
+
+    kw = {"radius": 5.0, "motion": GROUND_VEHICLE, "rng": np.random.default_rng(0)}
+    v = accept(query, target, dq, dt, empty, None, None, empty, "ransac failed", refit=refit, **kw)
+    assert v.accepted and v.verified and v.reason == "" and v.assessment is None
+    assert np.array_equal(v.transform, np.eye(4))  # the caller's refit is the result
+    assert len(given) == 1 and np.array_equal(given[0], v.matches)
+    assert np.array_equal(partner[v.matches[:, 0]], v.matches[:, 1])
+    assert v.confidence == v.verification.confidence >= 0.9999
+    assert set(v.timings) == {"verification"}
+    plain = accept(query, target, dq, dt, empty, None, None, empty, "x", **kw)
+    assert transform_error(plain.transform, T)[0] < 0.5  # without refit: the verification's own
+    failed = accept(query, target, dq, dt, empty, None, None, empty, "x", refit=lambda m: None,
+                    **kw)  # fmt: skip
+    assert not failed.accepted and failed.transform is None and len(failed.matches) == 0
+    assert failed.reason.startswith("only 0 candidate")  # fewer than 3 candidates: said so
+    six = accept(query, target, dq, dt, np.zeros((5, 2), np.int64), None, None, empty, "x",
+                 **(kw | {"motion": ANY_RIGID}))  # fmt: skip
+    assert not six.accepted and six.verification is None and six.reason == "x"

@@ -10,7 +10,7 @@ from typing import Any
 
 import yaml
 
-from sgloc.acceptance import AcceptanceConfig
+from sgloc.acceptance import AcceptanceConfig, EvidenceConfig, VerificationConfig
 from sgloc.descriptors import DESCRIPTORS, Descriptor, make_descriptor
 from sgloc.errors import SglocError, UnknownNameError
 from sgloc.estimation import MotionModel, RansacConfig
@@ -42,7 +42,8 @@ class LocalizerConfig:
     icp: refine the final transform by mutual-nearest-neighbour ICP on all objects of the two
         graphs (not in the paper's pipeline; see docs/core_benchmark.md for its effect).
     icp_max_distance: ICP pairing radius (metres).
-    acceptance: the test behind `success` (sgloc.acceptance; strictness = min_confidence).
+    acceptance: the test behind `success` (sgloc.acceptance; strictness = min_confidence),
+        with its `evidence` and `verification` groups (their fields keep their flat names).
     """
 
     descriptor: str | Descriptor | dict[str, Any] = "distance_histogram"
@@ -115,7 +116,7 @@ class LocalizerConfig:
                 top[key], params[f"{key}_params"] = _named_stage(top[key], {}, table, base, key)
         descriptor = top.get("descriptor", self.descriptor)
         rejection = top.get("rejection", self.rejection)
-        stages: dict[str, dict[str, Any]] = {"matching": {}, "ransac": {}, "acceptance": {}}
+        stages: dict[str, dict[str, Any]] = {name: {} for name in _STAGES}
         acceptance = _acceptance(overrides.pop("acceptance")) if "acceptance" in overrides else None
         routes = _flat_routes(descriptor, rejection)
         for key, value in overrides.items():
@@ -133,9 +134,7 @@ class LocalizerConfig:
                 **params,
                 matching=dataclasses.replace(self.matching, **stages["matching"]),
                 ransac=dataclasses.replace(self.ransac, **stages["ransac"]),
-                acceptance=dataclasses.replace(
-                    acceptance or self.acceptance, **stages["acceptance"]
-                ),
+                acceptance=_replace_acceptance(acceptance or self.acceptance, stages),
             )
         except TypeError as e:  # a descriptor/rejector given a parameter it does not have
             raise UnknownNameError(f"unknown setting: {e}") from None
@@ -280,7 +279,8 @@ def _int_keys(data: dict[str, Any]) -> dict[str, Any]:
 
 
 def _acceptance(value: Any) -> AcceptanceConfig:
-    """An AcceptanceConfig from itself, a dict, or a bool (False switches the test off)."""
+    """An AcceptanceConfig from itself, a bool (False switches the test off), or a mapping of
+    its fields, flat or nested by group (`AcceptanceConfig.from_settings`)."""
     if isinstance(value, AcceptanceConfig):
         return value
     if isinstance(value, bool):
@@ -290,9 +290,20 @@ def _acceptance(value: Any) -> AcceptanceConfig:
             f"setting acceptance={value!r}: give True/False or a mapping of its fields."
         )
     try:
-        return AcceptanceConfig(**(value or {}))
+        return AcceptanceConfig.from_settings(value or {})
     except TypeError as e:
         raise UnknownNameError(f"setting acceptance: {e}") from None
+
+
+def _replace_acceptance(base: AcceptanceConfig, stages: dict[str, dict[str, Any]]) -> Any:
+    """`base` with the flat settings routed to the test and to its evidence and verification
+    groups."""
+    return dataclasses.replace(
+        base,
+        **stages["acceptance"],
+        evidence=dataclasses.replace(base.evidence, **stages["evidence"]),
+        verification=dataclasses.replace(base.verification, **stages["verification"]),
+    )
 
 
 #: Flat names that would be read two ways, with the spellings to use instead.
@@ -303,6 +314,9 @@ FLAT_AMBIGUOUS = {
     "distance descriptors' radius); the graph edge radius is set when a graph is built or loaded",
     "enabled": "acceptance_enabled or acceptance=False",
 }
+#: The stage configs whose fields are routed by flat name (evidence and verification: groups
+#: of the acceptance stage).
+_STAGES = ("matching", "ransac", "acceptance", "evidence", "verification")
 _TOP_LEVEL = {"class_weights", "robust_refit", "class_scale", "icp", "icp_max_distance"}
 
 
@@ -313,7 +327,9 @@ def _flat_routes(descriptor: Any, rejection: Any) -> dict[str, list[tuple[str, s
     stages = {
         "matching": _fields(MatchingConfig),
         "ransac": _fields(RansacConfig),
-        "acceptance": _fields(AcceptanceConfig),
+        "acceptance": _fields(AcceptanceConfig) - {"evidence", "verification"},
+        "evidence": _fields(EvidenceConfig),
+        "verification": _fields(VerificationConfig),
         "descriptor_params": _fields(desc) if desc else set(),
         "rejection_params": _fields(rej) if rej else set(),
         "top": _TOP_LEVEL,
@@ -332,6 +348,8 @@ _PREFIX = {
     "matching": "matching",
     "ransac": "ransac",
     "acceptance": "acceptance",
+    "evidence": "acceptance",  # the acceptance stage's groups keep its prefix
+    "verification": "acceptance",
     "descriptor_params": "descriptor",
     "rejection_params": "rejection",
 }

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -10,18 +9,16 @@ from typing import Any
 
 import numpy as np
 
-from sgloc.acceptance import assess
+from sgloc.acceptance import Verdict, accept
 from sgloc.canonical import CanonicalPair
 from sgloc.config import LocalizerConfig
 from sgloc.descriptors import make_descriptor
-from sgloc.distinctive import spatially_distinct
 from sgloc.errors import InvalidGraphError, SglocError
 from sgloc.estimation import FinalFit, PoseEstimate, estimate_pose, final_fit, icp_refine
 from sgloc.graph import SemanticGraph
-from sgloc.matching import match_descriptors, match_flagged
+from sgloc.matching import match_flagged
 from sgloc.rejection import make_rejector
 from sgloc.timing import StageTimer
-from sgloc.verification import verify_small_query
 
 MIN_VERTICES = 3
 
@@ -113,17 +110,6 @@ class _Matched:
     flag_ratio: float | None
 
 
-@dataclass
-class _Outcome:
-    """What the acceptance step decided: the transform (None: refused), its matches, the
-    reason of a refusal and the confidence (None when not assessed)."""
-
-    transform: np.ndarray | None
-    matches: np.ndarray
-    reason: str
-    confidence: float | None
-
-
 class Localizer:
     """The pipeline with a fixed configuration; call it on (query, target) graphs."""
 
@@ -167,19 +153,19 @@ class Localizer:
             fit=_final_fit(cfg, query, target),
             timer=timer,
         )
-        outcome = self._accept(
+        verdict = self._accept(
             query, target, cfg, (dq, dt), matched, pose, streams["acceptance"], timer
         )
         result = LocalizationResult(
-            success=outcome.transform is not None,
-            transform=outcome.transform,
-            matches=outcome.matches,
+            success=verdict.accepted,
+            transform=verdict.transform,
+            matches=verdict.matches,
             candidates=c,
             survivors=c[pose.survivors],
             scores=matched.scores,
             timings=timer.timings,
-            reason=outcome.reason,
-            confidence=outcome.confidence,
+            reason=verdict.reason,
+            confidence=verdict.confidence,
         )
         return canonical.restore(result)  # the caller's vertex indices and config
 
@@ -193,47 +179,19 @@ class Localizer:
         pose: PoseEstimate,
         rng: np.random.Generator,
         timer: StageTimer,
-    ) -> _Outcome:
-        """The acceptance test of the pose (sgloc.acceptance) and, for a refused small query,
-        the whole-map verification (sgloc.verification)."""
-        (dq, dt), candidates = descriptors, matched.candidates
-        transform, reason, confidence = pose.transform, pose.reason, None
-        final = candidates[pose.inliers] if pose.inliers.size else np.zeros((0, 2), np.int64)
-        if transform is None and not reason:
-            reason = "no model accepted"
-        if transform is not None and cfg.acceptance.enabled:
-            with timer("acceptance"):
-                tested = _evidence(dq, dt, query, target, matched, cfg)
-                verdict = assess(
-                    query, target, tested, transform, cfg.ransac.threshold, cfg.acceptance,
-                    rng, motion=cfg.motion,
-                )  # fmt: skip
-            confidence, reason = verdict.confidence, verdict.reason
-            transform = transform if verdict.accepted else None
-        if transform is None and _verifies(cfg, len(query)):
-            # A small query's candidates are too few to decide: check its whole geometry.
-            with timer("verification"):
-                check = verify_small_query(
-                    query, target, dq, dt, cfg.acceptance, cfg.matching.min_similarity,
-                    cfg.motion,
-                )  # fmt: skip
-                # The same final fit as RANSAC's inliers get, on the co-located objects.
-                fitted = None
-                if check.accepted:
-                    fitted = _fit_matches(query, target, check.matches, cfg)
-            if fitted is not None:
-                transform, final, reason = fitted, check.matches, ""
-                confidence = check.confidence
-            elif check.reason:
-                reason = f"{reason}; checked against the whole map: {check.reason}"
-        if len(candidates) < 3 and transform is None:
-            reason = (
-                f"only {len(candidates)} candidate match(es) between the graphs (fewer than "
-                "3); the maps may not overlap, or lower min_similarity"
-            )
-        if transform is None:
-            return _Outcome(None, np.zeros((0, 2), np.int64), reason, confidence)
-        return _Outcome(transform, final, "", confidence)
+    ) -> Verdict:
+        """The acceptance stage (sgloc.acceptance.accept): the test of the pose and, for a
+        refused small query, the whole-map verification, refitted by the same final fit."""
+        c = matched.candidates
+        final = c[pose.inliers] if pose.inliers.size else np.zeros((0, 2), np.int64)
+        verdict = accept(
+            query, target, *descriptors, c, matched.distinct, pose.transform, final,
+            pose.reason, radius=cfg.ransac.threshold, config=cfg.acceptance,
+            matching=cfg.matching, motion=cfg.motion, rng=rng, clock=timer.clock,
+            refit=lambda matches: _fit_matches(query, target, matches, cfg),
+        )  # fmt: skip
+        timer.add(verdict.timings)
+        return verdict
 
 
 def _match(
@@ -241,37 +199,11 @@ def _match(
 ) -> _Matched:
     """Candidate matches of the descriptors; also flags the candidates the acceptance test
     counts (its ratio test) in the same pass."""
-    flag_ratio = cfg.acceptance.ratio_for(len(query))
+    flag_ratio = cfg.acceptance.evidence.ratio_for(len(query))
     candidates, scores, distinct = match_flagged(
         dq, dt, query.labels, target.labels, cfg.matching, flag_ratio
     )
     return _Matched(candidates, scores, distinct, flag_ratio)
-
-
-def _evidence(
-    dq: Any,
-    dt: Any,
-    query: SemanticGraph,
-    target: SemanticGraph,
-    matched: _Matched,
-    cfg: LocalizerConfig,
-) -> np.ndarray:
-    """The candidates the acceptance test counts as evidence."""
-    candidates, flag_ratio = matched.candidates, matched.flag_ratio
-    if flag_ratio is None:
-        return candidates
-    # Only distinctive matches count as evidence: in a repetitive place near-tied matches
-    # line up with a wrong alignment as readily as with the right one.
-    exclusion = cfg.acceptance.exclusion_for(len(query))
-    if exclusion > 0:  # rivals only at other places (sgloc.distinctive)
-        keep = spatially_distinct(
-            dq, dt, target.labels, target.positions, candidates, flag_ratio, exclusion
-        )
-        return candidates[keep]
-    if matched.distinct is not None:
-        return candidates[matched.distinct]
-    strict = dataclasses.replace(cfg.matching, max_ratio=flag_ratio)
-    return match_descriptors(dq, dt, query.labels, target.labels, strict)[0]
 
 
 def _match_weights(
@@ -313,13 +245,6 @@ def _fit_matches(
         query.positions[matches[:, 0]], target.positions[matches[:, 1]], cfg.motion,
         cfg.ransac.threshold, None, query.labels[matches[:, 0]], _final_fit(cfg, query, target),
     )[0]  # fmt: skip
-
-
-def _verifies(cfg: LocalizerConfig, n_query: int) -> bool:
-    """Whether a refused query is verified against the whole map (sgloc.verification): the
-    acceptance test on, 4-dof model, fewer than `small_query` objects."""
-    a = cfg.acceptance
-    return a.enabled and a.verify_small and cfg.motion.dof == 4 and n_query < a.small_query
 
 
 def localize(

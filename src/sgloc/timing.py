@@ -28,6 +28,12 @@ class StageTimer:
         finally:
             self._stages[stage] = self._stages.get(stage, 0.0) + self.clock() - start
 
+    def add(self, seconds: dict[str, float]) -> None:
+        """Add stages timed elsewhere (seconds by stage name)."""
+        for stage, value in seconds.items():
+            stage = self.names.get(stage, stage)
+            self._stages[stage] = self._stages.get(stage, 0.0) + value
+
     @property
     def timings(self) -> dict[str, float]:
         """Seconds per stage in the order first run, then "total"."""

@@ -257,10 +257,14 @@ SETTINGS: dict[str, dict[str, Any]] = {
         "distinct_translation": _real(0.0, MAX_COORDINATE, unit="m"),
         "distinct_rotation": _real(0.0, 180.0, unit="degrees"),
         "runner_up_samples": _int(0, MAX_ITERATIONS),
+    },
+    "EvidenceConfig": {
         "distinct_ratio": _real(0.0, 1.0, low_open=True, none_ok=True),
         "small_query": _int(0, MAX_VERTICES),
         "small_distinct_ratio": _real(0.0, 1.0, low_open=True, none_ok=True),
         "small_exclusion": _real(0.0, MAX_COORDINATE, unit="m"),
+    },
+    "VerificationConfig": {
         "verify_small": lambda name, value: check_bool(name, value),
         "verify_top_k": _int(1, 1000),
         "verify_radius": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
@@ -306,6 +310,8 @@ _PREFIXES = {
     "MatchingConfig": "matching",
     "RansacConfig": "ransac",
     "AcceptanceConfig": "acceptance",
+    "EvidenceConfig": "acceptance",
+    "VerificationConfig": "acceptance",
 }
 
 

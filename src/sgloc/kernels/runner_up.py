@@ -1,6 +1,6 @@
 """The acceptance test's search for the best distinct 4-dof alternative in one pass (numba).
 
-The compiled dof=4 branch of `sgloc.acceptance._runner_up`: each drawn pair of candidates fixes
+The compiled dof=4 branch of `sgloc.acceptance.runner_up`: each drawn pair of candidates fixes
 a rotation about z and a translation (as `sgloc.estimation.yaw_from_pairs`); hypotheses within
 the distinctness bounds of the estimate are skipped, the others are scored by their inliers
 among the free candidates, and the first best one is kept. Residuals are computed directly

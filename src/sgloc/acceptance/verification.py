@@ -19,18 +19,19 @@ cheap to check instead, as relocalization systems do:
    p_i = 1 - exp(-N_i (r / R)^2) (the local density of its class; the object's own partner
    counts in N_i). NFA = (consistent pairs: the hypotheses) * P(Poisson(sum p_i) >= k - 2)
    (two objects fix a hypothesis), evaluated at 1/4, 1/2 and all of the radius
-   (`sgloc.acceptance.nfa_over_radii`). Rivals: the best of a few refined hypotheses more
+   (`chance.nfa_over_radii`). Rivals: the best of a few refined hypotheses more
    than 2 * radius (at the query's centroid) or `distinct_rotation` degrees away from the best,
    and the best other place of the target where the constellation the query landed on fits
    again (a world built of copies, such as regular blocks or roadside rows, has such places;
-   a query cannot tell the copies apart). confidence = 1 / (1 + NFA + NFA / NFA_rival) as in
-   `sgloc.acceptance`, accepted when >= 1 - (1 - min_confidence) / OPTIMISM, when at least
-   MIN_DISTINCT_SUPPORT co-located pairs are distinctive best matches (the acceptance test's
-   filter for the query's size: a place without one distinctive pair is not recognisable),
-   and when the co-located objects extend along their first xy axis as there (spread gate).
-   Roadside rows are lines, where an area density underestimates the chance: on one-scan
-   queries against maps they never saw the model is optimistic by about a decade (the best of
-   283 such pairs reached NFA 10^-3.5, docs/acceptance.md), hence OPTIMISM.
+   a query cannot tell the copies apart). confidence = 1 / (1 + NFA + NFA / NFA_rival)
+   (`chance.confidence`, as the test's), accepted when >= 1 - (1 - min_confidence) / OPTIMISM,
+   when at least MIN_DISTINCT_SUPPORT co-located pairs are distinctive best matches (the
+   acceptance test's evidence for the query's size, `select_evidence`: a place without one
+   distinctive pair is not recognisable), and when the co-located objects extend along their
+   first xy axis as there (spread gate). Roadside rows are lines, where an area density
+   underestimates the chance: on one-scan queries against maps they never saw the model is
+   optimistic by about a decade (the best of 283 such pairs reached NFA 10^-3.5,
+   docs/acceptance.md), hence OPTIMISM.
 """
 
 from __future__ import annotations
@@ -39,18 +40,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sgloc.acceptance import (
-    DOF4_SPREAD_FACTOR,
-    AcceptanceConfig,
-    _ChanceModel,
-    distinct_from,
-    inlier_spread,
-    nfa_over_radii,
-)
-from sgloc.distinctive import spatially_distinct
+from sgloc.acceptance.assessment import inlier_spread, required_spread
+from sgloc.acceptance.chance import ChanceModel, confidence, nfa_over_radii
+from sgloc.acceptance.config import AcceptanceConfig
+from sgloc.acceptance.evidence import select_evidence
+from sgloc.acceptance.rivals import distinct_from
 from sgloc.estimation import GROUND_VEHICLE, MotionModel, fit_rigid, yaw_from_pairs
 from sgloc.graph import SemanticGraph
-from sgloc.matching import MatchingConfig, match_descriptors
+from sgloc.matching import MatchingConfig, match_descriptors, match_flagged
 
 #: Rounds of nearest-neighbour re-association and refit of the best hypothesis.
 REFINE_ROUNDS = 3
@@ -63,6 +60,11 @@ MIN_DISTINCT_SUPPORT = 2
 #: one-scan queries against maps they never saw reached NFA 10^-3.5, chance expects ~10^-2.5):
 #: the verification requires 1 - confidence this many times below 1 - min_confidence.
 OPTIMISM = 10.0
+
+
+#: Heights count this much in the co-location distance: a yaw-only hypothesis of maps whose
+#: gravity differs by a few degrees (up to max_tilt) is metres off in height 30 m away.
+Z_SCALE = 0.25
 
 
 @dataclass
@@ -79,12 +81,7 @@ class Verification:
     details: dict = field(default_factory=dict)
 
 
-#: Heights count this much in the co-location distance: a yaw-only hypothesis of maps whose
-#: gravity differs by a few degrees (up to max_tilt) is metres off in height 30 m away.
-Z_SCALE = 0.25
-
-
-class _ClassTree:
+class ClassTree:
     """Nearest same-class target object of many points at once: one KD-tree over the target
     objects with the class as a fourth coordinate, spaced beyond any distance asked for; heights
     scaled by Z_SCALE."""
@@ -136,30 +133,26 @@ def _pair_hypotheses(
 def _refine(
     query: SemanticGraph,
     tpos: np.ndarray,
-    tree: _ClassTree,
+    tree: ClassTree,
     T: np.ndarray,
-    motion: MotionModel,
+    max_tilt: float | None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Re-associate each query object with its nearest same-class target within the radius and
-    refit under `motion` (the 4-dof model, tilted up to its max_tilt degrees), REFINE_ROUNDS
-    times; (T, distances (n,), target index (n,))."""
+    refit (4-dof model: tilted up to `max_tilt` degrees), REFINE_ROUNDS times; (T, distances
+    (n,), target index (n,))."""
     q = query.positions
     for _ in range(REFINE_ROUNDS):
         d, j = tree.nearest(q @ T[:3, :3].T + T[:3, 3], query.labels)
         ok = np.isfinite(d)
         if ok.sum() < 2:
             break
-        T = fit_rigid(q[ok], tpos[j[ok]], None, motion.dof, motion.max_tilt)
+        T = fit_rigid(q[ok], tpos[j[ok]], None, dof=4, max_tilt=max_tilt)
     d, j = tree.nearest(q @ T[:3, :3].T + T[:3, 3], query.labels)
     return T, d, j
 
 
-def _distinct(T2: np.ndarray, T: np.ndarray, c: np.ndarray, metres: float, degrees: float) -> bool:
-    return bool(distinct_from(T2[None, :3, :3], T2[None, :3, 3], T, c, metres, degrees)[0])
-
-
 def _local_chance(
-    chance: _ChanceModel, query: SemanticGraph, T: np.ndarray, radius: float
+    chance: ChanceModel, query: SemanticGraph, T: np.ndarray, radius: float
 ) -> float:
     """Expected chance co-locations of the query under T: sum over objects of
     1 - exp(-N_i (radius / R)^2), N_i = same-class target objects within R = chance.radius of
@@ -178,7 +171,7 @@ def _log10_nfa(d: np.ndarray, lam: float, n_tests: int, radius: float) -> tuple[
 
 
 def _scored_hypotheses(
-    graph: SemanticGraph, tpos: np.ndarray, tree: _ClassTree, cand: np.ndarray, cap: int
+    graph: SemanticGraph, tpos: np.ndarray, tree: ClassTree, cand: np.ndarray, cap: int
 ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
     """Pair hypotheses of `graph` (positions in its own frame) onto the target from candidates
     `cand` (graph index, target index), best first: (R, t, consistent pairs, order)."""
@@ -193,18 +186,32 @@ def _scored_hypotheses(
     return R, t, n_tests, np.argsort(-score, kind="stable")
 
 
+@dataclass
+class SearchContext:
+    """What the search for rival places needs: the target's positions (n,3), its `ClassTree`,
+    the density `ChanceModel`, the motion model's `max_tilt` (degrees) and the rotation
+    (degrees) beyond which an alignment is distinct."""
+
+    tpos: np.ndarray
+    tree: ClassTree
+    chance: ChanceModel
+    max_tilt: float | None
+    degrees: float
+
+
 def _best_distinct(
     graph: SemanticGraph,
     hyps: tuple[np.ndarray, np.ndarray, np.ndarray],
     T: np.ndarray,
-    context: tuple,
+    context: SearchContext,
     n_tests: int,
 ) -> tuple[float, int]:
     """(log10 NFA, co-located count) of the best of the RUNNER_UPS best-scored hypotheses
     `hyps` = (R, t, order) that, refined, stay distinct from T at the centroid of `graph`
     (inf, 0: none)."""
     R, t, order = hyps
-    tpos, tree, chance, motion, degrees = context
+    tpos, tree, chance = context.tpos, context.tree, context.chance
+    max_tilt, degrees = context.max_tilt, context.degrees
     r = tree.radius
     c = graph.positions.mean(axis=0)
     distinct = distinct_from(R, t, T, c, 2.0 * r, degrees)
@@ -212,18 +219,18 @@ def _best_distinct(
     for h in order[distinct[order]][:RUNNER_UPS]:
         T2 = np.eye(4)
         T2[:3, :3], T2[:3, 3] = R[h], t[h]
-        T2, d2, _ = _refine(graph, tpos, tree, T2, motion)
-        if _distinct(T2, T, c, 2.0 * r, degrees):
+        T2, d2, _ = _refine(graph, tpos, tree, T2, max_tilt)
+        if distinct_from(T2[None, :3, :3], T2[None, :3, 3], T, c, 2.0 * r, degrees)[0]:
             lg2, k2 = _log10_nfa(d2, _local_chance(chance, graph, T2, r), n_tests, r)
             best = min(best, (lg2, k2))
     return best
 
 
-def _self_rival(
+def self_rival(
     target: SemanticGraph,
     desc_t,
     placed: np.ndarray,
-    context: tuple,
+    context: SearchContext,
     cfg: AcceptanceConfig,
     min_similarity: float,
     n_tests: int,
@@ -232,15 +239,15 @@ def _self_rival(
     target: (log10 NFA, count) of the best other place where the same constellation fits. A
     world built of copies (repeated blocks, repeated roadside rows) fits a query wherever one
     copy is; if the map holds another copy, the place is ambiguous whatever the query."""
-    tpos, tree = context[0], context[1]
+    tpos, tree = context.tpos, context.tree
     if len(placed) < 3:
         return np.inf, 0
     sub = SemanticGraph(tpos[placed], target.labels[placed])
-    k = int(cfg.verify_top_k) + 1
+    k = int(cfg.verification.verify_top_k) + 1
     matching = MatchingConfig(top_k=k, min_similarity=min_similarity)
     cand, _ = match_descriptors(desc_t[placed], desc_t, sub.labels, target.labels, matching)
     cand = cand[cand[:, 1] != placed[cand[:, 0]]]  # not itself
-    R, t, _, order = _scored_hypotheses(sub, tpos, tree, cand, cfg.verify_hypotheses)
+    R, t, _, order = _scored_hypotheses(sub, tpos, tree, cand, cfg.verification.verify_hypotheses)
     if len(R) == 0:
         return np.inf, 0
     return _best_distinct(sub, (R, t, order), np.eye(4), context, n_tests)
@@ -256,22 +263,31 @@ def _distinct_support(
     min_similarity: float,
 ) -> int:
     """How many co-located (query, target) pairs `matches` are the query object's best
-    descriptor match and pass the acceptance test's distinctiveness filter for this query size
-    (`AcceptanceConfig.ratio_for`, `exclusion_for`; `sgloc.distinctive`)."""
+    descriptor match and count as evidence for the acceptance test (`select_evidence`)."""
     if len(matches) == 0:
         return 0
-    best, _ = match_descriptors(
-        desc_q, desc_t, query.labels, target.labels, MatchingConfig(min_similarity=min_similarity)
-    )
-    ratio = cfg.ratio_for(len(query))
-    if ratio is not None:
-        exclusion = cfg.exclusion_for(len(query))
-        keep = spatially_distinct(
-            desc_q, desc_t, target.labels, target.positions, best, ratio, exclusion
-        )
-        best = best[keep]
+    best_match = MatchingConfig(min_similarity=min_similarity)
+    ratio = cfg.evidence.ratio_for(len(query))
+    best, _, flags = match_flagged(desc_q, desc_t, query.labels, target.labels, best_match, ratio)
+    best = select_evidence(query, target, desc_q, desc_t, best, flags, best_match, cfg.evidence)
     n_t = len(target) + 1
     return int(np.isin(matches[:, 0] * n_t + matches[:, 1], best[:, 0] * n_t + best[:, 1]).sum())
+
+
+@dataclass
+class _Fit:
+    """The best hypothesis refined: T (4x4), per query object distance to its nearest
+    same-class target within the radius (inf beyond) and that target's index."""
+
+    T: np.ndarray
+    dist: np.ndarray
+    j: np.ndarray
+
+    @property
+    def matches(self) -> np.ndarray:
+        """(k,2) the co-located (query, target) objects."""
+        ok = np.isfinite(self.dist)
+        return np.column_stack([np.flatnonzero(ok), self.j[ok]]).astype(np.int64)
 
 
 def verify_small_query(
@@ -285,69 +301,99 @@ def verify_small_query(
 ) -> Verification:
     """Localize a small `query` by checking its whole geometry against `target` (module
     docstring); desc_q, desc_t: the graphs' vertex descriptors (dense or CSR). `motion`: a 4-dof
-    model (the hypotheses are rotations about z), its max_tilt bounding the refits."""
+    model (the hypotheses are rotations about z), its max_tilt (degrees) bounding the refits;
+    candidates need `min_similarity`."""
     if motion.dof != 4:
         raise ValueError(f"the whole-map verification needs the 4-dof motion model, got {motion}")
+    max_tilt = motion.max_tilt
     cfg = config or AcceptanceConfig()
-    r = float(cfg.verify_radius)
-    empty = np.zeros((0, 2), np.int64)
-    matching = MatchingConfig(top_k=int(cfg.verify_top_k), min_similarity=min_similarity)
+    vcfg = cfg.verification
+    r = float(vcfg.verify_radius)
+    matching = MatchingConfig(top_k=int(vcfg.verify_top_k), min_similarity=min_similarity)
     cand, _ = match_descriptors(desc_q, desc_t, query.labels, target.labels, matching)
-    tpos = target.positions
-    tree = _ClassTree(target, r)
-    R, t, n_tests, order = _scored_hypotheses(query, tpos, tree, cand, cfg.verify_hypotheses)
+    tree = ClassTree(target, r)
+    R, t, n_tests, order = _scored_hypotheses(
+        query, target.positions, tree, cand, vcfg.verify_hypotheses
+    )
     if len(R) == 0:
+        empty = np.zeros((0, 2), np.int64)
         return Verification(False, None, 0.0, empty, "no consistent pair of candidates")
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R[order[0]], t[order[0]]
-    T, dist, j = _refine(query, tpos, tree, T, motion)
+    fit = _Fit(*_refine(query, target.positions, tree, T, max_tilt))
     n_classes = max(query.n_classes, target.n_classes)
-    chance = _ChanceModel(target, float(cfg.verify_density_radius), n_classes)
-    lam = _local_chance(chance, query, T, r)
-    lg_best, k = _log10_nfa(dist, lam, n_tests, r)
-    ok = np.isfinite(dist)
-    matches = np.column_stack([np.flatnonzero(ok), j[ok]]).astype(np.int64)
-    spread = inlier_spread(tpos[j[ok]], dof=motion.dof)
-    min_spread = cfg.min_spread * DOF4_SPREAD_FACTOR
-    # Runner-up: another alignment of the query, or another place of the map like this one.
-    context = (tpos, tree, chance, motion, cfg.distinct_rotation)
-    lg_second, k2 = _best_distinct(query, (R, t, order), T, context, n_tests)
-    required = 1.0 - (1.0 - cfg.min_confidence) / OPTIMISM
+    chance = ChanceModel(target, float(vcfg.verify_density_radius), n_classes)
+    context = SearchContext(target.positions, tree, chance, max_tilt, cfg.distinct_rotation)
+    evidence = _evidence(query, target, desc_t, fit, (R, t, order), context, cfg,
+                         min_similarity, n_tests)  # fmt: skip
+    support = _distinct_support(query, target, desc_q, desc_t, fit.matches, cfg, min_similarity)
+    details = {"candidates": len(cand), **evidence, "distinct_support": support}
+    return _decide(query, fit, details, cfg)
+
+
+def _required(cfg: AcceptanceConfig) -> float:
+    """The confidence a verified small query needs (OPTIMISM times closer to 1)."""
+    return 1.0 - (1.0 - cfg.min_confidence) / OPTIMISM
+
+
+def _evidence(
+    query: SemanticGraph,
+    target: SemanticGraph,
+    desc_t,
+    fit: _Fit,
+    hyps: tuple[np.ndarray, np.ndarray, np.ndarray],
+    context: SearchContext,
+    cfg: AcceptanceConfig,
+    min_similarity: float,
+    n_tests: int,
+) -> dict:
+    """The fit's a-contrario evidence and its rivals: another alignment of the query, or
+    another place of the map like this one (searched only when the fit could pass)."""
+    r = context.tree.radius
+    lam = _local_chance(context.chance, query, fit.T, r)
+    lg_best, k = _log10_nfa(fit.dist, lam, n_tests, r)
+    ok = np.isfinite(fit.dist)
+    spread = inlier_spread(context.tpos[fit.j[ok]], dof=4)
+    lg_second, k2 = _best_distinct(query, hyps, fit.T, context, n_tests)
+    required = _required(cfg)
     lg_self, k_self = np.inf, 0
-    if spread >= min_spread and (required >= 1.0 or lg_best < np.log10(1.0 / required - 1.0)):
-        placed = np.unique(j[ok])
-        lg_self, k_self = _self_rival(
-            target, desc_t, placed, context, cfg, min_similarity, n_tests
-        )
-    lg_rival = min(lg_second, lg_self)
-    support = _distinct_support(query, target, desc_q, desc_t, matches, cfg, min_similarity)
-    nfa1 = 10.0 ** min(lg_best, 300.0)
-    ratio = 0.0 if not np.isfinite(lg_rival) else 10.0 ** min(lg_best - lg_rival, 300.0)
-    confidence = float(np.clip(1.0 / (1.0 + nfa1 + ratio), 0.0, 1.0))
-    details = {
-        "candidates": len(cand), "hypotheses": n_tests, "colocated": int(ok.sum()),
-        "fit_colocated": k, "expected_chance": lam, "log10_nfa": lg_best,
-        "runner_up_colocated": k2, "runner_up_log10_nfa": float(lg_second),
-        "distinct_support": support, "self_rival_colocated": k_self,
+    could_pass = required >= 1.0 or lg_best < np.log10(1.0 / required - 1.0)
+    if spread >= required_spread(cfg.min_spread, 4) and could_pass:
+        placed = np.unique(fit.j[ok])
+        lg_self, k_self = self_rival(target, desc_t, placed, context, cfg, min_similarity,
+                                     n_tests)  # fmt: skip
+    return {
+        "hypotheses": n_tests, "colocated": int(ok.sum()), "fit_colocated": k,
+        "expected_chance": lam, "log10_nfa": lg_best, "runner_up_colocated": k2,
+        "runner_up_log10_nfa": float(lg_second), "self_rival_colocated": k_self,
         "self_rival_log10_nfa": float(lg_self), "spread_m": spread,
     }  # fmt: skip
+
+
+def _decide(query: SemanticGraph, fit: _Fit, details: dict, cfg: AcceptanceConfig) -> Verification:
+    """The verification's verdict from its evidence (`_evidence`): spread gate, distinctive
+    support, then the confidence against the best rival."""
+    lg_rival = min(details["runner_up_log10_nfa"], details["self_rival_log10_nfa"])
+    conf = confidence(details["log10_nfa"], lg_rival)
+    n_fit, spread, support = details["colocated"], details["spread_m"], details["distinct_support"]
+    min_spread, required = required_spread(cfg.min_spread, 4), _required(cfg)
     reason = ""
     if spread < min_spread:
-        confidence = 0.0
+        conf = 0.0
         reason = (
-            f"the {int(ok.sum())} objects of the query that fit the map lie within a few metres "
+            f"the {n_fit} objects of the query that fit the map lie within a few metres "
             f"(spread {spread:.1f} m < {min_spread:g} m); too little of the map agrees"
         )
     elif support < MIN_DISTINCT_SUPPORT:
         reason = (
-            f"{int(ok.sum())} of the query's {len(query)} objects fit the map, but only {support} "
+            f"{n_fit} of the query's {len(query)} objects fit the map, but only {support} "
             f"of them are distinctive best matches (< {MIN_DISTINCT_SUPPORT}): a place without "
             "distinctive objects cannot be told from its look-alikes"
         )
-    elif confidence < required:
+    elif conf < required:
         reason = (
-            f"{int(ok.sum())} of the query's {len(query)} objects fit the map, which chance or "
-            f"another place explains as well (confidence {confidence:.6g} < {required:.6g}, "
+            f"{n_fit} of the query's {len(query)} objects fit the map, which chance or "
+            f"another place explains as well (confidence {conf:.6g} < {required:.6g}, "
             "min_confidence for a verified small query)"
         )
-    return Verification(not reason, T, confidence, matches, reason, details)
+    return Verification(not reason, fit.T, conf, fit.matches, reason, details)

@@ -1,4 +1,8 @@
-"""Which candidate matches are distinctive: the ratio test against rivals at *other places*.
+"""Which candidate matches count as evidence: the one selection every caller uses.
+
+`select_evidence` keeps the distinctive candidates for a query of a given size
+(`EvidenceConfig.ratio_for`, `exclusion_for`): the ratio test flagged during matching, or the
+ratio test against rivals at *other places* (`spatially_distinct`) for small queries.
 
 Lowe's ratio test keeps a match when it is clearly better than the second best. Against a map,
 the second best is often a neighbour of the best target (two trees of one row, 6 m apart): a
@@ -10,9 +14,13 @@ repetitive city), not for its own neighbours.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
-from sgloc.matching import unit_rows
+from sgloc.acceptance.config import EvidenceConfig
+from sgloc.graph import SemanticGraph
+from sgloc.matching import MatchingConfig, match_descriptors, unit_rows
 
 #: Similarities held at once per block (8 MB of float64).
 _BLOCK_ENTRIES = 1 << 20
@@ -54,3 +62,36 @@ def spatially_distinct(
             s2 = S.max(axis=1)
             out[r] = ~np.isfinite(s2) | ((1.0 - s1) <= ratio * (1.0 - s2))
     return out
+
+
+def select_evidence(
+    query: SemanticGraph,
+    target: SemanticGraph,
+    desc_q,
+    desc_t,
+    candidates: np.ndarray,
+    flags: np.ndarray | None,
+    matching: MatchingConfig,
+    config: EvidenceConfig,
+) -> np.ndarray:
+    """The candidates (m,2) (query index, target index) that count as evidence for a query of
+    this size: all of them when its ratio (`config.ratio_for`) is None; else those passing the
+    ratio test against rivals farther than `config.exclusion_for` metres when that is > 0
+    (`spatially_distinct`), else those `flags` marks (`sgloc.matching.match_flagged` at that
+    ratio); without flags, the candidates of `matching` with `max_ratio` at that ratio.
+    desc_q, desc_t: the graphs' vertex descriptors (dense or CSR)."""
+    ratio = config.ratio_for(len(query))
+    if ratio is None:
+        return candidates
+    # Only distinctive matches count: in a repetitive place near-tied matches line up with a
+    # wrong alignment as readily as with the right one.
+    exclusion = config.exclusion_for(len(query))
+    if exclusion > 0:  # rivals only at other places
+        keep = spatially_distinct(
+            desc_q, desc_t, target.labels, target.positions, candidates, ratio, exclusion
+        )
+        return candidates[keep]
+    if flags is not None:
+        return candidates[flags]
+    strict = dataclasses.replace(matching, max_ratio=ratio)
+    return match_descriptors(desc_q, desc_t, query.labels, target.labels, strict)[0]

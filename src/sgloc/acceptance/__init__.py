@@ -1,0 +1,82 @@
+"""The acceptance stage: is an estimated alignment backed by evidence, or could chance explain it?
+
+One entry point, `accept(...) -> Verdict` (`stage.py`), used by the localizer. Modules by job:
+
+- `config.py`: `AcceptanceConfig` (the test) holding `EvidenceConfig` (which candidates count)
+  and `VerificationConfig` (the whole-map verification of small queries);
+- `evidence.py`: `select_evidence`, the one choice of the candidates that count, and
+  `spatially_distinct` (the ratio test against rivals at other places);
+- `chance.py`: `ChanceModel` (same-class target objects near moved query objects), the NFA
+  (`log10_nfa`, `nfa_over_radii`) and the one `confidence` formula;
+- `rivals.py`: `distinct_from` (a different alignment) and `runner_up` (the best distinct one);
+- `assessment.py`: `assess` -> `Assessment`, the a-contrario test (its docstring: the model);
+- `verification.py`: `verify_small_query` -> `Verification`, a small query's whole geometry
+  checked against the map;
+- `stage.py`: `accept` -> `Verdict`: evidence, test, then the verification fallback.
+"""
+
+from sgloc.acceptance.assessment import (
+    DOF4_SPREAD_FACTOR,
+    Assessment,
+    assess,
+    inlier_spread,
+    per_object_min,
+    required_spread,
+)
+from sgloc.acceptance.chance import (
+    MIN_RADIUS_FRACTION,
+    RADIUS_FRACTIONS,
+    ChanceModel,
+    confidence,
+    log10_colocation_p,
+    log10_nfa,
+    nfa_over_radii,
+    pair_consistency,
+    permutation_lambda,
+    triangle_count,
+)
+from sgloc.acceptance.config import AcceptanceConfig, EvidenceConfig, VerificationConfig
+from sgloc.acceptance.evidence import select_evidence, spatially_distinct
+from sgloc.acceptance.rivals import distinct_from, runner_up
+from sgloc.acceptance.stage import Verdict, accept, verifies
+from sgloc.acceptance.verification import (
+    ClassTree,
+    SearchContext,
+    Verification,
+    self_rival,
+    verify_small_query,
+)
+
+__all__ = [
+    "DOF4_SPREAD_FACTOR",
+    "MIN_RADIUS_FRACTION",
+    "RADIUS_FRACTIONS",
+    "AcceptanceConfig",
+    "Assessment",
+    "ChanceModel",
+    "ClassTree",
+    "EvidenceConfig",
+    "SearchContext",
+    "Verdict",
+    "Verification",
+    "VerificationConfig",
+    "accept",
+    "assess",
+    "confidence",
+    "distinct_from",
+    "inlier_spread",
+    "log10_colocation_p",
+    "log10_nfa",
+    "nfa_over_radii",
+    "pair_consistency",
+    "per_object_min",
+    "permutation_lambda",
+    "required_spread",
+    "runner_up",
+    "select_evidence",
+    "self_rival",
+    "spatially_distinct",
+    "triangle_count",
+    "verifies",
+    "verify_small_query",
+]

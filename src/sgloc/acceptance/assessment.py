@@ -1,0 +1,312 @@
+"""The acceptance test: is an estimated alignment backed by evidence, or could chance explain it?
+
+Guo's rule (>= 5 inliers and >= 1 % of the matches) accepts pairs of maps that do not overlap:
+repeated city objects always offer a few consistent-looking matches, and outlier rejection
+concentrates exactly those. This module scores an estimated transform T_target_query with an
+*a-contrario* test (as AC-RANSAC does) on the descriptor candidates, not on the survivors of
+rejection, which were selected for being consistent.
+
+Two null models, and the estimate must beat both:
+
+H0u (uniform): the descriptor matches carry no information about *which* object of the same
+class is the partner: the target of candidate i is a uniformly random target object of its class.
+For a fixed transform T, candidate i is then an inlier (||T q_i - t_i|| < radius) with probability
+p_i = N_c(T q_i) / n_c (N_c: class-c target objects within `radius` of T q_i, n_c: all class-c
+target objects), so the number of inliers is Poisson-binomial with mean lambda = sum_i p_i.
+RANSAC searches over the transforms fixed by triples of candidates; only triples whose pairwise
+distances agree within 2 * radius in both graphs can all be inliers, so the number of tests N is
+the number of such triples (triangles of the pairwise-consistency graph; at most C(m, 3)), and
+the number of false alarms is NFA_u = N * P(Poisson(lambda) >= k - 3) (k inliers among the m
+candidates, counted per query object: an object with several candidate targets is one inlier;
+Poisson has a heavier tail than the binomial of the same mean: conservative in p).
+As in AC-RANSAC the radius adapts to the precision of the fit: the NFA is evaluated with the
+inliers within 1/4, 1/2 and all of the radius (the smallest counts, the number of tests
+multiplied by 3), each with lambda scaled by (r_fit / radius)^2, r_fit = the largest residual
+of those inliers (at least 10 % of the radius), so an exact fit is more significant than a
+sloppy one with the same count. With the 4-dof model (`dof=4`) a hypothesis is fixed by 2
+matches: the tests are the consistent pairs and the excess is k - 2.
+
+H0p (permutation): the target of candidate i is drawn from the targets the candidates of its
+class actually matched (what permuting targets within a class does). Repeated street furniture
+concentrates the matches on look-alike objects, which H0u ignores; H0p prices it in
+(lambda_p from the candidates' own targets, leave-one-out: candidate i's target is drawn from
+the other candidates' targets, so an inlier does not explain itself). A true overlap also
+agrees *beyond* the matches: the query objects that are not inliers but land on a same-class
+target object after alignment are counted against a label-permutation null
+(log10_colocation_p), and that p-value multiplies NFA_p = N * P(Poisson(lambda_p) >= k - 3).
+NFA_best = max(NFA_u, NFA_p * p_colocation).
+
+    confidence = 1 / (1 + NFA_best + NFA_best / NFA_runner_up)
+
+This is the weight of the best hypothesis when it, the best *distinct* alternative (a transform
+more than `distinct_translation` metres or `distinct_rotation` degrees away, supported by
+candidates the best does not explain, found by consistency-guided sampling) and "chance" are
+weighed by their a-contrario evidence 1/NFA (chance weighing 1). So it is near 1 only when the
+best alignment is far beyond chance *and* far better supported than any different alignment
+(two comparably supported alignments give about 0.5: the map is ambiguous). Under H0, NFA has
+P(NFA <= e) <= e, so a non-overlapping pair reaches confidence >= c with probability at most
+about (1 - c) / c. The confidence is 0 when the inliers are nearly collinear (standard deviation
+along their second principal axis under `min_spread` metres): the evidence then does not fix
+the rotation about their line (with dof=4 gravity fixes that rotation: their spread along the
+first principal axis of their xy counts instead). A result is accepted when confidence >=
+`min_confidence` (the one strictness setting; 0 gives back Guo's rule alone). When chance
+alone already puts the confidence below `min_confidence`, the runner-up search is skipped (it
+could only lower it) and the confidence reported is 1 / (1 + NFA_best).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sgloc.acceptance.chance import (
+    ChanceModel,
+    confidence,
+    confidence_terms,
+    log10_colocation_p,
+    nfa_over_radii,
+    pair_consistency,
+    permutation_lambda,
+    triangle_count,
+)
+from sgloc.acceptance.config import AcceptanceConfig
+from sgloc.acceptance.rivals import runner_up
+from sgloc.consistency import ConsistentPairs
+from sgloc.estimation import ANY_RIGID, MotionModel
+from sgloc.geometry import apply
+from sgloc.graph import SemanticGraph
+
+#: With dof=4, inliers must extend this many times `min_spread` along their first xy axis
+#: (measured: at 1 x, clusters of a few exact coincidences in the rendered city's regular
+#: blocks, about 8 m long, passed as non-overlapping pairs).
+DOF4_SPREAD_FACTOR = 2.0
+
+
+@dataclass
+class Assessment:
+    """Outcome of `assess`: `accepted`, `confidence` in [0, 1], `reason` (empty if accepted),
+    and `details` (inliers, lambda, log10 NFA of best and runner-up, spread in metres)."""
+
+    accepted: bool
+    confidence: float
+    reason: str = ""
+    details: dict = field(default_factory=dict)
+
+
+def per_object_min(res2: np.ndarray, query_index: np.ndarray) -> np.ndarray:
+    """The smallest squared residual per query object of candidates (`query_index` per row): an
+    object with several candidate targets is one piece of evidence, inlier when any is."""
+    if res2.size == 0 or np.all(query_index[1:] > query_index[:-1]):
+        return res2  # one candidate per object (the usual top-1 candidates, sorted by query)
+    objects, row_object = np.unique(query_index, return_inverse=True)
+    best = np.full(objects.size, np.inf)
+    np.minimum.at(best, row_object, res2)
+    return best
+
+
+def inlier_spread(points: np.ndarray, dof: int = 6) -> float:
+    """Standard deviation (metres) of `points` (k,3) along their second principal axis; with
+    dof=4 along the first principal axis of their xy (with gravity fixing roll and pitch, a
+    line of objects fixes the yaw: only its length matters)."""
+    if len(points) < 3:
+        return 0.0
+    if dof == 4:
+        s = np.linalg.svd(points[:, :2] - points[:, :2].mean(axis=0), compute_uv=False)
+        return float(s[0] / np.sqrt(len(points)))
+    s = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
+    return float(s[1] / np.sqrt(len(points)))
+
+
+def required_spread(min_spread: float, dof: int) -> float:
+    """Metres the inliers must spread (`inlier_spread`): `min_spread`, with dof=4 (along their
+    line) DOF4_SPREAD_FACTOR times it."""
+    return min_spread * (DOF4_SPREAD_FACTOR if dof == 4 else 1.0)
+
+
+@dataclass
+class _Candidates:
+    """The tested candidates under the estimate T: (m,2) indices, their points (m,3) in each
+    frame, target classes, squared residuals (m^2) under T and inliers within the radius."""
+
+    cand: np.ndarray
+    src: np.ndarray
+    dst: np.ndarray
+    tlab: np.ndarray
+    res2: np.ndarray
+    inlier: np.ndarray
+
+    @classmethod
+    def of(cls, query, target, candidates, transform, radius: float) -> _Candidates:
+        cand = np.asarray(candidates, dtype=np.int64).reshape(-1, 2)
+        src = query.positions[cand[:, 0]]
+        dst = target.positions[cand[:, 1]]
+        moved = src @ transform[:3, :3].T + transform[:3, 3]
+        res2 = np.sum((moved - dst) ** 2, axis=1)
+        return cls(cand, src, dst, target.labels[cand[:, 1]], res2, res2 < radius**2)
+
+
+@dataclass
+class _Tests:
+    """The hypotheses RANSAC can form from the candidates: consistent pairs (4 dof) or
+    consistent triples (6 dof); `sample` matches fix one."""
+
+    consistency: np.ndarray
+    edges: ConsistentPairs
+    n_tests: float
+    sample: int
+
+    @classmethod
+    def of(cls, c: _Candidates, radius: float, dof: int) -> _Tests:
+        m = len(c.cand)
+        if m >= 3:
+            consistency, _ = pair_consistency(c.src, c.dst, radius)  # packed (m, ceil(m / 64))
+        else:
+            consistency = np.zeros((m, 1), dtype=np.uint64)
+        edges = ConsistentPairs(consistency)  # by position: no list of 16 bytes per pair
+        if dof == 4:
+            n_tests = float(edges.size)
+        else:
+            n_tests = triangle_count(consistency, edges) if m >= 3 else 0.0
+        return cls(consistency, edges, n_tests, 2 if dof == 4 else 3)
+
+
+def _best_evidence(
+    query: SemanticGraph,
+    target: SemanticGraph,
+    c: _Candidates,
+    transform: np.ndarray,
+    chance: ChanceModel,
+    tests: _Tests,
+) -> dict:
+    """The evidence for the estimate under both nulls (module docstring): the details of
+    `Assessment` up to the runner-up."""
+    r, cand, qi, tlab = chance.radius, c.cand, c.cand[:, 0], c.tlab
+    m = len(cand)
+    k = int(np.count_nonzero(np.bincount(cand[c.inlier, 0])))  # distinct query objects
+    # Permutation null: target j drawn with the frequency the candidates of its class chose it.
+    usage = np.bincount(cand[:, 1], minlength=len(target)).astype(np.float64)
+    counts, used = chance.near_counts(apply(transform, query.positions), (None, usage))
+    lam = chance.expected_inliers(counts, qi, tlab)
+    obj2 = per_object_min(c.res2, qi)
+    lg_uniform, k_fit, r_fit = nfa_over_radii(obj2, r, lam, m, tests.n_tests, tests.sample)
+    lam_perm = permutation_lambda(used[qi, tlab], c.inlier, tlab, counts[qi, tlab], chance)
+    lg_geo, colocated, mu_geo = log10_colocation_p(query, counts > 0, cand[c.inlier, 0])
+    lg_perm = nfa_over_radii(obj2, r, lam_perm, m, tests.n_tests, tests.sample)[0]
+    lg_perm += min(lg_geo, 0.0)
+    return {
+        "inliers": k,
+        "candidates": m,
+        "expected_chance_inliers": lam,
+        "log10_tests": float(np.log10(max(tests.n_tests, 1.0))),
+        "log10_nfa": max(lg_uniform, lg_perm),
+        "fit_radius_m": r_fit,
+        "fit_inliers": k_fit,
+        "log10_nfa_uniform": lg_uniform,
+        "expected_chance_inliers_permutation": lam_perm,
+        "colocated_beyond_inliers": colocated,
+        "expected_colocated": mu_geo,
+        "log10_p_colocation": lg_geo,
+        "log10_nfa_permutation_colocation": lg_perm,
+    }
+
+
+def _rival_nfa(
+    query: SemanticGraph,
+    c: _Candidates,
+    T2: np.ndarray | None,
+    explained: np.ndarray,
+    chance: ChanceModel,
+    tests: _Tests,
+) -> float:
+    """log10 NFA of the runner-up T2 on the candidates the estimate does not explain (inf
+    without a runner-up)."""
+    if T2 is None:
+        return np.inf
+    (counts2,) = chance.near_counts(apply(T2, query.positions))
+    d2 = np.sum((apply(T2, c.src) - c.dst) ** 2, axis=1)
+    d2 = per_object_min(d2[~explained], c.cand[~explained, 0])
+    lam2 = chance.expected_inliers(counts2, c.cand[:, 0], c.tlab)
+    return nfa_over_radii(d2, chance.radius, lam2, len(c.cand), tests.n_tests, tests.sample)[0]
+
+
+def assess(
+    query: SemanticGraph,
+    target: SemanticGraph,
+    candidates: np.ndarray,
+    transform: np.ndarray | None,
+    radius: float,
+    config: AcceptanceConfig | None = None,
+    rng: np.random.Generator | None = None,
+    motion: MotionModel = ANY_RIGID,
+) -> Assessment:
+    """Score an estimated T_target_query against chance (module docstring).
+
+    Args:
+        query, target: the two graphs (positions in metres, each in its own frame).
+        candidates: (m,2) descriptor matches (query index, target index), before rejection.
+        transform: the estimate T_target_query (4x4), or None when estimation failed.
+        radius: inlier radius in metres (the RANSAC threshold unless config.radius is set).
+        rng: draws the runner-up's hypotheses.
+        motion: the motion model (`MotionModel`) of the runner-up hypotheses.
+    """
+    dof, max_tilt = motion.dof, motion.max_tilt
+    cfg = config or AcceptanceConfig()
+    rng = rng if rng is not None else np.random.default_rng(0)
+    if transform is None:
+        return Assessment(False, 0.0, "no transform to assess")
+    r = float(cfg.radius or radius)
+    c = _Candidates.of(query, target, candidates, transform, r)
+    chance = ChanceModel(target, r, max(query.n_classes, target.n_classes))
+    tests = _Tests.of(c, r, dof)
+    details = _best_evidence(query, target, c, transform, chance, tests)
+    lg_best = details["log10_nfa"]
+    spread = inlier_spread(c.dst[c.inlier], dof)
+    explained = c.res2 < (2 * r) ** 2
+    # The runner-up can only lower the confidence: skip its search when chance alone (or the
+    # spread) already rejects; the reported confidence is then 1 / (1 + NFA_best).
+    min_spread = required_spread(cfg.min_spread, dof)
+    k2, T2 = 0, None
+    if not (spread < min_spread or confidence(lg_best) < cfg.min_confidence):
+        k2, T2 = runner_up(c.src, c.dst, transform, explained, tests.consistency, tests.edges,
+                           r, cfg, rng, dof, max_tilt)  # fmt: skip
+    lg_second = _rival_nfa(query, c, T2, explained, chance, tests)
+    details |= {"runner_up_inliers": k2, "runner_up_log10_nfa": float(lg_second),
+                "spread_m": spread}  # fmt: skip
+    conf = confidence(lg_best, lg_second)
+    if spread < min_spread:
+        return Assessment(False, 0.0, _spread_reason(details, min_spread, dof), details)
+    if conf < cfg.min_confidence:
+        return Assessment(False, conf, _chance_reason(details, conf, cfg), details)
+    return Assessment(True, conf, "", details)
+
+
+def _spread_reason(details: dict, min_spread: float, dof: int) -> str:
+    k, spread = details["inliers"], details["spread_m"]
+    if dof == 6:
+        return (
+            f"the {k} inliers lie in a narrow strip (spread {spread:.1f} m < min_spread "
+            f"{min_spread} m); the rotation about its line is not determined"
+        )
+    return (
+        f"the {k} inliers lie within a few metres (spread {spread:.1f} m along their "
+        f"line < {min_spread:g} m = {DOF4_SPREAD_FACTOR:g} x min_spread); too little of the "
+        "map agrees to fix the place"
+    )
+
+
+def _chance_reason(details: dict, conf: float, cfg: AcceptanceConfig) -> str:
+    """Why a confidence below min_confidence: the rival (ambiguous) or chance."""
+    k, k2, lg_best = details["inliers"], details["runner_up_inliers"], details["log10_nfa"]
+    nfa, ratio = confidence_terms(lg_best, details["runner_up_log10_nfa"])
+    if ratio > nfa:
+        return (
+            f"ambiguous: a distinct alignment explains {k2} matches against the best's {k} "
+            f"(confidence {conf:.6g} < min_confidence {cfg.min_confidence})"
+        )
+    return (
+        f"{k} inliers of {details['candidates']} candidate matches could be chance "
+        f"({details['expected_chance_inliers']:.1f} expected from repeated objects; log10 NFA "
+        f"{lg_best:.1f}); confidence {conf:.6g} < min_confidence {cfg.min_confidence}; the "
+        "maps may not overlap"
+    )

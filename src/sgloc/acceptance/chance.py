@@ -1,0 +1,222 @@
+"""The chance model of the acceptance stage: how often chance alone explains an alignment.
+
+`ChanceModel` counts the same-class target objects near moved query objects (one neighbour
+search, compiled or by KD-trees); `log10_nfa` / `nfa_over_radii` turn inlier counts and the
+expected chance inliers into a number of false alarms (NFA, a-contrario); `confidence` is the
+one formula that weighs the best hypothesis against its rival and chance. Used by the test
+(`assessment`) and by the whole-map verification (`verification`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sgloc.consistency import ConsistentPairs, common_partner_count, consistency_bits
+from sgloc.graph import SemanticGraph
+from sgloc.kernels import use_compiled
+
+_LN10 = np.log(10.0)
+_TRIANGLE_EDGES = 2048
+#: The precision-adapted inlier radius is at least this fraction of the radius.
+MIN_RADIUS_FRACTION = 0.1
+#: NFAs are capped at 10^300 (10.0 ** x overflows beyond about 308).
+_MAX_LOG10 = 300.0
+
+
+def _log_comb3(m: int) -> float:
+    """ln C(m, 3)."""
+    if m < 3:
+        return 0.0
+    from scipy.special import gammaln  # deferred, as scipy.spatial below: ~0.3 s together
+
+    return float(gammaln(m + 1) - gammaln(4) - gammaln(m - 2))
+
+
+class ChanceModel:
+    """Chance agreement of a transform under the nulls, from one neighbour search: the
+    same-class target objects within the radius of each moved query object."""
+
+    def __init__(self, target: SemanticGraph, radius: float, n_classes: int) -> None:
+        self.positions = np.ascontiguousarray(target.positions, dtype=np.float64)
+        self.labels = target.labels
+        self.n_classes = n_classes
+        self.class_count = np.bincount(target.labels, minlength=n_classes).astype(np.float64)
+        self.radius = radius
+        # The neighbour search: compiled (a grid per call) or by KD-trees (the reference).
+        self.compiled = use_compiled(len(target))
+        self.tree = None
+
+    def near_counts(
+        self, moved: np.ndarray, weights: tuple[np.ndarray | None, ...] = (None,)
+    ) -> list[np.ndarray]:
+        """For each entry of `weights`: (n, n_classes) number (None) or summed weights of the
+        class-c target objects within the radius (distance <= radius) of each point of `moved`
+        (n,3)."""
+        if self.compiled and len(weights) <= 2 and weights[0] is None:
+            from sgloc.kernels.neighbors import near_class_counts
+
+            w = weights[1] if len(weights) == 2 else None
+            counts, summed = near_class_counts(
+                np.ascontiguousarray(moved, dtype=np.float64),
+                self.positions,
+                np.asarray(self.labels, dtype=np.int64),
+                self.n_classes,
+                float(self.radius),
+                np.zeros(0) if w is None else np.asarray(w, dtype=np.float64),
+            )
+            return [counts, summed][: len(weights)]
+        return self.near_counts_reference(moved, weights)
+
+    def near_counts_reference(
+        self, moved: np.ndarray, weights: tuple[np.ndarray | None, ...] = (None,)
+    ) -> list[np.ndarray]:
+        """`near_counts` by KD-trees (scipy), the reference of the compiled search."""
+        n, k = len(moved), self.n_classes
+        if n == 0:
+            return [np.zeros((0, k)) for _ in weights]
+        from scipy.spatial import cKDTree
+
+        if self.tree is None:
+            self.tree = cKDTree(self.positions)
+        pairs = cKDTree(moved).sparse_distance_matrix(self.tree, self.radius, output_type="ndarray")
+        i, j = pairs["i"], pairs["j"]
+        cell = i * k + self.labels[j]
+        return [
+            np.bincount(cell, None if w is None else w[j], minlength=n * k).reshape(n, k)
+            for w in weights
+        ]
+
+    def expected_inliers(self, counts: np.ndarray, qi: np.ndarray, tlab: np.ndarray) -> float:
+        """lambda = sum over candidates (query qi, target class tlab) of N_c / n_c, with
+        `counts` = near_counts of the moved query objects."""
+        return float(np.sum(counts[qi, tlab] / self.class_count[tlab]))
+
+
+def _log10_poisson_tail(k: int, lam: float) -> float:
+    """log10 P(Poisson(lam) >= k)."""
+    if k <= 0:
+        return 0.0
+    from scipy.special import pdtrc
+
+    p = pdtrc(k - 1, max(lam, 1e-12))
+    if p > 1e-280:
+        return float(np.log10(p))
+    from scipy.stats import poisson  # deferred: importing scipy.stats costs ~0.3 s
+
+    return float(poisson.logsf(k - 1, max(lam, 1e-12)) / _LN10)
+
+
+def log10_colocation_p(
+    query: SemanticGraph, presence: np.ndarray, exclude: np.ndarray
+) -> tuple[float, int, float]:
+    """Independent confirmation beyond the inliers: among the query objects not in `exclude`
+    (the inliers' query objects), C = those with a same-class target object within the radius
+    after alignment. Under a label-permutation null (a query object's class drawn from the query's
+    class frequencies f, independent of where it lies) C is Poisson-binomial with mean
+    mu = sum_i sum_c presence[i, c] f_c. Returns (log10 P(X >= C), C, mu)."""
+    n_classes = presence.shape[1]
+    f = np.bincount(query.labels, minlength=n_classes)[:n_classes] / max(len(query), 1)
+    keep = np.ones(len(query), dtype=bool)
+    keep[exclude] = False
+    mu = float((presence[keep] @ f).sum())
+    C = int(presence[np.flatnonzero(keep), query.labels[keep]].sum())
+    if C == 0:
+        return 0.0, C, mu
+    return _log10_poisson_tail(C, mu), C, mu
+
+
+def log10_nfa(k: int, m: int, lam: float, n_tests: float | None = None, sample: int = 3) -> float:
+    """log10 of the number of false alarms n_tests * P(Poisson(lam) >= k - sample); n_tests
+    defaults to C(m, 3), every triple of the m candidates; `sample` matches fix a hypothesis
+    (3 for 6 dof, 2 for 4 dof) and are not evidence for it."""
+    log_tests = _log_comb3(m) if n_tests is None else float(np.log(max(n_tests, 1.0)))
+    excess = k - sample
+    if excess <= 0:
+        return log_tests / _LN10
+    return float(log_tests / _LN10 + _log10_poisson_tail(excess, lam))
+
+
+#: Inlier radii, as fractions of the acceptance radius, at which the NFA is evaluated (the
+#: smallest NFA counts, times their number: the tests multiply).
+RADIUS_FRACTIONS = (0.25, 0.5, 1.0)
+
+
+def nfa_over_radii(
+    res2: np.ndarray, radius: float, lam: float, m: int, n_tests: float, sample: int = 3
+) -> tuple[float, int, float]:
+    """The smallest log10 NFA over the inlier radii f * radius, f in RADIUS_FRACTIONS, of the
+    candidates with squared residuals `res2` (m^2); lam = chance inliers within `radius`.
+
+    At each radius the k_f candidates within it fit within their largest residual r_fit
+    (>= MIN_RADIUS_FRACTION * radius) and chance agreement scales with the area of that disc
+    (maps are nearly planar): lam * (r_fit / radius)^2, as AC-RANSAC adapts its radius to the
+    precision of the fit. The number of tests is multiplied by the number of radii tried.
+    Returns (log10 NFA, k_f, r_fit) of the best radius."""
+    best = (np.inf, 0, radius)
+    extra = np.log10(len(RADIUS_FRACTIONS))
+    for f in RADIUS_FRACTIONS:
+        within = res2[res2 < (f * radius) ** 2]
+        k = int(within.size)
+        r_fit = float(np.sqrt(within.max())) if k else f * radius
+        r_fit = max(r_fit, MIN_RADIUS_FRACTION * radius)
+        shrink = min(r_fit / radius, 1.0) ** 2
+        lg = log10_nfa(k, m, lam * shrink, n_tests, sample) + extra
+        if lg < best[0]:
+            best = (lg, k, r_fit)
+    return best
+
+
+def pair_consistency(src: np.ndarray, dst: np.ndarray, radius: float) -> tuple[np.ndarray, ...]:
+    """Bit-packed rows and degrees (`sgloc.consistency.consistency_bits`) of the pairs of
+    candidates (src, dst (m,3)) whose distances agree within 2 * radius in both graphs (no
+    diagonal): the pairs that can both be inliers of one transform."""
+    return consistency_bits(src, dst, 2.0 * radius, "distance")
+
+
+def triangle_count(bits: np.ndarray, edges: ConsistentPairs) -> float:
+    """Number of triangles of the consistency graph (packed rows `bits`) with edges (ii, jj),
+    ii < jj: the sum over edges of their common neighbours / 3. Only log10 of the count
+    matters, so beyond _TRIANGLE_EDGES edges an evenly spaced subset is scaled up."""
+    if edges.size > _TRIANGLE_EDGES:
+        pick = np.linspace(0, edges.size - 1, _TRIANGLE_EDGES).astype(np.int64)
+        scale, (ii, jj) = edges.size / _TRIANGLE_EDGES, edges.at(pick)
+    else:
+        scale, (ii, jj) = 1.0, edges.all()
+    return float(scale * common_partner_count(bits, ii, jj) / 3.0)
+
+
+def permutation_lambda(
+    used_near: np.ndarray,
+    inlier: np.ndarray,
+    tlab: np.ndarray,
+    near: np.ndarray,
+    chance: ChanceModel,
+) -> float:
+    """Expected chance inliers under the permutation null, leave-one-out: candidate i's target
+    is drawn from the targets the *other* candidates of its class matched (`used_near`: how
+    many of all the class's candidate targets lie within the radius of T q_i; an inlier's own
+    target is one of them and is taken out). Drawing from a distribution that holds i's own
+    target would make every inlier explain itself: with one candidate of a class its p would
+    be 1, whatever the map. A class with a single candidate takes the uniform null's N_c / n_c
+    (`near`: class-c target objects within the radius)."""
+    m_c = np.bincount(tlab)[tlab].astype(np.float64)
+    others = np.maximum(used_near - inlier, 0.0)
+    uniform = near / chance.class_count[tlab]
+    p = np.where(m_c > 1, others / np.maximum(m_c - 1.0, 1.0), uniform)
+    return float(np.sum(p))
+
+
+def confidence_terms(lg_best: float, lg_rival: float = np.inf) -> tuple[float, float]:
+    """(NFA_best, NFA_best / NFA_rival) from their log10 (each capped at 10^300; the ratio 0
+    without a rival: lg_rival infinite)."""
+    nfa = 10.0 ** min(lg_best, _MAX_LOG10)
+    ratio = 0.0 if not np.isfinite(lg_rival) else 10.0 ** min(lg_best - lg_rival, _MAX_LOG10)
+    return nfa, ratio
+
+
+def confidence(lg_best: float, lg_rival: float = np.inf) -> float:
+    """The weight of the best hypothesis when it, its best distinct rival and chance are
+    weighed by their a-contrario evidence 1 / NFA (chance weighing 1):
+    1 / (1 + NFA_best + NFA_best / NFA_rival), in [0, 1]; without a rival 1 / (1 + NFA_best)."""
+    nfa, ratio = confidence_terms(lg_best, lg_rival)
+    return float(np.clip(1.0 / (1.0 + nfa + ratio), 0.0, 1.0))

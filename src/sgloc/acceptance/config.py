@@ -1,0 +1,159 @@
+"""Settings of the acceptance stage, one dataclass per job.
+
+`AcceptanceConfig` is the test itself and holds the other two: `EvidenceConfig` (which
+candidates count as evidence: the ratio test by query size, also flagged during matching) and
+`VerificationConfig` (the whole-map verification of small queries). Every field keeps its flat
+name (`localize(q, t, distinct_ratio=..., verify_small=...)`, `acceptance_<field>`), and a
+mapping of the three may be flat (`{"min_confidence": 0.9, "distinct_ratio": None}`) or
+nested (`{"evidence": {"distinct_ratio": None}}`): `AcceptanceConfig.from_settings`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from sgloc.validation import InvalidSettingError, validate_settings
+
+
+@dataclass
+class EvidenceConfig:
+    """Which descriptor candidates the acceptance test weighs.
+
+    distinct_ratio: the test weighs only the distinctive candidates, those whose best match passes
+        the ratio test (1 - s_1) / (1 - s_2) <= distinct_ratio (`MatchingConfig.max_ratio`): in a
+        repetitive place near-tied matches support a wrong alignment as readily as the right
+        one. None: every candidate.
+    small_query, small_distinct_ratio: a query graph with fewer than `small_query` objects (one
+        scan, a short stretch) is tested with the looser ratio `small_distinct_ratio` (None:
+        every candidate counts): its objects see only part of their neighbourhood, so fewer
+        of its right matches are distinctive (`ratio_for`). 0: no query is small. Such a query
+        is also the one the whole-map verification may check (`VerificationConfig`). Measured
+        on the hard-case benchmark's tuning pairs and on small crops of non-overlapping maps
+        (docs/acceptance.md): 0.9 or no filter gave false accepts in repetitive places.
+    small_exclusion: metres; for a small query, the ratio test's rival is the best same-class
+        target farther than this from the candidate's target (`spatially_distinct`): a near tie
+        with a neighbour in the same place is no ambiguity about the place. 0: the second
+        best of the class. (Measured: for large queries too it let 2 of 480 non-overlapping
+        pairs of the rendered city through.)
+    """
+
+    distinct_ratio: float | None = 0.8
+    small_query: int = 30
+    small_distinct_ratio: float | None = 0.85
+    small_exclusion: float = 10.0
+
+    def __post_init__(self) -> None:
+        validate_settings(self)  # type, range, finiteness of every field (sgloc.validation)
+
+    def is_small(self, n_query: int) -> bool:
+        """Whether a query graph of `n_query` objects is small (fewer than `small_query`)."""
+        return n_query < self.small_query
+
+    def ratio_for(self, n_query: int) -> float | None:
+        """The distinctiveness ratio for a query graph of `n_query` objects (None: every
+        candidate is evidence): `small_distinct_ratio` below `small_query` objects, else
+        `distinct_ratio`."""
+        if self.is_small(n_query) and self.distinct_ratio is not None:
+            return self.small_distinct_ratio
+        return self.distinct_ratio
+
+    def exclusion_for(self, n_query: int) -> float:
+        """Metres around a candidate's target where no rival is sought, for a query graph of
+        `n_query` objects: `small_exclusion` below `small_query` objects, else 0."""
+        return float(self.small_exclusion) if self.is_small(n_query) else 0.0
+
+
+@dataclass
+class VerificationConfig:
+    """The whole-map verification of small queries (`verify_small_query`).
+
+    verify_small: with the 4-dof model, a small query (`EvidenceConfig.small_query`) the test
+        refuses is verified against the whole target map: pair hypotheses from each query
+        object's `verify_top_k` candidates (at most `verify_hypotheses` scored), scored by how
+        many query objects land within `verify_radius` metres of a same-class target object;
+        chance from the density of same-class targets within `verify_density_radius` metres.
+        Chosen on the hard-case benchmark's tuning pairs and 300 extra one-scan negatives
+        (docs/acceptance.md).
+    """
+
+    verify_small: bool = True
+    verify_top_k: int = 5
+    verify_radius: float = 1.5
+    verify_density_radius: float = 15.0
+    verify_hypotheses: int = 4096
+
+    def __post_init__(self) -> None:
+        validate_settings(self)
+
+
+#: The groups an AcceptanceConfig holds, by field name.
+_GROUPS = {"evidence": EvidenceConfig, "verification": VerificationConfig}
+
+
+@dataclass
+class AcceptanceConfig:
+    """Settings of the acceptance test (`sgloc.acceptance.assessment` describes the model).
+
+    enabled: run the test (False: Guo's rule alone decides; confidence is left None).
+    min_confidence: accept when confidence >= this (the strictness; in [0, 1]).
+    radius: inlier radius in metres for the test; None uses the RANSAC threshold.
+    min_spread: metres; inliers whose standard deviation along their second principal axis is
+        below this are (nearly) collinear and give confidence 0 (with dof=4, where gravity
+        fixes the rotation about such a line: along the first principal axis of their xy,
+        at least DOF4_SPREAD_FACTOR = 2 x min_spread).
+    distinct_translation, distinct_rotation: metres / degrees; an alternative hypothesis is
+        distinct when its transform differs from the best by more than either.
+    runner_up_samples: hypotheses drawn when searching for the best distinct alternative.
+    evidence: which candidates count (`EvidenceConfig`).
+    verification: the whole-map verification of small queries (`VerificationConfig`).
+    """
+
+    enabled: bool = True
+    min_confidence: float = 0.9999
+    radius: float | None = None
+    min_spread: float = 5.0
+    distinct_translation: float = 10.0
+    distinct_rotation: float = 10.0
+    runner_up_samples: int = 128
+    evidence: EvidenceConfig = field(default_factory=EvidenceConfig)
+    verification: VerificationConfig = field(default_factory=VerificationConfig)
+
+    def __post_init__(self) -> None:
+        validate_settings(self)  # type, range, finiteness of every field (sgloc.validation)
+        for name, klass in _GROUPS.items():
+            if not isinstance(getattr(self, name), klass):
+                group = getattr(self, name)
+                raise InvalidSettingError(
+                    f"setting acceptance.{name}={group!r:.60}: must be a {klass.__name__}."
+                )
+
+    @classmethod
+    def from_settings(cls, settings: Mapping[str, Any]) -> AcceptanceConfig:
+        """The config of a flat or nested mapping of its fields (see the module docstring);
+        TypeError for an unknown name."""
+        own: dict[str, Any] = {}
+        groups: dict[str, dict[str, Any]] = {name: {} for name in _GROUPS}
+        owner = {f.name: g for g, klass in _GROUPS.items() for f in dataclasses.fields(klass)}
+        for key, value in settings.items():
+            if key in _GROUPS:
+                groups[key] |= _as_mapping(value, key)
+            elif key in owner:
+                groups[owner[key]][key] = value
+            else:
+                own[key] = value
+        made = {name: klass(**groups[name]) for name, klass in _GROUPS.items()}
+        return cls(**own, **made)
+
+
+def _as_mapping(value: Any, name: str) -> dict[str, Any]:
+    """A group given as its dataclass or as a mapping of its fields."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return dataclasses.asdict(value)
+    if isinstance(value, Mapping):
+        return dict(value)
+    raise InvalidSettingError(
+        f"setting acceptance.{name}={value!r:.60}: give a mapping of its fields."
+    )

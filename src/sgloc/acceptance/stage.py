@@ -1,0 +1,164 @@
+"""The acceptance stage's one entry point: `accept(...) -> Verdict`.
+
+In order: the evidence (`evidence.select_evidence`), the test of the estimate against chance
+and a distinct rival (`assessment.assess`), and, for a small query the test refuses (or that
+estimation could not localize) under the 4-dof model, the whole-map verification
+(`verification.verify_small_query`). The verification's alignment is handed to `refit`, the
+caller's final fit (the same one RANSAC's inliers get), on the objects it found co-located:
+the stage decides, the caller keeps its own fitting.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sgloc.acceptance.assessment import Assessment, assess
+from sgloc.acceptance.config import AcceptanceConfig
+from sgloc.acceptance.evidence import select_evidence
+from sgloc.acceptance.verification import Verification, verify_small_query
+from sgloc.estimation import GROUND_VEHICLE, MotionModel
+from sgloc.graph import SemanticGraph
+from sgloc.matching import MatchingConfig
+
+#: Fewer candidate matches than this fix no transform (a triple).
+MIN_CANDIDATES = 3
+
+
+@dataclass
+class Verdict:
+    """What the acceptance stage decided.
+
+    accepted: the alignment stands; then `transform` (4x4 T_target_query) is set.
+    matches: (k,2) (query index, target index) the transform was fitted on: the estimate's
+        when the test accepted it, the co-located objects when the whole-map verification
+        found it (`verified`); empty when refused.
+    confidence: in [0, 1]; None when no test ran (acceptance disabled, or nothing to test).
+    reason: why refused (empty when accepted).
+    timings: seconds of the parts that ran: "acceptance" (evidence and test) and
+        "verification".
+    assessment, verification: the parts' own outcomes with their details (None: not run).
+    """
+
+    accepted: bool
+    transform: np.ndarray | None
+    matches: np.ndarray
+    confidence: float | None
+    reason: str = ""
+    verified: bool = False
+    timings: dict[str, float] = field(default_factory=dict)
+    assessment: Assessment | None = None
+    verification: Verification | None = None
+
+
+def verifies(config: AcceptanceConfig, motion: MotionModel, n_query: int) -> bool:
+    """Whether a refused query is verified against the whole map: the acceptance test on,
+    `verify_small`, the 4-dof model, a small query (`EvidenceConfig.small_query`)."""
+    return (
+        config.enabled
+        and config.verification.verify_small
+        and motion.dof == 4
+        and config.evidence.is_small(n_query)
+    )
+
+
+def accept(
+    query: SemanticGraph,
+    target: SemanticGraph,
+    desc_q,
+    desc_t,
+    candidates: np.ndarray,
+    distinct_flags: np.ndarray | None,
+    transform: np.ndarray | None,
+    matches: np.ndarray,
+    reason: str = "",
+    *,
+    radius: float,
+    config: AcceptanceConfig | None = None,
+    matching: MatchingConfig | None = None,
+    motion: MotionModel = GROUND_VEHICLE,
+    refit: Callable[[np.ndarray], np.ndarray | None] | None = None,
+    rng: np.random.Generator | None = None,
+    clock: Callable[[], float] = time.perf_counter,
+) -> Verdict:
+    """Accept or refuse the estimate `transform` (T_target_query, None when estimation failed
+    with `reason`) fitted on `matches` (k,2).
+
+    Args:
+        query, target: the graphs (positions in metres, each in its own frame).
+        desc_q, desc_t: their vertex descriptors (dense or CSR).
+        candidates: (m,2) the descriptor matches (query index, target index) before rejection;
+            `distinct_flags` (m,) bool: which pass the evidence's ratio test
+            (`sgloc.matching.match_flagged` at `config.evidence.ratio_for(len(query))`), or None.
+        radius: the RANSAC inlier threshold (metres): the test's radius unless config.radius.
+        matching: the matching settings (min_similarity; the ratio re-match without flags).
+        motion: the motion model (`sgloc.estimation.MotionModel`) of the estimate.
+        refit: the final fit of a verified alignment on its co-located matches (k,2) -> 4x4 or
+            None (the verification's own refined transform when refit is None).
+        rng: draws the runner-up hypotheses; clock: seconds, for `Verdict.timings`.
+    """
+    cfg = config or AcceptanceConfig()
+    matching = matching or MatchingConfig()
+    if transform is None and not reason:
+        reason = "no model accepted"
+    verdict = Verdict(transform is not None, transform, matches, None, reason)
+    if transform is not None and cfg.enabled:
+        t0 = clock()
+        tested = select_evidence(
+            query, target, desc_q, desc_t, candidates, distinct_flags, matching, cfg.evidence
+        )
+        a = assess(query, target, tested, transform, radius, cfg, rng, motion)
+        verdict = Verdict(a.accepted, transform if a.accepted else None, matches, a.confidence,
+                          a.reason, assessment=a)  # fmt: skip
+        verdict.timings["acceptance"] = clock() - t0
+    if not verdict.accepted and verifies(cfg, motion, len(query)):
+        t0 = clock()
+        _verify(verdict, query, target, desc_q, desc_t, cfg, matching, motion, refit)
+        verdict.timings["verification"] = clock() - t0
+    return _settled(verdict, len(candidates))
+
+
+def _settled(verdict: Verdict, n_candidates: int) -> Verdict:
+    """The verdict as handed on: no reason when accepted; no transform and no matches when
+    refused, and the reason of too few candidates when that was the cause."""
+    if verdict.accepted:
+        verdict.reason = ""
+        return verdict
+    verdict.transform, verdict.matches = None, np.zeros((0, 2), np.int64)
+    if n_candidates < MIN_CANDIDATES:
+        verdict.reason = (
+            f"only {n_candidates} candidate match(es) between the graphs (fewer than "
+            f"{MIN_CANDIDATES}); the maps may not overlap, or lower min_similarity"
+        )
+    return verdict
+
+
+def _verify(
+    verdict: Verdict,
+    query: SemanticGraph,
+    target: SemanticGraph,
+    desc_q,
+    desc_t,
+    cfg: AcceptanceConfig,
+    matching: MatchingConfig,
+    motion: MotionModel,
+    refit: Callable[[np.ndarray], np.ndarray | None] | None,
+) -> None:
+    """A small query's candidates are too few to decide: check its whole geometry against the
+    map, and take its alignment (refitted by `refit`) when it passes; updates `verdict`."""
+    check = verify_small_query(
+        query, target, desc_q, desc_t, cfg, matching.min_similarity, motion
+    )
+    verdict.verification = check
+    fitted = None
+    if check.accepted:
+        fitted = check.transform if refit is None else refit(check.matches)
+    if fitted is not None:
+        verdict.accepted, verdict.verified = True, True
+        verdict.transform, verdict.matches = fitted, check.matches
+        verdict.confidence, verdict.reason = check.confidence, ""
+    elif check.reason:
+        verdict.reason = f"{verdict.reason}; checked against the whole map: {check.reason}"
