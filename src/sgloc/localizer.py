@@ -13,6 +13,7 @@ import numpy as np
 from sgloc.acceptance import assess
 from sgloc.canonical import CanonicalPair
 from sgloc.config import LocalizerConfig
+from sgloc.covariance import transform_covariance
 from sgloc.descriptors import make_descriptor
 from sgloc.distinctive import spatially_distinct
 from sgloc.errors import DegenerateGeometryError, InvalidGraphError, SglocError
@@ -48,6 +49,9 @@ class LocalizationResult:
     survivors: (s,2) the matches that passed rejection (the input of RANSAC).
     timings: seconds per stage: descriptors, matching, rejection, ransac, estimation, total.
     confidence: in [0, 1], how far the result is to be trusted (None when not assessed).
+    covariance: (6,6) covariance of `transform` (None when not localized): tangent order
+        [rx, ry, rz, tx, ty, tz] (rad, m), T_true = transform @ Exp(xi), xi in the QUERY frame
+        (gtsam.Pose3's convention); measured on real data (`sgloc.covariance`).
     """
 
     success: bool
@@ -60,6 +64,7 @@ class LocalizationResult:
     reason: str = ""
     confidence: float | None = None
     config: dict[str, Any] = field(default_factory=dict)
+    covariance: np.ndarray | None = None
 
     def raise_if_failed(self) -> LocalizationResult:
         if not self.success:
@@ -73,6 +78,7 @@ class LocalizationResult:
             "reason": self.reason,
             "confidence": self.confidence,
             "transform": None if self.transform is None else self.transform.tolist(),
+            "covariance": None if self.covariance is None else self.covariance.tolist(),
             "n_candidates": int(len(self.candidates)),
             "n_survivors": int(len(self.survivors)),
             "n_matches": int(len(self.matches)),
@@ -150,7 +156,7 @@ class Localizer:
         t4 = clock()
         timings["ransac"] = t4 - t3
 
-        transform, reason = None, rs.reason
+        transform, reason, w_final = None, rs.reason, None
         final = survivors[rs.inliers] if rs.inliers.size else np.zeros((0, 2), np.int64)
         if rs.transform is not None:
             w_final = None if weights is None else weights[rs.inliers]
@@ -206,7 +212,7 @@ class Localizer:
             if check.accepted:
                 fitted = _final_fit(query, target, check.matches, None, cfg)[0]
             if fitted is not None:
-                transform, final, reason = fitted, check.matches, ""
+                transform, final, reason, w_final = fitted, check.matches, "", None
                 confidence = check.confidence
             elif check.reason:
                 reason = f"{reason}; checked against the whole map: {check.reason}"
@@ -217,6 +223,12 @@ class Localizer:
                 f"only {len(candidates)} candidate match(es) between the graphs (fewer than "
                 "3); the maps may not overlap, or lower min_similarity"
             )
+        covariance = None
+        if transform is not None:  # of the final fit, in the query frame (sgloc.covariance)
+            covariance = transform_covariance(
+                query.positions[final[:, 0]], target.positions[final[:, 1]], transform, w_final,
+                cfg.ransac.dof, cfg.ransac.max_tilt,
+            )  # fmt: skip
         result = LocalizationResult(
             success=transform is not None,
             transform=transform,
@@ -227,6 +239,7 @@ class Localizer:
             timings=timings,
             reason="" if transform is not None else reason,
             confidence=confidence,
+            covariance=covariance,
         )
         return canonical.restore(result)  # the caller's vertex indices and config
 
