@@ -16,9 +16,12 @@ Model (`transform_covariance`):
    away) is added as an independent pose error at the matches' centroid, `offset_t` metres and
    `offset_r` radians per axis; the sum is multiplied by `scale`.
 3. dof=4 with a tilt tolerance: roll and pitch come from the data as in a free fit, plus a prior
-   of standard deviation max_tilt / 2 (the tilt gate read as a 2-sigma bound). dof=4 without a
-   tolerance (yaw-only fit): the same without the prior. A vague prior (pi rad, 10 km) keeps the
-   matrix invertible when the matches leave a direction free (collinear matches).
+   of standard deviation max_tilt / 2 (the tilt gate read as a 2-sigma bound). A yaw-only fit
+   (dof=4 without a tolerance, or a result without tilt): yaw and translation as estimated with
+   roll and pitch held, and roll and pitch independent of them with the free fit's marginal
+   (what the data say of the tilt the fit assumed away; plus the prior when there is one).
+   A vague prior (pi rad, 10 km) keeps the matrix invertible when the matches leave a
+   direction free (collinear matches); the residual spread is taken as at least 1 mm.
 """
 
 from __future__ import annotations
@@ -32,6 +35,8 @@ from sgloc.errors import SglocError
 
 #: Tukey biweight's support in robust scales (that of `sgloc.estimation.irls_refine`).
 TUKEY_C = 4.685
+#: Metres: the smallest residual spread assumed (exact matches would give a singular matrix).
+MIN_SIGMA = 1e-3
 #: Vague prior (rad, m) that keeps the information matrix invertible.
 VAGUE_ROTATION, VAGUE_TRANSLATION = np.pi, 1.0e4
 
@@ -55,8 +60,12 @@ class CovarianceInflation:
 
 #: No inflation: the plain least-squares covariance.
 NO_INFLATION = CovarianceInflation()
-#: Chosen on the tuning KITTI 00 pairs of benchmarks/hard_cases.py (docs/covariance.md).
-DEFAULT_INFLATION = CovarianceInflation()
+#: Chosen on the tuning KITTI 00 pairs of benchmarks/hard_cases.py only (`python
+#: benchmarks/covariance.py --fit`; docs/covariance.md): 0.2 m noise floor, a shared map offset
+#: of 0.225 m and 0.35 deg per axis, times 1.4.
+DEFAULT_INFLATION = CovarianceInflation(
+    noise_floor=0.2, offset_t=0.225, offset_r=float(np.radians(0.35)), scale=1.4
+)
 
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -140,21 +149,33 @@ def fit_statistics(
     dst: np.ndarray,
     transform: np.ndarray,
     weights: np.ndarray | None = None,
-    free_params: int = 6,
+    dof: int = 4,
+    max_tilt: float | None = 15.0,
 ) -> tuple[np.ndarray, float, float, np.ndarray]:
-    """The ingredients of the covariance: (information per unit noise variance (6,6),
+    """The data's part of the covariance: (information per unit noise variance (6,6),
     residual variance per axis sigma^2 (m^2), its degrees of freedom 3n - p, weighted centroid
     of the kept matches (3,), source frame). NaN variance when there are no degrees of freedom.
     """
     src, dst, T, w = _check(src, dst, transform, weights)
+    if dof not in (4, 6):
+        raise SglocError(f"dof must be 4 or 6, got {dof!r}.")
+    p = free_parameters(T, dof, max_tilt)
     r = src @ T[:3, :3].T + T[:3, 3] - dst
     keep = robust_inliers(r) & (w > 0)
     s, r, w = src[keep], r[keep], w[keep] / w[keep].mean()
     G = np.concatenate([-skew(s), np.broadcast_to(np.eye(3), (len(s), 3, 3))], axis=2)
     info = np.einsum("n,nki,nkj->ij", w, G, G)
-    dof = 3 * len(s) - free_params
-    var = float(w @ np.sum(r**2, axis=1)) / dof if dof > 0 else float("nan")
-    return info, var, float(max(dof, 0)), (w @ s) / w.sum()
+    if p == 4:
+        info = _yaw_only(info)
+    nu = 3 * len(s) - p
+    var = float(w @ np.sum(r**2, axis=1)) / nu if nu > 0 else float("nan")
+    return info, var, float(max(nu, 0)), (w @ s) / w.sum()
+
+
+def tilt_prior(dof: int, max_tilt: float | None) -> float | None:
+    """Radians: standard deviation of the roll / pitch prior of the motion model (max_tilt / 2
+    for dof=4 with a tilt tolerance; None otherwise)."""
+    return float(np.radians(max_tilt)) / 2.0 if dof == 4 and max_tilt else None
 
 
 def assemble(
@@ -173,7 +194,7 @@ def assemble(
     s0 = inflation.noise_floor
     # No residual degrees of freedom: the floor alone.
     sigma2 = np.where(nu > 0, np.maximum(var, s0**2), s0**2)
-    sigma2 = np.maximum(sigma2, 1e-12)  # exact data: a micrometre, not a singular matrix
+    sigma2 = np.maximum(sigma2, MIN_SIGMA**2)
     prior = np.r_[[VAGUE_ROTATION**-2] * 3, [VAGUE_TRANSLATION**-2] * 3]
     if tilt_prior is not None:
         prior[:2] += tilt_prior**-2
@@ -215,9 +236,18 @@ def transform_covariance(
     (default: the one chosen on real data, docs/covariance.md; NO_INFLATION for the plain
     least-squares covariance). Symmetric positive definite.
     """
-    if dof not in (4, 6):
-        raise SglocError(f"dof must be 4 or 6, got {dof!r}.")
-    p = free_parameters(transform, dof, max_tilt)
-    info, var, nu, c = fit_statistics(src, dst, transform, weights, p)
-    tilt = np.radians(max_tilt) / 2.0 if dof == 4 and max_tilt else None
-    return assemble(info, np.array(var), np.array(nu), c, inflation, tilt)
+    info, var, nu, c = fit_statistics(src, dst, transform, weights, dof, max_tilt)
+    return assemble(info, np.array(var), np.array(nu), c, inflation, tilt_prior(dof, max_tilt))
+
+
+def _yaw_only(info: np.ndarray) -> np.ndarray:
+    """The information of a fit that held roll and pitch: yaw and translation as estimated
+    with roll and pitch fixed (their block alone), and roll and pitch decoupled from them with
+    what the data alone say of them (the free fit's marginal: the Schur complement)."""
+    rp, rest = [0, 1], [2, 3, 4, 5]
+    out = np.zeros((6, 6))
+    out[np.ix_(rest, rest)] = info[np.ix_(rest, rest)]
+    cross = info[np.ix_(rp, rest)]
+    solved = np.linalg.lstsq(info[np.ix_(rest, rest)], cross.T, rcond=None)[0]
+    out[np.ix_(rp, rp)] = info[np.ix_(rp, rp)] - cross @ solved
+    return out
