@@ -39,6 +39,8 @@ TUKEY_C = 4.685
 MIN_SIGMA = 1e-3
 #: Vague prior (rad, m) that keeps the information matrix invertible.
 VAGUE_ROTATION, VAGUE_TRANSLATION = np.pi, 1.0e4
+_VAGUE = np.r_[[VAGUE_ROTATION**-2] * 3, [VAGUE_TRANSLATION**-2] * 3]
+_TILT = np.r_[1.0, 1.0, 0.0, 0.0, 0.0, 0.0]  # the axes of a roll / pitch prior
 
 
 @dataclass(frozen=True)
@@ -139,7 +141,7 @@ def _check(src: np.ndarray, dst: np.ndarray, transform: np.ndarray, weights) -> 
 def robust_inliers(residuals: np.ndarray) -> np.ndarray:
     """Boolean mask of the matches a Tukey biweight keeps: |r_i| <= 4.685 * 1.4826 * median|r|
     (all when the residuals are (near) zero)."""
-    r = np.linalg.norm(residuals, axis=1)
+    r = np.sqrt(np.einsum("ij,ij->i", residuals, residuals))
     s = 1.4826 * np.median(r)
     return r <= TUKEY_C * s if s > 1e-12 else np.ones(len(r), bool)
 
@@ -162,13 +164,20 @@ def fit_statistics(
     p = free_parameters(T, dof, max_tilt)
     r = src @ T[:3, :3].T + T[:3, 3] - dst
     keep = robust_inliers(r) & (w > 0)
-    s, r, w = src[keep], r[keep], w[keep] / w[keep].mean()
-    G = np.concatenate([-skew(s), np.broadcast_to(np.eye(3), (len(s), 3, 3))], axis=2)
-    info = np.einsum("n,nki,nkj->ij", w, G, G)
+    if not keep.all():
+        src, r, w = src[keep], r[keep], w[keep]
+    s, w = src, w * (len(w) / w.sum())
+    # sum_i w_i G_i^T G_i with G_i = [-[s_i]x, I], from the weighted moments of the points.
+    S1, S2 = w @ s, (s * w[:, None]).T @ s
+    info = np.empty((6, 6))
+    info[:3, :3] = np.trace(S2) * np.eye(3) - S2
+    info[:3, 3:] = skew(S1)
+    info[3:, :3] = -info[:3, 3:]
+    info[3:, 3:] = w.sum() * np.eye(3)
     if p == 4:
         info = _yaw_only(info)
     nu = 3 * len(s) - p
-    var = float(w @ np.sum(r**2, axis=1)) / nu if nu > 0 else float("nan")
+    var = float(w @ np.einsum("ij,ij->i", r, r)) / nu if nu > 0 else float("nan")
     return info, var, float(max(nu, 0)), (w @ s) / w.sum()
 
 
@@ -190,22 +199,22 @@ def assemble(
     floored noise variance, the fit's covariance, the shared map offset at `centroid`, scaled.
     tilt_prior: radians, standard deviation of a prior on roll and pitch (None: none)."""
     info, centroid = np.asarray(info, float), np.asarray(centroid, float)
-    var, nu = np.nan_to_num(np.asarray(var, float)), np.asarray(resid_dof, float)
-    s0 = inflation.noise_floor
-    # No residual degrees of freedom: the floor alone.
-    sigma2 = np.where(nu > 0, np.maximum(var, s0**2), s0**2)
-    sigma2 = np.maximum(sigma2, MIN_SIGMA**2)
-    prior = np.r_[[VAGUE_ROTATION**-2] * 3, [VAGUE_TRANSLATION**-2] * 3]
-    if tilt_prior is not None:
-        prior[:2] += tilt_prior**-2
-    total = info / sigma2[..., None, None] + np.diag(prior)
-    C = np.linalg.inv(total)
-    # Offset (omega, delta) at the centroid c: xi = (omega, delta + c x omega).
-    A = np.zeros((*centroid.shape[:-1], 6, 6))
-    A[..., :3, :3] = A[..., 3:, 3:] = np.eye(3)
-    A[..., 3:, :3] = skew(centroid)
-    D = np.diag(np.r_[[inflation.offset_r**2] * 3, [inflation.offset_t**2] * 3])
-    C = inflation.scale * (C + A @ D @ np.swapaxes(A, -1, -2))
+    var, nu = np.asarray(var, float), np.asarray(resid_dof, float)
+    # No residual degrees of freedom (NaN variance): the floor alone.
+    floor = max(inflation.noise_floor, MIN_SIGMA) ** 2
+    sigma2 = np.where(nu > 0, np.fmax(var, floor), floor)
+    total = info / sigma2[..., None, None]
+    prior = _VAGUE if tilt_prior is None else _VAGUE + _TILT * tilt_prior**-2
+    C = np.linalg.inv(total + np.diag(prior))
+    # Offset (omega, delta) at the centroid c: xi = (omega, delta + c x omega), so its
+    # covariance is A D A^T with A = [[I, 0], [[c]x, I]], D = diag(r^2 I, t^2 I).
+    r2, t2 = inflation.offset_r**2, inflation.offset_t**2
+    K = skew(centroid)
+    C[..., :3, :3] += r2 * np.eye(3)
+    C[..., 3:, :3] += r2 * K
+    C[..., :3, 3:] += r2 * np.swapaxes(K, -1, -2)
+    C[..., 3:, 3:] += r2 * K @ np.swapaxes(K, -1, -2) + t2 * np.eye(3)
+    C *= inflation.scale
     return 0.5 * (C + np.swapaxes(C, -1, -2))
 
 
@@ -244,10 +253,8 @@ def _yaw_only(info: np.ndarray) -> np.ndarray:
     """The information of a fit that held roll and pitch: yaw and translation as estimated
     with roll and pitch fixed (their block alone), and roll and pitch decoupled from them with
     what the data alone say of them (the free fit's marginal: the Schur complement)."""
-    rp, rest = [0, 1], [2, 3, 4, 5]
-    out = np.zeros((6, 6))
-    out[np.ix_(rest, rest)] = info[np.ix_(rest, rest)]
-    cross = info[np.ix_(rp, rest)]
-    solved = np.linalg.lstsq(info[np.ix_(rest, rest)], cross.T, rcond=None)[0]
-    out[np.ix_(rp, rp)] = info[np.ix_(rp, rp)] - cross @ solved
+    out = np.zeros((6, 6))  # roll, pitch = axes 0:2; yaw, translation = 2:6
+    out[2:, 2:] = info[2:, 2:]
+    solved = np.linalg.lstsq(info[2:, 2:], info[2:, :2], rcond=None)[0]
+    out[:2, :2] = info[:2, :2] - info[:2, 2:] @ solved
     return out
