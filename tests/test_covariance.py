@@ -273,3 +273,12 @@ def test_inflated_covariance_covers_real_errors(data_dir):
     assert all(c < 0.5 for c in plain.values()), plain
     for C, recorded in zip(bench.covariances(e, DEFAULT_INFLATION), e.recorded, strict=True):
         np.testing.assert_allclose(recorded, C, rtol=1e-9, atol=1e-12 * np.abs(C).max())
+
+
+@pytest.mark.parametrize("field", ["noise_floor", "offset_t", "offset_r", "scale"])
+def test_inflation_rejects_negative_or_non_finite_values(field):
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(SglocError, match=field):
+            CovarianceInflation(**{field: bad})
+    with pytest.raises(SglocError, match="scale"):
+        CovarianceInflation(scale=0.0)

@@ -59,6 +59,15 @@ class CovarianceInflation:
     offset_r: float = 0.0
     scale: float = 1.0
 
+    def __post_init__(self) -> None:
+        for name in ("noise_floor", "offset_t", "offset_r", "scale"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0) or (name == "scale" and v == 0):
+                raise SglocError(
+                    f"CovarianceInflation.{name} must be a finite number >= 0 (scale > 0), got "
+                    f"{v!r}."
+                )
+
 
 #: No inflation: the plain least-squares covariance.
 NO_INFLATION = CovarianceInflation()
