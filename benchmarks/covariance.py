@@ -2,9 +2,11 @@
 pairs of benchmarks/hard_cases.py (tuning and held-out apart), localized with the default
 settings; how often the true error falls inside the covariance's 95 % region.
 
-    python benchmarks/covariance.py [--workers N] [--refresh] [--out DIR] [--update-docs]
+    python benchmarks/covariance.py [--workers N] [--refresh] [--fit] [--out DIR]
+        [--update-docs]
 
-Stage 1 (cached in --out/fits-<split>.pkl; --refresh redoes it): localize every pair, keep the
+Stage 1 (cached in --out/fits-<split>.pkl, redone when the sgloc package's commit changed or
+with --refresh): localize every pair, keep the
 final matched points, the estimate and the ground truth. Stage 2: the covariance of each
 accepted estimate (`sgloc.covariance.transform_covariance`), the true error in its tangent
 convention and the coverage; with --fit also the inflation constants chosen on the tuning pairs
@@ -113,13 +115,17 @@ def collect(split: str, workers: int) -> list[dict[str, Any]]:
 
 
 def load_fits(out: Path, split: str, workers: int, refresh: bool) -> list[dict[str, Any]]:
+    """Stage 1 of a split from the cache when it was made by the same sgloc code."""
     path = out / f"fits-{split}.pkl"
+    version = hard_cases().code_version()
     if path.is_file() and not refresh:
-        return pickle.loads(path.read_bytes())
+        cached = pickle.loads(path.read_bytes())
+        if cached["version"] == version and "uncommitted" not in version:
+            return cached["rows"]
     t0 = time.time()
     rows = collect(split, workers)
     out.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(pickle.dumps(rows))
+    path.write_bytes(pickle.dumps({"version": version, "rows": rows}))
     print(f"{split}: {len(rows)} pairs localized in {time.time() - t0:.0f} s -> {path}")
     return rows
 
