@@ -12,6 +12,7 @@ import numpy as np
 from sgloc.acceptance import Verdict, accept
 from sgloc.canonical import CanonicalPair
 from sgloc.config import LocalizerConfig
+from sgloc.covariance import transform_covariance
 from sgloc.descriptors import make_descriptor
 from sgloc.errors import InvalidGraphError, SglocError
 from sgloc.estimation import FinalFit, PoseEstimate, estimate_pose, final_fit, icp_refine
@@ -38,6 +39,9 @@ class LocalizationResult:
     survivors: (s,2) the matches that passed rejection (the input of RANSAC).
     timings: seconds per stage: descriptors, matching, rejection, ransac, estimation, total.
     confidence: in [0, 1], how far the result is to be trusted (None when not assessed).
+    covariance: (6,6) covariance of `transform` (None when not localized): tangent order
+        [rx, ry, rz, tx, ty, tz] (rad, m), T_true = transform @ Exp(xi), xi in the QUERY frame
+        (gtsam.Pose3's convention); measured on real data (`sgloc.covariance`).
     """
 
     success: bool
@@ -50,6 +54,7 @@ class LocalizationResult:
     reason: str = ""
     confidence: float | None = None
     config: dict[str, Any] = field(default_factory=dict)
+    covariance: np.ndarray | None = None
 
     def raise_if_failed(self) -> LocalizationResult:
         if not self.success:
@@ -63,6 +68,7 @@ class LocalizationResult:
             "reason": self.reason,
             "confidence": self.confidence,
             "transform": None if self.transform is None else self.transform.tolist(),
+            "covariance": None if self.covariance is None else self.covariance.tolist(),
             "n_candidates": int(len(self.candidates)),
             "n_survivors": int(len(self.survivors)),
             "n_matches": int(len(self.matches)),
@@ -141,6 +147,7 @@ class Localizer:
         with timer("matching"):
             matched = _match(dq, dt, query, target, cfg)
         c = matched.candidates
+        weights = _match_weights(cfg, query, c, n_classes)
         pose = estimate_pose(
             query.positions[c[:, 0]],
             target.positions[c[:, 1]],
@@ -148,7 +155,7 @@ class Localizer:
             cfg.ransac,
             streams["ransac"],
             scores=matched.scores,
-            weights=_match_weights(cfg, query, c, n_classes),
+            weights=weights,
             labels=query.labels[c[:, 0]],
             fit=_final_fit(cfg, query, target),
             timer=timer,
@@ -166,6 +173,7 @@ class Localizer:
             timings=timer.timings,
             reason=verdict.reason,
             confidence=verdict.confidence,
+            covariance=_covariance(query, target, verdict, pose, weights, cfg),
         )
         return canonical.restore(result)  # the caller's vertex indices and config
 
@@ -204,6 +212,26 @@ def _match(
         dq, dt, query.labels, target.labels, cfg.matching, flag_ratio
     )
     return _Matched(candidates, scores, distinct, flag_ratio)
+
+
+def _covariance(
+    query: SemanticGraph,
+    target: SemanticGraph,
+    verdict: Verdict,
+    pose: PoseEstimate,
+    weights: np.ndarray | None,
+    cfg: LocalizerConfig,
+) -> np.ndarray | None:
+    """The covariance of an accepted transform (sgloc.covariance), from the matches it was
+    fitted on (RANSAC's inliers with their class weights, or the verification's, unweighted)."""
+    if not verdict.accepted:
+        return None
+    m = verdict.matches
+    w = None if weights is None or verdict.verified else weights[pose.inliers]
+    return transform_covariance(
+        query.positions[m[:, 0]], target.positions[m[:, 1]], verdict.transform, w,
+        cfg.motion.dof, cfg.motion.max_tilt,
+    )  # fmt: skip
 
 
 def _match_weights(

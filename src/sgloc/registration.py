@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from sgloc.covariance import transform_covariance
 from sgloc.errors import SglocError, UnknownNameError
 from sgloc.estimation import (
     ANY_RIGID,
@@ -40,6 +41,10 @@ class RegistrationResult:
     survivors: sorted indices of the matches kept by outlier rejection.
     timings: seconds per stage: rejection, ransac, refine (the final fit), total.
     reason: why it failed ("" on success).
+    covariance: (6,6) covariance of `transform` (None when not successful): tangent order
+        [rx, ry, rz, tx, ty, tz] (rad, m), T_true = transform @ Exp(xi), xi in the src frame;
+        the inflation measured on object maps (`sgloc.covariance`; for other data call
+        `transform_covariance(..., inflation=NO_INFLATION)` for the plain least-squares one).
     """
 
     success: bool
@@ -48,6 +53,7 @@ class RegistrationResult:
     survivors: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     timings: dict[str, float] = field(default_factory=dict)
     reason: str = ""
+    covariance: np.ndarray | None = None
 
 
 def _points(a: Any, name: str) -> np.ndarray:
@@ -146,4 +152,8 @@ def register(
         survivors=pose.survivors,
         timings=timer.timings,
         reason=pose.reason,
-    )
+        covariance=None if pose.transform is None else transform_covariance(
+            src[pose.inliers], dst[pose.inliers], pose.transform, None, cfg.motion.dof,
+            cfg.motion.max_tilt,
+        ),
+    )  # fmt: skip

@@ -23,13 +23,18 @@ FILES = {
 
 
 def summary(result: Any, **extra: Any) -> dict[str, Any]:
-    """The compact JSON summary of a LocalizationResult (no per-match lists)."""
+    """The compact JSON summary of a LocalizationResult (no per-match lists). `covariance`:
+    the (6,6) covariance of T_target_query (tangent [rx, ry, rz, tx, ty, tz] in rad and m, in
+    the query frame: T_true = T_target_query @ Exp(xi); `sgloc.covariance`), None when not
+    localized."""
     T = result.transform
+    C = getattr(result, "covariance", None)
     d = {
         "success": bool(result.success),
         "reason": result.reason,
         "confidence": None if result.confidence is None else round(float(result.confidence), 6),
         "T_target_query": None if T is None else np.round(T, 9).tolist(),
+        "covariance": None if C is None else [[float(f"{v:.9g}") for v in row] for row in C],
         "n_candidates": int(len(result.candidates)),
         "n_survivors": int(len(result.survivors)),
         "n_matches": int(len(result.matches)),
@@ -40,12 +45,12 @@ def summary(result: Any, **extra: Any) -> dict[str, Any]:
 
 
 def compact_json(d: dict[str, Any]) -> str:
-    """JSON with two-space indent, but each matrix row on one line."""
-    T = d.get("T_target_query")
-    text = json.dumps({**d, "T_target_query": "@T@" if T is not None else None}, indent=2)
-    if T is not None:
-        rows = ",\n    ".join(json.dumps(r) for r in T)
-        text = text.replace('"@T@"', "[\n    " + rows + "\n  ]")
+    """JSON with two-space indent, but each matrix row (transform, covariance) on one line."""
+    matrices = {k: d[k] for k in ("T_target_query", "covariance") if d.get(k) is not None}
+    text = json.dumps({**d, **{k: f"@{k}@" for k in matrices}}, indent=2)
+    for key, M in matrices.items():
+        rows = ",\n    ".join(json.dumps(r) for r in M)
+        text = text.replace(f'"@{key}@"', "[\n    " + rows + "\n  ]")
     return text + "\n"
 
 
