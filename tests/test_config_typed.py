@@ -92,20 +92,26 @@ def test_dicts_written_before_are_read():
 
 
 def test_one_registry_style_for_names():
+    from sgloc.data import DATASETS as DOWNLOADS
     from sgloc.datasets import DATASETS
     from sgloc.descriptors import DESCRIPTORS
-    from sgloc.presets import LOCALIZER_PRESETS
-    from sgloc.registry import lookup
+    from sgloc.evaluation.scenes import PAIR_SOURCES
+    from sgloc.presets import EXTRACTION_PRESETS, LOCALIZER_PRESETS
+    from sgloc.registry import Registry
     from sgloc.rejection import REJECTORS
 
-    assert lookup(DESCRIPTORS, "Random-Walk", "descriptor") is RandomWalkDescriptor
-    assert lookup(REJECTORS, " NEIGHBOR ", "rejection") is NeighborRejector
-    assert lookup(DATASETS, "kitti-objects", "dataset") is DATASETS["kitti_objects"]
-    assert lookup(LOCALIZER_PRESETS, "kitti_objects", "preset") is LOCALIZER_PRESETS[
-        "kitti-objects"
-    ]
+    tables = (DESCRIPTORS, REJECTORS, DATASETS, PAIR_SOURCES, LOCALIZER_PRESETS,
+              EXTRACTION_PRESETS, DOWNLOADS)  # fmt: skip
+    assert all(isinstance(t, Registry) for t in tables)
+    assert DESCRIPTORS.lookup("Random-Walk") is RandomWalkDescriptor
+    assert REJECTORS.lookup(" NEIGHBOR ") is NeighborRejector
+    assert DATASETS.lookup("kitti-objects") is DATASETS["kitti_objects"]
+    assert LOCALIZER_PRESETS.lookup("kitti_objects") is LOCALIZER_PRESETS["kitti-objects"]
+    assert PAIR_SOURCES.lookup("Synthetic") is PAIR_SOURCES["city"]  # an alias
     with pytest.raises(UnknownNameError, match="choose one of"):
-        lookup(LOCALIZER_PRESETS, "nope", "preset")
+        LOCALIZER_PRESETS.lookup("nope")
+    with pytest.raises(UnknownNameError, match=r"did you mean random_walk\?"):
+        DESCRIPTORS.lookup("random_wlak")
 
 
 def test_acceptance_uses_the_consistency_layer_not_rejection():

@@ -15,7 +15,7 @@ from sgloc.descriptors import DESCRIPTORS, Descriptor, make_descriptor
 from sgloc.errors import SglocError, UnknownNameError
 from sgloc.estimation import MotionModel, RansacConfig
 from sgloc.matching import MatchingConfig
-from sgloc.registry import registered_name
+from sgloc.registry import Registry
 from sgloc.rejection import REJECTORS, Rejector, make_rejector
 from sgloc.validation import validate_localizer_settings
 
@@ -229,7 +229,7 @@ class LocalizerConfig:
 
 
 def _named_stage(
-    value: Any, params: Any, table: dict[str, type], base: type, kind: str
+    value: Any, params: Any, table: Registry[Any], base: type, kind: str
 ) -> tuple[Any, dict[str, Any]]:
     """(registered name, parameters) of a stage given by name, as a typed object, or as a
     mapping {"name": ..., field: value}; `params` add to (and override) the object's fields.
@@ -252,9 +252,9 @@ def _named_stage(
             choices = ", ".join(table)
             raise SglocError(f"setting {kind}: a mapping needs a 'name' (one of {choices}).")
         name = fields.pop("name")
-        return registered_name(table, name, kind), fields | (params or {})
+        return table.key(name), fields | (params or {})
     if isinstance(value, str):
-        return registered_name(table, value, kind), params
+        return table.key(value), params
     return value, params
 
 
@@ -322,8 +322,8 @@ _TOP_LEVEL = {"class_weights", "robust_refit", "class_scale", "icp", "icp_max_di
 
 def _flat_routes(descriptor: Any, rejection: Any) -> dict[str, list[tuple[str, str]]]:
     """{flat name: [(stage, field), ...]} of every bare and stage-qualified setting name."""
-    desc = DESCRIPTORS.get(descriptor.replace("-", "_")) if isinstance(descriptor, str) else None
-    rej = REJECTORS.get(rejection) if isinstance(rejection, str) else None
+    desc = DESCRIPTORS.find(descriptor) if isinstance(descriptor, str) else None
+    rej = REJECTORS.find(rejection) if isinstance(rejection, str) else None
     stages = {
         "matching": _fields(MatchingConfig),
         "ransac": _fields(RansacConfig),

@@ -20,7 +20,8 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-from sgloc.errors import DatasetError, UnknownNameError
+from sgloc.errors import DatasetError
+from sgloc.registry import Registry
 
 #: The source tree's root when running from a checkout (src/sgloc/data.py); after an install
 #: this points into site-packages and `checkout_data_dir()` returns None.
@@ -84,7 +85,7 @@ _LC_HASH = {
               "2f9de9ca4283b3c033ffbd4eab074ad9f13d22c141ca0d8ee5d9cbf742de50ce"),
 }
 
-DATASETS: dict[str, DataSet] = {
+DATASETS: Registry[DataSet] = Registry("data set", {
     "airsim_guo": DataSet(
         "airsim_guo",
         "Airsim object maps of two robots (Guo et al., RA-L 2021); shipped with sgloc",
@@ -122,15 +123,12 @@ DATASETS: dict[str, DataSet] = {
         "(https://www.cvlibs.net/datasets/kitti/). Hosted by GOSMatch (objects), evo (poses) and "
         "G3Reg (refined loop transforms, sequence 00 rows kept), whose code is MIT.",
     ),
-}
+})
 
 
 def dataset(name: str) -> DataSet:
     """The DataSet called `name` (`-` and `_` alike); UnknownNameError listing the names."""
-    key = name.strip().lower().replace("-", "_")
-    if key not in DATASETS:
-        raise UnknownNameError(f"unknown data set {name!r}; choose one of {', '.join(DATASETS)}.")
-    return DATASETS[key]
+    return DATASETS.lookup(name)
 
 
 def user_data_dir() -> Path:

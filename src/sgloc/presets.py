@@ -33,8 +33,7 @@ from __future__ import annotations
 import copy
 from typing import TYPE_CHECKING, Any
 
-from sgloc.errors import UnknownNameError
-from sgloc.registry import lookup
+from sgloc.registry import Registry
 
 if TYPE_CHECKING:
     from sgloc.config import LocalizerConfig
@@ -65,7 +64,7 @@ _GUO: dict[str, Any] = {
     "acceptance": {"enabled": False, "distinct_ratio": None},
 }
 
-LOCALIZER_PRESETS: dict[str, dict[str, Any]] = {
+LOCALIZER_PRESETS: Registry[dict[str, Any]] = Registry("preset", {
     "default": {},
     "paper": {**_GUO, "rejection": "neighbor", "tau": 5.0, "eta": 0.5, "form": "distance",
               "bound": "literal"},  # fmt: skip
@@ -73,20 +72,20 @@ LOCALIZER_PRESETS: dict[str, dict[str, Any]] = {
     "airsim-guo": {},
     "city": {"class_weights": {0: 0.1}},
     "kitti-objects": {"ransac_threshold": 2.0, "tau": 2.0},
-}
+})
 
-EXTRACTION_PRESETS: dict[str, dict[str, Any]] = {
+EXTRACTION_PRESETS: Registry[dict[str, Any]] = Registry("extraction preset", {
     "default": {},
     "paper": {},
     "guo": {},
     "kitti-objects": {"merge_distance": 3.0, "min_observations": 2},
     "synthia": {"ignore_classes": (1, 3, 4, 12)},
-}
+})
 
 
 def localizer_settings(name: str) -> dict[str, Any]:
     """A copy of the flat localizer settings of preset `name` (e.g. {"tau": 2.0})."""
-    return copy.deepcopy(lookup(LOCALIZER_PRESETS, name, "preset"))
+    return copy.deepcopy(LOCALIZER_PRESETS.lookup(name))
 
 
 def localizer_preset(name: str) -> LocalizerConfig:
@@ -98,10 +97,7 @@ def localizer_preset(name: str) -> LocalizerConfig:
 
 def extraction_settings(name: str) -> dict[str, Any]:
     """A copy of the extraction settings of preset `name`; {} (Guo's defaults) when none."""
-    try:
-        return copy.deepcopy(lookup(EXTRACTION_PRESETS, name, "extraction preset"))
-    except UnknownNameError:
-        return {}
+    return copy.deepcopy(EXTRACTION_PRESETS.find(name) or {})
 
 
 def extraction_preset(name: str) -> ExtractionConfig:

@@ -26,7 +26,6 @@ from sgloc.estimation import (
     RansacConfig,
     estimate_pose,
 )
-from sgloc.registry import lookup
 from sgloc.rejection import REJECTORS, Rejector, make_rejector
 from sgloc.timing import StageTimer
 
@@ -81,7 +80,7 @@ def _stage_settings(
     if isinstance(rejection, Rejector):
         rej_cls, rej = type(rejection), rejection
     else:
-        rej_cls, rej = lookup(REJECTORS, rejection, "rejection"), None
+        rej_cls, rej = REJECTORS.lookup(rejection), None
     rej_fields = _rejector_fields(rej_cls)
     ransac_fields = {f.name for f in dataclasses.fields(RansacConfig)}
     unknown = set(settings) - rej_fields - ransac_fields

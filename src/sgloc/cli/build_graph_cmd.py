@@ -17,9 +17,9 @@ from sgloc.extraction import build_graph, extraction_preset
 
 def _loader_options(dataset: str, given: dict) -> dict:
     """Route CLI options to the loader's own parameter names; fail on unsupported ones."""
-    key = dataset.strip().lower().replace("-", "_")
-    if key not in DATASETS:
-        raise fail(f"unknown dataset {dataset!r}; choose one of {sorted(DATASETS)}.")
+    if DATASETS.find(dataset) is None:
+        raise fail(DATASETS.unknown_message(dataset))
+    key = DATASETS.key(dataset)
     params = set(inspect.signature(DATASETS[key]).parameters)
     out = {}
     for name, value in given.items():
@@ -85,9 +85,8 @@ def build_graph_cmd(
     }
     from sgloc.presets import EXTRACTION_PRESETS
 
-    if preset is not None and preset.strip().lower().replace("_", "-") not in EXTRACTION_PRESETS:
-        raise fail(f"unknown extraction preset {preset!r}; choose one of "
-                   f"{', '.join(EXTRACTION_PRESETS)}.")
+    if preset is not None and EXTRACTION_PRESETS.find(preset) is None:
+        raise fail(EXTRACTION_PRESETS.unknown_message(preset))
     config = extraction_preset(preset or dataset).with_overrides(
         **{k: v for k, v in overrides.items() if v is not None}
     )

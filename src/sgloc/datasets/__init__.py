@@ -18,20 +18,23 @@ from sgloc.datasets.kitti import KittiDataset
 from sgloc.datasets.kitti_objects import KittiObjectsDataset
 from sgloc.datasets.synthia import SynthiaDataset
 from sgloc.errors import DatasetError
-from sgloc.registry import lookup
+from sgloc.registry import Registry
 
 #: Loader classes by name.
-DATASETS: dict[str, type[Dataset]] = {
-    "airsim": AirsimDataset,
-    "synthia": SynthiaDataset,
-    "kitti": KittiDataset,
-    "kitti_objects": KittiObjectsDataset,
-}
+DATASETS: Registry[type[Dataset]] = Registry(
+    "dataset",
+    {
+        "airsim": AirsimDataset,
+        "synthia": SynthiaDataset,
+        "kitti": KittiDataset,
+        "kitti_objects": KittiObjectsDataset,
+    },
+)
 
 
 def make_dataset(name: str, path: str | Path, **options: Any) -> Dataset:
     """The loader `name` (see DATASETS) on `path`, with its own options (e.g. robot=, scans=)."""
-    cls = lookup(DATASETS, name, "dataset")
+    cls = DATASETS.lookup(name)
     try:
         inspect.signature(cls).bind(path, **options)
     except TypeError as e:

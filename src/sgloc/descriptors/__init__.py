@@ -10,22 +10,25 @@ from sgloc.descriptors.distance import DistanceHistogramDescriptor, TriangleDesc
 from sgloc.descriptors.fast import FastDescriptor
 from sgloc.descriptors.histogram import HistogramDescriptor
 from sgloc.descriptors.random_walk import RandomWalkDescriptor
-from sgloc.registry import lookup
+from sgloc.registry import Registry
 
-DESCRIPTORS: dict[str, type[Descriptor]] = {
-    "histogram": HistogramDescriptor,
-    "random_walk": RandomWalkDescriptor,
-    "fast": FastDescriptor,
-    "distance_histogram": DistanceHistogramDescriptor,
-    "triangles": TriangleDescriptor,
-}
+DESCRIPTORS: Registry[type[Descriptor]] = Registry(
+    "descriptor",
+    {
+        "histogram": HistogramDescriptor,
+        "random_walk": RandomWalkDescriptor,
+        "fast": FastDescriptor,
+        "distance_histogram": DistanceHistogramDescriptor,
+        "triangles": TriangleDescriptor,
+    },
+)
 
 
 def make_descriptor(name: str | Descriptor, **params: Any) -> Descriptor:
     """A descriptor by name (see DESCRIPTORS) with optional parameters."""
     if isinstance(name, Descriptor):
         return name
-    return lookup(DESCRIPTORS, name, "descriptor")(**params)
+    return DESCRIPTORS.lookup(name)(**params)
 
 
 __all__ = [

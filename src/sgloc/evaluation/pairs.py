@@ -166,19 +166,15 @@ class SynthiaPairs(MovedTargetSource):
         return query, target, invert(PA[a[0]]) @ PB[b[0]], info
 
 
-#: Dataset names that stand for another source.
-ALIASES: dict[str, str] = {"synthetic": "city"}
-
-
 def make_pair_source(name: str, **params: Any) -> PairSource:
     """A pair source by registered name (or alias), or by a folder: a SYNTHIA sequence (with
     CameraParams/), an Airsim-layout two-robot run (with ground_truth.txt), or a folder holding
     two graph files."""
-    cls = PAIR_SOURCES.get(ALIASES.get(name, name))
+    cls = PAIR_SOURCES.find(name)
     if cls is None:
         path = Path(name)
         if not path.is_dir():
-            names = ", ".join(sorted({*PAIR_SOURCES, *ALIASES}))
+            names = ", ".join(sorted(PAIR_SOURCES.names()))
             raise UnknownNameError(
                 f"unknown dataset {name!r}; choose one of {names} or give a folder holding two "
                 "graph files or an Airsim-layout run with ground_truth.txt."

@@ -23,6 +23,7 @@ from sgloc.evaluation.metrics import pose_errors
 from sgloc.geometry import invert, random_rigid_transform
 from sgloc.graph import DEFAULT_EDGE_RADIUS, SemanticGraph
 from sgloc.presets import extraction_preset
+from sgloc.registry import Registry
 
 #: Stream index of the pair's random numbers within a trial seed.
 PAIR_STREAM = 0
@@ -57,18 +58,12 @@ class Pair:
 
 PairSource = Callable[[int], Pair]
 
-#: name -> class of pair source (called with its parameters, then with a seed).
-PAIR_SOURCES: dict[str, type] = {}
+#: name -> class of pair source (called with its parameters, then with a seed); "synthetic"
+#: is another name of "city".
+PAIR_SOURCES: Registry[type] = Registry("dataset", aliases={"synthetic": "city"})
 
-
-def register_pair_source(name: str) -> Callable[[type], type]:
-    """Class decorator: register a pair source class under `name`."""
-
-    def deco(cls: type) -> type:
-        PAIR_SOURCES[name] = cls
-        return cls
-
-    return deco
+#: Class decorator: register a pair source class under a name (`@register_pair_source("x")`).
+register_pair_source = PAIR_SOURCES.register
 
 
 def pair_rng(seed: int) -> np.random.Generator:

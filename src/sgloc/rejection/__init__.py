@@ -4,25 +4,28 @@ from __future__ import annotations
 
 from typing import Any
 
-from sgloc.registry import lookup
+from sgloc.registry import Registry
 from sgloc.rejection.base import NoRejection, Rejector
 from sgloc.rejection.clique import CliqueRejector
 from sgloc.rejection.neighbor import NeighborRejector, consistency_matrix, prune_by_support
 from sgloc.rejection.spectral import SpectralRejector
 
-REJECTORS: dict[str, type[Rejector]] = {
-    "none": NoRejection,
-    "neighbor": NeighborRejector,
-    "spectral": SpectralRejector,
-    "clique": CliqueRejector,
-}
+REJECTORS: Registry[type[Rejector]] = Registry(
+    "rejection",
+    {
+        "none": NoRejection,
+        "neighbor": NeighborRejector,
+        "spectral": SpectralRejector,
+        "clique": CliqueRejector,
+    },
+)
 
 
 def make_rejector(name: str | Rejector, **params: Any) -> Rejector:
     """A rejector by name with optional parameters."""
     if isinstance(name, Rejector):
         return name
-    return lookup(REJECTORS, name, "rejection")(**params)
+    return REJECTORS.lookup(name)(**params)
 
 
 __all__ = [
