@@ -27,10 +27,10 @@ from sgloc.datasets import Frame, make_dataset
 from sgloc.extraction import (
     ExtractionConfig,
     build_graph,
-    kitti_objects_extraction_config,
-    kitti_objects_localizer_config,
+    extraction_preset,
 )
 from sgloc.geometry import transform_error
+from sgloc.presets import localizer_preset
 
 
 def blocky_frame(rng: np.random.Generator, H: int, W: int, index: int) -> Frame:
@@ -70,7 +70,7 @@ def kitti(seeds: int) -> list[tuple]:
     T_gt = np.linalg.inv(a_w.poses[0]) @ b_w.poses[0]
     rows = []
     for name, cfg in (
-        ("preset (3 m, >=2 obs)", kitti_objects_extraction_config()),
+        ("preset (3 m, >=2 obs)", extraction_preset("kitti-objects")),
         ("defaults (5 m, >=1 obs)", ExtractionConfig()),
     ):
         t = time.perf_counter()
@@ -82,7 +82,7 @@ def kitti(seeds: int) -> list[tuple]:
         for direction, q, tg, G in (("B->A", gb, ga, T_gt), ("A->B", ga, gb, np.linalg.inv(T_gt))):
             errs, ok = [], 0
             for s in range(seeds):
-                r = localize(q, tg, seed=s, config=kitti_objects_localizer_config())
+                r = localize(q, tg, seed=s, config=localizer_preset("kitti-objects"))
                 if r.success:
                     e = transform_error(r.transform, G)
                     errs.append(e)

@@ -88,7 +88,7 @@ def test_move_target_draws_the_pairs_motion_from_the_seed(rng):
 
 def test_synthia_extraction_preset_drops_the_datasets_stuff_classes():
     from sgloc.datasets.synthia import SYNTHIA_STUFF_CLASSES
-    from sgloc.presets import extraction_preset
+    from sgloc.extraction import extraction_preset
 
     assert extraction_preset("synthia").ignore_classes == SYNTHIA_STUFF_CLASSES
 

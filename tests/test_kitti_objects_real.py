@@ -14,10 +14,10 @@ from sgloc import localize
 from sgloc.datasets import make_dataset
 from sgloc.extraction import (
     build_graph,
-    kitti_objects_extraction_config,
-    kitti_objects_localizer_config,
+    extraction_preset,
 )
 from sgloc.geometry import transform_error
+from sgloc.presets import localizer_preset
 
 A_SCANS, B_SCANS = (0, 800), (3900, 4540)
 
@@ -30,7 +30,7 @@ def kitti(data_dir):
     a_world = make_dataset("kitti_objects", root, scans=A_SCANS)
     b_world = make_dataset("kitti_objects", root, scans=B_SCANS)
     T_gt = np.linalg.inv(a_world.poses[0]) @ b_world.poses[0]
-    cfg = kitti_objects_extraction_config()
+    cfg = extraction_preset("kitti-objects")
     return {
         "a": build_graph(a, cfg, name="A"),
         "b": build_graph(b, cfg, name="B"),
@@ -61,7 +61,7 @@ def test_graphs_overlap_as_the_data_readme_says(kitti):
 
 @pytest.mark.parametrize("seed", [0, 1, 2, 3, 4])
 def test_localize_b_in_a_recovers_ground_truth(kitti, seed):
-    res = localize(kitti["b"], kitti["a"], seed=seed, config=kitti_objects_localizer_config())
+    res = localize(kitti["b"], kitti["a"], seed=seed, config=localizer_preset("kitti-objects"))
     assert res.success, res.reason
     te, re = transform_error(res.transform, kitti["T_gt"])
     assert te < 3.0 and re < 3.0, (te, re)

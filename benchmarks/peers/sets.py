@@ -111,9 +111,9 @@ def kitti_sets(seeds: int) -> Iterator[BenchSet]:
     from sgloc.datasets import make_dataset
     from sgloc.extraction import (
         build_graph,
-        kitti_objects_extraction_config,
-        kitti_objects_localizer_config,
+        extraction_preset,
     )
+    from sgloc.presets import localizer_preset
 
     root = data_path("kitti00")
     a = make_dataset("kitti_objects", root, scans="0-800", start_frame=True)
@@ -121,9 +121,9 @@ def kitti_sets(seeds: int) -> Iterator[BenchSet]:
     a_w = make_dataset("kitti_objects", root, scans="0-800")
     b_w = make_dataset("kitti_objects", root, scans="3900-4540")
     T_a_b = np.linalg.inv(a_w.poses[0]) @ b_w.poses[0]
-    cfg = kitti_objects_extraction_config()
+    cfg = extraction_preset("kitti-objects")
     ga, gb = build_graph(a, cfg), build_graph(b, cfg)
-    lcfg = kitti_objects_localizer_config()
+    lcfg = localizer_preset("kitti-objects")
     cand = _candidates(gb, ga, lcfg.matching)
     tau = float(lcfg.rejection_params.get("tau", 2.0))
     yield from _moved_sets(

@@ -1,6 +1,7 @@
 """Named settings, in one place: the localizer settings and the extraction settings tuned for
 each kind of data. `sgloc localize|fleet|experiment --preset NAME` and the dataset loaders,
-experiments and the demo all read them from here.
+experiments and the demo all read them from here (`localizer_preset(name)` gives the
+LocalizerConfig, `sgloc.extraction.extraction_preset(name)` the ExtractionConfig).
 
 Localizer presets (flat `LocalizerConfig.with_overrides` settings):
 - `default`: sgloc's own defaults (nothing changed).
@@ -37,7 +38,6 @@ from sgloc.registry import Registry
 
 if TYPE_CHECKING:
     from sgloc.config import LocalizerConfig
-    from sgloc.extraction.config import ExtractionConfig
 
 #: Guo et al.'s pipeline (the paper's baseline), every sgloc addition switched off.
 _GUO: dict[str, Any] = {
@@ -98,10 +98,3 @@ def localizer_preset(name: str) -> LocalizerConfig:
 def extraction_settings(name: str) -> dict[str, Any]:
     """A copy of the extraction settings of preset `name`; {} (Guo's defaults) when none."""
     return copy.deepcopy(EXTRACTION_PRESETS.find(name) or {})
-
-
-def extraction_preset(name: str) -> ExtractionConfig:
-    """The ExtractionConfig for a dataset name (the paper's defaults when none is tuned)."""
-    from sgloc.extraction.config import ExtractionConfig
-
-    return ExtractionConfig(**extraction_settings(name))

@@ -20,9 +20,9 @@ from typing import Any, ClassVar
 import numpy as np
 
 from sgloc.evaluation.metrics import pose_errors
+from sgloc.extraction import extraction_preset
 from sgloc.geometry import invert, random_rigid_transform
 from sgloc.graph import DEFAULT_EDGE_RADIUS, SemanticGraph
-from sgloc.presets import extraction_preset
 from sgloc.registry import Registry
 
 #: Stream index of the pair's random numbers within a trial seed.

@@ -2,12 +2,7 @@
 
 from sgloc.extraction.backprojection import backproject_pixels, region_positions, to_map
 from sgloc.extraction.builder import GraphBuilder, build_graph, frame_observations
-from sgloc.extraction.config import REFERENCE_RESOLUTION, ExtractionConfig
-from sgloc.extraction.presets import (
-    extraction_preset,
-    kitti_objects_extraction_config,
-    kitti_objects_localizer_config,
-)
+from sgloc.extraction.config import REFERENCE_RESOLUTION, ExtractionConfig, extraction_preset
 from sgloc.extraction.segmentation import Segmentation, segment
 
 __all__ = [
@@ -19,8 +14,6 @@ __all__ = [
     "build_graph",
     "extraction_preset",
     "frame_observations",
-    "kitti_objects_extraction_config",
-    "kitti_objects_localizer_config",
     "region_positions",
     "segment",
     "to_map",
