@@ -9,7 +9,7 @@ import weakref
 import numpy as np
 
 from sgloc import SemanticGraph, localize
-from sgloc.canonical import _FORMS, CanonicalPair
+from sgloc.canonical import CANONICAL_FORMS, CanonicalPair
 from sgloc.config import LocalizerConfig
 from sgloc.descriptors import distance
 
@@ -35,7 +35,7 @@ def test_repeated_localize_gives_the_same_answer(airsim_graphs):
     assert np.array_equal(first.matches, second.matches)
     # The descriptors of later calls come from the canonical graphs' cache.
     pair = CanonicalPair(q, t, LocalizerConfig())
-    assert pair.query in distance._CACHE and pair.target in distance._CACHE
+    assert pair.query in distance.DESCRIPTOR_CACHE and pair.target in distance.DESCRIPTOR_CACHE
 
 
 def test_cache_entries_go_with_the_graph():
@@ -43,11 +43,11 @@ def test_cache_entries_go_with_the_graph():
     g = SemanticGraph(rng.uniform(0, 50, (30, 3)), rng.integers(0, 3, 30))
     h = SemanticGraph(rng.uniform(0, 50, (30, 3)), rng.integers(0, 3, 30))
     CanonicalPair(g, h, LocalizerConfig())
-    assert g in _FORMS and h in _FORMS
+    assert g in CANONICAL_FORMS and h in CANONICAL_FORMS
     refs = [weakref.ref(g), weakref.ref(h)]
     gc.collect()  # earlier tests' graphs may go too: count only these two
-    n = len(_FORMS)
+    n = len(CANONICAL_FORMS)
     del g, h
     gc.collect()
     assert all(r() is None for r in refs)  # nothing (the cache included) kept them alive
-    assert len(_FORMS) == n - 2
+    assert len(CANONICAL_FORMS) == n - 2

@@ -178,10 +178,10 @@ def test_json_duplicate_keys_are_refused(tmp_path):
 
 
 def test_nan_detection_centroids_are_refused():
-    from sgloc.datasets.kitti_objects import _parse_centroids
+    from sgloc.datasets.kitti_objects import parse_centroids
 
     with pytest.raises(DatasetError, match="NaN or infinite"):
-        _parse_centroids(b"1 2 3\nnan 0 0\n", "centroids/000001.txt")
+        parse_centroids(b"1 2 3\nnan 0 0\n", "centroids/000001.txt")
 
 
 def test_json_depth_is_bounded(tmp_path):

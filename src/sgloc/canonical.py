@@ -17,7 +17,7 @@ from sgloc.graph import SemanticGraph
 #: Canonical forms already built, per caller's graph (graphs are immutable; entries go with the
 #: graph): {class table bytes: (order, canonical graph)}. Reusing the canonical graph lets its
 #: own caches (descriptors, adjacency) serve every later call with the same map.
-_FORMS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+CANONICAL_FORMS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 #: Class tables kept per graph (a map localized against maps with other classes).
 _FORMS_PER_GRAPH = 4
 
@@ -49,7 +49,7 @@ class CanonicalPair:
     def _canonical(self, graph: SemanticGraph) -> tuple[np.ndarray, SemanticGraph]:
         """(order, canonical graph) of `graph` under this pair's class table, built once."""
         key = self.classes.tobytes()
-        forms = _FORMS.setdefault(graph, {})
+        forms = CANONICAL_FORMS.setdefault(graph, {})
         if key not in forms:
             if len(forms) >= _FORMS_PER_GRAPH:
                 forms.pop(next(iter(forms)))

@@ -23,6 +23,19 @@ AIRSIM_COLORS: np.ndarray = np.array(
 )
 
 
+#: 11 distinct class colours (hex) of every picture, class k -> CLASS_PALETTE[k % 11] (chosen in
+#: sgloc.viz's docstring).
+CLASS_PALETTE: tuple[str, ...] = (
+    "#0072B2", "#F38400", "#2CA02C", "#D62728", "#6A3D9A", "#654522",
+    "#E68FAC", "#F0E442", "#000000", "#17BECF", "#C2B280",
+)  # fmt: skip
+
+
+def class_colours(labels: np.ndarray) -> list[str]:
+    """A palette colour (hex) for each class id."""
+    return [CLASS_PALETTE[int(c) % len(CLASS_PALETTE)] for c in np.asarray(labels)]
+
+
 def pack_rgb(colors: np.ndarray) -> np.ndarray:
     """Pack (n,3) uint8 RGB into PCL's 24-bit integer `rgb` field (r << 16 | g << 8 | b)."""
     c = np.asarray(colors, dtype=np.uint32)

@@ -11,20 +11,11 @@ from pathlib import Path
 
 import numpy as np
 
+from sgloc.classes import CLASS_PALETTE, class_colours
 from sgloc.geometry import apply
 from sgloc.graph import SemanticGraph
 
-#: 11 distinct class colours (hex), class k -> CLASS_PALETTE[k % 11].
-CLASS_PALETTE: tuple[str, ...] = (
-    "#0072B2", "#F38400", "#2CA02C", "#D62728", "#6A3D9A", "#654522",
-    "#E68FAC", "#F0E442", "#000000", "#17BECF", "#C2B280",
-)
 ROBOT_MARKERS: tuple[str, ...] = ("o", "^", "s", "D", "v", "P", "X", "*")
-
-
-def class_colours(labels: np.ndarray) -> list[str]:
-    """A palette colour for each class id."""
-    return [CLASS_PALETTE[int(c) % len(CLASS_PALETTE)] for c in np.asarray(labels)]
 
 
 def top_down(ax, points_xy: np.ndarray | None = None) -> None:

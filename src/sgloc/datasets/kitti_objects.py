@@ -58,7 +58,9 @@ def _parse_bow(data: bytes, where: str) -> np.ndarray:
     return bow
 
 
-def _parse_centroids(data: bytes, where: str) -> np.ndarray:
+def parse_centroids(data: bytes, where: str) -> np.ndarray:
+    """(n,3) float64 centroids (metres, sensor frame) of a centroids file's bytes, rows `x y z`;
+    DatasetError naming `where` when a value is not a finite number or a row is short."""
     try:
         vals = np.array(data.split(), dtype=np.float64)
     except ValueError:
@@ -101,7 +103,7 @@ def _check_scans(bow: np.ndarray, texts: dict[int, bytes], where: str) -> tuple[
         )
     out = []
     for i in range(n):
-        c = _parse_centroids(texts[i], f"{where}: centroids/{i:06d}.txt")
+        c = parse_centroids(texts[i], f"{where}: centroids/{i:06d}.txt")
         if len(c) != bow[i].sum():
             raise DatasetError(
                 f"{where}: centroids/{i:06d}.txt has {len(c)} rows but bow.txt line {i + 1} "
@@ -196,7 +198,7 @@ class KittiObjectsDataset(Dataset):
             pts = self._centroids[k]
         else:
             p = self._folder / "centroids" / f"{k:06d}.txt"
-            pts = _parse_centroids(_read_text_bytes(p, "scan centroids"), str(p))
+            pts = parse_centroids(_read_text_bytes(p, "scan centroids"), str(p))
             if len(pts) != self._bow[k].sum():
                 raise DatasetError(
                     f"{p}: {len(pts)} rows but bow.txt counts {self._bow[k].sum()} objects."

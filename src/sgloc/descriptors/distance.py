@@ -12,7 +12,7 @@ from sgloc.descriptors.base import Descriptor
 from sgloc.graph import SemanticGraph
 
 #: Descriptors already computed, per graph (graphs are immutable; entries go with the graph).
-_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+DESCRIPTOR_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def neighbour_pairs(positions: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
@@ -65,7 +65,7 @@ class DistanceHistogramDescriptor(Descriptor):
     def __call__(self, graph: SemanticGraph, n_classes: int, rng: np.random.Generator):
         # Deterministic: a map localized against several others is described once.
         key = (n_classes, float(self.radius), int(self.n_bins), float(self.taper))
-        per_graph = _CACHE.setdefault(graph, {})
+        per_graph = DESCRIPTOR_CACHE.setdefault(graph, {})
         if key not in per_graph:
             H = self._compute(graph, n_classes)
             H.flags.writeable = False

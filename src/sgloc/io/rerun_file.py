@@ -12,14 +12,13 @@ from pathlib import Path
 
 import numpy as np
 
+from sgloc.classes import class_colours
 from sgloc.geometry import apply
 from sgloc.graph import SemanticGraph
 from sgloc.optional import require
 
 
 def _rgb(labels: np.ndarray) -> np.ndarray:
-    from sgloc.viz import class_colours
-
     hexes = class_colours(labels)
     return np.array([[int(h[i : i + 2], 16) for i in (1, 3, 5)] for h in hexes], dtype=np.uint8)
 

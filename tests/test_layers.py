@@ -1,0 +1,260 @@
+"""The package's layering, read from the source with `ast` (module- and function-level imports,
+TYPE_CHECKING ones too): data flows one way (graph -> descriptors -> matching -> rejection ->
+RANSAC -> pose -> acceptance -> localizer -> fleet -> tools -> CLI), so no module imports a
+higher layer, no two modules import each other (directly or round a loop), and no module (nor
+test) imports another module's private (`_name`) names."""
+
+from __future__ import annotations
+
+import ast
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SRC = ROOT / "src"
+TESTS = ROOT / "tests"
+
+#: Layer rank of every module, by its dotted name or the longest listed prefix of it. A module
+#: may import its own rank and lower ones only.
+LAYERS: dict[str, int] = {
+    # base: no pipeline stage
+    "sgloc.errors": 0,
+    "sgloc.optional": 0,
+    "sgloc.validation": 0,
+    "sgloc.registry": 0,
+    "sgloc.geometry": 0,
+    "sgloc.spatial": 0,
+    "sgloc.classes": 0,
+    "sgloc.timing": 0,
+    "sgloc.kernels": 0,
+    "sgloc.workers": 0,
+    # maps and files
+    "sgloc.io": 1,
+    "sgloc.graph": 1,
+    "sgloc.units": 1,
+    # matching
+    "sgloc.descriptors": 2,
+    "sgloc.matching": 2,
+    "sgloc.consistency": 2,
+    "sgloc.local_consistency": 2,
+    "sgloc.sampled_consistency": 2,
+    "sgloc.rejection": 3,
+    "sgloc.estimation": 4,
+    "sgloc.covariance": 4,
+    "sgloc.acceptance": 5,
+    # the localizer and its settings
+    "sgloc.config": 6,
+    "sgloc.presets": 6,
+    "sgloc.canonical": 6,
+    "sgloc.localizer": 6,
+    "sgloc.registration": 6,
+    "sgloc": 7,  # the package's own __init__: the public API, up to the fleet
+    # many maps
+    "sgloc.prepared": 7,
+    "sgloc.online": 7,
+    "sgloc.keyframes": 7,
+    "sgloc.fleet": 7,
+    "sgloc.merge": 7,
+    # tools around the library
+    "sgloc.datasets": 8,
+    "sgloc.extraction": 8,
+    "sgloc.sim": 8,
+    "sgloc.evaluation": 8,
+    "sgloc.downloads": 8,
+    "sgloc.mirror": 8,
+    "sgloc.viz": 8,
+    "sgloc.replay": 8,
+    "sgloc.warmup": 8,
+    # the command line
+    "sgloc.cli": 9,
+    "sgloc.__main__": 9,
+}
+
+
+#: Imports that break the layering today, each with the change that removes it. Keep empty.
+KNOWN: dict[tuple[str, str], str] = {
+    ("sgloc.fleet", "sgloc.viz"): "fleet's plot moves to sgloc.viz with the online session",
+}
+
+
+def _module_name(path: Path, root: Path) -> str:
+    parts = list(path.relative_to(root).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+SRC_MODULES: dict[str, Path] = {
+    _module_name(p, SRC): p for p in sorted((SRC / "sgloc").rglob("*.py"))
+}
+
+
+def rank(module: str) -> int:
+    """The layer of `module`: the entry of its longest listed prefix."""
+    parts = module.split(".")
+    for n in range(len(parts), 0, -1):
+        key = ".".join(parts[:n])
+        if key in LAYERS:
+            return LAYERS[key]
+    raise KeyError(module)
+
+
+def _is_package(module: str) -> bool:
+    return SRC_MODULES.get(module, Path()).name == "__init__.py"
+
+
+def _imports(module: str, path: Path) -> Iterator[tuple[str, list[str], int]]:
+    """(imported sgloc module, names taken from it, line) of every import in `path`."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    package = module if _is_package(module) else module.rpartition(".")[0]
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.split(".")[0] == "sgloc":
+                    yield alias.name, [], node.lineno
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")
+                anchor = anchor[: len(anchor) - (node.level - 1)]
+                base = ".".join([*anchor, base] if base else anchor)
+            if base.split(".")[0] != "sgloc":
+                continue
+            names = []
+            for alias in node.names:
+                sub = f"{base}.{alias.name}"
+                if sub in SRC_MODULES:  # `from sgloc.x import submodule`
+                    yield sub, [], node.lineno
+                else:
+                    names.append(alias.name)
+            if names:
+                yield base, names, node.lineno
+
+
+def _edges() -> dict[str, set[str]]:
+    """{module: the modules its imports run}: the imported module and the packages above it
+    (their `__init__` runs first) other than the importer's own packages and `sgloc` itself."""
+    graph: dict[str, set[str]] = {m: set() for m in SRC_MODULES}
+    for module, path in SRC_MODULES.items():
+        own = {module.rsplit(".", n)[0] for n in range(module.count(".") + 1)}
+        for target, _, _ in _imports(module, path):
+            parts = target.split(".")
+            runs = {".".join(parts[:n]) for n in range(2, len(parts) + 1)}
+            graph[module] |= {t for t in runs - own if t in SRC_MODULES}
+    return graph
+
+
+def test_every_module_has_a_layer():
+    missing = []
+    for m in SRC_MODULES:
+        try:
+            rank(m)
+        except KeyError:
+            missing.append(m)
+    assert not missing, f"add these modules to LAYERS: {missing}"
+
+
+def test_no_module_imports_a_higher_layer():
+    bad = []
+    for module, path in SRC_MODULES.items():
+        for target, _, line in _imports(module, path):
+            known = (module, target) in KNOWN
+            if target in SRC_MODULES and rank(target) > rank(module) and not known:
+                bad.append(f"{path.relative_to(ROOT)}:{line}: {module} ({rank(module)}) "
+                           f"imports {target} ({rank(target)})")  # fmt: skip
+    assert not bad, "\n".join(bad)
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components with more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    out: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                out.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_no_import_cycle():
+    graph = _edges()
+    assert not _cycles(graph), _cycles(graph)
+
+
+def test_the_cycle_finder_finds_a_loop():
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert _cycles({"a": {"b"}, "b": set()}) == []
+
+
+def _private(name: str) -> bool:
+    return name.startswith("_") and not name.startswith("__")
+
+
+def _private_imports(files: dict[str, Path]) -> list[str]:
+    """`from sgloc.x import _name` and `x._name` on an imported sgloc module `x`."""
+    bad = []
+    for module, path in files.items():
+        for target, names, line in _imports(module, path):
+            private = [n for n in names if _private(n)]
+            if private and target != module:
+                bad.append(f"{path.relative_to(ROOT)}:{line}: {', '.join(private)} from {target}")
+        bound = set()
+        tree = ast.parse(path.read_text())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import | ast.ImportFrom):
+                mod = getattr(node, "module", None) or ""
+                for alias in node.names:
+                    full = alias.name if isinstance(node, ast.Import) else f"{mod}.{alias.name}"
+                    if full.startswith("sgloc") and full in SRC_MODULES and full != module:
+                        bound.add(alias.asname or alias.name.split(".")[0])
+        for node in ast.walk(tree):
+            if (isinstance(node, ast.Attribute) and _private(node.attr)
+                    and isinstance(node.value, ast.Name) and node.value.id in bound):  # fmt: skip
+                bad.append(f"{path.relative_to(ROOT)}:{node.lineno}: {node.value.id}.{node.attr}")
+    return bad
+
+
+def test_no_module_imports_private_names():
+    bad = _private_imports(SRC_MODULES)
+    assert not bad, "\n".join(bad)
+
+
+def test_no_test_imports_private_names():
+    files = {f"tests.{p.stem}": p for p in sorted(TESTS.rglob("*.py"))}
+    bad = _private_imports(files)
+    assert not bad, "\n".join(bad)
+
+
+@pytest.mark.parametrize(
+    ("module", "layer"),
+    [("sgloc.kernels.fit", 0), ("sgloc.io.graph_files", 1), ("sgloc.acceptance.chance", 5),
+     ("sgloc", 7), ("sgloc.cli.app", 9)],  # fmt: skip
+)
+def test_rank_reads_the_longest_prefix(module, layer):
+    assert rank(module) == layer
