@@ -384,7 +384,7 @@ GTSAM's `Pose3`:
 import numpy as np
 from sgloc import localize
 from sgloc.covariance import point_covariance
-from sgloc.data import airsim_guo
+from sgloc.downloads import airsim_guo
 
 q, t = airsim_guo()
 res = localize(q, t)

@@ -22,8 +22,8 @@ from rich.table import Table
 from scipy.spatial.distance import cdist
 
 from sgloc import localize
-from sgloc.data import data_path
 from sgloc.datasets import Frame, make_dataset
+from sgloc.downloads import data_path
 from sgloc.extraction import (
     ExtractionConfig,
     build_graph,

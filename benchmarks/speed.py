@@ -138,7 +138,7 @@ _LOAD = "import time\nt = time.time()\nwhile time.time() - t < 600: pass\n"
 
 def airsim_maps():
     from sgloc import SemanticGraph
-    from sgloc.data import data_path
+    from sgloc.downloads import data_path
 
     d = data_path("airsim_guo")
     return SemanticGraph.load(d / "cloud1.pcd"), SemanticGraph.load(d / "cloud2.pcd")
@@ -253,7 +253,7 @@ def run_startup(runs: int) -> dict:
 def run_cli(runs: int) -> list[float]:
     """Wall seconds of `sgloc localize cloud1.pcd cloud2.pcd` (Airsim maps) as a whole process,
     after one untimed run."""
-    from sgloc.data import data_path
+    from sgloc.downloads import data_path
 
     d = data_path("airsim_guo")
     cmd = [sys.executable, "-m", "sgloc", "localize", str(d / "cloud1.pcd"), str(d / "cloud2.pcd")]

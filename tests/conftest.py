@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from sgloc import SemanticGraph
-from sgloc.data import airsim_guo, dataset, dataset_dir, is_complete
+from sgloc.downloads import airsim_guo, dataset, dataset_dir, is_complete
 
 #: Fixtures that need a downloaded data set; tests using them get the `data` marker.
 DATA_FIXTURES = {"data_dir", "kitti_dir"}

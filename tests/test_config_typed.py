@@ -92,9 +92,9 @@ def test_dicts_written_before_are_read():
 
 
 def test_one_registry_style_for_names():
-    from sgloc.data import DATASETS as DOWNLOADS
     from sgloc.datasets import DATASETS
     from sgloc.descriptors import DESCRIPTORS
+    from sgloc.downloads import DATASETS as DOWNLOADS
     from sgloc.evaluation.scenes import PAIR_SOURCES
     from sgloc.presets import EXTRACTION_PRESETS, LOCALIZER_PRESETS
     from sgloc.registry import Registry

@@ -59,7 +59,8 @@ def test_localize_same_either_way(monkeypatch, airsim_graphs):
 
 
 def test_small_one_shot_run_does_not_load_numba(tmp_path):
-    code = ("import sys, sgloc; from sgloc.data import data_path; d = data_path('airsim_guo'); "
+    code = ("import sys, sgloc; from sgloc.downloads import data_path; "
+            "d = data_path('airsim_guo'); "
             "g = [sgloc.SemanticGraph.load(d / f) for f in ('cloud1.pcd', 'cloud2.pcd')]; "
             "sgloc.localize(*g, rejection='none'); print('numba' in sys.modules)")  # fmt: skip
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

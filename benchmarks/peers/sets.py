@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sgloc.data import data_path
 from sgloc.descriptors import make_descriptor
+from sgloc.downloads import data_path
 from sgloc.geometry import apply, random_rigid_transform
 from sgloc.graph import SemanticGraph
 from sgloc.matching import MatchingConfig, match_descriptors

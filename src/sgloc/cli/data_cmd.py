@@ -7,7 +7,15 @@ from pathlib import Path
 import typer
 
 from sgloc.cli.app import app
-from sgloc.data import DATASETS, dataset, fetch, fetch_dir, find_dataset, is_complete, sample_dir
+from sgloc.downloads import (
+    DATASETS,
+    dataset,
+    fetch,
+    fetch_dir,
+    find_dataset,
+    is_complete,
+    sample_dir,
+)
 
 data_app = typer.Typer(
     help="Data sets: list them, download one (pinned sources, sha256-checked), show its folder.",
@@ -62,6 +70,6 @@ def path_cmd(name: str = typer.Argument(..., help=f"Data set: {' | '.join(DATASE
 
     Example: sgloc data path airsim_guo
     """
-    from sgloc.data import dataset_dir
+    from sgloc.downloads import dataset_dir
 
     typer.echo(str(dataset_dir(name)))

@@ -37,7 +37,7 @@ DEFAULT_OUT = Path("results") / "demo" / "aligned_maps.png"
 
 def default_cache_dir() -> Path:
     """$SGLOC_CACHE, else the per-user cache folder (~/.cache/sgloc on Linux)."""
-    from sgloc.data import cache_dir
+    from sgloc.downloads import cache_dir
 
     return cache_dir()
 

@@ -78,7 +78,7 @@ def localize_cmd(
     if example:
         if query is not None or target is not None:
             ctx.fail("give either two graph files (QUERY TARGET) or --example, not both.")
-        from sgloc.data import airsim_guo_paths
+        from sgloc.downloads import airsim_guo_paths
 
         query, target = airsim_guo_paths()
     elif query is None or target is None:

@@ -16,8 +16,8 @@ from sgloc.presets import localizer_settings as preset_settings
 
 
 def evaluation_cache_dir() -> Path:
-    """Where extracted city graphs are cached: `<sgloc.data.cache_dir()>/evaluation`."""
-    from sgloc.data import cache_dir
+    """Where extracted city graphs are cached: `<sgloc.downloads.cache_dir()>/evaluation`."""
+    from sgloc.downloads import cache_dir
 
     return cache_dir() / "evaluation"
 
@@ -86,7 +86,7 @@ class CityPairs(MovedTargetSource):
     """The rendered synthetic city (`sgloc.sim`): two robots drive opposite ways sharing
     `overlap` of their routes; each map is extracted from its rendered semantic + depth frames
     and lies in the robot's own start frame. Trial seed s uses city `s % n_worlds` (rendering
-    is the expensive part; graphs are cached on disk under sgloc.data.cache_dir()), and the
+    is the expensive part; graphs are cached on disk under sgloc.downloads.cache_dir()), and the
     target is moved by a random rigid transform per trial."""
 
     #: Recommended localizer settings (the `city` preset: buildings weigh less).

@@ -146,7 +146,7 @@ def data_root(root: str | None, data_set: str | None) -> str:
     remote workers need no SGLOC_DATA)."""
     from pathlib import Path
 
-    from sgloc.data import data_path
+    from sgloc.downloads import data_path
 
     return str((Path(root) if root else data_path(data_set)).resolve())
 

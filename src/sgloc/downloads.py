@@ -23,7 +23,7 @@ from pathlib import Path
 from sgloc.errors import DatasetError
 from sgloc.registry import Registry
 
-#: The source tree's root when running from a checkout (src/sgloc/data.py); after an install
+#: The source tree's root when running from a checkout (src/sgloc/downloads.py); after an install
 #: this points into site-packages and `checkout_data_dir()` returns None.
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
 
