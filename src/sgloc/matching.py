@@ -1,7 +1,7 @@
 """Candidate matches by cosine similarity of vertex descriptors (paper Eq. 1).
 
 Memory is linear in the number of vertices: similarities are computed one class at a time and,
-within a class, for blocks of query rows (at most `_BLOCK_ENTRIES` similarities at once); only
+within a class, for blocks of query rows (at most `BLOCK_ENTRIES` similarities at once); only
 the kept candidates leave a block.
 """
 
@@ -17,7 +17,7 @@ from sgloc.kernels import one_blas_thread, use_compiled
 from sgloc.validation import validate_settings
 
 #: Similarities held at once per block (8 MB of float64).
-_BLOCK_ENTRIES = 1 << 20
+BLOCK_ENTRIES = 1 << 20
 
 STRATEGIES = ("top_k", "all")
 
@@ -68,7 +68,7 @@ def _blocks(Q, T, labels_q: np.ndarray, labels_t: np.ndarray) -> Iterator[tuple]
         iq, it = np.flatnonzero(labels_q == c), np.flatnonzero(labels_t == c)
         Tc = T[it]
         TcT = Tc.T.tocsr() if sparse.issparse(Tc) else np.ascontiguousarray(Tc.T)
-        step = max(1, _BLOCK_ENTRIES // max(len(it), 1))
+        step = max(1, BLOCK_ENTRIES // max(len(it), 1))
         for s in range(0, len(iq), step):
             rows = iq[s : s + step]
             block = Q[rows] @ TcT

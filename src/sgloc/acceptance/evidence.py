@@ -20,10 +20,7 @@ import numpy as np
 
 from sgloc.acceptance.config import EvidenceConfig
 from sgloc.graph import SemanticGraph
-from sgloc.matching import MatchingConfig, match_descriptors, unit_rows
-
-#: Similarities held at once per block (8 MB of float64).
-_BLOCK_ENTRIES = 1 << 20
+from sgloc.matching import BLOCK_ENTRIES, MatchingConfig, match_descriptors, unit_rows
 
 
 def spatially_distinct(
@@ -50,7 +47,7 @@ def spatially_distinct(
         members = np.flatnonzero(labels_t == c)
         TcT, Pc = np.ascontiguousarray(T[members].T), target_positions[members]
         pc2 = np.einsum("ij,ij->i", Pc, Pc)
-        step = max(1, _BLOCK_ENTRIES // max(len(members), 1))
+        step = max(1, BLOCK_ENTRIES // max(len(members), 1))
         for s in range(0, len(rows), step):
             r = rows[s : s + step]
             S = Q[cand[r, 0]] @ TcT

@@ -48,6 +48,7 @@ from sgloc.acceptance.rivals import distinct_from
 from sgloc.estimation import GROUND_VEHICLE, MotionModel, fit_rigid, yaw_from_pairs
 from sgloc.graph import SemanticGraph
 from sgloc.matching import MatchingConfig, match_descriptors, match_flagged
+from sgloc.spatial import ClassKDTree
 
 #: Rounds of nearest-neighbour re-association and refit of the best hypothesis.
 REFINE_ROUNDS = 3
@@ -81,27 +82,18 @@ class Verification:
     details: dict = field(default_factory=dict)
 
 
-class ClassTree:
-    """Nearest same-class target object of many points at once: one KD-tree over the target
-    objects with the class as a fourth coordinate, spaced beyond any distance asked for; heights
-    scaled by Z_SCALE."""
+class ClassTree(ClassKDTree):
+    """Nearest same-class target object of many points at once, within `radius` (metres),
+    heights scaled by Z_SCALE (`sgloc.spatial.ClassKDTree` over the target's objects)."""
 
     def __init__(self, target: SemanticGraph, radius: float) -> None:
-        from scipy.spatial import cKDTree
-
-        p = target.positions * (1.0, 1.0, Z_SCALE)
-        self.offset = 4.0 * (float(np.abs(p).max(initial=0.0)) + radius) + 1.0
-        self.tree = cKDTree(np.column_stack([p, target.labels * self.offset]))
+        super().__init__(target.positions, target.labels, radius, scale=(1.0, 1.0, Z_SCALE))
         self.radius = radius
 
     def nearest(self, points: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """points (..., n, 3), labels (n,) -> (distance (..., n), inf beyond the radius; target
         index (..., n), len(target) beyond it)."""
-        shape = points.shape[:-1]
-        lab = np.broadcast_to(labels * self.offset, shape)[..., None]
-        q = np.concatenate([points * (1.0, 1.0, Z_SCALE), lab], axis=-1).reshape(-1, 4)
-        d, j = self.tree.query(q, distance_upper_bound=self.radius)
-        return d.reshape(shape), j.reshape(shape)
+        return self.query(points, labels, self.radius)
 
 
 def _pair_hypotheses(

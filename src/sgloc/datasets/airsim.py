@@ -33,7 +33,6 @@ from sgloc.io.text import read_numbers, read_text_file
 #: Columns of R_body_optical are the optical axes in body coordinates.
 R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 GUO_INTRINSICS = (512.0, 512.0, 512.0, 288.0)
-GUO_RESOLUTION = (1024, 576)
 #: metres per 8-bit depth step.
 DEPTH_SCALE = 100.0 / 255.0
 

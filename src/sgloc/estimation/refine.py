@@ -8,6 +8,7 @@ import numpy as np
 from sgloc.errors import DegenerateGeometryError
 from sgloc.estimation.fits import fit_rigid, tilt_deg, weighted_kabsch
 from sgloc.geometry import make_transform
+from sgloc.spatial import ClassKDTree
 
 
 def irls_refine(
@@ -204,17 +205,15 @@ def icp_refine(
     `max_distance` after the current transform (one-to-one, so repeated objects cannot pile onto
     one target), then refits with the Kabsch. Stops when the pairing no longer changes.
     """
-    # Classes are separated by a 4th coordinate so one KD-tree per side serves all classes.
-    offset = 4.0 * (np.abs(np.concatenate([src, dst])).max() + max_distance) + 1.0
-    dst4 = np.column_stack([dst, dst_labels * offset])
-    from scipy.spatial import cKDTree  # deferred: scipy.spatial loads in ~0.2 s
-
-    tree_dst = cKDTree(dst4)
+    extent = np.abs(np.concatenate([src, dst])).max()
+    tree_dst = ClassKDTree(dst, dst_labels, max_distance, extent=extent)
     pairs_prev = None
     for _ in range(iterations):
-        moved4 = np.column_stack([src @ T[:3, :3].T + T[:3, 3], src_labels * offset])
-        d, j = tree_dst.query(moved4, distance_upper_bound=max_distance)
-        _, i_back = cKDTree(moved4).query(dst4)
+        moved = src @ T[:3, :3].T + T[:3, 3]
+        d, j = tree_dst.query(moved, src_labels, max_distance)
+        _, i_back = ClassKDTree(moved, src_labels, max_distance, extent=extent).query(
+            dst, dst_labels
+        )
         ok = np.isfinite(d)
         ok[ok] &= i_back[j[ok]] == np.flatnonzero(ok)
         if ok.sum() < 3:
