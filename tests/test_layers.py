@@ -30,6 +30,7 @@ LAYERS: dict[str, int] = {
     "sgloc.timing": 0,
     "sgloc.kernels": 0,
     "sgloc.workers": 0,
+    "sgloc.tasks": 0,
     # maps and files
     "sgloc.io": 1,
     "sgloc.graph": 1,

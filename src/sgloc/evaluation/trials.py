@@ -9,20 +9,18 @@ Trials run serially, on local processes (`workers`), or on a Dask cluster (`sche
 from __future__ import annotations
 
 import functools
-import os
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from sgloc.config import LocalizerConfig
-from sgloc.errors import SglocError
 from sgloc.evaluation.metrics import FAILURE_M, T_P, is_failure, match_stats, pose_errors
 from sgloc.evaluation.pairs import make_pair_source
 from sgloc.localizer import Localizer
+from sgloc.tasks import Progress, run_all
 
 #: Stream index of the localizer's random numbers (RANSAC, random walks) within a trial seed.
 LOCALIZER_STREAM = 1
@@ -120,9 +118,6 @@ def run_task(task: TrialTask) -> dict[str, Any]:
     }
 
 
-Progress = Callable[[int], None]
-
-
 def prepare_tasks(tasks: Sequence[TrialTask]) -> list[TrialTask]:
     """The first trial of each distinct world the trials need, for sources whose pairs come
     from an expensive disk-cached world (a `world(seed)` method, e.g. a rendered city); empty
@@ -149,58 +144,14 @@ def run_tasks(
     fn: Callable[[TrialTask], Any] = run_task,
 ) -> list[Any]:
     """Run trials (`fn` of each task, default `run_task`) and return the results in the order
-    of `tasks`.
+    of `tasks`, by the one task runner `sgloc.tasks.run_tasks`.
 
     workers: local processes (default: the number of CPUs; 1 runs in this process).
     scheduler: a Dask scheduler address ("tcp://host:8786") or a `distributed.Client`; when
         given, the trials run on that cluster instead (its workers must see the same data paths).
     progress: called with the number of trials just finished (for a progress bar).
     """
-    tasks = list(tasks)
-    tick = progress or (lambda n: None)
-    if scheduler is not None:
-        return _run_dask(tasks, scheduler, tick, fn)
-    workers = workers or os.cpu_count() or 1
-    if workers <= 1 or len(tasks) <= 1:
-        rows = []
-        for t in tasks:
-            rows.append(fn(t))
-            tick(1)
-        return rows
-    with ProcessPoolExecutor(max_workers=min(workers, len(tasks))) as pool:
-        return _collect([pool.submit(fn, t) for t in tasks], as_completed, tick)
-
-
-def _collect(futures: list[Any], completed: Callable, tick: Progress) -> list[Any]:
-    """The futures' results in their order, calling tick(1) as each completes (any order)."""
-    index = {getattr(f, "key", f): i for i, f in enumerate(futures)}  # Dask futures by key
-    rows: list[Any] = [None] * len(futures)
-    for fut in completed(futures):
-        rows[index[getattr(fut, "key", fut)]] = fut.result()
-        tick(1)
-    return rows
-
-
-def _run_dask(tasks: list[TrialTask], scheduler: Any, tick: Progress, fn: Callable) -> list[Any]:
-    from sgloc.optional import require
-
-    require("distributed", "dask", "--scheduler (running trials on a Dask cluster)")
-    from dask.distributed import Client
-    from dask.distributed import as_completed as dask_completed
-
-    own = not isinstance(scheduler, Client)
-    try:
-        client = Client(scheduler, timeout="15s") if own else scheduler
-    except (OSError, TimeoutError, ValueError) as e:
-        raise SglocError(
-            f"cannot reach the Dask scheduler at {scheduler!r} ({e}); start one (e.g. "
-            "`dask scheduler` and `dask worker ADDRESS`) or drop --scheduler to run locally."
-        ) from None
-    try:
-        return _collect(client.map(fn, tasks, pure=False), dask_completed, tick)
-    finally:
-        if own:
-            client.close()
+    return run_all(tasks, fn, workers, scheduler, progress)
 
 
 def reproducible_part(row: dict[str, Any]) -> dict[str, Any]:
