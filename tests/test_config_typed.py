@@ -168,3 +168,19 @@ def test_class_scale_values():
     assert LocalizerConfig.from_dict(cfg.to_dict()) == cfg
     with pytest.raises(InvalidSettingError, match="class_scale"):
         LocalizerConfig(class_scale="xy")
+
+
+def test_one_settings_file_reader_for_configs_and_the_cli(tmp_path):
+    from sgloc.cli.options import read_settings_file
+
+    cfg = LocalizerConfig().with_overrides(tau=3.0, class_weights={0: 0.5})
+    for name in ("c.json", "c.yaml"):
+        cfg.save(tmp_path / name)
+        assert LocalizerConfig.load(tmp_path / name) == cfg
+        assert read_settings_file(tmp_path / name) == {"tau": 3.0, "class_weights": {0: 0.5}}
+    (tmp_path / "bad.json").write_text("{tau: 3")
+    for read in (LocalizerConfig.load, read_settings_file):
+        with pytest.raises(SglocError, match="not a valid JSON config"):
+            read(tmp_path / "bad.json")
+        with pytest.raises(SglocError, match="missing.yaml"):
+            read(tmp_path / "missing.yaml")

@@ -3,17 +3,15 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-
-import yaml
 
 from sgloc.acceptance import AcceptanceConfig, EvidenceConfig, VerificationConfig
 from sgloc.descriptors import DESCRIPTORS, Descriptor, make_descriptor
 from sgloc.errors import SglocError, UnknownNameError
 from sgloc.estimation import MotionModel, RansacConfig
+from sgloc.io.settings_file import read_settings_data, write_settings_data
 from sgloc.matching import MatchingConfig
 from sgloc.registry import Registry
 from sgloc.rejection import REJECTORS, Rejector, make_rejector
@@ -191,41 +189,32 @@ class LocalizerConfig:
             raise SglocError(f"malformed localizer config: {e}") from None
 
     def to_yaml(self, path: str | Path) -> None:
-        Path(path).write_text(yaml.safe_dump(self.to_dict(), sort_keys=False))
+        """Write the config as YAML (`to_dict`)."""
+        write_settings_data(path, self.to_dict(), "YAML")
 
     def to_json(self, path: str | Path) -> None:
-        Path(path).write_text(json.dumps(_json_ready(self.to_dict()), indent=2) + "\n")
+        """Write the config as JSON (`to_dict`; class ids as strings)."""
+        write_settings_data(path, self.to_dict(), "JSON")
 
     @classmethod
     def from_json(cls, path: str | Path) -> LocalizerConfig:
-        from sgloc.io.files import MAX_TEXT_FILE_BYTES, read_regular_file
-
-        raw = read_regular_file(path, "JSON config file", MAX_TEXT_FILE_BYTES, SglocError)
-        try:
-            data = json.loads(raw.decode("utf-8"))
-        except (ValueError, RecursionError) as e:
-            raise SglocError(f"{path}: not a valid JSON config ({type(e).__name__}).") from None
-        return cls.from_dict(data)
+        """Read a config written by `to_json`."""
+        return cls.from_dict(read_settings_data(path, "JSON"))
 
     def save(self, path: str | Path) -> None:
         """Write the config to `path`: JSON for a .json file, YAML otherwise."""
-        (self.to_json if Path(path).suffix.lower() == ".json" else self.to_yaml)(path)
+        write_settings_data(path, self.to_dict())
 
     @classmethod
     def load(cls, path: str | Path) -> LocalizerConfig:
-        """Read a config written by `save` (JSON for a .json file, YAML otherwise)."""
-        return (cls.from_json if Path(path).suffix.lower() == ".json" else cls.from_yaml)(path)
+        """Read a config written by `save` (JSON for a .json file, YAML otherwise;
+        `sgloc.io.settings_file`, the one reader of settings files)."""
+        return cls.from_dict(read_settings_data(path))
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> LocalizerConfig:
-        from sgloc.io.files import MAX_TEXT_FILE_BYTES, read_regular_file
-
-        raw = read_regular_file(path, "YAML config file", MAX_TEXT_FILE_BYTES, SglocError)
-        try:
-            data = yaml.safe_load(raw.decode("utf-8"))
-        except (yaml.YAMLError, UnicodeDecodeError, RecursionError) as e:
-            raise SglocError(f"{path}: not a valid YAML config ({type(e).__name__}).") from None
-        return cls.from_dict(data or {})
+        """Read a config written by `to_yaml`."""
+        return cls.from_dict(read_settings_data(path, "YAML"))
 
 
 def _named_stage(
@@ -256,15 +245,6 @@ def _named_stage(
     if isinstance(value, str):
         return table.key(value), params
     return value, params
-
-
-def _json_ready(data: Any) -> Any:
-    """`data` with mapping keys as strings (JSON's only key type)."""
-    if isinstance(data, dict):
-        return {str(k): _json_ready(v) for k, v in data.items()}
-    if isinstance(data, list | tuple):
-        return [_json_ready(v) for v in data]
-    return data
 
 
 def _int_keys(data: dict[str, Any]) -> dict[str, Any]:

@@ -11,6 +11,7 @@ import typer
 from sgloc.config import LocalizerConfig
 from sgloc.errors import SglocError
 from sgloc.graph import SemanticGraph
+from sgloc.io.settings_file import read_settings_data
 from sgloc.presets import LOCALIZER_PRESETS
 
 PRESET_HELP = f"Named settings: {' | '.join(LOCALIZER_PRESETS)} (see sgloc.presets)."
@@ -59,17 +60,10 @@ def flat_settings(cfg: LocalizerConfig) -> dict[str, Any]:
 
 
 def read_settings_file(path: Path) -> dict[str, Any]:
-    """Flat settings from a YAML file: either flat (`tau: 3`) or a whole LocalizerConfig as
-    `--out DIR/config.yaml` holds it (then the settings that differ from the defaults)."""
-    import yaml
-
-    path = Path(path)
-    if not path.is_file():
-        raise SglocError(f"{path}: no such config file; give a YAML file of settings.")
-    try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as e:
-        raise SglocError(f"{path}: not valid YAML ({e}).") from None
+    """Flat settings from a YAML (or .json) file: either flat (`tau: 3`) or a whole
+    LocalizerConfig as `--out DIR/config.yaml` holds it (then the settings that differ from the
+    defaults). Read by `sgloc.io.settings_file`, as `LocalizerConfig.load` reads."""
+    data = read_settings_data(path)
     if not isinstance(data, dict):
         raise SglocError(f"{path}: expected a mapping of settings (NAME: value).")
     if _NESTED & set(data):
