@@ -125,3 +125,28 @@ def test_vertex_limit_is_a_clear_error():
     pos = np.zeros((MAX_VERTICES + 1, 3))
     with pytest.raises(InvalidGraphError, match="limit"):
         SemanticGraph(pos, np.zeros(MAX_VERTICES + 1, int))
+
+
+def _stage_configs() -> list[type]:
+    from sgloc.acceptance import AcceptanceConfig, EvidenceConfig, VerificationConfig
+    from sgloc.descriptors import DESCRIPTORS
+    from sgloc.estimation import RansacConfig
+    from sgloc.matching import MatchingConfig
+    from sgloc.rejection import REJECTORS
+
+    return [*DESCRIPTORS.values(), *REJECTORS.values(), MatchingConfig, RansacConfig,
+            AcceptanceConfig, EvidenceConfig, VerificationConfig, LocalizerConfig]  # fmt: skip
+
+
+def test_every_stage_setting_declares_its_bounds_beside_its_field():
+    import dataclasses
+
+    from sgloc.validation import check_of
+
+    fields = [(k, f) for k in _stage_configs() for f in dataclasses.fields(k)]
+    missing = [f"{k.__name__}.{f.name}" for k, f in fields if check_of(f) is None]
+    assert not missing, f"declare these settings' bounds with sgloc.validation.setting: {missing}"
+    assert len(fields) > 50
+    for _, f in fields:  # each check refuses what is no value at all (it is not a pass-through)
+        with pytest.raises(InvalidSettingError, match=f"setting x.{f.name}\\b"):
+            check_of(f)(f"x.{f.name}", object())

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +15,18 @@ from sgloc.io.settings_file import read_settings_data, write_settings_data
 from sgloc.matching import MatchingConfig
 from sgloc.registry import Registry
 from sgloc.rejection import REJECTORS, Rejector, make_rejector
-from sgloc.validation import validate_localizer_settings
+from sgloc.validation import (
+    MAX_COORDINATE,
+    check_class_scale,
+    check_class_weights,
+    flag,
+    group,
+    parameters,
+    real,
+    setting,
+    stage_name,
+    validate_settings,
+)
 
 
 @dataclass
@@ -44,18 +55,22 @@ class LocalizerConfig:
         with its `evidence` and `verification` groups (their fields keep their flat names).
     """
 
-    descriptor: str | Descriptor | dict[str, Any] = "distance_histogram"
-    descriptor_params: dict[str, Any] = field(default_factory=dict)
-    matching: MatchingConfig = field(default_factory=MatchingConfig)
-    rejection: str | Rejector | dict[str, Any] = "neighbor"
-    rejection_params: dict[str, Any] = field(default_factory=dict)
-    ransac: RansacConfig = field(default_factory=RansacConfig)
-    class_weights: dict[int, float] | None = None
-    robust_refit: bool = True
-    class_scale: bool | str = "none"
-    icp: bool = False
-    icp_max_distance: float = 5.0
-    acceptance: AcceptanceConfig = field(default_factory=AcceptanceConfig)
+    descriptor: str | Descriptor | dict[str, Any] = setting(
+        "distance_histogram", check=stage_name
+    )
+    descriptor_params: dict[str, Any] = setting(default_factory=dict, check=parameters)
+    matching: MatchingConfig = setting(default_factory=MatchingConfig, check=group(MatchingConfig))
+    rejection: str | Rejector | dict[str, Any] = setting("neighbor", check=stage_name)
+    rejection_params: dict[str, Any] = setting(default_factory=dict, check=parameters)
+    ransac: RansacConfig = setting(default_factory=RansacConfig, check=group(RansacConfig))
+    class_weights: dict[int, float] | None = setting(None, check=check_class_weights)
+    robust_refit: bool = setting(True, check=flag())
+    class_scale: bool | str = setting("none", check=check_class_scale)
+    icp: bool = setting(False, check=flag())
+    icp_max_distance: float = setting(5.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+    acceptance: AcceptanceConfig = setting(
+        default_factory=AcceptanceConfig, check=group(AcceptanceConfig)
+    )
 
     def __post_init__(self) -> None:
         self.descriptor, self.descriptor_params = _named_stage(
@@ -64,7 +79,7 @@ class LocalizerConfig:
         self.rejection, self.rejection_params = _named_stage(
             self.rejection, self.rejection_params, REJECTORS, Rejector, "rejection"
         )
-        validate_localizer_settings(self)  # type and range of the top-level settings
+        validate_settings(self, "")  # its own fields (the stage configs check themselves)
         # Fail early on unknown parameters and bad values (the typed objects check them).
         _ = self.descriptor_config, self.rejector_config
 

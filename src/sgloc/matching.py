@@ -14,7 +14,16 @@ import numpy as np
 from scipy import sparse
 
 from sgloc.kernels import one_blas_thread, use_compiled
-from sgloc.validation import validate_settings
+from sgloc.validation import (
+    MAX_ITERATIONS,
+    MAX_VERTICES,
+    choice,
+    flag,
+    integer,
+    real,
+    setting,
+    validate_settings,
+)
 
 #: Similarities held at once per block (8 MB of float64).
 BLOCK_ENTRIES = 1 << 20
@@ -37,15 +46,17 @@ class MatchingConfig:
         ratio test on cosine distances; a repetitive place gives near ties). None: no test.
     """
 
-    min_similarity: float = 0.5
-    top_k: int = 1
-    mutual: bool = False
-    strategy: str = "top_k"
-    max_candidates: int = 3000
-    max_ratio: float | None = None
+    min_similarity: float = setting(0.5, check=real(0.0, 1.0))
+    top_k: int = setting(1, check=integer(1, MAX_VERTICES))
+    mutual: bool = setting(False, check=flag())
+    strategy: str = setting(
+        "top_k", check=choice(*STRATEGIES, what="which candidates matching keeps")
+    )
+    max_candidates: int = setting(3000, check=integer(1, MAX_ITERATIONS))
+    max_ratio: float | None = setting(None, check=real(0.0, 1.0, low_open=True, none_ok=True))
 
     def __post_init__(self) -> None:
-        validate_settings(self)  # type, range, finiteness of every field (sgloc.validation)
+        validate_settings(self, "matching")  # the checks declared beside the fields
 
 
 def unit_rows(D) -> sparse.csr_array | np.ndarray:

@@ -4,9 +4,10 @@ allowed. This module imports nothing of the pipeline, so every stage may use it.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import numbers
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 import numpy as np
@@ -187,7 +188,32 @@ def _check_labels(name: str, lab: np.ndarray) -> np.ndarray:
 
 
 # -- settings of the stage configs ------------------------------------------------------------
-def _real(low=None, high=None, *, low_open=False, high_open=False, none_ok=False, unit=""):
+#: A setting's check: (name, value) -> the value (normalised, e.g. 5 -> 5.0 for metres), or an
+#: InvalidSettingError naming `name` and what is allowed.
+Check = Callable[[str, Any], Any]
+
+#: Largest number of RANSAC hypotheses, random walks per vertex, etc.: bounds run time.
+MAX_ITERATIONS = 10_000_000
+#: Longest random walk: the descriptor has L**walk_length bins (int64 codes; L <= 2 MAX_CLASSES).
+MAX_WALK_LENGTH = 8
+
+
+def setting(default: Any = dataclasses.MISSING, *, check: Check, **field_options: Any) -> Any:
+    """A stage config's dataclass field with its allowed values declared beside it:
+    `tau: float = setting(5.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))`.
+    `validate_settings` applies `check` to the field's value (`field_options`: those of
+    `dataclasses.field`, e.g. default_factory)."""
+    return dataclasses.field(default=default, metadata={"check": check}, **field_options)
+
+
+def check_of(f: dataclasses.Field) -> Check | None:
+    """The check a field declares (None: it declares none)."""
+    return f.metadata.get("check")
+
+
+def real(low=None, high=None, *, low_open=False, high_open=False, none_ok=False, unit="") -> Check:
+    """A finite number in [low, high] (ends open when asked); see `check_real`."""
+
     def check(name: str, value: Any) -> float | None:
         return check_real(
             name,
@@ -203,11 +229,14 @@ def _real(low=None, high=None, *, low_open=False, high_open=False, none_ok=False
     return check
 
 
-def _int(low=None, high=None, *, none_ok=False):
+def integer(low: int | None = None, high: int | None = None, *, none_ok: bool = False) -> Check:
+    """An int in [low, high]; see `check_int`."""
     return lambda name, value: check_int(name, value, low, high, none_ok=none_ok)
 
 
-def _int_choice(*choices: int):
+def int_choice(*choices: int) -> Check:
+    """One of the ints `choices`."""
+
     def check(name: str, value: Any) -> int:
         if isinstance(value, bool) or value not in choices:
             raise InvalidSettingError(f"setting {name}={value!r}: must be one of {list(choices)}.")
@@ -216,136 +245,56 @@ def _int_choice(*choices: int):
     return check
 
 
-def _choice(*choices: str, what: str = ""):
+def choice(*choices: str, what: str = "") -> Check:
+    """One of the strings `choices`; `what` describes the setting in errors."""
     return lambda name, value: check_choice(name, value, choices, what)
 
 
-#: Largest number of RANSAC hypotheses, random walks per vertex, etc.: bounds run time.
-MAX_ITERATIONS = 10_000_000
-#: Longest random walk: the descriptor has L**walk_length bins (int64 codes; L <= 2 MAX_CLASSES).
-MAX_WALK_LENGTH = 8
-
-#: Allowed values of every setting, by config class name then field name. Fields not listed are
-#: only checked to be finite when they are numbers.
-SETTINGS: dict[str, dict[str, Any]] = {
-    "MatchingConfig": {
-        "min_similarity": _real(0.0, 1.0),
-        "top_k": _int(1, MAX_VERTICES),
-        "mutual": lambda name, value: check_bool(name, value),
-        "strategy": _choice("top_k", "all", what="which candidates matching keeps"),
-        "max_candidates": _int(1, MAX_ITERATIONS),
-        "max_ratio": _real(0.0, 1.0, low_open=True, none_ok=True),
-    },
-    "RansacConfig": {
-        "threshold": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
-        "iterations": _int(1, MAX_ITERATIONS),
-        "min_inliers": _int(0, MAX_VERTICES),
-        "min_inlier_ratio": _real(0.0, 1.0),
-        "scoring": _choice("msac", "count", "first", what="how RANSAC scores a hypothesis"),
-        "confidence": _real(0.0, 1.0, low_open=True, high_open=True, none_ok=True),
-        "batch": _int(1, MAX_ITERATIONS),
-        "refit_rounds": _int(0, 100),
-        "dof": _int_choice(4, 6),
-        "max_tilt": _real(0.0, 180.0, low_open=True, none_ok=True, unit="degrees"),
-        "sampler": _choice("minimal", "guo", what="how RANSAC draws its samples"),
-    },
-    "AcceptanceConfig": {
-        "enabled": lambda name, value: check_bool(name, value),
-        "min_confidence": _real(0.0, 1.0),
-        "radius": _real(0.0, MAX_COORDINATE, low_open=True, none_ok=True, unit="m"),
-        "min_spread": _real(0.0, MAX_COORDINATE, unit="m"),
-        "distinct_translation": _real(0.0, MAX_COORDINATE, unit="m"),
-        "distinct_rotation": _real(0.0, 180.0, unit="degrees"),
-        "runner_up_samples": _int(0, MAX_ITERATIONS),
-    },
-    "EvidenceConfig": {
-        "distinct_ratio": _real(0.0, 1.0, low_open=True, none_ok=True),
-        "small_query": _int(0, MAX_VERTICES),
-        "small_distinct_ratio": _real(0.0, 1.0, low_open=True, none_ok=True),
-        "small_exclusion": _real(0.0, MAX_COORDINATE, unit="m"),
-    },
-    "VerificationConfig": {
-        "verify_small": lambda name, value: check_bool(name, value),
-        "verify_top_k": _int(1, 1000),
-        "verify_radius": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
-        "verify_density_radius": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
-        "verify_hypotheses": _int(1, MAX_ITERATIONS),
-    },
-    "DistanceHistogramDescriptor": {
-        "radius": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
-        "n_bins": _int(1, 1024),
-        "taper": _real(0.0, 1.0),
-    },
-    "TriangleDescriptor": {
-        "radius": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
-        "n_bins": _int(1, 64),
-        "max_neighbours": _int(2, 1000),
-    },
-    "RandomWalkDescriptor": {
-        "n_walks": _int(1, 100_000),
-        "walk_length": _int(1, MAX_WALK_LENGTH),
-    },
-    "NeighborRejector": {
-        "tau": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
-        "eta": _real(0.0, 1.0),
-        "form": _choice("distance", "neighbor", what="the consistency form"),
-        "bound": _choice("remaining", "literal", what="Alg. 1's removal bound"),
-    },
-    "CliqueRejector": {
-        "tau": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
-        "exact_limit": _int(0, MAX_VERTICES),
-        "max_nodes": _int(1, MAX_ITERATIONS),
-        "n_seeds": _int(1, MAX_VERTICES),
-    },
-    "SpectralRejector": {
-        "tau": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
-        "sigma": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
-        "min_ratio": _real(0.0, 1.0),
-        "min_agreement": _real(0.0, 1.0),
-    },
-}
+def flag() -> Check:
+    """True or False; see `check_bool`."""
+    return check_bool
 
 
-_PREFIXES = {
-    "MatchingConfig": "matching",
-    "RansacConfig": "ransac",
-    "AcceptanceConfig": "acceptance",
-    "EvidenceConfig": "acceptance",
-    "VerificationConfig": "acceptance",
-}
+def group(klass: type) -> Check:
+    """An instance of the settings group `klass` (which checks its own fields)."""
+
+    def check(name: str, value: Any) -> Any:
+        if not isinstance(value, klass):
+            raise InvalidSettingError(
+                f"setting {name}={value!r:.60}: must be a {klass.__name__}."
+            )
+        return value
+
+    return check
 
 
 def validate_settings(config: Any, prefix: str | None = None) -> None:
-    """Check (and normalise: 5 -> 5.0 for metres) every field of a stage config dataclass
-    against SETTINGS; InvalidSettingError naming `prefix.field` and what is allowed."""
-    import dataclasses
-
-    kind = type(config).__name__
-    spec = SETTINGS.get(kind, {})
+    """Check (and normalise: 5 -> 5.0 for metres) every field of a stage config dataclass by
+    the check it declares (`setting`); InvalidSettingError naming `prefix.field` (default
+    prefix: the stage's registered `name`) and what is allowed. A field that declares no
+    check is only checked to be finite when it is a number (tests/test_validation.py makes
+    sure every registered stage's fields declare one)."""
     if prefix is None:
-        prefix = _PREFIXES.get(kind) or getattr(config, "name", None) or kind
+        prefix = getattr(config, "name", None) or type(config).__name__
     for f in dataclasses.fields(config):
         value = getattr(config, f.name)
         name = f"{prefix}.{f.name}" if prefix else f.name
-        if f.name in spec:
-            object.__setattr__(config, f.name, spec[f.name](name, value))
+        check = check_of(f)
+        if check is not None:
+            object.__setattr__(config, f.name, check(name, value))
         elif _is_number(value) and not math.isfinite(float(value)):
             raise InvalidSettingError(f"setting {name}={value!r}: must be a finite number.")
 
 
-def validate_localizer_settings(config: Any) -> None:
-    """Check LocalizerConfig's own fields (the stage configs check themselves)."""
-    for name in ("descriptor", "rejection"):
-        value = getattr(config, name)
-        if not isinstance(value, str) and not callable(value):
-            raise InvalidSettingError(f"setting {name}={value!r}: must be a registered name.")
-    for name in ("descriptor_params", "rejection_params"):
-        if not isinstance(getattr(config, name), Mapping):
-            raise InvalidSettingError(f"setting {name}: must be a mapping of parameters.")
-    config.class_weights = check_class_weights("class_weights", config.class_weights)
-    config.robust_refit = check_bool("robust_refit", config.robust_refit)
-    config.class_scale = check_class_scale("class_scale", config.class_scale)
-    config.icp = check_bool("icp", config.icp)
-    config.icp_max_distance = check_real(
-        "icp_max_distance", config.icp_max_distance, 0.0, MAX_COORDINATE, low_open=True, unit="m"
-    )
+def stage_name(name: str, value: Any) -> Any:
+    """A stage (descriptor, rejector) given by registered name or as a callable object."""
+    if not isinstance(value, str) and not callable(value):
+        raise InvalidSettingError(f"setting {name}={value!r}: must be a registered name.")
+    return value
+
+
+def parameters(name: str, value: Any) -> Any:
+    """A mapping of a stage's parameters."""
+    if not isinstance(value, Mapping):
+        raise InvalidSettingError(f"setting {name}: must be a mapping of parameters.")
+    return value

@@ -12,10 +12,21 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
-from sgloc.validation import InvalidSettingError, validate_settings
+from sgloc.validation import (
+    MAX_COORDINATE,
+    MAX_ITERATIONS,
+    MAX_VERTICES,
+    InvalidSettingError,
+    flag,
+    group,
+    integer,
+    real,
+    setting,
+    validate_settings,
+)
 
 
 @dataclass
@@ -40,13 +51,15 @@ class EvidenceConfig:
         pairs of the rendered city through.)
     """
 
-    distinct_ratio: float | None = 0.8
-    small_query: int = 30
-    small_distinct_ratio: float | None = 0.85
-    small_exclusion: float = 10.0
+    distinct_ratio: float | None = setting(0.8, check=real(0.0, 1.0, low_open=True, none_ok=True))
+    small_query: int = setting(30, check=integer(0, MAX_VERTICES))
+    small_distinct_ratio: float | None = setting(
+        0.85, check=real(0.0, 1.0, low_open=True, none_ok=True)
+    )
+    small_exclusion: float = setting(10.0, check=real(0.0, MAX_COORDINATE, unit="m"))
 
     def __post_init__(self) -> None:
-        validate_settings(self)  # type, range, finiteness of every field (sgloc.validation)
+        validate_settings(self, "acceptance")  # the checks declared beside the fields
 
     def is_small(self, n_query: int) -> bool:
         """Whether a query graph of `n_query` objects is small (fewer than `small_query`)."""
@@ -79,14 +92,16 @@ class VerificationConfig:
         (docs/acceptance.md).
     """
 
-    verify_small: bool = True
-    verify_top_k: int = 5
-    verify_radius: float = 1.5
-    verify_density_radius: float = 15.0
-    verify_hypotheses: int = 4096
+    verify_small: bool = setting(True, check=flag())
+    verify_top_k: int = setting(5, check=integer(1, 1000))
+    verify_radius: float = setting(1.5, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+    verify_density_radius: float = setting(
+        15.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m")
+    )
+    verify_hypotheses: int = setting(4096, check=integer(1, MAX_ITERATIONS))
 
     def __post_init__(self) -> None:
-        validate_settings(self)
+        validate_settings(self, "acceptance")  # the checks declared beside the fields
 
 
 #: The groups an AcceptanceConfig holds, by field name.
@@ -111,24 +126,22 @@ class AcceptanceConfig:
     verification: the whole-map verification of small queries (`VerificationConfig`).
     """
 
-    enabled: bool = True
-    min_confidence: float = 0.9999
-    radius: float | None = None
-    min_spread: float = 5.0
-    distinct_translation: float = 10.0
-    distinct_rotation: float = 10.0
-    runner_up_samples: int = 128
-    evidence: EvidenceConfig = field(default_factory=EvidenceConfig)
-    verification: VerificationConfig = field(default_factory=VerificationConfig)
+    enabled: bool = setting(True, check=flag())
+    min_confidence: float = setting(0.9999, check=real(0.0, 1.0))
+    radius: float | None = setting(
+        None, check=real(0.0, MAX_COORDINATE, low_open=True, none_ok=True, unit="m")
+    )
+    min_spread: float = setting(5.0, check=real(0.0, MAX_COORDINATE, unit="m"))
+    distinct_translation: float = setting(10.0, check=real(0.0, MAX_COORDINATE, unit="m"))
+    distinct_rotation: float = setting(10.0, check=real(0.0, 180.0, unit="degrees"))
+    runner_up_samples: int = setting(128, check=integer(0, MAX_ITERATIONS))
+    evidence: EvidenceConfig = setting(default_factory=EvidenceConfig, check=group(EvidenceConfig))
+    verification: VerificationConfig = setting(
+        default_factory=VerificationConfig, check=group(VerificationConfig)
+    )
 
     def __post_init__(self) -> None:
-        validate_settings(self)  # type, range, finiteness of every field (sgloc.validation)
-        for name, klass in _GROUPS.items():
-            if not isinstance(getattr(self, name), klass):
-                group = getattr(self, name)
-                raise InvalidSettingError(
-                    f"setting acceptance.{name}={group!r:.60}: must be a {klass.__name__}."
-                )
+        validate_settings(self, "acceptance")  # the checks declared beside the fields
 
     @classmethod
     def from_settings(cls, settings: Mapping[str, Any]) -> AcceptanceConfig:

@@ -10,6 +10,7 @@ from scipy import sparse
 
 from sgloc.descriptors.base import Descriptor
 from sgloc.graph import SemanticGraph
+from sgloc.validation import MAX_COORDINATE, integer, real, setting
 
 #: Descriptors already computed, per graph (graphs are immutable; entries go with the graph).
 DESCRIPTOR_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -57,9 +58,9 @@ class DistanceHistogramDescriptor(Descriptor):
     not only the adjacency; built from KD-tree pairs, memory linear in the pairs.
     """
 
-    radius: float = 40.0
-    n_bins: int = 16
-    taper: float = 0.8
+    radius: float = setting(40.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+    n_bins: int = setting(16, check=integer(1, 1024))
+    taper: float = setting(0.8, check=real(0.0, 1.0))
     name = "distance_histogram"
 
     def __call__(self, graph: SemanticGraph, n_classes: int, rng: np.random.Generator):
@@ -99,9 +100,9 @@ class TriangleDescriptor(Descriptor):
     classes makes a signature far rarer than a single distance.
     """
 
-    radius: float = 30.0
-    n_bins: int = 6
-    max_neighbours: int = 12
+    radius: float = setting(30.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+    n_bins: int = setting(6, check=integer(1, 64))
+    max_neighbours: int = setting(12, check=integer(2, 1000))
     name = "triangles"
 
     def __call__(self, graph: SemanticGraph, n_classes: int, rng: np.random.Generator):

@@ -9,6 +9,7 @@ from scipy import sparse
 
 from sgloc.descriptors.base import Descriptor
 from sgloc.graph import SemanticGraph
+from sgloc.validation import MAX_WALK_LENGTH, integer, setting
 
 
 @dataclass
@@ -22,8 +23,8 @@ class RandomWalkDescriptor(Descriptor):
     all vertices advance together, one vectorised step at a time. Returns a CSR matrix.
     """
 
-    n_walks: int = 200
-    walk_length: int = 3
+    n_walks: int = setting(200, check=integer(1, 100_000))
+    walk_length: int = setting(3, check=integer(1, MAX_WALK_LENGTH))
     name = "random_walk"
 
     def __call__(self, graph: SemanticGraph, n_classes: int, rng: np.random.Generator):

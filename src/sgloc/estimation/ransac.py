@@ -23,7 +23,18 @@ from sgloc.estimation.fits import (
 )
 from sgloc.estimation.motion import MotionModel
 from sgloc.geometry import make_transform
-from sgloc.validation import InvalidSettingError, validate_settings
+from sgloc.validation import (
+    MAX_COORDINATE,
+    MAX_ITERATIONS,
+    MAX_VERTICES,
+    InvalidSettingError,
+    choice,
+    int_choice,
+    integer,
+    real,
+    setting,
+    validate_settings,
+)
 
 
 @dataclass
@@ -51,20 +62,28 @@ class RansacConfig:
         degenerate samples kept; dof=6 only).
     """
 
-    threshold: float = 5.0
-    iterations: int = 1000
-    min_inliers: int = 5
-    min_inlier_ratio: float = 0.01
-    scoring: str = "msac"
-    confidence: float | None = 0.999
-    batch: int = 100
-    refit_rounds: int = 2
-    dof: int = 4
-    max_tilt: float | None = 15.0
-    sampler: str = "minimal"
+    threshold: float = setting(5.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+    iterations: int = setting(1000, check=integer(1, MAX_ITERATIONS))
+    min_inliers: int = setting(5, check=integer(0, MAX_VERTICES))
+    min_inlier_ratio: float = setting(0.01, check=real(0.0, 1.0))
+    scoring: str = setting(
+        "msac", check=choice("msac", "count", "first", what="how RANSAC scores a hypothesis")
+    )
+    confidence: float | None = setting(
+        0.999, check=real(0.0, 1.0, low_open=True, high_open=True, none_ok=True)
+    )
+    batch: int = setting(100, check=integer(1, MAX_ITERATIONS))
+    refit_rounds: int = setting(2, check=integer(0, 100))
+    dof: int = setting(4, check=int_choice(4, 6))
+    max_tilt: float | None = setting(
+        15.0, check=real(0.0, 180.0, low_open=True, none_ok=True, unit="degrees")
+    )
+    sampler: str = setting(
+        "minimal", check=choice("minimal", "guo", what="how RANSAC draws its samples")
+    )
 
     def __post_init__(self) -> None:
-        validate_settings(self)  # type, range, finiteness of every field (sgloc.validation)
+        validate_settings(self, "ransac")  # the checks declared beside the fields
 
     @property
     def motion(self) -> MotionModel:

@@ -19,6 +19,7 @@ import numpy as np
 
 from sgloc.consistency import consistency_bits, unpack_rows
 from sgloc.rejection.base import Rejector
+from sgloc.validation import MAX_COORDINATE, MAX_ITERATIONS, MAX_VERTICES, integer, real, setting
 
 
 def core_numbers(M: np.ndarray) -> np.ndarray:
@@ -138,10 +139,10 @@ class CliqueRejector(Rejector):
     n_seeds: seeds of the greedy heuristic (the vertices of highest core number, then degree).
     """
 
-    tau: float = 5.0
-    exact_limit: int = 1000
-    max_nodes: int = 50_000
-    n_seeds: int = 16
+    tau: float = setting(5.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+    exact_limit: int = setting(1000, check=integer(0, MAX_VERTICES))
+    max_nodes: int = setting(50_000, check=integer(1, MAX_ITERATIONS))
+    n_seeds: int = setting(16, check=integer(1, MAX_VERTICES))
     name = "clique"
 
     def __call__(self, src, dst, scores=None):

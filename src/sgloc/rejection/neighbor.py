@@ -9,6 +9,7 @@ import numpy as np
 
 from sgloc.consistency import consistency_bits, consistency_matrix, pack_rows
 from sgloc.rejection.base import Rejector
+from sgloc.validation import MAX_COORDINATE, choice, real, setting
 
 __all__ = [
     "NeighborRejector",
@@ -155,10 +156,14 @@ class NeighborRejector(Rejector):
         V_i = r/2 - 1: "remaining" removes that match, "literal" stops there.
     """
 
-    tau: float = 5.0
-    eta: float = 0.5
-    form: Literal["distance", "neighbor"] = "distance"
-    bound: Literal["remaining", "literal"] = "remaining"
+    tau: float = setting(5.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+    eta: float = setting(0.5, check=real(0.0, 1.0))
+    form: Literal["distance", "neighbor"] = setting(
+        "distance", check=choice("distance", "neighbor", what="the consistency form")
+    )
+    bound: Literal["remaining", "literal"] = setting(
+        "remaining", check=choice("remaining", "literal", what="Alg. 1's removal bound")
+    )
     name = "neighbor"
 
     def __call__(self, src, dst, scores=None):

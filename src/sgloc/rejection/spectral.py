@@ -16,6 +16,7 @@ from scipy import sparse
 
 from sgloc.consistency import consistency_bits, consistent_blocks
 from sgloc.rejection.base import Rejector
+from sgloc.validation import MAX_COORDINATE, real, setting
 
 #: Above this many matches the affinity is held as a sparse matrix instead of a dense float32.
 DENSE_LIMIT = 3000
@@ -115,10 +116,10 @@ class SpectralRejector(Rejector):
         accepted before it (1.0: with all of them, the classic mutual consistency).
     """
 
-    tau: float = 5.0
-    sigma: float = 2.5
-    min_ratio: float = 0.1
-    min_agreement: float = 0.9
+    tau: float = setting(5.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+    sigma: float = setting(2.5, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+    min_ratio: float = setting(0.1, check=real(0.0, 1.0))
+    min_agreement: float = setting(0.9, check=real(0.0, 1.0))
     name = "spectral"
 
     def __call__(self, src, dst, scores=None):
