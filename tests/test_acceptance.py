@@ -214,7 +214,7 @@ def _tested_candidates(monkeypatch, query, target, **settings) -> set:
 
 @pytest.mark.parametrize("n_query", [20, 60])
 def test_localizer_tests_a_small_query_with_the_looser_ratio(monkeypatch, n_query):
-    from sgloc.acceptance import spatially_distinct
+    from sgloc.acceptance import spatially_distinctive
     from sgloc.descriptors import DistanceHistogramDescriptor
     from sgloc.matching import MatchingConfig, match_descriptors
 
@@ -234,7 +234,7 @@ def test_localizer_tests_a_small_query_with_the_looser_ratio(monkeypatch, n_quer
         dq, dt, query.labels, target.labels, MatchingConfig(max_ratio=0.8)
     )[0]
     # Small queries: ratio 0.85 against rivals farther than 10 m from the candidate's target.
-    loose = cand[spatially_distinct(dq, dt, target.labels, target.positions, cand, 0.85, 10.0)]
+    loose = cand[spatially_distinctive(dq, dt, target.labels, target.positions, cand, 0.85, 10.0)]
     assert len(loose) > len(strict)  # the two tests differ on this map: the check can fail
     expected = loose if n_query < EvidenceConfig().small_query else strict
     assert tested == _pair_positions(query, target, expected)
@@ -308,9 +308,9 @@ def test_select_evidence_by_query_size(rng):
 
 
 def spatially_distinct_of(dq, dt, target, cand, ratio, exclusion):
-    from sgloc.acceptance import spatially_distinct
+    from sgloc.acceptance import spatially_distinctive
 
-    return spatially_distinct(dq, dt, target.labels, target.positions, cand, ratio, exclusion)
+    return spatially_distinctive(dq, dt, target.labels, target.positions, cand, ratio, exclusion)
 
 
 def test_acceptance_settings_flat_nested_and_by_group():

@@ -1,10 +1,10 @@
-"""spatially_distinct: the ratio test with rivals only at other places."""
+"""spatially_distinctive: the ratio test with rivals only at other places."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from sgloc.acceptance import spatially_distinct
+from sgloc.acceptance import spatially_distinctive
 
 # Query 0 matches target 0 (cosine 0.95); target 1 is a near tie (0.94), target 2 a clearly
 # worse object (0.5). All of one class.
@@ -19,20 +19,20 @@ def _positions(rival_m: float) -> np.ndarray:
 
 
 def test_a_near_tie_far_away_is_an_ambiguity():
-    assert not spatially_distinct(DQ, DT, LABELS, _positions(50.0), CAND, 0.8, 10.0)[0]
+    assert not spatially_distinctive(DQ, DT, LABELS, _positions(50.0), CAND, 0.8, 10.0)[0]
 
 
 def test_a_near_tie_next_to_the_target_is_no_rival():
     # The look-alike 6 m from the target is the same place: the rival is target 2.
-    assert spatially_distinct(DQ, DT, LABELS, _positions(6.0), CAND, 0.8, 10.0)[0]
+    assert spatially_distinctive(DQ, DT, LABELS, _positions(6.0), CAND, 0.8, 10.0)[0]
     # Without exclusion it is the usual ratio test, which the near tie fails.
-    assert not spatially_distinct(DQ, DT, LABELS, _positions(6.0), CAND, 0.8, 0.0)[0]
+    assert not spatially_distinctive(DQ, DT, LABELS, _positions(6.0), CAND, 0.8, 0.0)[0]
 
 
 def test_rivals_are_of_the_candidates_class_and_none_passes():
     labels = np.array([0, 1, 1])  # the near tie is of another class: no rival of class 0
-    assert spatially_distinct(DQ, DT, labels, _positions(50.0), CAND, 0.8, 10.0)[0]
-    none = spatially_distinct(DQ, DT, LABELS, _positions(50.0), np.zeros((0, 2)), 0.8, 10.0)
+    assert spatially_distinctive(DQ, DT, labels, _positions(50.0), CAND, 0.8, 10.0)[0]
+    none = spatially_distinctive(DQ, DT, LABELS, _positions(50.0), np.zeros((0, 2)), 0.8, 10.0)
     assert none.size == 0
 
 
@@ -43,7 +43,7 @@ def test_matches_the_plain_ratio_test_without_exclusion():
     dq, dt = gen.random((30, 8)), gen.random((80, 8))
     lq, lt = gen.integers(0, 2, 30), gen.integers(0, 2, 80)
     cand, _, flags = match_flagged(dq, dt, lq, lt, MatchingConfig(min_similarity=0.0), 0.97)
-    got = spatially_distinct(dq, dt, lt, gen.random((80, 3)) * 100, cand, 0.97, 0.0)
+    got = spatially_distinctive(dq, dt, lt, gen.random((80, 3)) * 100, cand, 0.97, 0.0)
     assert 0 < got.sum() < len(got)  # some pass, some fail: the comparison means something
     np.testing.assert_array_equal(got, flags)
     strict = match_descriptors(dq, dt, lq, lt, MatchingConfig(min_similarity=0.0, max_ratio=0.97))

@@ -5,7 +5,7 @@ One entry point, `accept(...) -> Verdict` (`stage.py`), used by the localizer. M
 - `config.py`: `AcceptanceConfig` (the test) holding `EvidenceConfig` (which candidates count)
   and `VerificationConfig` (the whole-map verification of small queries);
 - `evidence.py`: `select_evidence`, the one choice of the candidates that count, and
-  `spatially_distinct` (the ratio test against rivals at other places);
+  `spatially_distinctive` (the ratio test against rivals at other places);
 - `chance.py`: `ChanceModel` (same-class target objects near moved query objects), the NFA
   (`log10_nfa`, `nfa_over_radii`) and the one `confidence` formula;
 - `rivals.py`: `distinct_from` (a different alignment) and `runner_up` (the best distinct one);
@@ -36,7 +36,7 @@ from sgloc.acceptance.chance import (
     triangle_count,
 )
 from sgloc.acceptance.config import AcceptanceConfig, EvidenceConfig, VerificationConfig
-from sgloc.acceptance.evidence import select_evidence, spatially_distinct
+from sgloc.acceptance.evidence import select_evidence, spatially_distinctive
 from sgloc.acceptance.rivals import distinct_from, runner_up
 from sgloc.acceptance.stage import Verdict, accept, verifies
 from sgloc.acceptance.verification import (
@@ -75,7 +75,7 @@ __all__ = [
     "runner_up",
     "select_evidence",
     "self_rival",
-    "spatially_distinct",
+    "spatially_distinctive",
     "triangle_count",
     "verifies",
     "verify_small_query",

@@ -6,6 +6,10 @@ candidates count as evidence: the ratio test by query size, also flagged during 
 name (`localize(q, t, distinct_ratio=..., verify_small=...)`, `acceptance_<field>`), and a
 mapping of the three may be flat (`{"min_confidence": 0.9, "distinct_ratio": None}`) or
 nested (`{"evidence": {"distinct_ratio": None}}`): `AcceptanceConfig.from_settings`.
+
+Words: a *distinctive* match is clearly better than its rival (the ratio test; its setting
+keeps the name `distinct_ratio`); two *distinct* alignments differ by more than
+`distinct_translation` or `distinct_rotation` (`rivals.distinct_from`).
 """
 
 from __future__ import annotations
@@ -45,7 +49,7 @@ class EvidenceConfig:
         on the hard-case benchmark's tuning pairs and on small crops of non-overlapping maps
         (docs/acceptance.md): 0.9 or no filter gave false accepts in repetitive places.
     small_exclusion: metres; for a small query, the ratio test's rival is the best same-class
-        target farther than this from the candidate's target (`spatially_distinct`): a near tie
+        target farther than this from the candidate's target (`spatially_distinctive`): a near tie
         with a neighbour in the same place is no ambiguity about the place. 0: the second
         best of the class. (Measured: for large queries too it let 2 of 480 non-overlapping
         pairs of the rendered city through.)

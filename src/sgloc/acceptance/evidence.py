@@ -2,11 +2,11 @@
 
 `select_evidence` keeps the distinctive candidates for a query of a given size
 (`EvidenceConfig.ratio_for`, `exclusion_for`): the ratio test flagged during matching, or the
-ratio test against rivals at *other places* (`spatially_distinct`) for small queries.
+ratio test against rivals at *other places* (`spatially_distinctive`) for small queries.
 
 Lowe's ratio test keeps a match when it is clearly better than the second best. Against a map,
 the second best is often a neighbour of the best target (two trees of one row, 6 m apart): a
-near tie between objects of one place, not an ambiguity about the place. `spatially_distinct`
+near tie between objects of one place, not an ambiguity about the place. `spatially_distinctive`
 takes the rival only among the same-class targets farther than `exclusion` metres from the
 candidate's target, so a match is refused for a look-alike elsewhere (another block of a
 repetitive city), not for its own neighbours.
@@ -23,7 +23,7 @@ from sgloc.graph import SemanticGraph
 from sgloc.matching import BLOCK_ENTRIES, MatchingConfig, match_descriptors, unit_rows
 
 
-def spatially_distinct(
+def spatially_distinctive(
     desc_q,
     desc_t,
     labels_t: np.ndarray,
@@ -74,7 +74,7 @@ def select_evidence(
     """The candidates (m,2) (query index, target index) that count as evidence for a query of
     this size: all of them when its ratio (`config.ratio_for`) is None; else those passing the
     ratio test against rivals farther than `config.exclusion_for` metres when that is > 0
-    (`spatially_distinct`), else those `flags` marks (`sgloc.matching.match_flagged` at that
+    (`spatially_distinctive`), else those `flags` marks (`sgloc.matching.match_flagged` at that
     ratio); without flags, the candidates of `matching` with `max_ratio` at that ratio.
     desc_q, desc_t: the graphs' vertex descriptors (dense or CSR)."""
     ratio = config.ratio_for(len(query))
@@ -84,7 +84,7 @@ def select_evidence(
     # wrong alignment as readily as with the right one.
     exclusion = config.exclusion_for(len(query))
     if exclusion > 0:  # rivals only at other places
-        keep = spatially_distinct(
+        keep = spatially_distinctive(
             desc_q, desc_t, target.labels, target.positions, candidates, ratio, exclusion
         )
         return candidates[keep]
