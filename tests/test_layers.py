@@ -45,15 +45,16 @@ LAYERS: dict[str, int] = {
     "sgloc.estimation": 4,
     "sgloc.covariance": 4,
     "sgloc.acceptance": 5,
+    "sgloc.mirror": 5,  # a check of an accepted alignment, which the localizer runs
     # the localizer and its settings
     "sgloc.config": 6,
     "sgloc.presets": 6,
     "sgloc.canonical": 6,
     "sgloc.localizer": 6,
     "sgloc.registration": 6,
+    "sgloc.prepared": 6,  # `localize` takes a PreparedMap wherever it takes a target graph
     "sgloc": 7,  # the package's own __init__: the public API, up to the fleet
     # many maps
-    "sgloc.prepared": 7,
     "sgloc.online": 7,
     "sgloc.keyframes": 7,
     "sgloc.fleet": 7,
@@ -64,7 +65,6 @@ LAYERS: dict[str, int] = {
     "sgloc.sim": 8,
     "sgloc.evaluation": 8,
     "sgloc.downloads": 8,
-    "sgloc.mirror": 8,
     "sgloc.viz": 8,
     "sgloc.replay": 8,
     "sgloc.warmup": 8,
