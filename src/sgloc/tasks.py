@@ -27,7 +27,7 @@ def run_all(
 ) -> list[Any]:
     """`fn` of each task (both picklable), in the order of `tasks`.
 
-    workers: local processes (default: the number of CPUs; 1 runs in this process).
+    workers: local processes (None: the number of CPUs; 0 or 1: in this process).
     scheduler: a Dask scheduler address ("tcp://host:8786") or a `distributed.Client`; when
         given, the tasks run on that cluster instead (its workers must see the same data paths).
     progress: called with the number of tasks just finished.
@@ -36,7 +36,7 @@ def run_all(
     tick = progress or (lambda n: None)
     if scheduler is not None:
         return _run_dask(tasks, scheduler, tick, fn)
-    workers = workers or os.cpu_count() or 1
+    workers = (os.cpu_count() or 1) if workers is None else workers
     if workers <= 1 or len(tasks) <= 1:
         rows = []
         for t in tasks:

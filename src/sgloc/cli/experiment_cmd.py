@@ -57,7 +57,7 @@ def experiment_cmd(
         "(needs pip install 'sgloc\\[dask]').",
     ),
     workers: int | None = typer.Option(
-        None, help="Local worker processes (default: all CPUs; 1 = in this process)."
+        None, help="Local worker processes (default: all CPUs; 0 or 1 = in this process)."
     ),
     seed: int = typer.Option(0, min=0, help="Seed of the first trial (trial i uses seed + i)."),
     threshold: float | None = typer.Option(

@@ -146,7 +146,7 @@ def run_tasks(
     """Run trials (`fn` of each task, default `run_task`) and return the results in the order
     of `tasks`, by the one task runner `sgloc.tasks.run_tasks`.
 
-    workers: local processes (default: the number of CPUs; 1 runs in this process).
+    workers: local processes (None: the number of CPUs; 0 or 1: in this process).
     scheduler: a Dask scheduler address ("tcp://host:8786") or a `distributed.Client`; when
         given, the trials run on that cluster instead (its workers must see the same data paths).
     progress: called with the number of trials just finished (for a progress bar).
