@@ -7,8 +7,12 @@ or `kitti_dir` fixture) and skip, naming `sgloc data fetch kitti00`, when it is 
 
 from __future__ import annotations
 
+import importlib.util
 import os
+import sys
+from collections.abc import Callable
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 import pytest
@@ -18,6 +22,26 @@ from sgloc.downloads import airsim_guo, dataset, dataset_dir, is_complete
 
 #: Fixtures that need a downloaded data set; tests using them get the `data` marker.
 DATA_FIXTURES = {"data_dir", "kitti_dir"}
+#: The benchmark scripts some tests exercise.
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+def _load_benchmark(name: str, module_name: str | None = None) -> ModuleType:
+    """benchmarks/<name>.py as a module, registered in sys.modules as `module_name` (default
+    `name`), loaded once; no change to sys.path."""
+    module_name = module_name or name
+    if module_name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(module_name, BENCHMARKS / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[module_name] = module
+        spec.loader.exec_module(module)
+    return sys.modules[module_name]
+
+
+@pytest.fixture(scope="session")
+def benchmark_module() -> Callable[..., ModuleType]:
+    """The loader of a benchmark script: `benchmark_module("fuzz")`."""
+    return _load_benchmark
 
 
 def pytest_configure(config: pytest.Config) -> None:

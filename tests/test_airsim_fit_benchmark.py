@@ -3,25 +3,15 @@ report on Guo's Airsim maps."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from sgloc.graph import SemanticGraph
 
-_PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "airsim_fit.py"
-
 
 @pytest.fixture(scope="module")
-def af():
-    spec = importlib.util.spec_from_file_location("airsim_fit", _PATH)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["airsim_fit"] = mod
-    spec.loader.exec_module(mod)
-    return mod
+def af(benchmark_module):
+    return benchmark_module("airsim_fit")
 
 
 def test_true_pairs_are_same_class_mutual_nearest_within_the_radius(af):

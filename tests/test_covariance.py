@@ -251,20 +251,12 @@ def test_default_inflation_is_the_measured_one():
     assert np.all(np.linalg.eigvalsh(transform_covariance(src, dst, T_est) - plain) > -1e-12)
 
 
-def test_inflated_covariance_covers_real_errors(data_dir):
+def test_inflated_covariance_covers_real_errors(data_dir, benchmark_module):
     """On the tuning KITTI 00 pairs of benchmarks/hard_cases.py (the ones the inflation was
     chosen on; docs/covariance.md also reports the held-out ones): 85-99 % of the true errors
     inside the 95 % region in every test, where the plain least-squares covariance covers
     under a half."""
-    import importlib.util
-    import sys
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "covariance.py"
-    spec = importlib.util.spec_from_file_location("covariance_benchmark", path)
-    bench = importlib.util.module_from_spec(spec)
-    sys.modules["covariance_benchmark"] = bench
-    spec.loader.exec_module(bench)
+    bench = benchmark_module("covariance", "covariance_benchmark")
     e = bench.errors(bench.collect("tuning", workers=1))
     assert len(e.xi) >= 80
     inflated = bench.coverage(bench.distances(e, bench.covariances(e, DEFAULT_INFLATION)))

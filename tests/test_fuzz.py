@@ -2,17 +2,17 @@
 traceback, crash or hang; every bad input one `error:` line with exit 2; no malformed file read
 as data; no valid file refused."""
 
-import sys
-from pathlib import Path
-
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
-import fuzz  # noqa: E402
+
+@pytest.fixture(scope="module")
+def fuzz(benchmark_module):
+    """benchmarks/fuzz.py."""
+    return benchmark_module("fuzz")
 
 
 @pytest.mark.parametrize("seed", [11, 12])
-def test_fuzzed_inputs_fail_cleanly_or_read_as_data(seed):
+def test_fuzzed_inputs_fail_cleanly_or_read_as_data(seed, fuzz):
     counts, bad = fuzz.run_fuzz(cases=150, seed=seed, timeout=20.0)
     assert bad == []
     assert sum(counts.values()) == 150
@@ -24,7 +24,7 @@ def test_fuzzed_inputs_fail_cleanly_or_read_as_data(seed):
     )
 
 
-def test_classification_catches_bad_outcomes():
+def test_classification_catches_bad_outcomes(fuzz):
     assert fuzz.classify("fail", 0, "", "") == "malformed file read as data"
     assert fuzz.classify("valid", 2, "error: x\n", "") == "valid file refused"
     assert fuzz.classify("fail", 2, "error: a\nerror: b\n", "") == (
@@ -37,7 +37,7 @@ def test_classification_catches_bad_outcomes():
     )
 
 
-def test_a_hang_is_caught_by_the_time_limit(monkeypatch):
+def test_a_hang_is_caught_by_the_time_limit(monkeypatch, fuzz):
     import time
 
     import sgloc.cli

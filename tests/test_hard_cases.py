@@ -4,25 +4,15 @@ pairs are split at scan 3000."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from sgloc.geometry import apply, make_transform
 
-_PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "hard_cases.py"
-
 
 @pytest.fixture(scope="module")
-def hc(data_dir):
-    spec = importlib.util.spec_from_file_location("hard_cases", _PATH)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["hard_cases"] = mod
-    spec.loader.exec_module(mod)
-    return mod
+def hc(data_dir, benchmark_module):
+    return benchmark_module("hard_cases")
 
 
 @pytest.fixture(scope="module")

@@ -4,15 +4,18 @@ its numpy reference (`benchmarks/kernel_cache.py`; about 30-60 s, mostly compili
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
-
-import kernel_cache  # noqa: E402
+import pytest
 
 
-def test_cached_kernels_loaded_together_in_any_order_equal_references(tmp_path):
+@pytest.fixture(scope="module")
+def kernel_cache(benchmark_module):
+    """benchmarks/kernel_cache.py."""
+    return benchmark_module("kernel_cache")
+
+
+def test_cached_kernels_loaded_together_in_any_order_equal_references(tmp_path, kernel_cache):
     helpers = kernel_cache.populate(tmp_path, workers=2)
     assert set(helpers) == set(kernel_cache.MODULES) and any(helpers.values())
     # The names whose body numba's symbol does not fix stay out of every kernel ...
@@ -25,7 +28,7 @@ def test_cached_kernels_loaded_together_in_any_order_equal_references(tmp_path):
         assert run.passed, f"{' '.join(names)}: {run.why}"
 
 
-def test_every_cached_kernel_module_is_checked():
+def test_every_cached_kernel_module_is_checked(kernel_cache):
     import sgloc.kernels
 
     folder = Path(sgloc.kernels.__file__).parent
@@ -33,7 +36,7 @@ def test_every_cached_kernel_module_is_checked():
     assert cached == set(kernel_cache.MODULES)
 
 
-def test_sort_and_argsort_helpers_are_one_name_with_two_bodies():
+def test_sort_and_argsort_helpers_are_one_name_with_two_bodies(kernel_cache):
     """The hazard itself (numba 0.68): np.sort and np.argsort of an int64 array compile helpers
     of one name (up to the counter) and different bodies; the check sees them."""
     import numpy as np
@@ -50,6 +53,6 @@ def test_sort_and_argsort_helpers_are_one_name_with_two_bodies():
     assert any("quicksort" in name for name in clashes), sorted(clashes)
 
 
-def test_clashing_helpers_flags_one_name_with_two_bodies():
+def test_clashing_helpers_flags_one_name_with_two_bodies(kernel_cache):
     helpers = {"a": {"f": "1", "g": "2"}, "b": {"f": "1", "g": "3"}, "c": {"h": "4"}}
     assert kernel_cache.clashing_helpers(helpers) == {"g": ["a", "b"]}
