@@ -78,14 +78,16 @@ class Registry(MutableMapping[str, T], Generic[T]):
         """The registered names and the aliases."""
         return [*self._entries, *self.aliases]
 
-    def unknown_message(self, name: str) -> str:
-        """The text of the error for the unknown `name` (choices and the closest name)."""
+    def unknown_message(self, name: str, other: str = "") -> str:
+        """The text of the error for the unknown `name` (choices and the closest name; `other`:
+        what else may be given, e.g. "a folder")."""
         names = self.names()
         close = difflib.get_close_matches(normalise(name), [normalise(n) for n in names], n=1)
         hint = ""
         if close:
             hint = " (did you mean " + next(n for n in names if normalise(n) == close[0]) + "?)"
-        return f"unknown {self.kind} {name!r}{hint}; choose one of {', '.join(names)}."
+        other = f" or give {other}" if other else ""
+        return f"unknown {self.kind} {name!r}{hint}; choose one of {', '.join(names)}{other}."
 
     def __getitem__(self, name: str) -> T:
         return self._entries[name]

@@ -174,10 +174,12 @@ def make_pair_source(name: str, **params: Any) -> PairSource:
     if cls is None:
         path = Path(name)
         if not path.is_dir():
-            names = ", ".join(sorted(PAIR_SOURCES.names()))
             raise UnknownNameError(
-                f"unknown dataset {name!r}; choose one of {names} or give a folder holding two "
-                "graph files or an Airsim-layout run with ground_truth.txt."
+                PAIR_SOURCES.unknown_message(
+                    name,
+                    "a folder holding two graph files or an Airsim-layout run with "
+                    "ground_truth.txt",
+                )
             )
         if (path / "CameraParams").is_dir():
             cls = SynthiaPairs
