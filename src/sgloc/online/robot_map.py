@@ -31,6 +31,8 @@ class RobotMap:
         ))
         self._graph: SemanticGraph | None = None
         self._confirmed = 0
+        self.stamps: list[float] = []
+        self.poses: list[np.ndarray] = []
 
     @property
     def n_confirmed(self) -> int:
@@ -41,9 +43,12 @@ class RobotMap:
     def keyframes(self) -> int:
         return self.builder.n_frames
 
-    def add(self, T_odom_sensor: np.ndarray, positions: np.ndarray, labels: np.ndarray) -> None:
+    def add(
+        self, stamp: float, T_odom_sensor: np.ndarray, positions: np.ndarray, labels: np.ndarray
+    ) -> None:
         """Add one keyframe's sightings (positions (n,3) in the sensor frame, metres; labels
-        (n,) class ids; T_odom_sensor (4,4) the keyframe's pose in the odometry frame)."""
+        (n,) class ids; T_odom_sensor (4,4) the keyframe's pose in the odometry frame; stamp
+        in seconds)."""
         T = np.asarray(T_odom_sensor, dtype=np.float64)
         if T.shape != (4, 4) or not np.isfinite(T).all():
             raise SglocError(
@@ -52,6 +57,8 @@ class RobotMap:
             )
         pos, lab = check_graph_arrays(f"robot {self.name!r} keyframe", positions, labels)
         went = self.builder.add_observations(to_map(pos, T), lab)
+        self.stamps.append(float(stamp))
+        self.poses.append(T.copy())
         counts = self.builder.counts
         # The confirmed map changed when a sighting went to an object that is now confirmed.
         if len(went) and (counts[went] >= self.min_observations).any():
@@ -64,11 +71,18 @@ class RobotMap:
             self._graph = self.builder.graph(self.name)
         return self._graph
 
+    def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
+        """(stamps (k,), T_odom_sensor (k,4,4)) of the keyframes so far."""
+        return np.array(self.stamps, np.float64), np.array(self.poses).reshape(-1, 4, 4)
+
     def state(self) -> dict[str, np.ndarray]:
         """Arrays that restore this map (`set_state`)."""
-        return self.builder.state()
+        stamps, poses = self.trajectory()
+        return {**self.builder.state(), "stamps": stamps, "poses": poses}
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
         self.builder = GraphBuilder.from_state(self.builder.config, state)
+        self.stamps = [float(t) for t in state["stamps"]]
+        self.poses = [np.array(T) for T in np.asarray(state["poses"]).reshape(-1, 4, 4)]
         self._confirmed = int(np.count_nonzero(self.builder.counts >= self.min_observations))
         self._graph = None
