@@ -14,7 +14,12 @@ from sgloc.geometry import invert
 from sgloc.graph import SemanticGraph
 from sgloc.online.attempts import run_tasks
 from sgloc.online.config import OnlineConfig
-from sgloc.online.consistency import Edge, invert_with_covariance, loop_error
+from sgloc.online.consistency import (
+    Edge,
+    invert_with_covariance,
+    loop_error,
+    loop_tolerance,
+)
 from sgloc.online.posegraph import fleet_frame
 from sgloc.online.records import (
     LINK_ACCEPTED,
@@ -217,8 +222,8 @@ class OnlineSession:
         if old is None or not old.active:
             return
         dt, dr = loop_error(invert(old.T_a_b) @ new.T_a_b, self._maps[names[j]].graph().positions)
-        o = self.online
-        if dt <= o.loop_translation and dr <= o.loop_rotation:
+        lim_m, lim_deg = loop_tolerance(self.online.loop_translation, self.online.loop_rotation, 2)
+        if dt <= lim_m and dr <= lim_deg:
             new.active = True  # an update of an active link
             return
         self._emit(True, float(stamp), LINK_REVOKED, (names[i], names[j]),
