@@ -101,6 +101,10 @@ class OnlineSession:
         stamps, poses = self.keyframes(robot)
         return stamps, T @ poses
 
+    def _now(self) -> float:
+        """The newest keyframe stamp of any robot (0.0 before the first)."""
+        return max((m.stamps[-1] for m in self._maps.values() if m.stamps), default=0.0)
+
     def _index(self, robot: str) -> int:
         try:
             return self.robots.index(robot)
@@ -149,8 +153,8 @@ class OnlineSession:
     ) -> list[Event]:
         """Attempt the due robot pairs (at most `max_attempts`; None: all), pairs that would
         join two separate groups first; on `workers` local processes or a Dask `scheduler`.
-        stamp: the events' stamp (default: the newest attempt's or 0.0)."""
-        stamp = float(stamp) if stamp is not None else 0.0
+        stamp: the events' stamp (default: the newest keyframe's)."""
+        stamp = float(stamp) if stamp is not None else self._now()
         n_events = len(self.events)
         names = self.robots
         sizes = [self._maps[r].n_confirmed for r in names]
@@ -236,7 +240,7 @@ class OnlineSession:
         T_a_b: np.ndarray,
         covariance: np.ndarray,
         confidence: float = 1.0,
-        stamp: float = 0.0,
+        stamp: float | None = None,
     ) -> list[Event]:
         """Add an inter-robot link found elsewhere (e.g. another place recognizer): T_a_b (4,4)
         maps b's odometry frame into a's, covariance (6,6) as `Link.covariance`. It replaces the
@@ -254,13 +258,16 @@ class OnlineSession:
             i, j = j, i
             T, cov = invert_with_covariance(T, cov)
         n_events = len(self.events)
+        stamp = float(stamp) if stamp is not None else self._now()
         self._store_link(i, j, T, cov, confidence, stamp, 0, "added link")
-        self._refresh(float(stamp))
+        self._refresh(stamp)
         return self.events[n_events:]
 
-    def set_root(self, robot: str, stamp: float = 0.0) -> list[Event]:
-        """Make `robot`'s odometry frame the fleet frame (re-solves; returns the events)."""
+    def set_root(self, robot: str, stamp: float | None = None) -> list[Event]:
+        """Make `robot`'s odometry frame the fleet frame (re-solves; returns the events,
+        stamped `stamp`, default: the newest keyframe's)."""
         self._index(robot)
+        stamp = float(stamp) if stamp is not None else self._now()
         n_events = len(self.events)
         self._root = robot
         self._T = {}
