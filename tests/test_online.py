@@ -257,3 +257,18 @@ def test_a_newer_link_of_the_same_pair_that_disagrees_revokes_the_old_one():
     # A link given the other way round is inverted, covariance included.
     s.add_link("c", "a", invert(_yaw(5, [0, 7, 0])), cov, stamp=4.0)
     np.testing.assert_allclose(s.T_fleet_robot("c"), _yaw(5, [0, 7, 0]), atol=1e-12)
+
+
+def test_confirmations_hold_a_link_back_until_attempts_agree():
+    s = OnlineSession(online=OnlineConfig(min_observations=1, max_attempts=0, confirmations=2))
+    pts = np.random.default_rng(2).uniform(-20, 20, (10, 3))
+    for r in ("a", "b"):
+        s.add_keyframe(r, 0.0, np.eye(4), pts, np.zeros(10, np.int64))
+    cov = np.eye(6) * 0.01
+    assert s.add_link("a", "b", _yaw(0, [10, 0, 0]), cov, stamp=1.0) == []
+    assert s.T_fleet_robot("b") is None and "awaiting confirmation" in s.links[0].reason
+    assert s.add_link("a", "b", _yaw(30, [60, 0, 0]), cov, stamp=2.0) == []  # disagrees
+    assert s.links[0].agreed == 1 and s.T_fleet_robot("b") is None
+    ev = s.add_link("a", "b", _yaw(30.5, [60.5, 0, 0]), cov, stamp=3.0)
+    assert [e.kind for e in ev] == ["link_accepted", "robot_joined"]
+    np.testing.assert_allclose(s.T_fleet_robot("b"), _yaw(30.5, [60.5, 0, 0]))

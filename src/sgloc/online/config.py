@@ -26,6 +26,8 @@ class OnlineConfig:
     loop_translation, loop_rotation: metres (at the centroid of the robot's objects) / degrees
         by which one link may be off; a loop of k links may fail to compose to the identity by
         sqrt(k) times that and still count as consistent.
+    confirmations: accepted attempts of a pair, in a row and agreeing with each other (as a
+        loop of 2 links), before its link is used (1: at once).
     solver: "auto" (gtsam when installed, else scipy), "gtsam" or "scipy".
     seed: attempt k of the pair (i, j) (robot indices, i < j) uses the seed [seed, i, j]
         (k = 0) or [seed, i, j, k].
@@ -40,14 +42,16 @@ class OnlineConfig:
     max_attempts: int | None = 2
     loop_translation: float = 3.0
     loop_rotation: float = 3.0
+    confirmations: int = 1
     solver: str = "auto"
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if self.association_radius < 0 or self.min_observations < 1 or self.min_objects < 3:
+        if (self.association_radius < 0 or self.min_observations < 1 or self.min_objects < 3
+                or self.confirmations < 1):
             raise SglocError(
-                "OnlineConfig: association_radius must be >= 0 m, min_observations >= 1 and "
-                "min_objects >= 3 (localization needs at least 3 objects)."
+                "OnlineConfig: association_radius must be >= 0 m, min_observations and "
+                "confirmations >= 1, min_objects >= 3 (localization needs at least 3 objects)."
             )
         if self.max_attempts is not None and self.max_attempts < 0:
             raise SglocError("OnlineConfig: max_attempts must be >= 0 or None (no limit).")

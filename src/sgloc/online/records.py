@@ -21,6 +21,8 @@ class Link:
     confidence: the acceptance test's, in [0, 1]. stamp: when the link was (last) accepted.
     active: True while the link is part of the consistent set the fleet frame is built from;
         reason: why not (or how the covariance was obtained).
+    n_matches: the localization's inliers; agreed: how many accepted attempts of this pair in
+        a row agree with each other (`OnlineConfig.confirmations`).
     """
 
     robot_a: str
@@ -32,13 +34,14 @@ class Link:
     active: bool = True
     reason: str = ""
     n_matches: int = 0
+    agreed: int = 1
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "robot_a": self.robot_a, "robot_b": self.robot_b, "T_a_b": self.T_a_b.tolist(),
             "covariance": self.covariance.tolist(), "confidence": self.confidence,
             "stamp": self.stamp, "active": self.active, "reason": self.reason,
-            "n_matches": self.n_matches,
+            "n_matches": self.n_matches, "agreed": self.agreed,
         }
 
     @classmethod

@@ -214,24 +214,26 @@ class OnlineSession:
         return True
 
     def _store_link(self, i, j, T, cov, confidence, stamp, n_matches, reason) -> None:
-        """Make (T_i_j, cov) the pair's link. It stays in the consistent set if the pair's
-        link was there and agrees with it within the loop tolerance; a disagreeing active link
-        is revoked (the newer attempt, on larger maps, is taken), the new one then re-checked."""
+        """Make (T_i_j, cov) the pair's link. If the pair had a link that agrees with it within
+        the loop tolerance (a loop of 2), the new one inherits its place in the consistent set
+        and counts one more agreeing attempt (`Link.agreed`); a disagreeing active link is
+        revoked (the newer attempt, on larger maps, is taken), the new one then re-checked."""
         names = self.robots
         old = self._links.get((i, j))
         new = Link(names[i], names[j], np.asarray(T, np.float64), np.asarray(cov, np.float64),
                    float(confidence), float(stamp), active=False, reason=reason,
                    n_matches=int(n_matches))
         self._links[(i, j)] = new
-        if old is None or not old.active:
+        if old is None:
             return
         dt, dr = loop_error(invert(old.T_a_b) @ new.T_a_b, self._maps[names[j]].graph().positions)
         lim_m, lim_deg = loop_tolerance(self.online.loop_translation, self.online.loop_rotation, 2)
         if dt <= lim_m and dr <= lim_deg:
-            new.active = True  # an update of an active link
-            return
-        self._emit(True, float(stamp), LINK_REVOKED, (names[i], names[j]),
-                   f"a later attempt of this pair disagrees with it by {dt:.2f} m / {dr:.2f} deg")
+            new.active, new.agreed = old.active, old.agreed + 1
+        elif old.active:
+            self._emit(True, float(stamp), LINK_REVOKED, (names[i], names[j]),
+                       f"a later attempt of this pair disagrees with it by {dt:.2f} m / "
+                       f"{dr:.2f} deg")
 
     def add_link(
         self,
@@ -278,7 +280,11 @@ class OnlineSession:
     def _refresh(self, stamp: float, emit: bool = True) -> None:
         """Re-select the consistent links, re-solve the fleet frame, emit what changed."""
         names = self.robots
-        keys = sorted(self._links)
+        o = self.online
+        for lk in self._links.values():
+            if lk.agreed < o.confirmations:
+                lk.reason = f"awaiting confirmation: {lk.agreed} of {o.confirmations} attempts"
+        keys = sorted(k for k, lk in self._links.items() if lk.agreed >= o.confirmations)
         links = [self._links[k] for k in keys]
         edges = [Edge(i, j, lk.T_a_b, lk.confidence, lk.stamp)
                  for (i, j), lk in zip(keys, links, strict=True)]
@@ -286,7 +292,6 @@ class OnlineSession:
         if root not in self._maps:
             self._T = {}
             return
-        o = self.online
         frame = fleet_frame(
             len(names), edges, [lk.covariance for lk in links], names.index(root),
             lambda r: self._maps[names[r]].graph().positions,
