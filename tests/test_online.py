@@ -272,3 +272,12 @@ def test_confirmations_hold_a_link_back_until_attempts_agree():
     ev = s.add_link("a", "b", _yaw(30.5, [60.5, 0, 0]), cov, stamp=3.0)
     assert [e.kind for e in ev] == ["link_accepted", "robot_joined"]
     np.testing.assert_allclose(s.T_fleet_robot("b"), _yaw(30.5, [60.5, 0, 0]))
+
+
+def test_loading_something_else_is_a_clear_error(tmp_path):
+    bad = tmp_path / "x.npz"
+    np.savez(bad, a=np.zeros(3))
+    with pytest.raises(SglocError, match="not a saved online session"):
+        OnlineSession.load(bad)
+    with pytest.raises(SglocError, match="not a saved online session"):
+        OnlineSession.load(tmp_path / "missing.npz")

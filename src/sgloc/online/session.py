@@ -323,7 +323,45 @@ class OnlineSession:
         if emit:
             self.events.append(Event(stamp, kind, tuple(robots), detail))
 
-    # -- files ---------------------------------------------------------------------------------
+    # -- state and files -----------------------------------------------------------------------
+    def to_state(self) -> tuple[dict, dict[str, np.ndarray]]:
+        """(JSON-ready dict, arrays) holding the whole session (`from_state` rebuilds it)."""
+        meta = {
+            "config": self.config.to_dict(),
+            "online": self.online.to_dict(),
+            "root": self._root,
+            "robots": self.robots,
+            "last": [[i, j, *v] for (i, j), v in sorted(self._last.items())],
+            "tries": [[i, j, v] for (i, j), v in sorted(self._tries.items())],
+            "links": [[i, j, lk.to_dict()] for (i, j), lk in sorted(self._links.items())],
+            "attempts": [a.to_dict() for a in self.attempts],
+            "events": [e.to_dict() for e in self.events],
+        }
+        arrays = {f"map{k}_{key}": arr for k, r in enumerate(self.robots)
+                  for key, arr in self._maps[r].state().items()}
+        return meta, arrays
+
+    @classmethod
+    def from_state(cls, meta: dict, arrays: dict[str, np.ndarray]) -> OnlineSession:
+        """The session `to_state` described (its fleet frame re-solved from the links)."""
+        s = cls(LocalizerConfig.from_dict(meta["config"]), OnlineConfig.from_dict(meta["online"]),
+                meta["root"])
+        o = s.online
+        for k, r in enumerate(meta["robots"]):
+            m = RobotMap(r, o.association_radius, o.min_observations, o.edge_radius)
+            prefix = f"map{k}_"
+            m.set_state({key[len(prefix):]: v for key, v in arrays.items()
+                         if key.startswith(prefix)})
+            s._maps[r] = m
+        s._last = {(i, j): (a, b) for i, j, a, b in meta["last"]}
+        s._tries = {(i, j): v for i, j, v in meta["tries"]}
+        s._links = {(i, j): Link.from_dict(d) for i, j, d in meta["links"]}
+        s.attempts = [Attempt.from_dict(d) for d in meta["attempts"]]
+        s.events = [Event.from_dict(d) for d in meta["events"]]
+        if s.robots:
+            s._refresh(0.0, emit=False)
+        return s
+
     def save(self, path: str | Path) -> Path:
         """Write the whole session (maps, attempts, links, events, settings) to one .npz."""
         from sgloc.online.store import save_session
