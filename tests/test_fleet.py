@@ -92,6 +92,10 @@ def test_local_processes_and_dask_give_the_same_fleet():
 
     graphs = world_fleet(2).graphs[:4]
     local = localize_fleet(graphs, workers=2)
+    here = localize_fleet(graphs, workers=0)  # in this process
+    assert here.placed == local.placed
+    for i in local.placed:
+        np.testing.assert_array_equal(here.T_world_robot[i], local.T_world_robot[i])
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=False) as cluster:
         with Client(cluster):
             dask = localize_fleet(graphs, scheduler=cluster.scheduler_address)

@@ -32,38 +32,48 @@ def fallback_covariance(
     return np.diag([sigma_r**2] * 3 + [sigma_t**2] * 3)
 
 
-def localize_task(task: tuple) -> dict[str, Any]:
-    """Worker: localize `query` in `target` (graphs passed as arrays so any process or Dask
-    worker can). task = (key, qpos, qlab, qr, tpos, tlab, tr, cfg_dict, seed)."""
-    from sgloc.localizer import Localizer
-
-    key, qpos, qlab, qr, tpos, tlab, tr, cfg_dict, seed = task
+def localize_pair(
+    localizer, query: SemanticGraph, target: SemanticGraph, seed: Any
+) -> dict[str, Any]:
+    """Localize `query` in `target` with `localizer` (a `sgloc.Localizer`) and the random seed
+    `seed`: accepted, transform (T_target_query), covariance (6,6; the result's, else
+    `fallback_covariance`), cov_source, confidence, n_matches, reason, seconds. Passing the
+    same graph objects again lets the localizer reuse what it computed for them."""
     t0 = time.perf_counter()
-    q = SemanticGraph(qpos, qlab, qr, name="query")
-    t = SemanticGraph(tpos, tlab, tr, name="target")
-    cfg = LocalizerConfig.from_dict(cfg_dict)
-    out: dict[str, Any] = {"key": key, "transform": None, "covariance": None}
+    out: dict[str, Any] = {"transform": None, "covariance": None}
     try:
-        res = Localizer(cfg)(q, t, np.random.default_rng(seed))
-        cov = getattr(res, "covariance", None)
+        res = localizer(query, target, np.random.default_rng(seed))
         out.update(
             accepted=bool(res.success), confidence=float(res.confidence or 0.0),
             n_matches=int(len(res.matches)), reason=res.reason,
         )
         if res.success:
             out["transform"] = res.transform
+            cov = getattr(res, "covariance", None)
             if cov is not None:
                 out["covariance"] = np.asarray(cov, np.float64)
                 out["cov_source"] = "the localizer's covariance"
             else:
                 out["covariance"] = fallback_covariance(
-                    len(res.matches), cfg.ransac.threshold, qpos
+                    len(res.matches), localizer.config.ransac.threshold, query.positions
                 )
                 out["cov_source"] = "fallback covariance from the inlier count"
     except SglocError as e:
         out.update(accepted=False, confidence=0.0, n_matches=0, reason=str(e))
     out["seconds"] = time.perf_counter() - t0
     return out
+
+
+def localize_task(task: tuple) -> dict[str, Any]:
+    """Worker: `localize_pair` on graphs passed as arrays (so any process or Dask worker can).
+    task = (key, qpos, qlab, qr, tpos, tlab, tr, cfg_dict, seed)."""
+    from sgloc.localizer import Localizer
+
+    key, qpos, qlab, qr, tpos, tlab, tr, cfg_dict, seed = task
+    q = SemanticGraph(qpos, qlab, qr, name="query")
+    t = SemanticGraph(tpos, tlab, tr, name="target")
+    return {"key": key, **localize_pair(Localizer(LocalizerConfig.from_dict(cfg_dict)), q, t,
+                                        seed)}
 
 
 def run_tasks(

@@ -165,8 +165,10 @@ class OnlineSession:
         due = due if max_attempts is None else due[:max_attempts]
         if not due:
             return []
-        tasks = [self._task(i, j) for i, j in due]
-        results = run_tasks(tasks, scheduler, workers)
+        # Each attempt on graphs rebuilt from arrays, wherever it runs: the localizer's caches
+        # on a reused graph shift results by ~1e-13 with their history, and a resumed session
+        # or a worker process must give the same results bit for bit.
+        results = run_tasks([self._task(i, j) for i, j in due], scheduler, workers)
         changed = False
         for (i, j), r in zip(due, results, strict=True):
             changed |= self._record(i, j, sizes, r, stamp)
@@ -189,14 +191,16 @@ class OnlineSession:
                 parent[find(i)] = find(j)
         return [find(x) for x in range(len(parent))]
 
+    def _seed(self, i: int, j: int) -> list[int]:
+        k = self._tries.get((i, j), 0)
+        return [self.online.seed, i, j] if k == 0 else [self.online.seed, i, j, k]
+
     def _task(self, i: int, j: int) -> tuple:
-        """Robot j (query) in robot i's map (target): the result is T_i_j."""
+        """Robot j (query) in robot i's map (target), as arrays: the result is T_i_j."""
         names = self.robots
         q, t = self._maps[names[j]].graph(), self._maps[names[i]].graph()
-        k = self._tries.get((i, j), 0)
-        seed = [self.online.seed, i, j] if k == 0 else [self.online.seed, i, j, k]
         return ((i, j), q.positions, q.labels, q.edge_radius, t.positions, t.labels,
-                t.edge_radius, self.config.to_dict(), seed)
+                t.edge_radius, self.config.to_dict(), self._seed(i, j))
 
     def _record(self, i: int, j: int, sizes: list[int], r: dict, stamp: float) -> bool:
         """Store one attempt; True when it added or replaced a link."""
