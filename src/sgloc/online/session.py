@@ -128,9 +128,13 @@ class OnlineSession:
         Returns the events this update caused."""
         if not isinstance(robot, str) or not robot:
             raise SglocError(f"robot must be a non-empty name, got {robot!r}.")
-        if not math.isfinite(float(stamp)):
-            raise SglocError(f"robot {robot!r}: the keyframe stamp must be finite, got {stamp}.")
-        stamp = float(stamp)
+        try:
+            stamp = float(stamp)
+        except (TypeError, ValueError):
+            stamp = math.nan
+        if not math.isfinite(stamp):
+            raise SglocError(f"robot {robot!r}: the keyframe stamp must be a finite number of "
+                             "seconds.")
         n_events = len(self.events)
         if robot not in self._maps:
             o = self.online
@@ -176,20 +180,15 @@ class OnlineSession:
             self._refresh(stamp)
         return self.events[n_events:]
 
-    def _groups(self) -> list[int]:
+    def _groups(self) -> np.ndarray:
         """Per robot index, a label of its group of robots joined by active links."""
-        parent = list(range(len(self._maps)))
+        from scipy import sparse
+        from scipy.sparse.csgraph import connected_components
 
-        def find(x: int) -> int:
-            while parent[x] != x:
-                parent[x] = parent[parent[x]]
-                x = parent[x]
-            return x
-
-        for (i, j), lk in self._links.items():
-            if lk.active:
-                parent[find(i)] = find(j)
-        return [find(x) for x in range(len(parent))]
+        n = len(self._maps)
+        ij = np.array([k for k, lk in self._links.items() if lk.active], np.int64).reshape(-1, 2)
+        adj = sparse.coo_array((np.ones(len(ij)), (ij[:, 0], ij[:, 1])), shape=(n, n))
+        return connected_components(adj, directed=False)[1]
 
     def _seed(self, i: int, j: int) -> list[int]:
         k = self._tries.get((i, j), 0)
