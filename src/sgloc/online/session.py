@@ -164,11 +164,11 @@ class OnlineSession:
         sizes = [self._maps[r].n_confirmed for r in names]
         o = self.online
         due = due_pairs(sizes, self._last, o.min_objects, o.growth_ratio, o.growth_objects)
+        if not due:
+            return []
         group = self._groups()
         due.sort(key=lambda p: group[p[0]] == group[p[1]])  # stable: growth order within
         due = due if max_attempts is None else due[:max_attempts]
-        if not due:
-            return []
         # Each attempt on graphs rebuilt from arrays, wherever it runs: the localizer's caches
         # on a reused graph shift results by ~1e-13 with their history, and a resumed session
         # or a worker process must give the same results bit for bit.
