@@ -14,19 +14,18 @@ def safe_name(name: str) -> str:
 
 
 def unique_names(names: Sequence[str]) -> list[str]:
-    """File-safe names, a repeated one suffixed with its position ('map-1', 'map-2')."""
+    """File-safe names, a repeated one (ignoring case: some file systems do) suffixed with its
+    position ('map-1', 'Map-2')."""
     safe = [safe_name(n) for n in names]
-    out = []
-    for i, s in enumerate(safe):
-        out.append(f"{s}-{i}" if safe.count(s) > 1 else s)
-    return out
+    low = [s.lower() for s in safe]
+    return [f"{s}-{i}" if low.count(s.lower()) > 1 else s for i, s in enumerate(safe)]
 
 
 def robot_names(paths: Sequence[str | Path]) -> list[str]:
     """A robot name per input file: its stem; files sharing a stem are named by their parent
     folder too ('r1/map.pcd', 'r2/map.pcd' -> 'r1-map', 'r2-map')."""
     ps = [Path(p) for p in paths]
-    stems = [p.stem for p in ps]
-    names = [f"{p.parent.name}-{p.stem}" if stems.count(p.stem) > 1 and p.parent.name else p.stem
-             for p in ps]
+    stems = [p.stem.lower() for p in ps]
+    names = [f"{p.parent.name}-{p.stem}" if stems.count(p.stem.lower()) > 1 and p.parent.name
+             else p.stem for p in ps]
     return unique_names(names)
