@@ -135,20 +135,34 @@ def write_plain_layout(
     """Write robots in the plain layout (values written exactly; classes as names when
     `class_names` is given, with a classes.txt, else as integer ids)."""
     folder = Path(folder)
+    bad = [g.name for g in logs if g.name != Path(g.name).name or g.name.startswith(".")]
+    if bad:
+        raise DatasetError(f"robot name {bad[0]!r} cannot be a folder name; rename the robot.")
     folder.mkdir(parents=True, exist_ok=True)
     if class_names is not None:
         write_class_table(folder / CLASSES_FILE, class_names)
     for log in logs:
         d = folder / log.name
         d.mkdir(parents=True, exist_ok=True)
-        odo = [
-            " ".join([format_stamp(s), *map(float_text, (*p, *q))])
-            for s, p, q in zip(log.stamps_ns, log.xyz, log.quat, strict=True)
-        ]
-        (d / ODOMETRY_FILE).write_text("".join(f"{r}\n" for r in odo))
+        write_tum_exact(d / ODOMETRY_FILE, log.stamps_ns, log.xyz, log.quat)
         objs = [",".join(OBJECT_COLUMNS)]
         for k, p, c in zip(log.keyframe, log.positions, log.labels, strict=True):
             cls = class_names[c] if class_names is not None else str(int(c))
             objs.append(",".join([format_stamp(log.stamps_ns[k]), *map(float_text, p), cls]))
         (d / OBJECTS_FILE).write_text("".join(f"{r}\n" for r in objs))
     return folder
+
+
+def write_tum_exact(
+    path: str | Path, stamps_ns: np.ndarray, xyz: np.ndarray, quat: np.ndarray
+) -> Path:
+    """Write TUM rows `stamp tx ty tz qx qy qz qw`, stamps and values exactly (read_tum_exact
+    gives back the same numbers)."""
+    rows = [
+        " ".join([format_stamp(s), *map(float_text, (*p, *q))])
+        for s, p, q in zip(stamps_ns, xyz, quat, strict=True)
+    ]
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("".join(f"{r}\n" for r in rows))
+    return path
