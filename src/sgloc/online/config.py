@@ -1,0 +1,63 @@
+"""OnlineConfig: how an online session associates observations, schedules attempts and keeps
+the fleet frame consistent."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from sgloc.errors import SglocError
+from sgloc.graph import DEFAULT_EDGE_RADIUS
+
+
+@dataclass(frozen=True)
+class OnlineConfig:
+    """Settings of `OnlineSession`.
+
+    association_radius: metres; a new sighting joins the nearest confirmed-or-pending object of
+        the same class within this radius (its position becomes the running mean).
+    min_observations: sightings an object needs before it enters the robot's map (1 = at once).
+    edge_radius: metres, the edge radius of the robots' SemanticGraphs.
+    min_objects: a robot takes part in localization attempts from this many confirmed objects.
+    growth_ratio, growth_objects: a pair is retried when one of its maps has grown by this
+        fraction, or by this many confirmed objects, since the pair's last attempt.
+    max_attempts: localization attempts at most per `add_keyframe` (None: no limit; 0: none,
+        then `OnlineSession.run_pending` runs them).
+    loop_translation, loop_rotation: metres (RMS at the robot's objects) / degrees by which a
+        loop of links may fail to compose to the identity and still count as consistent.
+    solver: "auto" (gtsam when installed, else scipy), "gtsam" or "scipy".
+    seed: attempt k of the pair (i, j) (robot indices, i < j) uses the seed [seed, i, j]
+        (k = 0) or [seed, i, j, k].
+    """
+
+    association_radius: float = 1.5
+    min_observations: int = 2
+    edge_radius: float = DEFAULT_EDGE_RADIUS
+    min_objects: int = 6
+    growth_ratio: float = 0.10
+    growth_objects: int = 10
+    max_attempts: int | None = 2
+    loop_translation: float = 3.0
+    loop_rotation: float = 3.0
+    solver: str = "auto"
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.association_radius < 0 or self.min_observations < 1 or self.min_objects < 3:
+            raise SglocError(
+                "OnlineConfig: association_radius must be >= 0 m, min_observations >= 1 and "
+                "min_objects >= 3 (localization needs at least 3 objects)."
+            )
+        if self.max_attempts is not None and self.max_attempts < 0:
+            raise SglocError("OnlineConfig: max_attempts must be >= 0 or None (no limit).")
+        if self.solver not in ("auto", "gtsam", "scipy"):
+            raise SglocError(
+                f"OnlineConfig: solver {self.solver!r} is unknown; use 'auto', 'gtsam' or 'scipy'."
+            )
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> OnlineConfig:
+        return cls(**data)
