@@ -107,3 +107,37 @@ def plot_aligned_maps(
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def plot_fleet(result, graphs: Sequence, path) -> Path:
+    """PNG of a fleet result's merged map, top-down (x right, y up): each placed robot's
+    objects (`graphs`, each in its own frame) with its own marker and colour, the fused objects
+    as rings; unplaced robots named in the title."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.5, 6), dpi=100)
+    for i in result.placed:
+        p = apply(result.T_world_robot[i], graphs[i].positions)
+        root = " (world frame)" if i == result.root else ""
+        ax.scatter(p[:, 0], p[:, 1], s=9, color=CLASS_PALETTE[i % len(CLASS_PALETTE)],
+                   marker=ROBOT_MARKERS[i % len(ROBOT_MARKERS)], alpha=0.75,
+                   label=f"{result.names[i]}{root}")
+    if result.merged is not None and len(result.merged):
+        ax.scatter(*result.merged.positions[:, :2].T, s=20, facecolors="none", edgecolors="k",
+                   linewidths=0.3, label=f"merged map, {len(result.merged)} objects")
+    title = f"{len(result.placed)} of {len(result.names)} robots placed"
+    if result.unplaced:
+        title += " (unplaced: " + ", ".join(result.names[i] for i in result.unplaced) + ")"
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7, markerscale=1.5, loc="upper left", bbox_to_anchor=(1.01, 1.0),
+              frameon=False)
+    top_down(ax)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+    return path

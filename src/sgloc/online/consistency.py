@@ -29,6 +29,18 @@ def relative(edge: Edge, frm: int) -> np.ndarray:
     return edge.T_a_b if frm == edge.a else invert(edge.T_a_b)
 
 
+def invert_with_covariance(T_a_b: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(T_b_a, its covariance) from T_a_b and its covariance ([rx ry rz tx ty tz], right
+    perturbation): T_a_b Exp(xi) inverted is T_b_a Exp(-Ad(T_a_b) xi)."""
+    R, t = T_a_b[:3, :3], T_a_b[:3, 3]
+    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    ad = np.zeros((6, 6))
+    ad[:3, :3] = R
+    ad[3:, 3:] = R
+    ad[3:, :3] = tx @ R
+    return invert(T_a_b), ad @ cov @ ad.T
+
+
 def loop_error(T_loop: np.ndarray, points: np.ndarray) -> tuple[float, float]:
     """(RMS displacement of `points` by T_loop in metres, its rotation angle in degrees)."""
     pts = points if len(points) else np.zeros((1, 3))

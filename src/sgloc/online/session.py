@@ -13,7 +13,7 @@ from sgloc.errors import SglocError
 from sgloc.graph import SemanticGraph
 from sgloc.online.attempts import run_tasks
 from sgloc.online.config import OnlineConfig
-from sgloc.online.consistency import Edge
+from sgloc.online.consistency import Edge, invert_with_covariance
 from sgloc.online.posegraph import fleet_frame
 from sgloc.online.records import (
     LINK_ACCEPTED,
@@ -180,6 +180,40 @@ class OnlineSession:
             return True
         self._links[(i, j)].active = True  # an update of an active link: re-checked below
         return True
+
+    def add_link(
+        self,
+        robot_a: str,
+        robot_b: str,
+        T_a_b: np.ndarray,
+        covariance: np.ndarray,
+        confidence: float = 1.0,
+        stamp: float = 0.0,
+    ) -> list[Event]:
+        """Add an inter-robot link found elsewhere (e.g. another place recognizer): T_a_b (4,4)
+        maps b's odometry frame into a's, covariance (6,6) as `Link.covariance`. It replaces the
+        pair's current link and goes through the same consistency check. Returns the events."""
+        i, j = self._index(robot_a), self._index(robot_b)
+        if i == j:
+            raise SglocError(f"a link needs two different robots, got {robot_a!r} twice.")
+        T = np.asarray(T_a_b, np.float64)
+        cov = np.asarray(covariance, np.float64)
+        if T.shape != (4, 4) or cov.shape != (6, 6) or not (np.isfinite(T).all()
+                                                           and np.isfinite(cov).all()):
+            raise SglocError("add_link: T_a_b must be a finite (4,4) and covariance a finite "
+                             f"(6,6) array, got {T.shape} and {cov.shape}.")
+        if i > j:
+            i, j = j, i
+            T, cov = invert_with_covariance(T, cov)
+        n_events = len(self.events)
+        r = {"accepted": True, "transform": T, "covariance": cov,
+             "confidence": float(confidence), "n_matches": 0, "cov_source": "added link"}
+        old = self._links.get((i, j))
+        self._links[(i, j)] = Link(self.robots[i], self.robots[j], T, cov, r["confidence"],
+                                   float(stamp), active=old is not None and old.active,
+                                   reason=r["cov_source"])
+        self._refresh(float(stamp))
+        return self.events[n_events:]
 
     def set_root(self, robot: str, stamp: float = 0.0) -> list[Event]:
         """Make `robot`'s odometry frame the fleet frame (re-solves; returns the events)."""
