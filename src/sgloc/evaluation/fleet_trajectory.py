@@ -17,9 +17,11 @@ from sgloc.optional import require
 def fleet_ape(pairs: Sequence[tuple[str | Path, str | Path]]) -> dict[str, Any]:
     """APE (translation, metres) of (estimate TUM file, ground-truth TUM file) pairs, one pair
     per robot: poses matched by stamp within each pair, all robots stacked, aligned once.
-    Returns rmse, mean, max and the number of poses; rmse None without pairs."""
+    Returns rmse, mean, max and the number of poses; rmse None without pairs or when every
+    position lies on one line (no unique alignment)."""
     require("evo", "dev", "the fleet trajectory error")
     from evo.core import metrics, sync
+    from evo.core.geometry import GeometryException
     from evo.core.trajectory import PoseTrajectory3D
     from evo.tools import file_interface
 
@@ -37,7 +39,10 @@ def fleet_ape(pairs: Sequence[tuple[str | Path, str | Path]]) -> dict[str, Any]:
     stamps = np.arange(len(E), dtype=np.float64)  # robots share stamps: index the stack instead
     traj_e = PoseTrajectory3D(poses_se3=E, timestamps=stamps)
     traj_g = PoseTrajectory3D(poses_se3=G, timestamps=stamps)
-    traj_e.align(traj_g, correct_scale=False)
+    try:
+        traj_e.align(traj_g, correct_scale=False)
+    except GeometryException:  # all positions on one line: the alignment is not unique
+        return {"rmse": None, "mean": None, "max": None, "n_poses": len(E)}
     ape = metrics.APE(metrics.PoseRelation.translation_part)
     ape.process_data((traj_g, traj_e))
     st = ape.get_all_statistics()
