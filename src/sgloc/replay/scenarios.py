@@ -106,8 +106,8 @@ def city_scenario(
     """The synthetic city run `seed` (its two routes, as in the `city` pairs) cut into
     `n_robots` robots (half per route, consecutive segments; robot `city<k>`), one keyframe
     per route frame, `period` seconds apart. Objects only (no rendering): each keyframe sees
-    the city's objects (bounding-box centres) with `observe`'s defaults; ground-truth frame =
-    the city frame."""
+    the city's objects (bounding-box centres) all around within 40 m, like a LiDAR, each with
+    probability 0.9 and 0.1 m noise; ground-truth frame = the city frame."""
     from sgloc.sim.city import CITY_CLASSES
     from sgloc.sim.run import make_synthetic_run
 
@@ -121,7 +121,7 @@ def city_scenario(
         T_all = run.routes.T_world_body[route]
         for a, b in segments(0, len(T_all) - 1, n_robots // 2):
             T = T_all[a : b + 1]
-            det = [observe(Ti, pos, lab, rng) for Ti in T]
+            det = [observe(Ti, pos, lab, rng, (40.0, 180.0, 0.9, 0.1)) for Ti in T]
             name = f"city{len(logs)}"
             logs.append(log_from_frames(name, np.arange(len(T)) * period, T, det, T[0]))
             gt[name] = T[0]
