@@ -10,9 +10,9 @@ import pytest
 
 from sgloc.cli import main
 from sgloc.evaluation.online_oracle import oracle_join_stamps, robot_error
+from sgloc.evaluation.replay_scenarios import world_scenario
 from sgloc.io.plain_layout import read_tum_exact, write_plain_layout
 from sgloc.replay.names import robot_file_stems
-from sgloc.replay.scenarios import world_scenario
 from sgloc.replay.stream import check_names, keyframe_order
 
 OUTPUTS = ("events.csv", "links.g2o", "summary.json", "timeline.png", "fleet.png")

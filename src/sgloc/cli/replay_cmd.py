@@ -80,7 +80,7 @@ def replay_cmd(
 def _inputs(source, kitti00, city, robots, scans, every, seed, classes, odom_topic,
             objects_topic):
     """(robot logs, default localizer preset) of the chosen input."""
-    from sgloc.replay import scenarios
+    from sgloc.evaluation import replay_scenarios as scenarios
     from sgloc.replay.inputs import read_logs
 
     if (source is not None) + kitti00 + city != 1:
