@@ -82,6 +82,19 @@ class OnlineSession:
         """`robot`'s confirmed objects in its odometry frame."""
         return self._maps[self.robots[self._index(robot)]].graph()
 
+    def keyframes(self, robot: str) -> tuple[np.ndarray, np.ndarray]:
+        """(stamps (k,) seconds, T_odom_sensor (k,4,4)) of `robot`'s keyframes so far."""
+        return self._maps[self.robots[self._index(robot)]].trajectory()
+
+    def trajectory(self, robot: str) -> tuple[np.ndarray, np.ndarray] | None:
+        """(stamps (k,), T_fleet_sensor (k,4,4)): `robot`'s keyframe poses in the fleet frame
+        as it stands now; None while the robot is unplaced."""
+        T = self.T_fleet_robot(robot)
+        if T is None:
+            return None
+        stamps, poses = self.keyframes(robot)
+        return stamps, T @ poses
+
     def _index(self, robot: str) -> int:
         try:
             return self.robots.index(robot)
@@ -113,7 +126,7 @@ class OnlineSession:
             o = self.online
             self._maps[robot] = RobotMap(robot, o.association_radius, o.min_observations,
                                          o.edge_radius)
-        self._maps[robot].add(T_odom_sensor, positions, labels)
+        self._maps[robot].add(stamp, T_odom_sensor, positions, labels)
         if robot == self.root and robot not in self._T:
             self._refresh(stamp)
         if self.online.max_attempts != 0:

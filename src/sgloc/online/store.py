@@ -63,8 +63,8 @@ def load_session(cls, path: str | Path):
     o = s.online
     for k, r in enumerate(meta["robots"]):
         m = RobotMap(r, o.association_radius, o.min_observations, o.edge_radius)
-        m.set_state({key: data[f"map{k}_{key}"] for key in ("sums", "counts", "labels",
-                                                            "keyframes")})
+        prefix = f"map{k}_"
+        m.set_state({key[len(prefix):]: v for key, v in data.items() if key.startswith(prefix)})
         s._maps[r] = m
     s._last = {(i, j): (a, b) for i, j, a, b in meta["last"]}
     s._tries = {(i, j): v for i, j, v in meta["tries"]}
