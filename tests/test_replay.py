@@ -136,3 +136,11 @@ def test_oracle_join_stamps(world):
     G = world.T_gt_odom
     right = np.linalg.inv(G["world0"]) @ G["world1"]
     assert robot_error(right, G["world0"], G["world1"], np.ones((3, 3))) == pytest.approx((0, 0))
+
+
+def test_out_bag_must_be_new(replayed, tmp_path, capsys):
+    (tmp_path / "taken").mkdir()
+    rc = main(["replay", str(replayed / "run"), "--out", str(tmp_path / "o"), "--out-bag",
+               str(tmp_path / "taken")])
+    assert rc == 2 and "exists already" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()  # refused before replaying

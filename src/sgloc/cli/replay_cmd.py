@@ -55,6 +55,8 @@ def replay_cmd(
     from sgloc.replay import replay_logs
     from sgloc.replay.outputs import write_replay
 
+    if out_bag is not None and out_bag.exists():
+        raise fail(f"{out_bag}: exists already; give a new path for --out-bag.")
     logs, default_preset = _inputs(source, kitti00, city, robots, scans, every, seed, classes,
                                    odom_topic, objects_topic)
     if root is not None and root not in {g.name for g in logs}:

@@ -19,6 +19,8 @@ is the robot name):
 from __future__ import annotations
 
 import re
+import shutil
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -235,11 +237,25 @@ def write_fleet_bag(
 ) -> Path:
     """Write (stamp ns, robot, T_fleet_odom (4,4)) as geometry_msgs/TransformStamped on `topic`
     (frame `fleet` -> `{robot}/odom`) into a new ROS 2 bag folder (mcap storage)."""
+    rosbag2, _, ts = _rosbags()
+    path = Path(path)
+    if path.exists():
+        raise DatasetError(f"{path}: exists already; give a new path for the output bag.")
+    # Written in a temporary sibling folder under its final name, then moved: never half a bag.
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    try:
+        _write_transforms(rosbag2, ts, tmp / path.name, transforms, topic)
+        (tmp / path.name).rename(path)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return path
+
+
+def _write_transforms(rosbag2, ts, path: Path, transforms, topic: str) -> None:
     from scipy.spatial.transform import Rotation
 
-    rosbag2, _, ts = _rosbags()
     t = ts.types
-    path = Path(path)
     with _open_writer(rosbag2, path) as w:
         conn = w.add_connection(topic, TRANSFORM, typestore=ts)
         for ns, robot, T in sorted(transforms, key=lambda x: (x[0], x[1])):
@@ -253,7 +269,6 @@ def write_fleet_bag(
                 ),
             )
             w.write(conn, int(ns), ts.serialize_cdr(msg, TRANSFORM))
-    return path
 
 
 def read_fleet_bag(path: str | Path, topic: str = FLEET_TOPIC) -> list[tuple[int, str, np.ndarray]]:
