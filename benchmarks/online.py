@@ -53,6 +53,9 @@ def warm_up(presets: list[str]) -> None:
     with tempfile.TemporaryDirectory() as d:
         for p in presets:
             run_scenario(scenarios.world_scenario(), Path(d) / p, localizer_preset(p))
+        if "kitti-objects" in presets:  # real detections reach code paths the world does not
+            run_scenario(scenarios.kitti_scenario(2, 0, 399), Path(d) / "kitti",
+                         localizer_preset("kitti-objects"))
 
 
 def summarize(key: str, title: str, res: dict, secs: float) -> dict:
@@ -140,9 +143,12 @@ def goals(sums: list[dict]) -> list[str]:
              + (f" (missed: {'; '.join(missed)})" if missed else "")),
         line(not late, "on average within 10 % of its run after the oracle overlap begins "
              f"(mean delay per scenario: {per})"),
-        line(not wrong, "no wrong join" + (f" (wrong: {wrong})" if wrong else "")),
+        line(not wrong, "no wrong join" + (" (wrong: " + "; ".join(
+            f"{k}: {', '.join(v)}" for k, v in wrong.items()) + ")" if wrong else "")),
         line(not off, f"no robot more than {MAX_M:g} m (at its objects) / {MAX_DEG:g} deg off at "
-             "the end" + (f" (worst: {off})" if off else "")),
+             "the end" + (" (worst: " + ", ".join(f"{k} {m:.2f} m / {d:.2f} deg"
+                                                   for k, (m, d) in off.items()) + ")"
+                          if off else "")),
         line(all(v is not None and v <= GOAL_APE for v in apes.values()),
              "fleet trajectory error <= 1.0 m RMSE on KITTI 00 ("
              + ", ".join(f"{k} {fmt(v, '.3f')} m" for k, v in apes.items()) + ")"),
