@@ -83,7 +83,7 @@ def test_bag_replay_equals_plain_replay(replayed, world, tmp_path):
 
 
 def test_robot_file_names_never_collide():
-    names = ["team/r1", "team_r1", "Team_R1", ".hidden", "a b", ""]
+    names = ["team/r1", "team-r1", "Team-R1", "team-r1-2", ".hidden", "a b", "a/b", ""]
     stems = robot_file_stems(names)
     assert len({s.lower() for s in stems.values()}) == len(names)
     assert all("/" not in s and not s.startswith(".") and s for s in stems.values())
@@ -92,17 +92,17 @@ def test_robot_file_names_never_collide():
 
 
 def test_same_named_files_do_not_overwrite(world, tmp_path):
-    """Bag robots `team/r1` and `team_r1` would both become fleet/team_r1.tum naively."""
+    """Bag robots `team/r1` and `team r1` would both become fleet/team-r1.tum naively."""
     pytest.importorskip("rosbags", reason="rosbags (extra sgloc[ros]) is not installed")
     from dataclasses import replace
 
     from sgloc.io.rosbag import write_bag
 
-    logs = [replace(world.logs[0], name="team/r1"), replace(world.logs[1], name="team_r1")]
+    logs = [replace(world.logs[0], name="team/r1"), replace(world.logs[1], name="team r1")]
     write_bag(tmp_path / "bag", logs)
     assert main(["replay", str(tmp_path / "bag"), "--out", str(tmp_path / "out"), "--quiet"]) == 0
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
-    files = [summary["robots"][r]["file"] for r in ("team/r1", "team_r1")]
+    files = [summary["robots"][r]["file"] for r in ("team/r1", "team r1")]
     assert len(set(files)) == 2 and all((tmp_path / "out" / f).is_file() for f in files)
 
 
