@@ -48,6 +48,8 @@ def test_replay_writes_every_output(replayed, world):
     events = (out / "events.csv").read_text().splitlines()
     assert events[0] == "stamp,kind,robots,detail"
     assert any(",link_accepted,world0;world1," in e for e in events)
+    joined_at = summary["robots"]["world1"]["joined_stamp"]
+    assert any(e.startswith(f"{joined_at},robot_joined,world1,") for e in events)
     assert not list(replayed.glob(".out.tmp-*"))  # the temporary folder is gone
 
 

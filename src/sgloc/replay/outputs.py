@@ -85,7 +85,8 @@ def write_events(path: Path, events: Sequence[Any]) -> Path:
         w = csv.writer(f)
         w.writerow(["stamp", "kind", "robots", "detail"])
         for e in events:
-            w.writerow([repr(float(e.stamp)), e.kind, ";".join(e.robots), e.detail])
+            stamp = format_stamp(round(float(e.stamp) * 1e9))  # the keyframe's stamp as written
+            w.writerow([stamp, e.kind, ";".join(e.robots), e.detail])
     return path
 
 
