@@ -242,3 +242,18 @@ def test_online_map_equals_the_offline_map_on_kitti_scans():
     assert len(online) == len(offline) > 50
     np.testing.assert_allclose(online.positions, offline.positions, atol=1e-9)
     np.testing.assert_array_equal(online.labels, offline.labels)
+
+
+def test_a_newer_link_of_the_same_pair_that_disagrees_revokes_the_old_one():
+    s = _session(("a", "b", "c"))
+    cov = np.eye(6) * 0.01
+    T1, T2 = _yaw(0, [10, 0, 0]), _yaw(0, [10.5, 0, 0])
+    s.add_link("a", "b", T1, cov, stamp=1.0)
+    assert s.add_link("a", "b", T2, cov, stamp=2.0) == []  # agrees: an update, no event
+    ev = s.add_link("a", "b", _yaw(20, [40, 0, 0]), cov, stamp=3.0)
+    assert [e.kind for e in ev] == ["link_revoked", "link_accepted"]
+    assert "later attempt" in ev[0].detail
+    np.testing.assert_allclose(s.T_fleet_robot("b"), _yaw(20, [40, 0, 0]))
+    # A link given the other way round is inverted, covariance included.
+    s.add_link("c", "a", invert(_yaw(5, [0, 7, 0])), cov, stamp=4.0)
+    np.testing.assert_allclose(s.T_fleet_robot("c"), _yaw(5, [0, 7, 0]), atol=1e-12)

@@ -6,9 +6,9 @@ processes, or an existing Dask cluster).
 
 1. Only pairs that pass the acceptance test (`sgloc.acceptance`) become links.
 2. Loop check (`sgloc.online.consistency`): links that close a loop must compose to the
-   identity within `cycle_translation` metres (RMS displacement of the robot's objects) and
-   `cycle_rotation` degrees; the link in the most disagreeing loops is dropped until every loop
-   agrees.
+   identity within `cycle_translation` metres (at the centroid of the robot's objects) and
+   `cycle_rotation` degrees per link (a loop of k links: sqrt(k) times that); the link in the
+   most disagreeing loops is dropped until every loop agrees.
 3. The robots connected to the root by the remaining links are placed: along the
    maximum-confidence spanning tree, then by a pose graph over every kept link weighted by its
    covariance (`sgloc.online.posegraph`). The root (the fleet frame) is `root` when given, else

@@ -58,3 +58,12 @@ def transform_error(T_est: np.ndarray, T_gt: np.ndarray) -> tuple[float, float]:
     """
     E = T_est @ invert(T_gt)
     return float(np.linalg.norm(E[:3, 3])), rotation_angle_deg(E[:3, :3])
+
+
+def regularized_covariance(cov: np.ndarray, floor: float = 1e-12) -> np.ndarray:
+    """A covariance made symmetric with eigenvalues >= `floor`, so that it can be inverted
+    (an information matrix) or factorised whatever its source."""
+    c = np.asarray(cov, dtype=np.float64)
+    c = 0.5 * (c + c.T)
+    w, v = np.linalg.eigh(c)
+    return (v * np.maximum(w, floor)) @ v.T

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from sgloc.errors import SglocError
+from sgloc.geometry import regularized_covariance
 
 #: gtsam tangent order [rx ry rz tx ty tz] -> g2o order [tx ty tz rx ry rz].
 _TO_G2O = np.array([3, 4, 5, 0, 1, 2])
@@ -36,7 +37,7 @@ def write_g2o(
              for k, T in sorted(vertices.items())]
     iu = np.triu_indices(6)
     for a, b, T, cov in edges:
-        info = np.linalg.inv(np.asarray(cov, np.float64))[np.ix_(_TO_G2O, _TO_G2O)]
+        info = np.linalg.inv(regularized_covariance(cov))[np.ix_(_TO_G2O, _TO_G2O)]
         info = 0.5 * (info + info.T)
         vals = " ".join(f"{v:.9g}" for v in info[iu])
         lines.append(f"EDGE_SE3:QUAT {a} {b} {_pose_text(np.asarray(T))} {vals}")

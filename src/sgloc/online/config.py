@@ -23,8 +23,9 @@ class OnlineConfig:
         fraction, or by this many confirmed objects, since the pair's last attempt.
     max_attempts: localization attempts at most per `add_keyframe` (None: no limit; 0: none,
         then `OnlineSession.run_pending` runs them).
-    loop_translation, loop_rotation: metres (RMS at the robot's objects) / degrees by which a
-        loop of links may fail to compose to the identity and still count as consistent.
+    loop_translation, loop_rotation: metres (at the centroid of the robot's objects) / degrees
+        by which one link may be off; a loop of k links may fail to compose to the identity by
+        sqrt(k) times that and still count as consistent.
     solver: "auto" (gtsam when installed, else scipy), "gtsam" or "scipy".
     seed: attempt k of the pair (i, j) (robot indices, i < j) uses the seed [seed, i, j]
         (k = 0) or [seed, i, j, k].

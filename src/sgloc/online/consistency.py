@@ -42,10 +42,12 @@ def invert_with_covariance(T_a_b: np.ndarray, cov: np.ndarray) -> tuple[np.ndarr
 
 
 def loop_error(T_loop: np.ndarray, points: np.ndarray) -> tuple[float, float]:
-    """(RMS displacement of `points` by T_loop in metres, its rotation angle in degrees)."""
-    pts = points if len(points) else np.zeros((1, 3))
-    d = apply(T_loop, pts) - pts
-    return float(np.sqrt(np.mean(np.sum(d**2, axis=1)))), rotation_angle_deg(T_loop[:3, :3])
+    """(displacement of the centroid of `points` by T_loop in metres, T_loop's rotation angle
+    in degrees). At the centroid, not RMS over the points: over a map hundreds of metres long a
+    rotation within the angle tolerance alone would move the far objects by metres."""
+    c = np.asarray(points, np.float64).reshape(-1, 3).mean(axis=0, keepdims=True) if len(
+        points) else np.zeros((1, 3))
+    return float(np.linalg.norm(apply(T_loop, c) - c)), rotation_angle_deg(T_loop[:3, :3])
 
 
 def spanning_forest(n: int, edges: Sequence[Edge], ids: Sequence[int]) -> list[int]:
@@ -127,8 +129,16 @@ def _cycle_votes(n, edges, ids, points, tol):
     return bad, good
 
 
+def loop_tolerance(tol_m: float, tol_deg: float, n_links: int) -> tuple[float, float]:
+    """What a loop of `n_links` links, each within tol_m / tol_deg of the truth, may disagree
+    by: the links' independent errors add in quadrature, so tol * sqrt(n_links)."""
+    f = float(np.sqrt(n_links))
+    return tol_m * f, tol_deg * f
+
+
 def _vote(err, tol, loop, bad, good):
-    votes = bad if err[0] > tol[0] or err[1] > tol[1] else good
+    lim = loop_tolerance(tol[0], tol[1], len(loop))
+    votes = bad if err[0] > lim[0] or err[1] > lim[1] else good
     for k in loop:
         votes[k] = votes.get(k, 0) + 1
 
@@ -140,11 +150,11 @@ def select_consistent(
     tol_m: float,
     tol_deg: float,
 ) -> tuple[list[int], dict[int, str]]:
-    """Ids of a set of edges whose loops all compose to the identity within tol_m metres (RMS
-    at the loop's first robot's objects, `points(robot)`) / tol_deg degrees, and the reason
-    each dropped id was dropped. Triangles vote first, then longer loops of the spanning forest;
-    the edge in the most disagreeing loops is dropped (ties: fewest agreeing loops, lowest
-    confidence, newest), until no loop disagrees."""
+    """Ids of a set of edges whose loops all compose to the identity (at the centroid of the
+    loop's first robot's objects, `points(robot)`) within tol_m metres / tol_deg degrees per
+    link (`loop_tolerance`), and the reason each dropped id was dropped. Triangles vote first,
+    then longer loops of the spanning forest; the edge in the most disagreeing loops is dropped
+    (ties: fewest agreeing loops, lowest confidence, newest), until no loop disagrees."""
     ids = list(range(len(edges)))
     dropped: dict[int, str] = {}
     tol = (tol_m, tol_deg)
@@ -158,7 +168,7 @@ def select_consistent(
                                         edges[k].stamp, k))
         dropped[worst] = (
             f"contradicted: disagrees around {bad[worst]} loop(s) of links by more than "
-            f"{tol_m:g} m / {tol_deg:g} deg (agrees around {good.get(worst, 0)})"
+            f"{tol_m:g} m / {tol_deg:g} deg per link (agrees around {good.get(worst, 0)})"
         )
         ids.remove(worst)
     return ids, dropped

@@ -10,10 +10,16 @@ import numpy as np
 
 from sgloc.config import LocalizerConfig
 from sgloc.errors import SglocError
+from sgloc.geometry import invert
 from sgloc.graph import SemanticGraph
 from sgloc.online.attempts import run_tasks
 from sgloc.online.config import OnlineConfig
-from sgloc.online.consistency import Edge, invert_with_covariance
+from sgloc.online.consistency import (
+    Edge,
+    invert_with_covariance,
+    loop_error,
+    loop_tolerance,
+)
 from sgloc.online.posegraph import fleet_frame
 from sgloc.online.records import (
     LINK_ACCEPTED,
@@ -150,7 +156,8 @@ class OnlineSession:
         sizes = [self._maps[r].n_confirmed for r in names]
         o = self.online
         due = due_pairs(sizes, self._last, o.min_objects, o.growth_ratio, o.growth_objects)
-        due.sort(key=lambda p: (names[p[0]] in self._T and names[p[1]] in self._T))
+        group = self._groups()
+        due.sort(key=lambda p: group[p[0]] == group[p[1]])  # stable: growth order within
         due = due if max_attempts is None else due[:max_attempts]
         if not due:
             return []
@@ -162,6 +169,21 @@ class OnlineSession:
         if changed:
             self._refresh(stamp)
         return self.events[n_events:]
+
+    def _groups(self) -> list[int]:
+        """Per robot index, a label of its group of robots joined by active links."""
+        parent = list(range(len(self._maps)))
+
+        def find(x: int) -> int:
+            while parent[x] != x:
+                parent[x] = parent[parent[x]]
+                x = parent[x]
+            return x
+
+        for (i, j), lk in self._links.items():
+            if lk.active:
+                parent[find(i)] = find(j)
+        return [find(x) for x in range(len(parent))]
 
     def _task(self, i: int, j: int) -> tuple:
         """Robot j (query) in robot i's map (target): the result is T_i_j."""
@@ -183,16 +205,29 @@ class OnlineSession:
         ))
         if not r["accepted"]:
             return False
-        old = self._links.get((i, j))
-        self._links[(i, j)] = Link(
-            names[i], names[j], np.asarray(r["transform"], np.float64),
-            np.asarray(r["covariance"], np.float64), r["confidence"], stamp,
-            active=False, reason=r.get("cov_source", ""), n_matches=r["n_matches"],
-        )
-        if old is None or not old.active:
-            return True
-        self._links[(i, j)].active = True  # an update of an active link: re-checked below
+        self._store_link(i, j, r["transform"], r["covariance"], r["confidence"], stamp,
+                         r["n_matches"], r.get("cov_source", ""))
         return True
+
+    def _store_link(self, i, j, T, cov, confidence, stamp, n_matches, reason) -> None:
+        """Make (T_i_j, cov) the pair's link. It stays in the consistent set if the pair's
+        link was there and agrees with it within the loop tolerance; a disagreeing active link
+        is revoked (the newer attempt, on larger maps, is taken), the new one then re-checked."""
+        names = self.robots
+        old = self._links.get((i, j))
+        new = Link(names[i], names[j], np.asarray(T, np.float64), np.asarray(cov, np.float64),
+                   float(confidence), float(stamp), active=False, reason=reason,
+                   n_matches=int(n_matches))
+        self._links[(i, j)] = new
+        if old is None or not old.active:
+            return
+        dt, dr = loop_error(invert(old.T_a_b) @ new.T_a_b, self._maps[names[j]].graph().positions)
+        lim_m, lim_deg = loop_tolerance(self.online.loop_translation, self.online.loop_rotation, 2)
+        if dt <= lim_m and dr <= lim_deg:
+            new.active = True  # an update of an active link
+            return
+        self._emit(True, float(stamp), LINK_REVOKED, (names[i], names[j]),
+                   f"a later attempt of this pair disagrees with it by {dt:.2f} m / {dr:.2f} deg")
 
     def add_link(
         self,
@@ -219,12 +254,7 @@ class OnlineSession:
             i, j = j, i
             T, cov = invert_with_covariance(T, cov)
         n_events = len(self.events)
-        r = {"accepted": True, "transform": T, "covariance": cov,
-             "confidence": float(confidence), "n_matches": 0, "cov_source": "added link"}
-        old = self._links.get((i, j))
-        self._links[(i, j)] = Link(self.robots[i], self.robots[j], T, cov, r["confidence"],
-                                   float(stamp), active=old is not None and old.active,
-                                   reason=r["cov_source"])
+        self._store_link(i, j, T, cov, confidence, stamp, 0, "added link")
         self._refresh(float(stamp))
         return self.events[n_events:]
 
@@ -256,11 +286,14 @@ class OnlineSession:
             o.loop_translation, o.loop_rotation, o.solver,
         )
         active = set(frame.active)
+        T_new = {names[r]: T for r, T in frame.T_fleet_robot.items()}
+        lost = [r for r in names if r in self._T and r not in T_new]
         for k, lk in enumerate(links):
             was, now = lk.active, k in active
             if was and not now:
                 lk.reason = frame.dropped.get(k, "")
-                self._emit(emit, stamp, LINK_REVOKED, (lk.robot_a, lk.robot_b), lk.reason)
+                note = f"; no longer placed: {', '.join(lost)}" if lost else ""
+                self._emit(emit, stamp, LINK_REVOKED, (lk.robot_a, lk.robot_b), lk.reason + note)
             elif now and not was:
                 lk.reason = ""
                 self._emit(emit, stamp, LINK_ACCEPTED, (lk.robot_a, lk.robot_b),
@@ -268,7 +301,6 @@ class OnlineSession:
             elif not now:
                 lk.reason = frame.dropped.get(k, lk.reason)
             lk.active = now
-        T_new = {names[r]: T for r, T in frame.T_fleet_robot.items()}
         for r in names:
             if r in T_new and r not in self._T:
                 self._emit(emit, stamp, ROBOT_JOINED, (r,),

@@ -8,6 +8,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from sgloc.errors import SglocError
+from sgloc.geometry import invert, regularized_covariance
 from sgloc.online.consistency import Edge
 
 
@@ -48,20 +49,13 @@ def _solve_gtsam(initial, edges, covariances, root):
         values.insert(k, gtsam.Pose3(T))
     graph.add(gtsam.NonlinearEqualityPose3(root, gtsam.Pose3(initial[root])))
     for e, cov in zip(edges, covariances, strict=True):
-        noise = gtsam.noiseModel.Gaussian.Covariance(_regular(cov))
+        noise = gtsam.noiseModel.Gaussian.Covariance(regularized_covariance(cov))
         graph.add(gtsam.BetweenFactorPose3(e.a, e.b, gtsam.Pose3(e.T_a_b), noise))
     params = gtsam.LevenbergMarquardtParams()
     params.setRelativeErrorTol(1e-10)
     params.setAbsoluteErrorTol(1e-12)
     result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
     return {k: result.atPose3(k).matrix() for k in initial}
-
-
-def _regular(cov: np.ndarray) -> np.ndarray:
-    """The covariance made safely positive definite (symmetric, eigenvalues >= 1e-12)."""
-    c = 0.5 * (np.asarray(cov, np.float64) + np.asarray(cov, np.float64).T)
-    w, v = np.linalg.eigh(c)
-    return (v * np.maximum(w, 1e-12)) @ v.T
 
 
 def _exp(delta: np.ndarray) -> np.ndarray:
@@ -83,12 +77,10 @@ def _log(T: np.ndarray) -> np.ndarray:
 def _solve_scipy(initial, edges, covariances, root):
     from scipy.optimize import least_squares
 
-    from sgloc.geometry import invert
-
     free = [k for k in sorted(initial) if k != root]
     slot = {k: i for i, k in enumerate(free)}
     # Whitening: r_w = U @ r with U.T @ U = inverse covariance.
-    whiten = [np.linalg.cholesky(np.linalg.inv(_regular(c))).T for c in covariances]
+    whiten = [np.linalg.cholesky(np.linalg.inv(regularized_covariance(c))).T for c in covariances]
     inv_meas = [invert(e.T_a_b) for e in edges]
 
     def poses(x):
