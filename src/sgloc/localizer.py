@@ -28,6 +28,7 @@ from sgloc.estimation import (
 from sgloc.graph import SemanticGraph
 from sgloc.matching import match_descriptors, match_flagged
 from sgloc.rejection import make_rejector
+from sgloc.validation import random_generator
 from sgloc.verification import verify_small_query
 
 MIN_VERTICES = 3
@@ -114,7 +115,7 @@ class Localizer:
         # Canonical vertex order and class ids 0..L-1 (sgloc.canonical); undone by restore().
         canonical = CanonicalPair(query, target, self.config)
         query, target, cfg = canonical.query, canonical.target, canonical.config
-        rng = np.random.default_rng(rng)
+        rng = random_generator(rng)
         timings: dict[str, float] = {}
         t0 = clock()
 

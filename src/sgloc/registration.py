@@ -21,6 +21,7 @@ from sgloc.estimation import RansacConfig, irls_refine, ransac, weighted_kabsch
 from sgloc.kernels import use_compiled
 from sgloc.registry import lookup
 from sgloc.rejection import REJECTORS, Rejector, make_rejector
+from sgloc.validation import random_generator
 
 #: Final fits on RANSAC's inliers: "irls" (Tukey biweight, as `localize`), "kabsch" (least
 #: squares), "none" (RANSAC's own refit).
@@ -137,7 +138,7 @@ def register(
     if refine not in REFINES:
         raise UnknownNameError(f"unknown refine {refine!r}; choose one of {', '.join(REFINES)}.")
     rej, cfg = _stage_settings(rejection, noise_bound, settings)
-    rng = rng if rng is not None else np.random.default_rng(seed)
+    rng = rng if rng is not None else random_generator(seed)
     timings: dict[str, float] = {}
 
     t1 = time.perf_counter()

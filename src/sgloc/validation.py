@@ -343,3 +343,15 @@ def validate_localizer_settings(config: Any) -> None:
     config.icp_max_distance = check_real(
         "icp_max_distance", config.icp_max_distance, 0.0, MAX_COORDINATE, low_open=True, unit="m"
     )
+
+
+def random_generator(seed: Any, name: str = "seed") -> np.random.Generator:
+    """A numpy Generator from `seed`: a Generator (used as is), None (fresh entropy) or a
+    non-negative integer; anything else (negative, fractional, bool, text) is refused."""
+    if seed is None or isinstance(seed, np.random.Generator):
+        return np.random.default_rng(seed)
+    if not isinstance(seed, numbers.Integral) or isinstance(seed, bool | np.bool_) or seed < 0:
+        raise InvalidSettingError(
+            f"{name}={seed!r}: must be a non-negative integer (or None for a fresh random seed)."
+        )
+    return np.random.default_rng(int(seed))
