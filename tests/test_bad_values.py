@@ -41,12 +41,12 @@ def _pcd(tmp_path, rows: bytes):
 @pytest.mark.parametrize(
     "rows, message",
     [
-        (b"0 0 0 1\n1_0 0 0 2\n0 10 0 3\n", "stray character '_'"),
-        (b"0 0 0 1\n1\x1c0 0 0 2\n0 10 0 3\n", "stray character"),
-        (b"0 0 0 1\n10 0\x0b5 0 2\n0 10 0 3\n", "stray character"),
+        (b"0 0 0 1\n1_0 0 0 2\n0 10 0 3\n", "non-numeric character '_'"),
+        (b"0 0 0 1\n1\x1c0 0 0 2\n0 10 0 3\n", "non-numeric character"),
+        (b"0 0 0 1\n10 0\x0b5 0 2\n0 10 0 3\n", "non-numeric character"),
         (b"0 0 0 1\n10 0 0 1e-400\n0 10 0 3\n", "'1e-400'"),
         (b"0 0 0 1\n10 0 0 5.\n0 10 0 3\n", "'5.'"),
-        (b"0 0 0 1\n10 0 0 1_0\n0 10 0 3\n", "stray character '_'"),
+        (b"0 0 0 1\n10 0 0 1_0\n0 10 0 3\n", "non-numeric character '_'"),
         (b"0 0 0 1\n10 0 0 2e0\n0 10 0 3\n", "'2e0'"),
     ],
 )

@@ -164,7 +164,7 @@ def _ascii_columns(raw: bytes, h: PcdHeader, path: Path) -> dict[str, np.ndarray
     stray = _ASCII_DATA.search(text)
     if stray is not None:
         raise GraphFileError(
-            f"{path}: stray character {stray.group()!r} in the ASCII PCD data (byte "
+            f"{path}: non-numeric character {stray.group()!r} in the ASCII PCD data (byte "
             f"{h.offset + stray.start()}); every value must be a plain number."
         )
     rows = [r for r in (line.split() for line in text.splitlines()) if r]
@@ -211,7 +211,7 @@ def _check_integer_text(rows: list[list[str]], first: int, count: int, field: st
             if not _INTEGER.fullmatch(value):
                 raise GraphFileError(
                     f"{path}: data row {k}: field {field!r} is an integer field but holds "
-                    f"{value!r}; write its values as integers."
+                    f"{value!r}; values that are not integers in plain digits are refused."
                 )
 
 
