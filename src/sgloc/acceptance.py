@@ -624,7 +624,15 @@ def assess(
     ratio = 0.0 if not np.isfinite(lg_second) else 10.0 ** min(lg_best - lg_second, 300.0)
     confidence = float(np.clip(1.0 / (1.0 + nfa1 + ratio), 0.0, 1.0))
     reason = ""
-    if spread < min_spread:
+    if m == 0:
+        confidence = 0.0
+        reason = (
+            "no candidate match is distinctive: every object's descriptor nearly ties with "
+            "another object of its class (objects listed twice side by side, or a scene that "
+            "repeats); merge duplicate objects, or turn the ratio test off with "
+            "--set distinct_ratio=null (Python: distinct_ratio=None)"
+        )
+    elif spread < min_spread:
         confidence = 0.0
         reason = (
             f"the {k} inliers lie in a narrow strip (spread {spread:.1f} m < min_spread "
