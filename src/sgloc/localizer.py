@@ -27,6 +27,7 @@ from sgloc.estimation import (
 )
 from sgloc.graph import SemanticGraph
 from sgloc.matching import match_descriptors, match_flagged
+from sgloc.mirror import looks_mirrored
 from sgloc.rejection import make_rejector
 from sgloc.validation import random_generator
 from sgloc.verification import verify_small_query
@@ -193,6 +194,9 @@ class Localizer:
             )
             confidence, reason = verdict.confidence, verdict.reason
             transform = transform if verdict.accepted else None
+            if transform is not None:  # a self-similar strip of a mirrored map (sgloc.mirror)
+                reason = _mirror_reason(query, target, transform, final, cfg.ransac.threshold)
+                transform, confidence = (None, 0.0) if reason else (transform, confidence)
             timings["acceptance"] = clock() - t5
             timings["total"] += timings["acceptance"]
         if transform is None and _verifies(cfg, len(query)):
@@ -230,6 +234,20 @@ class Localizer:
             confidence=confidence,
         )
         return canonical.restore(result)  # the caller's vertex indices and config
+
+
+def _mirror_reason(query, target, transform, final, radius: float) -> str:
+    """Why the accepted alignment is refused as the coincidence of a mirrored map, or ""."""
+    mirrored, plain, flipped = looks_mirrored(query, target, transform, np.unique(final[:, 0]),
+                                              radius)  # fmt: skip
+    if not mirrored:
+        return ""
+    return (
+        f"the query looks mirrored against the target: reflected across the line of its "
+        f"{len(np.unique(final[:, 0]))} inliers it lands {flipped} objects on the target's, the "
+        f"alignment only {plain}; check the frame conventions (one map may be left-handed, "
+        "x -> -x)"
+    )
 
 
 def _verifies(cfg: LocalizerConfig, n_query: int) -> bool:
