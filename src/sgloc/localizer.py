@@ -69,19 +69,11 @@ class LocalizationResult:
         return self
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready summary."""
-        return {
-            "success": self.success,
-            "reason": self.reason,
-            "confidence": self.confidence,
-            "transform": None if self.transform is None else self.transform.tolist(),
-            "n_candidates": int(len(self.candidates)),
-            "n_survivors": int(len(self.survivors)),
-            "n_matches": int(len(self.matches)),
-            "matches": self.matches.tolist(),
-            "timings": self.timings,
-            "config": self.config,
-        }
+        """The JSON result document with every match (`sgloc.io.results.document`; schema
+        in docs/formats.md)."""
+        from sgloc.io.results import document
+
+        return document(self, full=True)
 
 
 def _check_graph(graph: SemanticGraph, role: str) -> None:

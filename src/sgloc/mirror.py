@@ -21,17 +21,21 @@ MIRROR_FACTOR = 2.0
 MIRROR_MARGIN = 10
 
 
-def landed(query_points: np.ndarray, query_labels: np.ndarray, target: SemanticGraph,
+#: Class ids as a 4th coordinate this far apart: objects of two classes are never near
+#: (coordinates are within +-MAX_COORDINATE = 1e7 m).
+_CLASS_GAP = 1e8
+
+
+def _with_class(points: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    return np.column_stack([points, labels.astype(np.float64) * _CLASS_GAP])
+
+
+def landed(query_points: np.ndarray, query_labels: np.ndarray, tree: cKDTree,
            radius: float) -> int:  # fmt: skip
     """How many query objects (already in the target frame, metres) lie within `radius` of a
-    target object of their class."""
-    hits = 0
-    for c in np.unique(query_labels):
-        here = target.positions[target.labels == c]
-        if len(here):
-            d, _ = cKDTree(here).query(query_points[query_labels == c], distance_upper_bound=radius)
-            hits += int(np.count_nonzero(np.isfinite(d)))
-    return hits
+    target object of their class (`tree`: the target's positions with `_with_class`)."""
+    d, _ = tree.query(_with_class(query_points, query_labels), distance_upper_bound=radius)
+    return int(np.count_nonzero(np.isfinite(d)))
 
 
 def reflect_across_line(points: np.ndarray, on_line: np.ndarray) -> np.ndarray:
@@ -55,9 +59,9 @@ def looks_mirrored(
     object, the reflection tried in the query frame (module docstring)."""
     if len(inlier_objects) < 2:
         return False, 0, 0
-    moved = apply(T_target_query, query.positions)
-    plain = landed(moved, query.labels, target, radius)
+    tree = cKDTree(_with_class(target.positions, target.labels))
+    plain = landed(apply(T_target_query, query.positions), query.labels, tree, radius)
     flipped = reflect_across_line(query.positions, query.positions[inlier_objects])
-    mirror = landed(apply(T_target_query, flipped), query.labels, target, radius)
+    mirror = landed(apply(T_target_query, flipped), query.labels, tree, radius)
     mirrored = mirror >= MIRROR_FACTOR * plain and mirror - plain >= MIRROR_MARGIN
     return bool(mirrored), plain, mirror

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +19,8 @@ from sgloc.cli.options import (
     preset_option,
     set_option,
 )
-from sgloc.io.results import FORMATS, render, write_results
+from sgloc.io.files import write_text_atomic
+from sgloc.io.results import FORMATS, compact_json, document, render, write_results
 from sgloc.localizer import Localizer
 
 
@@ -53,7 +53,8 @@ def localize_cmd(
         None, "--format", help=f"Print only the result to stdout as {' | '.join(FORMATS)}."
     ),
     json_out: Path | None = typer.Option(
-        None, "--json", help="Write the full result (with every match) as JSON here."
+        None, "--json", help="Write the full result as JSON here: result.json's fields plus "
+        "every match, candidate and the configuration (docs/formats.md)."
     ),
     rerun: Path | None = typer.Option(
         None, "--rerun", help="Write both maps, the matches and the transform as a Rerun "
@@ -95,16 +96,17 @@ def localize_cmd(
     res = Localizer(cfg)(q, t, seed)
     info = {"query": str(query), "target": str(target), "seed": seed}
     if out is not None:
-        files = write_results(out, res, cfg, **info)
-        files["png"] = _picture(out / "aligned_maps.png", q, t, res, example)
+        def picture(folder: Path) -> Path:
+            return _picture(folder / "aligned_maps.png", q, t, res, example)
+
+        files = write_results(out, res, cfg, picture, **info)
     if rerun is not None:
         from sgloc.io.rerun_file import write_rerun
 
         T = res.transform if res.success else np.eye(4)
         write_rerun(rerun, t, q, T, res.matches if res.success else np.zeros((0, 2)))
     if json_out is not None:
-        json_out.parent.mkdir(parents=True, exist_ok=True)
-        json_out.write_text(json.dumps(res.to_dict(), indent=1))
+        write_text_atomic(json_out, compact_json(document(res, full=True, **info)))
     console = Console(stderr=fmt is not None)
     _report(console, q, t, res, example)
     if out is not None:

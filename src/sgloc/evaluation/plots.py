@@ -21,6 +21,7 @@ from matplotlib.patches import Patch  # noqa: E402
 from sgloc.evaluation.metrics import correct_matches  # noqa: E402
 from sgloc.evaluation.report import column, group_rows, setting_label, summarize  # noqa: E402
 from sgloc.geometry import apply  # noqa: E402
+from sgloc.io.files import naming
 
 DPI = 110
 COLORS = {"histogram": "tab:blue", "fast": "tab:orange", "random_walk": "tab:green"}
@@ -39,8 +40,11 @@ def _save(fig: plt.Figure, path: str | Path, top: float = 1.0, dpi: int = DPI) -
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout(rect=(0, 0, 1, top))
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
+    try:
+        with naming(path):
+            fig.savefig(path, dpi=dpi)
+    finally:
+        plt.close(fig)
     return path
 
 
