@@ -114,14 +114,5 @@ def build_graph_cmd(
 
 
 def _save(graph, out: Path) -> Path:
-    """Write the graph; .ply and .csv/.txt besides SemanticGraph.save's formats."""
-    suffix = out.suffix.lower()
-    if suffix == ".ply":
-        from sgloc.io.ply import write_ply
-
-        return write_ply(out, graph.positions, graph.labels)
-    if suffix in (".csv", ".txt"):
-        from sgloc.io.table import write_table
-
-        return write_table(out, graph.positions, graph.labels)
+    """Write the graph (every format SemanticGraph.save writes)."""
     return graph.save(out)

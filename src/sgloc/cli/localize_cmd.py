@@ -11,6 +11,7 @@ from rich.table import Table
 
 from sgloc.cli.app import app, not_localized
 from sgloc.cli.options import (
+    CLASSES_HELP,
     COLOURS_HELP,
     LABEL_HELP,
     config_option,
@@ -46,6 +47,7 @@ def localize_cmd(
     seed: int = typer.Option(0, min=0, help="Random seed."),
     label_field: str | None = typer.Option(None, help=LABEL_HELP),
     colour_table: Path | None = typer.Option(None, help=COLOURS_HELP),
+    class_table: Path | None = typer.Option(None, help=CLASSES_HELP),
     out: Path | None = typer.Option(
         None, help="Results folder: result.json, T_target_query*.txt, config.yaml, PNG."
     ),
@@ -91,8 +93,8 @@ def localize_cmd(
         preset, config, setting,
         descriptor=descriptor, rejection=rejection, ransac_threshold=ransac_threshold,
     )
-    q = load_graph(query, edge_radius, label_field, colour_table)
-    t = load_graph(target, edge_radius, label_field, colour_table)
+    q = load_graph(query, edge_radius, label_field, colour_table, class_table)
+    t = load_graph(target, edge_radius, label_field, colour_table, class_table)
     res = Localizer(cfg)(q, t, seed)
     info = {"query": str(query), "target": str(target), "seed": seed}
     if out is not None:
