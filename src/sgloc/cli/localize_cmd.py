@@ -21,6 +21,7 @@ from sgloc.cli.options import (
     set_option,
 )
 from sgloc.io.files import write_text_atomic
+from sgloc.io.inputs import check_reader_options
 from sgloc.io.results import FORMATS, compact_json, document, render, write_results
 from sgloc.localizer import Localizer
 
@@ -93,6 +94,7 @@ def localize_cmd(
         preset, config, setting,
         descriptor=descriptor, rejection=rejection, ransac_threshold=ransac_threshold,
     )
+    check_reader_options([query, target], label_field, colour_table, class_table)
     q = load_graph(query, edge_radius, label_field, colour_table, class_table)
     t = load_graph(target, edge_radius, label_field, colour_table, class_table)
     res = Localizer(cfg)(q, t, seed)
@@ -134,10 +136,14 @@ def _report(console: Console, q, t, res, example: bool) -> None:
         with np.printoptions(precision=4, suppress=True):
             console.print(f"confidence {conf}\nT_target_query =\n{res.transform}")
         if example:
-            from sgloc.geometry import transform_error
+            from sgloc.geometry import transform_error, translation_error_at
 
             te, re = transform_error(res.transform, np.eye(4))
-            console.print(f"error against the ground truth (identity): {te:.2f} m, {re:.2f} deg")
+            tc = translation_error_at(res.transform, np.eye(4), q.positions.mean(axis=0))
+            console.print(
+                f"error against the ground truth (identity): {te:.2f} m at the target's origin, "
+                f"{tc:.2f} m at the query objects' centroid, {re:.2f} deg (docs/formats.md)"
+            )
 
 
 def _picture(path: Path, q, t, res, example: bool) -> Path:

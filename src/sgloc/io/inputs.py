@@ -25,7 +25,6 @@ def read_graph_with(
 
     path = Path(path)
     suffix = path.suffix.lower()
-    _check_options(path, label_field, colour_table, class_table)
     if label_field is None and colour_table is None and class_table is None:
         return read_graph(path)
     check_regular_file(path, "graph file")
@@ -56,21 +55,21 @@ def read_graph_with(
     return check_graph_arrays(str(path), *arrays)
 
 
-def _check_options(path: Path, label_field, colour_table, class_table) -> None:
-    """Refuse an option that does nothing for this file's format (rather than ignore it)."""
+def check_reader_options(paths, label_field=None, colour_table=None, class_table=None) -> None:
+    """Refuse a reader option that applies to none of the graph files `paths` (rather than
+    ignore it): --label-field to .ply/.csv/.txt, --colour-table to .pcd/.ply, --class-table to
+    .csv/.txt."""
     from sgloc.errors import GraphFileError
 
-    suffix = path.suffix.lower()
-    unused = [
-        (label_field is not None and suffix not in (".ply", ".csv", ".txt"), "--label-field",
-         ".ply/.csv/.txt"),
-        (colour_table is not None and suffix not in (".ply", ".pcd"), "--colour-table",
-         ".pcd/.ply"),
-        (class_table is not None and suffix not in (".csv", ".txt"), "--class-table",
-         ".csv/.txt"),
-    ]  # fmt: skip
-    for bad, option, kinds in unused:
-        if bad:
+    suffixes = {Path(p).suffix.lower() for p in paths}
+    options = [
+        (label_field, "--label-field", (".ply", ".csv", ".txt")),
+        (colour_table, "--colour-table", (".pcd", ".ply")),
+        (class_table, "--class-table", (".csv", ".txt")),
+    ]
+    for value, option, kinds in options:
+        if value is not None and not suffixes & set(kinds):
             raise GraphFileError(
-                f"{path}: {option} applies to {kinds} graphs only; drop it for a {suffix} file."
+                f"{option} applies to {'/'.join(kinds)} graphs only, and none is given "
+                f"({', '.join(str(p) for p in paths)}); drop it."
             )
