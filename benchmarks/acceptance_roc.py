@@ -29,6 +29,7 @@ import numpy as np
 from rich.progress import track
 
 from sgloc.acceptance import AcceptanceConfig
+from sgloc.data import present_or_say
 from sgloc.evaluation.acceptance_pairs import NEGATIVE_CUT, default_pair_sets
 from sgloc.geometry import apply, transform_error
 from sgloc.localizer import localize
@@ -357,12 +358,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=root / "results" / "acceptance_roc")
     ap.add_argument("--update-docs", action="store_true", help="also write docs/acceptance.md")
     args = ap.parse_args(argv)
+    kitti = present_or_say("kitti00", "the KITTI 00 pairs", args.update_docs)
     warnings.filterwarnings("ignore", category=RuntimeWarning)
     default = AcceptanceConfig().min_confidence
     sections, rows_by_seed, small_rows = [], {}, []
     for seed in args.seed:
         t0 = time.perf_counter()
-        pairs = default_pair_sets(seed, args.scale, city=args.city)
+        pairs = default_pair_sets(seed, args.scale, city=args.city, kitti=kitti)
         print(f"seed {seed}: {len(pairs)} pairs built in {time.perf_counter() - t0:.1f} s")
         rows = evaluate(pairs)
         rows_by_seed[seed] = rows
