@@ -632,6 +632,12 @@ def assess(
             "repeats); merge duplicate objects, or turn the ratio test off with "
             "--set distinct_ratio=null (Python: distinct_ratio=None)"
         )
+    elif k < 3:
+        confidence = 0.0
+        reason = (
+            f"only {k} query object(s) agree with the best alignment (within {r:g} m); the "
+            "maps may not overlap"
+        )
     elif spread < min_spread:
         confidence = 0.0
         reason = (
@@ -651,7 +657,8 @@ def assess(
         else:
             reason = (
                 f"{k} inliers of {m} candidate matches could be chance ({lam:.1f} expected from "
-                f"repeated objects; log10 NFA {lg_best:.1f}); confidence {confidence:.6g} < "
-                f"min_confidence {cfg.min_confidence}; the maps may not overlap"
+                f"repeated objects; about 10^{lg_best:.1f} such alignments expected by chance); "
+                f"confidence {confidence:.6g} < min_confidence {cfg.min_confidence} (a lower "
+                "one accepts more: --set min_confidence=0.99); the maps may not overlap"
             )
     return Assessment(not reason, confidence, reason, details)

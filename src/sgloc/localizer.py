@@ -29,6 +29,7 @@ from sgloc.graph import SemanticGraph
 from sgloc.matching import match_descriptors, match_flagged
 from sgloc.mirror import looks_mirrored
 from sgloc.rejection import make_rejector
+from sgloc.units import units_hint
 from sgloc.validation import random_generator
 from sgloc.verification import verify_small_query
 
@@ -212,8 +213,11 @@ class Localizer:
         if len(candidates) < 3 and transform is None:
             reason = (
                 f"only {len(candidates)} candidate match(es) between the graphs (fewer than "
-                "3); the maps may not overlap, or lower min_similarity"
+                "3); the maps may not overlap, or lower the similarity needed for a match "
+                "(--set min_similarity=0.5; Python: min_similarity=0.5)"
             )
+        if transform is None:
+            reason += units_hint(query, target)
         result = LocalizationResult(
             success=transform is not None,
             transform=transform,

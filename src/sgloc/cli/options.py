@@ -43,6 +43,9 @@ def parse_settings(items: list[str]) -> dict[str, Any]:
         if "=" not in item:
             raise SglocError(f"--set expects NAME=VALUE, got {item!r}.")
         key, text = item.split("=", 1)
+        if text.strip() in ("none", "None"):  # YAML's null, as Python users write it
+            out[key.strip()] = None
+            continue
         try:
             out[key.strip()] = yaml.safe_load(text)
         except yaml.YAMLError:
