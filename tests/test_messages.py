@@ -31,8 +31,10 @@ def test_maps_in_millimetres_get_a_units_hint(airsim_graphs):
     q, t = airsim_graphs
     mm = [SemanticGraph(g.positions * 1000.0, g.labels) for g in (q, t)]
     r = localize(*mm)
-    assert not r.success and "expects metres" in r.reason and "divide its positions by 1000" in (
-        r.reason
+    assert (
+        not r.success
+        and "expects metres" in r.reason
+        and "divide its positions by 1000" in (r.reason)
     )
     assert "expects metres" not in localize(q, SemanticGraph(q.positions[:5], q.labels[:5])).reason
 

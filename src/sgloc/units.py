@@ -22,7 +22,7 @@ def median_spacing(graph: SemanticGraph) -> float:
 
 
 def units_hint(query: SemanticGraph, target: SemanticGraph) -> str:
-    """"" or a sentence for a "not localized" reason when a map's objects lie implausibly far
+    """Empty, or a sentence for a "not localized" reason when a map's objects lie implausibly far
     apart for metres."""
     spacing = {role: median_spacing(g) for role, g in (("query", query), ("target", target))}
     far = {r: s for r, s in spacing.items() if np.isfinite(s) and s > SUSPECT_SPACING_M}

@@ -86,5 +86,7 @@ def ensure_cache_dir() -> None:
         _say(f"no writable cache folder for the compiled kernels; caching them in {fallback}")
         return
     _run_uncached()
-    _say("no writable cache folder for the compiled kernels; compiling them in every process "
-         "(set NUMBA_CACHE_DIR to a writable folder to cache them)")
+    _say(
+        "no writable cache folder for the compiled kernels; compiling them in every process "
+        "(set NUMBA_CACHE_DIR to a writable folder to cache them)"
+    )
