@@ -47,3 +47,41 @@ def test_not_localized_reasons_give_the_command_line_syntax(airsim_graphs):
     r = localize(q, SemanticGraph(t.positions[:60], t.labels[:60]))
     assert not r.success and "0 inliers lie within" not in r.reason
     assert "agree with the best alignment" in r.reason
+
+
+def test_several_robots_name_the_command_line_flag(tmp_path, capsys):
+    for robot in ("A", "B"):
+        (tmp_path / robot).mkdir()
+        (tmp_path / robot / "airsim.txt").write_text("")
+    assert main(["build-graph", "airsim", str(tmp_path), "-o", str(tmp_path / "g.json")]) == 2
+    err = _err(capsys)
+    assert "--robot NAME" in err
+
+
+def test_build_graph_help_example_runs(kitti_dir, tmp_path, capsys, monkeypatch):
+    import re
+    import shlex
+
+    assert main(["build-graph", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.replace("│", " ").split())
+    example = re.search(r"Example: (sgloc build-graph .*?-o A\.json)", text).group(1)
+    argv = shlex.split(example.replace('"$(sgloc data path kitti00)"', str(kitti_dir)))[1:]
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 0 and (tmp_path / "A.json").is_file()
+
+
+@pytest.mark.parametrize("command", [[], ["localize"], ["experiment"], ["demo"]])
+def test_help_shows_no_python_types_for_flags_and_lists(command, capsys):
+    assert main([*command, "--help"]) == 0
+    out = capsys.readouterr().out
+    assert "<bool>" not in out and "list[" not in out
+
+
+def test_command_list_summaries_are_whole_sentences(capsys):
+    """Rich help keeps a docstring's line breaks: the summaries are its first paragraph joined."""
+    from sgloc.cli import app
+
+    assert main(["--help"]) == 0
+    summaries = {info.name: info.short_help for info in app.registered_commands}
+    assert all(text and "\n" not in text for text in summaries.values())
+    assert "localize one in the other and compare" in summaries["demo"]

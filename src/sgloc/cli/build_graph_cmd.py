@@ -69,7 +69,8 @@ def build_graph_cmd(
 ) -> None:
     """Build a robot's semantic graph from a dataset's frames and write it to a file.
 
-    Example: sgloc build-graph kitti_objects kitti00 --scans 0-800 --start-frame -o A.json
+    Example: sgloc build-graph kitti_objects "$(sgloc data path kitti00)" --scans 0-800
+    --start-frame -o A.json
     """
     options = _loader_options(
         dataset, {"robot": robot, "frames": frames, "start_frame": start_frame}

@@ -82,7 +82,9 @@ def demo_cmd(
     preset: str | None = typer.Option(
         None, "--preset", help="Named localizer settings (default: city; see sgloc.presets)."
     ),
-    setting: list[str] = typer.Option([], "--set", help="A setting NAME=VALUE (repeatable)."),
+    setting: list[str] = typer.Option(
+        [], "--set", metavar="NAME=VALUE", help="A setting NAME=VALUE (repeatable)."
+    ),
 ) -> None:
     """Render a synthetic city seen by two robots, build their semantic graphs, localize one in
     the other and compare with the ground truth.

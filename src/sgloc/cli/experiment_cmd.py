@@ -81,13 +81,14 @@ def experiment_cmd(
     setting: list[str] = typer.Option(
         [],
         "--set",
+        metavar="NAME=VALUE",
         help="Localizer setting NAME=VALUE (repeatable), e.g. --set tau=3; "
         "overrides the dataset's recommended settings.",
     ),
     preset: str | None = preset_option(),
     config: Path | None = config_option(),
     dataset_param: list[str] = typer.Option(
-        [], "--param", help="Dataset parameter NAME=VALUE (repeatable)."
+        [], "--param", metavar="NAME=VALUE", help="Dataset parameter NAME=VALUE (repeatable)."
     ),
     repeats: int = typer.Option(
         1, help="Timing repeats per trial; each stage's fastest time is kept (results equal)."

@@ -30,7 +30,7 @@ def config_option() -> Any:
 
 
 def set_option() -> Any:
-    return typer.Option([], "--set", help=SET_HELP)
+    return typer.Option([], "--set", metavar="NAME=VALUE", help=SET_HELP)
 
 
 def parse_settings(items: list[str]) -> dict[str, Any]:
