@@ -95,7 +95,10 @@ def demo_cmd(
     if not 0.0 <= overlap <= 1.0:
         raise fail(f"--overlap must be in [0, 1], got {overlap}.")
     if objects_only:
-        _objects_only(console, seed, overlap, descriptor, rejection)
+        from sgloc.cli.options import localizer_config
+
+        config = localizer_config(preset, None, setting)  # the object world's own: the defaults
+        _objects_only(console, seed, overlap, descriptor, rejection, config, out)
         return
     from sgloc.config import LocalizerConfig
 
@@ -197,17 +200,22 @@ def plot_aligned_maps(
     return plot(target, query, T_target_query, matches, path, title, CITY_CLASSES, routes)
 
 
-def _objects_only(console: Console, seed: int, overlap: float, descriptor: str, rejection: str):
+def _objects_only(
+    console: Console, seed: int, overlap: float, descriptor: str, rejection: str, config, out: Path
+) -> None:
+    """The demo on the tiny object world: localize, report, draw the picture to `out`."""
     from sgloc.sim import make_two_robot_scene
+    from sgloc.viz import plot_aligned_maps as plot
 
     scene = make_two_robot_scene(seed=seed, overlap=overlap)
     console.print(f"robot A (target): {scene.target}\nrobot B (query):  {scene.query}")
-    res = localize(scene.query, scene.target, descriptor, rejection, seed=seed)
-    console.print(
-        f"candidates {len(res.candidates)}  after rejection {len(res.survivors)}  "
-        f"final matches {len(res.matches)}  in {res.timings['total'] * 1e3:.1f} ms"
-    )
+    res = localize(scene.query, scene.target, descriptor, rejection, seed=seed, config=config)
+    _report(console, scene.query, scene.target, res, scene.T_target_query)
+    how = "estimated" if res.success else "ground-truth (not localized)"
+    path = plot(
+        scene.target, scene.query, res.transform if res.success else scene.T_target_query,
+        res.matches, out, f"B placed in A's map by the {how} transform",
+    )  # fmt: skip
+    console.print(f"saved {path}")
     if not res.success:
         raise not_localized(res.reason)
-    te, re = transform_error(res.transform, scene.T_target_query)
-    console.print(f"error against ground truth: translation {te:.2f} m, rotation {re:.2f} deg")
