@@ -85,3 +85,15 @@ def test_command_list_summaries_are_whole_sentences(capsys):
     summaries = {info.name: info.short_help for info in app.registered_commands}
     assert all(text and "\n" not in text for text in summaries.values())
     assert "localize one in the other and compare" in summaries["demo"]
+
+
+def test_from_csv_refuses_trial_options_it_would_ignore(tmp_path, capsys):
+    out = tmp_path / "t"
+    base = ["experiment", "table", "--descriptors", "histogram", "--rejections", "none",
+            "--workers", "1", "--out", str(out)]  # fmt: skip
+    assert main([*base, "--trials", "1"]) == 0
+    capsys.readouterr()
+    again = ["experiment", "table", "--from-csv", str(out / "trials.csv"), "--out", str(out)]
+    assert main([*again, "--trials", "50"]) == 2
+    assert "--trials: --from-csv runs no trials" in _err(capsys)
+    assert main(again) == 0

@@ -43,6 +43,7 @@ def _settings(items: list[str]) -> dict:
 
 @app.command("experiment")
 def experiment_cmd(
+    ctx: typer.Context,
     name: str = typer.Argument(..., help=f"One of: {' | '.join(EXPERIMENTS)}."),
     dataset: str = typer.Option(
         "airsim-guo", "--dataset", "-d", help="airsim-guo | kitti00 | synthetic | a folder."
@@ -114,6 +115,8 @@ def experiment_cmd(
         raise fail(f"--trials must be >= 1, got {trials}")
     if from_csv is not None and not from_csv.is_file():
         raise fail(f"--from-csv {from_csv}: no such file")
+    if from_csv is not None:
+        _no_trial_options(ctx)
     opt = ExperimentOptions(
         trials=trials,
         first_seed=seed,
@@ -157,3 +160,22 @@ def experiment_cmd(
             raise
     console.print(result.markdown, markup=False, highlight=False, soft_wrap=True)
     console.print(f"results in {result.folder}/: " + ", ".join(p.name for p in result.files))
+
+
+#: Options that only shape how trials run; --from-csv runs none.
+_TRIAL_OPTIONS = ("trials", "workers", "scheduler", "seed", "repeats", "clock")
+
+
+def _no_trial_options(ctx: typer.Context) -> None:
+    """Refuse options given with --from-csv that it would ignore (it re-makes the tables from
+    the CSV's trials and runs none)."""
+    def typed(name: str) -> bool:  # by the enum's name: typer may bundle its own click
+        return getattr(ctx.get_parameter_source(name), "name", "") == "COMMANDLINE"
+
+    given = [n for n in _TRIAL_OPTIONS if typed(n)]
+    if given:
+        flags = ", ".join("--" + n for n in given)
+        raise fail(
+            f"{flags}: --from-csv runs no trials (the tables come from the CSV's own); drop "
+            f"{'it' if len(given) == 1 else 'them'}, or drop --from-csv to run new trials."
+        )
