@@ -95,5 +95,5 @@ def test_from_csv_refuses_trial_options_it_would_ignore(tmp_path, capsys):
     capsys.readouterr()
     again = ["experiment", "table", "--from-csv", str(out / "trials.csv"), "--out", str(out)]
     assert main([*again, "--trials", "50"]) == 2
-    assert "--trials: --from-csv runs no trials" in _err(capsys)
+    assert "--trials: --from-csv runs no trials (its trials.csv holds 1 per setting" in _err(capsys)
     assert main(again) == 0

@@ -116,7 +116,7 @@ def experiment_cmd(
     if from_csv is not None and not from_csv.is_file():
         raise fail(f"--from-csv {from_csv}: no such file")
     if from_csv is not None:
-        _no_trial_options(ctx)
+        _no_trial_options(ctx, from_csv)
     opt = ExperimentOptions(
         trials=trials,
         first_seed=seed,
@@ -163,19 +163,25 @@ def experiment_cmd(
 
 
 #: Options that only shape how trials run; --from-csv runs none.
-_TRIAL_OPTIONS = ("trials", "workers", "scheduler", "seed", "repeats", "clock")
+_TRIAL_OPTIONS = ("workers", "scheduler", "repeats", "clock")
 
 
-def _no_trial_options(ctx: typer.Context) -> None:
+def _no_trial_options(ctx: typer.Context, from_csv: Path) -> None:
     """Refuse options given with --from-csv that it would ignore (it re-makes the tables from
-    the CSV's trials and runs none)."""
+    the CSV's trials and runs none): --trials and --seed unless they agree with the CSV."""
+    from sgloc.evaluation.report import read_csv
+
     def typed(name: str) -> bool:  # by the enum's name: typer may bundle its own click
         return getattr(ctx.get_parameter_source(name), "name", "") == "COMMANDLINE"
 
+    seeds = sorted({int(r["seed"]) for r in read_csv(str(from_csv)) if "seed" in r})
+    csv = {"trials": len(seeds), "seed": seeds[0] if seeds else None}
     given = [n for n in _TRIAL_OPTIONS if typed(n)]
+    given += [n for n in ("trials", "seed") if typed(n) and ctx.params[n] != csv[n]]
     if given:
         flags = ", ".join("--" + n for n in given)
         raise fail(
-            f"{flags}: --from-csv runs no trials (the tables come from the CSV's own); drop "
-            f"{'it' if len(given) == 1 else 'them'}, or drop --from-csv to run new trials."
+            f"{flags}: --from-csv runs no trials (its {from_csv.name} holds {csv['trials']} "
+            f"per setting from seed {csv['seed']}); drop {'it' if len(given) == 1 else 'them'}, "
+            "or drop --from-csv to run new trials."
         )
