@@ -97,3 +97,8 @@ def test_from_csv_refuses_trial_options_it_would_ignore(tmp_path, capsys):
     assert main([*again, "--trials", "50"]) == 2
     assert "--trials: --from-csv runs no trials (its trials.csv holds 1 per setting" in _err(capsys)
     assert main(again) == 0
+
+
+def test_random_walk_localizes_the_shipped_example_with_its_defaults(airsim_graphs):
+    r = localize(*airsim_graphs, descriptor="random_walk", seed=0)
+    assert r.success, r.reason
