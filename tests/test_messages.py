@@ -102,3 +102,16 @@ def test_from_csv_refuses_trial_options_it_would_ignore(tmp_path, capsys):
 def test_random_walk_localizes_the_shipped_example_with_its_defaults(airsim_graphs):
     r = localize(*airsim_graphs, descriptor="random_walk", seed=0)
     assert r.success, r.reason
+
+
+def test_docs_speak_of_the_software_not_of_the_machine_they_ran_on():
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    pattern = re.compile(r"agents|this (?:2-core )?machine|shared machine|machine (?:is|was) "
+                         r"shared|2-core machine", re.IGNORECASE)  # fmt: skip
+    for doc in [root / "README.md", *sorted((root / "docs").glob("*.md"))]:
+        hits = pattern.findall(doc.read_text())
+        assert not hits, f"{doc.name}: {hits}"
+    assert "SGLOC_DATA_URL" in (root / "README.md").read_text()
