@@ -117,7 +117,8 @@ negatives = the same sources with every query object within 25 m (ground truth) 
 object removed (Airsim both directions; KITTI ranges whose trajectories are >= 50 m apart;
 object world and city at overlap 0), plus object-world and city robots from two different
 worlds. A pair without an estimated transform (RANSAC or Guo's rule failed) counts as
-rejected. Times: same process, median, measured with other processes running (compare them within one run only).
+rejected. Times: same process, median, measured with other processes running (compare them
+within one run only).
 
 Goal: no false accept on at least 100 negative pairs with at least 95 % of the positives
 accepted. Columns: true accepts = positives accepted with error <= 10 m and 5 deg (paper-style:
