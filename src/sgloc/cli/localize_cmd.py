@@ -100,8 +100,10 @@ def localize_cmd(
     res = Localizer(cfg)(q, t, seed)
     info = {"query": str(query), "target": str(target), "seed": seed}
     if out is not None:
+        names = _class_names(class_table, colour_table)
+
         def picture(folder: Path) -> Path:
-            return _picture(folder / "aligned_maps.png", q, t, res, example)
+            return _picture(folder / "aligned_maps.png", q, t, res, example, names)
 
         files = write_results(out, res, cfg, picture, **info)
     if rerun is not None:
@@ -146,7 +148,24 @@ def _report(console: Console, q, t, res, example: bool) -> None:
             )
 
 
-def _picture(path: Path, q, t, res, example: bool) -> Path:
+def _class_names(class_table: Path | None, colour_table: Path | None) -> list[str] | None:
+    """Class names for the picture's legend (index = class id), from the class table or the
+    colour table's names; None: "class k"."""
+    if class_table is not None:
+        from sgloc.io.class_table import read_class_table
+
+        by_id: dict[int, str] = {}
+        for name, cid in read_class_table(class_table).items():
+            by_id.setdefault(cid, name)
+        return [by_id.get(i, f"class {i}") for i in range(max(by_id) + 1)]
+    if colour_table is not None:
+        from sgloc.io.colour_table import read_colour_table
+
+        return read_colour_table(colour_table)[1]
+    return None
+
+
+def _picture(path: Path, q, t, res, example: bool, names: list[str] | None = None) -> Path:
     from sgloc.viz import plot_aligned_maps
 
     if res.success:
@@ -159,6 +178,6 @@ def _picture(path: Path, q, t, res, example: bool) -> Path:
             title += f"\nerror vs ground truth {te:.2f} m / {re:.2f}°"
         T = res.transform
     else:
-        title = f"not localized ({res.reason}); B shown in its own frame"
+        title = f"not localized: {res.reason}\nB shown in its own frame (no transform)"
         T = np.eye(4)
-    return plot_aligned_maps(t, q, T, res.matches if res.success else [], path, title)
+    return plot_aligned_maps(t, q, T, res.matches if res.success else [], path, title, names)
