@@ -57,9 +57,16 @@ def test_demo_renders_once_then_uses_the_cache(tmp_path):
     runs = list((tmp_path / "cache" / "demo").iterdir())
     assert len(runs) == 1 and (runs[0] / "run.json").is_file()
     assert (runs[0] / "forwardCar" / "airsim.txt").is_file()
+    assert len(list(runs[0].glob("graph-*.json"))) == 2  # both robots' extracted graphs
     second = CliRunner().invoke(app, args)
-    assert "using the cached run" in second.output
+    assert "using the cached run" in second.output and "extracting" not in second.output
     assert second.exit_code == first.exit_code
+
+    def body(out: str) -> list[str]:  # the report's graphs, matches and errors
+        keys = ("vertices", "candidates", "error vs", "not localized")
+        return [ln for ln in out.splitlines() if any(k in ln for k in keys)]
+
+    assert body(second.output) == body(first.output)  # the cached graphs give the same answer
 
 
 def test_demo_rejects_bad_overlap(tmp_path):

@@ -10,6 +10,7 @@ instead (no rendering).
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 from pathlib import Path
 
@@ -128,11 +129,18 @@ def demo_cmd(
         graphs: dict[str, SemanticGraph] = {}
         ext = ExtractionConfig()
         for robot in (TARGET, QUERY):
+            cached = _graph_file(run_dir, robot, ext)
+            if cached.is_file() and not refresh:  # extracted before from this very run
+                g = SemanticGraph.load(cached, ext.edge_radius)
+                graphs[robot] = SemanticGraph(g.positions, g.labels, g.edge_radius, name=robot)
+                continue
             ds = make_dataset("airsim", run_dir, robot=robot)
             task = progress.add_task(f"extracting {robot}", total=len(ds))
             graphs[robot] = build_graph(
                 ds.frames(), ext, name=robot, progress=lambda _f, t=task: progress.advance(t)
             )
+            with contextlib.suppress(OSError):  # a read-only cache: extract again next time
+                graphs[robot].save(cached)
     T_gt = read_ground_truth(run_dir)
     target, query = graphs[TARGET], graphs[QUERY]
     from sgloc.cli.options import localizer_config
@@ -152,6 +160,14 @@ def demo_cmd(
     console.print(f"saved {path}")
     if not res.success:
         raise not_localized(res.reason)
+
+
+def _graph_file(run_dir: Path, robot: str, ext) -> Path:
+    """Where robot's graph extracted with `ext` from the cached run is kept."""
+    import hashlib
+
+    key = hashlib.sha256(repr(ext).encode()).hexdigest()[:16]
+    return run_dir / f"graph-{robot}-{key}.json"
 
 
 def _report(console, query, target, res: LocalizationResult, T_gt: np.ndarray) -> None:
