@@ -58,7 +58,7 @@ def experiment_cmd(
         "(needs pip install 'sgloc\\[dask]').",
     ),
     workers: int | None = typer.Option(
-        None, help="Local worker processes (default: all CPUs; 1 = in this process)."
+        None, min=1, help="Local worker processes (default: all CPUs; 1 = in this process)."
     ),
     seed: int = typer.Option(0, min=0, help="Seed of the first trial (trial i uses seed + i)."),
     threshold: float | None = typer.Option(
