@@ -122,3 +122,13 @@ def test_docs_speak_of_the_software_not_of_the_machine_they_ran_on():
 def test_workers_below_one_are_refused(command, workers, capsys):
     assert main([*command, "--workers", workers]) == 2
     assert "--workers" in capsys.readouterr().err
+
+
+def test_help_paragraphs_are_not_cut_mid_sentence(capsys):
+    assert main(["localize", "--help"]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert "each --set NAME=VALUE, then --descriptor / --rejection" in out
+    from sgloc.cli import app
+
+    info = next(i for i in app.registered_commands if i.name == "localize")
+    assert all("\n" not in p for p in info.help.split("\n\n"))

@@ -127,12 +127,18 @@ def _framework_exit(e: BaseException) -> int:
 
 
 def _one_line_summaries(typer_app: typer.Typer) -> None:
-    """Each command's summary in the command list: its docstring's first paragraph on one line
-    (rich help keeps the docstring's line breaks, cutting sentences)."""
+    """Each command's help as paragraphs of one line each, its summary in the command list the
+    first (rich help keeps a docstring's line breaks, cutting sentences)."""
+    import inspect
+
     for info in typer_app.registered_commands:
-        doc = (info.help or (info.callback.__doc__ if info.callback else None) or "").strip()
-        if info.short_help is None and doc:
-            info.short_help = " ".join(doc.split("\n\n", 1)[0].split())
+        doc = inspect.cleandoc(info.help or (info.callback.__doc__ if info.callback else "") or "")
+        if not doc:
+            continue
+        paragraphs = [" ".join(p.split()) for p in doc.split("\n\n")]
+        info.help = "\n\n".join(paragraphs)
+        if info.short_help is None:
+            info.short_help = paragraphs[0]
     for group in typer_app.registered_groups:
         if group.typer_instance is not None:
             _one_line_summaries(group.typer_instance)
