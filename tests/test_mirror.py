@@ -38,3 +38,32 @@ def test_reflection_keeps_the_line_and_flips_across_it():
     line = np.array([[0.0, 0.0, 0.0], [10.0, 10.0, 1.0], [20.0, 20.0, 2.0]])
     out = reflect_across_line(np.array([[0.0, 10.0, 3.0], [5.0, 5.0, 0.0]]), line)
     np.testing.assert_allclose(out, [[10.0, 0.0, 3.0], [5.0, 5.0, 0.0]], atol=1e-12)
+
+
+def test_mirrored_crops_are_refused_and_true_crops_kept(airsim_graphs):
+    """Crops of 4-120 objects: mirrored ones against the map they were cut from are refused;
+    the true crops accepted as often as without the mirror test. (A mirrored crop of the other
+    robot's map can still be accepted at a wrong place, as any negative can: 1 of 30 here.)"""
+    import sgloc.mirror as mirror
+
+    q, t = airsim_graphs
+    rng = np.random.default_rng(1)
+    accepted = {"mirror": 0, "true": 0, "true without the test": 0}
+    for s in range(12):
+        src, dst = (q, t) if s % 2 else (t, q)
+        c = src.positions[rng.integers(len(src))]
+        for radius in (20, 40, 100):
+            idx = np.flatnonzero(np.linalg.norm(src.positions[:, :2] - c[:2], axis=1) < radius)
+            if len(idx) < 4:
+                continue
+            crop = SemanticGraph(src.positions[idx], src.labels[idx])
+            flipped = SemanticGraph(src.positions[idx] * [-1, 1, 1], src.labels[idx])
+            accepted["mirror"] += localize(flipped, src, seed=s).success
+            accepted["true"] += localize(crop, dst, seed=s).success
+            mirror.MIRROR_MARGIN, old = 10**9, mirror.MIRROR_MARGIN
+            try:
+                accepted["true without the test"] += localize(crop, dst, seed=s).success
+            finally:
+                mirror.MIRROR_MARGIN = old
+    assert accepted["mirror"] == 0
+    assert accepted["true"] == accepted["true without the test"] > 5
