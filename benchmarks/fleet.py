@@ -21,6 +21,7 @@ import warnings
 from pathlib import Path
 
 from sgloc.config import LocalizerConfig
+from sgloc.data import present_or_say
 from sgloc.evaluation.fleet_scenes import (
     FleetScene,
     city_fleet,
@@ -95,11 +96,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "docs")
     args = ap.parse_args(argv)
+    docs = args.out.resolve() == Path(__file__).resolve().parents[1] / "docs"
+    kitti = present_or_say("kitti00", "the KITTI 00 fleet", required=docs)
     warnings.filterwarnings("ignore", category=RuntimeWarning)
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []
     fleets = [(f"world{s}", lambda s=s: world_fleet(s)) for s in args.world_seeds]
-    fleets.append(("kitti00", kitti_fleet))
+    fleets += [("kitti00", kitti_fleet)] if kitti else []
     if args.city:
         fleets.append(("city", city_fleet))
     guo = FleetConfig(localizer=LocalizerConfig().with_overrides(acceptance=False))

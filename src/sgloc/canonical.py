@@ -1,5 +1,6 @@
-"""Canonical form of a graph pair at the localizer's entry: vertices sorted by (class, x, y, z)
-and the classes present renumbered 0..L-1. The pipeline then gives the same answer for any
+"""Canonical form of a graph pair at the localizer's entry: vertices sorted by (class, x, y, z),
+an object listed twice (same class, within DUPLICATE_RADIUS) kept once, and the classes present
+renumbered 0..L-1. The pipeline then gives the same answer for any
 vertex order of either graph, and no array is sized by a large class id. `restore` maps the
 result's vertex indices back to the caller's order."""
 
@@ -18,6 +19,9 @@ from sgloc.graph import SemanticGraph
 #: graph): {class table bytes: (order, canonical graph)}. Reusing the canonical graph lets its
 #: own caches (descriptors, adjacency) serve every later call with the same map.
 _FORMS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+#: Objects of one class closer than this (metres) are one object listed twice: kept once (the
+#: first in canonical order), else every copy would be a rival of its twin in the ratio tests.
+DUPLICATE_RADIUS = 1e-3
 #: Class tables kept per graph (a map localized against maps with other classes).
 _FORMS_PER_GRAPH = 4
 
@@ -26,6 +30,24 @@ def canonical_order(graph: SemanticGraph) -> np.ndarray:
     """Vertex indices sorted by (label, x, y, z); ties (duplicate objects) keep input order."""
     p = graph.positions
     return np.lexsort((p[:, 2], p[:, 1], p[:, 0], graph.labels))
+
+
+def without_duplicates(graph: SemanticGraph, order: np.ndarray) -> np.ndarray:
+    """`order` without the vertices that repeat an earlier one of it (same class, closer than
+    DUPLICATE_RADIUS); an order of a graph without duplicates comes back unchanged."""
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(graph.positions[order]).query_pairs(DUPLICATE_RADIUS, output_type="ndarray")
+    lab = graph.labels[order]
+    pairs = pairs[lab[pairs[:, 0]] == lab[pairs[:, 1]]]
+    if len(pairs) == 0:
+        return order
+    n = len(order)
+    links = sparse.coo_array((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, group = connected_components(links, directed=False)
+    first = np.unique(group, return_index=True)[1]
+    return order[np.sort(first)]
 
 
 class CanonicalPair:
@@ -53,7 +75,7 @@ class CanonicalPair:
         if key not in forms:
             if len(forms) >= _FORMS_PER_GRAPH:
                 forms.pop(next(iter(forms)))
-            order = canonical_order(graph)
+            order = without_duplicates(graph, canonical_order(graph))
             order.flags.writeable = False
             forms[key] = (order, self._rebuilt(graph, order))
         return forms[key]

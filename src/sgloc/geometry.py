@@ -67,3 +67,11 @@ def regularized_covariance(cov: np.ndarray, floor: float = 1e-12) -> np.ndarray:
     c = 0.5 * (c + c.T)
     w, v = np.linalg.eigh(c)
     return (v * np.maximum(w, floor)) @ v.T
+
+
+def translation_error_at(T_est: np.ndarray, T_gt: np.ndarray, point: np.ndarray) -> float:
+    """How far apart (metres) T_est and T_gt put `point` (3,) of their common source frame:
+    the translation error where the maps overlap when `point` is the query objects' centroid
+    (`transform_error` measures at the target frame's origin instead)."""
+    p = np.append(np.asarray(point, dtype=np.float64).reshape(3), 1.0)
+    return float(np.linalg.norm((T_est @ p - T_gt @ p)[:3]))

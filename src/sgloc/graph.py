@@ -124,14 +124,16 @@ class SemanticGraph:
     # -- files ------------------------------------------------------------------------------
     @classmethod
     def load(cls, path: str | Path, edge_radius: float = DEFAULT_EDGE_RADIUS) -> SemanticGraph:
-        """Read a graph from `.pcd` (Guo's packed-rgb Airsim classes), `.json` or `.npz`."""
+        """Read a graph from `.pcd` (Guo's packed-rgb Airsim classes), `.json`, `.npz`, `.ply`,
+        `.csv` or `.txt` (docs/formats.md)."""
         from sgloc.io.graph_files import read_graph
 
         positions, labels = read_graph(path)
         return cls(positions, labels, edge_radius, name=Path(path).name)
 
     def save(self, path: str | Path) -> Path:
-        """Write the graph as `.pcd`, `.json` or `.npz` (chosen by the suffix)."""
+        """Write the graph as `.pcd`, `.json`, `.npz`, `.ply`, `.csv` or `.txt` (chosen by the
+        suffix; `load` reads each back)."""
         from sgloc.io.graph_files import write_graph
 
         return write_graph(path, self.positions, self.labels, edge_radius=self.edge_radius)

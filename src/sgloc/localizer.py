@@ -20,6 +20,8 @@ from sgloc.graph import SemanticGraph
 from sgloc.matching import match_flagged
 from sgloc.rejection import make_rejector
 from sgloc.timing import StageTimer
+from sgloc.units import units_hint
+from sgloc.validation import check_seed
 
 MIN_VERTICES = 3
 
@@ -62,20 +64,11 @@ class LocalizationResult:
         return self
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready summary."""
-        return {
-            "success": self.success,
-            "reason": self.reason,
-            "confidence": self.confidence,
-            "transform": None if self.transform is None else self.transform.tolist(),
-            "covariance": None if self.covariance is None else self.covariance.tolist(),
-            "n_candidates": int(len(self.candidates)),
-            "n_survivors": int(len(self.survivors)),
-            "n_matches": int(len(self.matches)),
-            "matches": self.matches.tolist(),
-            "timings": self.timings,
-            "config": self.config,
-        }
+        """The JSON result document with every match (`sgloc.io.results.document`; schema
+        in docs/formats.md)."""
+        from sgloc.io.results import document
+
+        return document(self, full=True)
 
 
 def _check_graph(graph: SemanticGraph, role: str) -> None:
@@ -100,7 +93,7 @@ def stage_streams(rng: np.random.Generator | int | None) -> dict[str, np.random.
     if isinstance(rng, np.random.Generator):
         children = rng.spawn(len(RANDOM_STAGES))
     else:
-        seeds = np.random.SeedSequence(rng).spawn(len(RANDOM_STAGES))
+        seeds = np.random.SeedSequence(check_seed(rng)).spawn(len(RANDOM_STAGES))
         children = [np.random.default_rng(s) for s in seeds]
     return dict(zip(RANDOM_STAGES, children, strict=True))
 
@@ -199,6 +192,8 @@ class Localizer:
             refit=lambda matches: _fit_matches(query, target, matches, cfg),
         )  # fmt: skip
         timer.add(verdict.timings)
+        if not verdict.accepted:
+            verdict.reason += units_hint(query, target)
         return verdict
 
 

@@ -29,6 +29,7 @@ from sgloc.estimation import (
 from sgloc.registry import lookup
 from sgloc.rejection import REJECTORS, Rejector, make_rejector
 from sgloc.timing import StageTimer
+from sgloc.validation import random_generator
 
 
 @dataclass
@@ -142,7 +143,7 @@ def register(
     rej, cfg = _stage_settings(rejection, noise_bound, motion, settings)
     timer = StageTimer(names={"estimation": "refine"})
     pose = estimate_pose(
-        src, dst, rej, cfg, rng if rng is not None else np.random.default_rng(seed),
+        src, dst, rej, cfg, rng if rng is not None else random_generator(seed),
         fit=FinalFit(refine=refine), timer=timer,
     )  # fmt: skip
     return RegistrationResult(

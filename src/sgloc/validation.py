@@ -349,3 +349,20 @@ def validate_localizer_settings(config: Any) -> None:
     config.icp_max_distance = check_real(
         "icp_max_distance", config.icp_max_distance, 0.0, MAX_COORDINATE, low_open=True, unit="m"
     )
+
+
+def check_seed(seed: Any, name: str = "seed") -> Any:
+    """`seed` as given when it is a Generator, None (fresh entropy) or a non-negative integer
+    (returned as int); anything else (negative, fractional, bool, text) is refused."""
+    if seed is None or isinstance(seed, np.random.Generator):
+        return seed
+    if not isinstance(seed, numbers.Integral) or isinstance(seed, bool | np.bool_) or seed < 0:
+        raise InvalidSettingError(
+            f"{name}={seed!r}: must be a non-negative integer (or None for a fresh random seed)."
+        )
+    return int(seed)
+
+
+def random_generator(seed: Any, name: str = "seed") -> np.random.Generator:
+    """A numpy Generator from `seed` (`check_seed`; a Generator is used as is)."""
+    return np.random.default_rng(check_seed(seed, name))

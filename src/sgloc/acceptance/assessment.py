@@ -274,11 +274,28 @@ def assess(
     details |= {"runner_up_inliers": k2, "runner_up_log10_nfa": float(lg_second),
                 "spread_m": spread}  # fmt: skip
     conf = confidence(lg_best, lg_second)
+    if details["candidates"] == 0 or details["inliers"] < 3:
+        return Assessment(False, 0.0, _few_reason(details, r), details)
     if spread < min_spread:
         return Assessment(False, 0.0, _spread_reason(details, min_spread, dof), details)
     if conf < cfg.min_confidence:
         return Assessment(False, conf, _chance_reason(details, conf, cfg), details)
     return Assessment(True, conf, "", details)
+
+
+def _few_reason(details: dict, radius: float) -> str:
+    """Why nothing (no distinctive candidate) or too little (< 3 inliers) backs the estimate."""
+    if details["candidates"] == 0:
+        return (
+            "no candidate match is distinctive: every object's descriptor nearly ties with "
+            "another object of its class (objects listed twice side by side, or a scene that "
+            "repeats); merge duplicate objects, or turn the ratio test off with "
+            "--set distinct_ratio=null (Python: distinct_ratio=None)"
+        )
+    return (
+        f"only {details['inliers']} query object(s) agree with the best alignment (within "
+        f"{radius:g} m); the maps may not overlap"
+    )
 
 
 def _spread_reason(details: dict, min_spread: float, dof: int) -> str:
@@ -306,7 +323,8 @@ def _chance_reason(details: dict, conf: float, cfg: AcceptanceConfig) -> str:
         )
     return (
         f"{k} inliers of {details['candidates']} candidate matches could be chance "
-        f"({details['expected_chance_inliers']:.1f} expected from repeated objects; log10 NFA "
-        f"{lg_best:.1f}); confidence {conf:.6g} < min_confidence {cfg.min_confidence}; the "
-        "maps may not overlap"
+        f"({details['expected_chance_inliers']:.1f} expected from repeated objects; about "
+        f"10^{lg_best:.1f} such alignments expected by chance); confidence {conf:.6g} < "
+        f"min_confidence {cfg.min_confidence} (a lower one accepts more: --set "
+        "min_confidence=0.99); the maps may not overlap"
     )

@@ -12,7 +12,7 @@ import functools
 import os
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import as_completed
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -23,6 +23,7 @@ from sgloc.errors import SglocError
 from sgloc.evaluation.metrics import FAILURE_M, T_P, is_failure, match_stats, pose_errors
 from sgloc.evaluation.pairs import make_pair_source
 from sgloc.localizer import Localizer
+from sgloc.workers import process_pool
 
 #: Stream index of the localizer's random numbers (RANSAC, random walks) within a trial seed.
 LOCALIZER_STREAM = 1
@@ -167,7 +168,7 @@ def run_tasks(
             rows.append(fn(t))
             tick(1)
         return rows
-    with ProcessPoolExecutor(max_workers=min(workers, len(tasks))) as pool:
+    with process_pool(min(workers, len(tasks))) as pool:
         return _collect([pool.submit(fn, t) for t in tasks], as_completed, tick)
 
 

@@ -3,12 +3,17 @@
 Importing this package is cheap: numba is imported, and each kernel compiled, only when a
 kernel module is first imported (callers import them inside functions). Compiled code is cached
 on disk (`cache=True`): next to the sources when that directory is writable, otherwise in numba's
-per-user cache directory; `NUMBA_CACHE_DIR` overrides both.
+per-user cache directory; `NUMBA_CACHE_DIR` overrides both. When none of them is writable (a
+read-only install and home), the kernels are cached in a folder of the temporary directory, or,
+failing that, compiled in every process without a cache; either is said once on stderr.
 
-Loading numba and the cached kernels costs a process about 0.7 s once. The first few small
-problems of a process (`use_compiled`) therefore run the numpy references, which give the same
-results: a one-shot run on small maps (the command line) never pays that, while a process that
-keeps working, or meets a large problem, loads the kernels.
+Loading numba and the cached kernels costs a process about 0.7 s once. Problems up to
+SMALL_PROBLEM matches therefore run the numpy references (`use_compiled`): a one-shot run on small
+maps (the command line) never pays that. The choice depends on the problem's size only, never on
+what the process did before, so the same inputs give the same bits in every process (the
+references and the kernels agree to rounding, not bit for bit). The price: a process solving
+many small problems runs the slower references (Guo's Airsim pair: about 4.4 ms of CPU a call
+against 1.9 ms compiled); `FORCE = "compiled"` trades the start-up for that.
 
 Rule for every kernel here: no numba sort or search (np.sort, np.argsort, ndarray.sort,
 np.searchsorted, ...) inside a cached kernel: sort in numpy before the call, or write the loop
@@ -24,29 +29,23 @@ their references.
 
 from __future__ import annotations
 
-import sys
+from sgloc.kernels.cache import ensure_cache_dir
 
-#: Problems up to this size (matches) may run the numpy references while numba is not loaded.
+ensure_cache_dir()
+
+#: Problems up to this size (matches) run the numpy references, larger ones the kernels.
 SMALL_PROBLEM = 1500
-#: Small problems a process solves with the references before it loads the kernels.
-REFERENCE_CALLS = 24
 #: "compiled" or "reference" forces that path for every size (tests); None: the rule above.
 FORCE: str | None = None
 
-_reference_calls = 0
-
 
 def use_compiled(size: int) -> bool:
-    """Whether a problem of `size` matches should run the compiled kernel (else the numpy
-    reference, with the same result): yes once numba is loaded, for large problems, and
-    after the first REFERENCE_CALLS small ones."""
-    global _reference_calls
+    """Whether a problem of `size` matches runs the compiled kernel (else the numpy reference,
+    equal to rounding): a pure function of the size, so a result never depends on what the
+    process computed before."""
     if FORCE is not None:
         return FORCE == "compiled"
-    if size > SMALL_PROBLEM or "numba" in sys.modules:
-        return True
-    _reference_calls += 1
-    return _reference_calls > REFERENCE_CALLS
+    return size > SMALL_PROBLEM
 
 
 _BLAS_CONTROLLER = None

@@ -70,7 +70,7 @@ def prune_bits(
 
 def _prune_remaining(bits: np.ndarray, degree: np.ndarray, eta: float) -> np.ndarray:
     """The "remaining" rule on packed rows: compiled, or the numpy reference for a process's
-    first small problems (`sgloc.kernels.use_compiled`)."""
+    small problems (`sgloc.kernels.use_compiled`)."""
     from sgloc.kernels import use_compiled
 
     if not use_compiled(len(bits)):
