@@ -26,6 +26,11 @@ from sgloc.kernels import one_blas_thread, use_compiled
 #: (2.8 GB here), beside the two graphs; 100,000-vertex maps give about 100,000 at top_k=1.
 MAX_MATCHES = 150_000
 
+#: Candidate counts up to which the default settings check all pairs (the neighbor rejector's
+#: scope "auto", the acceptance test's hypothesis count); above, only pairs within a radius
+#: (`sgloc.local_consistency`) or a random sample of pairs: 12.5 MB of packed rows at this size.
+ALL_PAIRS_LIMIT = 10_000
+
 #: Side of the square tiles computed at once: 512 x 512 float32 = 1 MB per temporary (L2-sized).
 TILE = 512
 

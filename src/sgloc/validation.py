@@ -286,6 +286,8 @@ SETTINGS: dict[str, dict[str, Any]] = {
         "eta": _real(0.0, 1.0),
         "form": _choice("distance", "neighbor", what="the consistency form"),
         "bound": _choice("remaining", "literal", what="Alg. 1's removal bound"),
+        "scope": _choice("auto", "all", "local", what="which pairs of candidates are checked"),
+        "local_radius": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
     },
     "CliqueRejector": {
         "tau": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
