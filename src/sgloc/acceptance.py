@@ -61,6 +61,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from sgloc.consistency import (
+    ALL_PAIRS_LIMIT,
     ConsistentPairs,
     common_partner_count,
     consistency_bits,
@@ -77,6 +78,7 @@ from sgloc.estimation import (
 from sgloc.geometry import apply
 from sgloc.graph import SemanticGraph
 from sgloc.kernels import use_compiled
+from sgloc.sampled_consistency import SampledConsistency
 from sgloc.validation import validate_settings
 
 _LN10 = np.log(10.0)
@@ -332,6 +334,27 @@ def _consistency(src: np.ndarray, dst: np.ndarray, radius: float) -> tuple[np.nd
     return consistency_bits(src, dst, 2.0 * radius, "distance")
 
 
+def _hypothesis_graph(
+    src: np.ndarray, dst: np.ndarray, radius: float, dof: int, rng: np.random.Generator
+) -> tuple[np.ndarray | None, ConsistentPairs | SampledConsistency, float]:
+    """(packed rows or None, the consistent pairs, the number of hypotheses RANSAC can form:
+    consistent pairs (4 dof) or triples (6 dof)) of the candidates (src, dst). Up to
+    ALL_PAIRS_LIMIT candidates from all pairs; above, estimated from a sample of pairs
+    (`sgloc.sampled_consistency`: memory linear in the candidates)."""
+    m = len(src)
+    if m > ALL_PAIRS_LIMIT:
+        sampled = SampledConsistency(src, dst, 2.0 * radius, rng)
+        return None, sampled, sampled.n_pairs if dof == 4 else sampled.n_triangles()
+    if m >= 3:
+        consistency, _ = _consistency(src, dst, radius)  # packed rows (m, ceil(m / 64))
+    else:
+        consistency = np.zeros((m, 1), dtype=np.uint64)
+    edges = ConsistentPairs(consistency)  # by position: no list of 16 bytes per pair
+    if dof == 4:
+        return consistency, edges, float(edges.size)
+    return consistency, edges, _triangles(consistency, edges) if m >= 3 else 0.0
+
+
 def _triangles(bits: np.ndarray, edges: ConsistentPairs) -> float:
     """Number of triangles of the consistency graph (packed rows `bits`) with edges (ii, jj),
     ii < jj: the sum over edges of their common neighbours / 3. Only log10 of the count
@@ -360,8 +383,8 @@ def _runner_up(
     dst: np.ndarray,
     T: np.ndarray,
     exclude: np.ndarray,
-    consistency: np.ndarray,
-    edges: ConsistentPairs,
+    consistency: np.ndarray | None,
+    edges: ConsistentPairs | SampledConsistency,
     radius: float,
     cfg: AcceptanceConfig,
     rng: np.random.Generator,
@@ -374,24 +397,31 @@ def _runner_up(
     candidates outside `exclude` (those T explains within twice the radius), so a slight tilt of
     T that keeps most of T's matches is not counted as a rival. Hypotheses come from triples of
     pairwise-consistent candidates (`consistency`, packed rows: |D(q_i,q_j) - D(t_i,t_j)| <
-    2 * radius), drawn at random and fitted in one batch; those within the distinctness bounds of T
-    are discarded. dof=4: hypotheses about the z axis from the consistent pairs themselves;
-    `max_tilt` (degrees): hypotheses tilting the up axis more are not alternatives.
+    2 * radius; above ALL_PAIRS_LIMIT candidates `edges` is a sample of pairs), drawn at
+    random and fitted in one batch; those within the distinctness bounds of T are discarded.
+    dof=4: hypotheses about the z axis from the consistent pairs themselves; `max_tilt`
+    (degrees): hypotheses tilting the up axis more are not alternatives.
     """
     free = ~exclude
     if free.sum() < 3 or cfg.runner_up_samples <= 0:
         return 0, None
     ps, pd = src[free], dst[free]
-    kept = edges.within(free)
-    if kept.size == 0:
-        return 0, None
-    i, j = kept.at(rng.integers(0, kept.size, cfg.runner_up_samples))
+    if isinstance(edges, SampledConsistency):
+        i, j = edges.draw(free, cfg.runner_up_samples, rng)
+        if len(i) == 0:
+            return 0, None
+    else:
+        kept = edges.within(free)
+        if kept.size == 0:
+            return 0, None
+        i, j = kept.at(rng.integers(0, kept.size, cfg.runner_up_samples))
     if dof == 4 and use_compiled(len(src)):
         return _compiled_yaw_runner_up(src, dst, T, exclude, i, j, radius, cfg)
     if dof == 4:
         hyp = _yaw_hypotheses(src, dst, *_first_draws(i, j, len(src)))
     else:
-        hyp = _triplet_hypotheses(src, dst, i, j, consistency, free, rng, max_tilt)
+        rows = edges if isinstance(edges, SampledConsistency) else consistency
+        hyp = _triplet_hypotheses(src, dst, i, j, rows, free, rng, max_tilt)
     if hyp is None:
         return 0, None
     R, t = hyp
@@ -458,12 +488,18 @@ def _triplet_hypotheses(
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """6-dof hypotheses: each consistent pair (i, j) completed by a random candidate
     consistent with both; tilted beyond `max_tilt` degrees dropped."""
-    common = unpack_rows(consistency[i] & consistency[j], len(free)) & free
-    has = common.any(axis=1)
-    if not has.any():
-        return None
-    keys = np.where(common, rng.random(common.shape, dtype=np.float32), -1.0)
-    k3 = np.argmax(keys, axis=1)
+    if isinstance(consistency, SampledConsistency):
+        k3 = consistency.third(i, j, free, rng)
+        has = k3 >= 0
+        if not has.any():
+            return None
+    else:
+        common = unpack_rows(consistency[i] & consistency[j], len(free)) & free
+        has = common.any(axis=1)
+        if not has.any():
+            return None
+        keys = np.where(common, rng.random(common.shape, dtype=np.float32), -1.0)
+        k3 = np.argmax(keys, axis=1)
     trip = np.column_stack([i, j, k3])[has]
     S, D = src[trip], dst[trip]
     ok = non_collinear(S, 1e-2) & non_collinear(D, 1e-2)
@@ -562,17 +598,8 @@ def assess(
     usage = np.bincount(cand[:, 1], minlength=len(target)).astype(np.float64)
     counts, used = chance.near_counts(apply(transform, query.positions), (None, usage))
     lam = chance.expected_inliers(counts, qi, tlab)
-    if m >= 3:
-        consistency, _ = _consistency(src, dst, r)  # packed rows (m, ceil(m / 64))
-    else:
-        consistency = np.zeros((m, 1), dtype=np.uint64)
-    edges = ConsistentPairs(consistency)  # by position: no list of 16 bytes per pair
-    # The hypotheses RANSAC can form: consistent triples (6 dof) or consistent pairs (4 dof).
+    consistency, edges, n_tests = _hypothesis_graph(src, dst, r, dof, rng)
     sample = 2 if dof == 4 else 3
-    if dof == 4:
-        n_tests = float(edges.size)
-    else:
-        n_tests = _triangles(consistency, edges) if m >= 3 else 0.0
     obj2 = per_object_min(res2, cand[:, 0])
     lg_uniform, k_fit, r_fit = nfa_over_radii(obj2, r, lam, m, n_tests, sample)
     lam_perm = permutation_lambda(used[qi, tlab], inl, tlab, counts[qi, tlab], chance)
