@@ -227,3 +227,14 @@ def test_hundred_thousand_candidates_in_bounded_memory():
     assert out["accepted"], out
     assert out["grown_mb"] > 0, out  # the calls were measured
     assert out["inliers_kept"] >= 0.97 * out["inliers"], out
+
+
+def test_dense_distances_refused_for_large_graphs():
+    """The n x n distance matrix is for small graphs only: a clear error instead of 80 GB."""
+    from sgloc.errors import InvalidGraphError
+    from sgloc.graph import DENSE_LIMIT
+
+    g = SemanticGraph(np.zeros((DENSE_LIMIT + 1, 3)), np.zeros(DENSE_LIMIT + 1, int), name="city")
+    with pytest.raises(InvalidGraphError, match="city.*cKDTree"):
+        _ = g.distances
+    assert SemanticGraph(np.eye(3), np.zeros(3, int)).distances.shape == (3, 3)
