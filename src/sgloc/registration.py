@@ -122,7 +122,8 @@ def register(
         tolerance tau and the RANSAC inlier threshold to 2 * noise_bound unless given.
     seed / rng: RANSAC's randomness (rng wins when given).
     refine: final fit on RANSAC's inliers: "irls" (Tukey M-estimator), "kabsch", "none".
-    settings: rejector parameters (tau, eta, form, ...) and RansacConfig fields (threshold,
+    settings: rejector parameters (tau, eta, form, scope, local_radius, ...) and RansacConfig
+        fields (threshold,
         iterations, confidence, min_inliers, ...).
     """
     t0 = time.perf_counter()
