@@ -348,7 +348,7 @@ def peak_mb():
 
 n, reps = int(sys.argv[1]), int(sys.argv[2])
 small = scene(2000)
-localize(small.query, small.target, seed=0)  # loads the kernels (not timed)
+localize(small.query, small.target, seed=0, scope="local")  # loads the kernels (not timed)
 s = scene(n)
 out = {"n_query": len(s.query), "n_target": len(s.target), "base_mb": peak_mb(), "s": []}
 for _ in range(reps):
