@@ -108,14 +108,20 @@ def test_paper_preset_keeps_all_pairs():
     assert cfg.rejector_config.scope == "all"
 
 
+def _city_problem_transform(seed: int) -> np.ndarray:
+    """The true T_dst_src of `_city_problem(..., seed)`."""
+    rng = np.random.default_rng(seed)
+    return random_rigid_transform(rng, 500.0, 0.0)
+
+
 def _city_problem(m: int, inlier_ratio: float, seed: int) -> tuple[np.ndarray, ...]:
     """Candidates over a 3 km x 3 km city: query objects on a jittered grid, true targets a
     rigid motion of them with 0.5 m noise, outliers a random same-map object elsewhere."""
-    rng = np.random.default_rng(seed)
+    T = _city_problem_transform(seed)
+    rng = np.random.default_rng(seed + 1000)
     side = int(np.ceil(np.sqrt(m)))
     grid = np.stack(np.meshgrid(np.arange(side), np.arange(side)), -1).reshape(-1, 2)[:m]
     src = np.column_stack([grid * (3000.0 / side) + rng.normal(0, 3, (m, 2)), rng.uniform(0, 5, m)])
-    T = random_rigid_transform(rng, 500.0, 0.0)
     dst = src @ T[:3, :3].T + T[:3, 3] + rng.normal(0, 0.5, (m, 3))
     inlier = rng.random(m) < inlier_ratio
     out = np.flatnonzero(~inlier)
@@ -238,3 +244,32 @@ def test_dense_distances_refused_for_large_graphs():
     with pytest.raises(InvalidGraphError, match="city.*cKDTree"):
         _ = g.distances
     assert SemanticGraph(np.eye(3), np.zeros(3, int)).distances.shape == (3, 3)
+
+
+@pytest.mark.parametrize("dof", [4, 6])
+def test_sampled_acceptance_agrees_with_all_pairs(dof, monkeypatch):
+    """12,000 candidates: the acceptance test on sampled pairs counts at least as many
+    hypotheses as all pairs give and barely more (log10 within 0.05), and reaches the same
+    verdicts for the true alignment and for a wrong one."""
+    import sgloc.acceptance as acceptance
+    from sgloc.acceptance import assess
+
+    src, dst, inlier = _city_problem(12_000, 0.3, 8)
+    labels = np.random.default_rng(8).integers(0, 8, len(src))
+    q, t = SemanticGraph(src, labels), SemanticGraph(dst, labels)
+    pairs = np.stack([np.arange(len(src))] * 2, axis=1)
+    T = _city_problem_transform(8)
+    wrong = T @ random_rigid_transform(np.random.default_rng(1), 300.0, 0.0)
+    tilt = 15.0 if dof == 4 else None
+    runs = {}
+    for limit in (ALL_PAIRS_LIMIT, 10**6):
+        monkeypatch.setattr(acceptance, "ALL_PAIRS_LIMIT", limit)
+        runs[limit] = [
+            assess(q, t, pairs, X, 5.0, rng=np.random.default_rng(0), dof=dof, max_tilt=tilt)
+            for X in (T, wrong)
+        ]
+    sampled, exact = runs[ALL_PAIRS_LIMIT], runs[10**6]
+    gap = sampled[0].details["log10_tests"] - exact[0].details["log10_tests"]
+    assert 0.0 <= gap < 0.05
+    assert sampled[0].accepted and exact[0].accepted
+    assert not sampled[1].accepted and not exact[1].accepted
