@@ -384,9 +384,14 @@ def run_scale(sizes: list[int], reps: int, large: int) -> list[dict]:
     return rows
 
 
-def report_scale(rows: list[dict], reps: int) -> list[str]:
+def report_scale(rows: list[dict], args) -> list[str]:
     """The map-to-map table and its goals."""
+    reps = args.scale_reps
+    sizes = " ".join(str(n) for n in args.scale_sizes)
     lines = ["## Map to map at scale", "",
+             f"Command: `python -m benchmarks.speed --only scale --scale-sizes {sizes} "
+             f"--scale-reps {reps} --scale-large {args.scale_large}` "
+             f"({time.strftime('%Y-%m-%d')}). "
              "`localize(query, target)` with default settings on two generated object maps of "
              "N objects each (`sgloc.sim.object_world`, 50 % overlap, view radius 130 m), new "
              f"graph objects every call (nothing cached), {reps} calls per size in a fresh "
@@ -599,7 +604,7 @@ def report(reg, threads, startup, cli, maps, args) -> list[str]:
     if maps:
         lines += report_maps(maps, args.cap_gb)
     if args.scale_rows:
-        lines += report_scale(args.scale_rows, args.scale_reps)
+        lines += report_scale(args.scale_rows, args)
     return lines
 
 
