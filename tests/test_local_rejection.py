@@ -284,3 +284,26 @@ def test_sampled_acceptance_agrees_with_all_pairs(dof, monkeypatch):
     assert 0.0 <= gap < 0.05
     assert sampled[0].accepted and exact[0].accepted
     assert not sampled[1].accepted and not exact[1].accepted
+
+
+def test_a_long_thin_map_is_not_a_line():
+    """A 1,000 km stretch of street mapped 240 m wide fixes the roll about its line: the fit
+    keeps the maps' relative tilt (by the length ratio alone it counted as collinear, fell back
+    to the yaw-only fit and missed the 1 deg tilt by kilometres at the map's far end)."""
+    from sgloc.estimation import check_not_degenerate, fit_rigid
+    from sgloc.geometry import make_transform
+    from sgloc.kernels.fit import collinear
+
+    rng = np.random.default_rng(2)
+    n = 20_000
+    src = np.column_stack([rng.uniform(0, 1e6, n), rng.uniform(-120, 120, n), rng.uniform(0, 4, n)])
+    a = np.radians(1.0)
+    R = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    T = make_transform(R, np.array([5.0, -3.0, 2.0]))
+    dst = src @ R.T + T[:3, 3] + rng.normal(0, 0.5, (n, 3))
+    check_not_degenerate(src)  # no error: not a line
+    assert not collinear(src, 1e-3)
+    fit = fit_rigid(src, dst, None, dof=4, max_tilt=15.0)
+    assert transform_error(fit, T)[0] < 1.0
+    line = np.column_stack([np.linspace(0, 1e6, 50), np.zeros(50), np.zeros(50)])
+    assert collinear(line + rng.normal(0, 1e-3, line.shape), 1e-3)
