@@ -43,7 +43,7 @@ import sgloc
 
 #: The kernel modules under `sgloc.kernels` with compiled (cached) code.
 MODULES = (
-    "clique", "consistency", "fit", "matching", "neighbors",
+    "clique", "consistency", "fit", "local", "matching", "neighbors",
     "prune", "ransac", "runner_up", "spectral", "triangles",
 )  # fmt: skip
 
@@ -118,6 +118,21 @@ def check_fit() -> None:
             with _forced(path):
                 out[path] = irls_refine(src, dst, T0, w, **kw)
         assert np.abs(out["compiled"] - out["reference"]).max() < 1e-9, f"irls {kw}"
+
+
+def check_local() -> None:
+    from sgloc.kernels.local import local_counts, local_prune
+    from sgloc.local_consistency import CellGrid, local_counts_reference, prune_local_reference
+
+    src, dst = _matches(400, 11)
+    for radius in (20.0, 1e4):
+        g = CellGrid.build(src, radius)
+        grid = (g.order, g.cell_start, g.point_cell, g.near_cells, radius)
+        got = local_counts(src, dst, *grid, 5.0, False)
+        ref = local_counts_reference(src, dst, 5.0, radius)
+        assert all(np.array_equal(a, b) for a, b in zip(got, ref, strict=True)), "local counts"
+        kept = local_prune(src, dst, *grid, 5.0, False, 0.5, 0)
+        assert np.array_equal(kept, prune_local_reference(src, dst, 5.0, 0.5, radius)), "local"
 
 
 def check_matching() -> None:

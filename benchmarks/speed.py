@@ -15,6 +15,10 @@
 4. Maps end to end: `localize` on two generated maps of n vertices each (50 % overlap), in a
    fresh process under a memory cap: wall time of the first call (loads the kernels) and of a
    second one (new graph objects), peak resident memory of that process (VmHWM).
+5. Map-to-map scale: two maps of N objects (50 % overlap), new graph objects every call, N =
+   10k / 20k / 50k / 90k, each N in a fresh process (median, min, max; peak memory); the time
+   ratio 90k / 10k; two maps of 500,000 objects (`--only scale`, `--scale-sizes`,
+   `--scale-large`).
 
 Writes the tables to results/speed_benchmark.md, or docs/speed_benchmark.md with --update-docs.
 KISS-Matcher is used when `kiss_matcher` is importable (`pip install kiss-matcher`).
@@ -57,7 +61,7 @@ BURST = 3
 #: The plain numpy pipeline: one burst per set (it takes seconds at m = 10,000).
 REFERENCE = "sgloc numpy reference"
 #: The parts of the benchmark (`--only`).
-PARTS = ("register", "threads", "startup", "maps")
+PARTS = ("register", "threads", "startup", "maps", "scale")
 
 
 def numpy_reference(src, dst, rng):
@@ -323,6 +327,116 @@ def run_maps(sizes: list[int], cap_gb: float, second_below: int = 50_000) -> lis
     return rows
 
 
+_SCALE = """
+import json, sys, time
+import numpy as np
+from sgloc import localize
+from sgloc.geometry import transform_error
+from sgloc.sim.object_world import make_two_robot_scene
+
+
+def scene(n):
+    # Robots see whole cross streets (view radius 130 m): about 0.47 objects per metre of street.
+    return make_two_robot_scene(seed=0, overlap=0.5, stretch=n / 0.47, view_radius=130.0)
+
+
+def peak_mb():
+    for line in open("/proc/self/status"):  # VmHWM: this process's peak resident set
+        if line.startswith("VmHWM"):
+            return int(line.split()[1]) / 1e3
+
+
+n, reps = int(sys.argv[1]), int(sys.argv[2])
+small = scene(2000)
+localize(small.query, small.target, seed=0, scope="local")  # loads the kernels (not timed)
+s = scene(n)
+out = {"n_query": len(s.query), "n_target": len(s.target), "base_mb": peak_mb(), "s": []}
+for _ in range(reps):
+    # New graph objects every call: nothing computed for the last call is reused.
+    q, t = s.query.subgraph(np.arange(len(s.query))), s.target.subgraph(np.arange(len(s.target)))
+    t0 = time.perf_counter()
+    res = localize(q, t, seed=0)
+    out["s"].append(time.perf_counter() - t0)
+    out["timings"] = res.timings
+out["success"] = bool(res.success)
+if res.transform is not None:
+    out["t_err"] = float(transform_error(res.transform, s.T_target_query)[0])
+out["n_candidates"], out["n_survivors"] = len(res.candidates), len(res.survivors)
+out["peak_mb"] = peak_mb()
+print(json.dumps(out))
+"""
+
+#: Map-to-map goals: 90k objects per map in at most this many seconds and MB, time ratio
+#: 90k / 10k at most SCALE_RATIO.
+SCALE_GOAL_S, SCALE_GOAL_MB, SCALE_RATIO = 3.0, 1000.0, 15.0
+
+
+def run_scale(sizes: list[int], reps: int, large: int) -> list[dict]:
+    """Each map size in a fresh process: `reps` calls on new graph objects (`large`: one)."""
+    rows = []
+    for n, r in [(n, reps) for n in sizes] + ([(large, 1)] if large else []):
+        res = subprocess.run([sys.executable, "-c", _SCALE, str(n), str(r)],
+                             capture_output=True, text=True)  # fmt: skip
+        if res.returncode == 0:
+            rows.append({"n": n, **json.loads(res.stdout.strip().splitlines()[-1])})
+        else:
+            rows.append({"n": n, "error": (res.stderr.strip().splitlines() or ["?"])[-1][:120]})
+    return rows
+
+
+def report_scale(rows: list[dict], args) -> list[str]:
+    """The map-to-map table and its goals."""
+    reps = args.scale_reps
+    sizes = " ".join(str(n) for n in args.scale_sizes)
+    lines = ["## Map to map at scale", "",
+             f"Command: `python -m benchmarks.speed --only scale --scale-sizes {sizes} "
+             f"--scale-reps {reps} --scale-large {args.scale_large}` "
+             f"({time.strftime('%Y-%m-%d')}). "
+             "`localize(query, target)` with default settings on two generated object maps of "
+             "N objects each (`sgloc.sim.object_world`, 50 % overlap, view radius 130 m), new "
+             f"graph objects every call (nothing cached), {reps} calls per size in a fresh "
+             "process after one untimed call on small maps (kernels loaded); the largest size "
+             "once. Wall seconds median (min – max); peak memory: the process's peak resident "
+             "set (VmHWM, including about 200 MB of Python, numpy, scipy and numba); bytes per "
+             "object: (peak - resident set before the calls) / objects of both maps.", "",
+             "| N per map | objects (query, target) | candidates, survivors | s median (min – max) "
+             "| peak MB | bytes / object | outcome (stages of the last call, s) |",
+             "|---|---|---|---|---|---|---|"]  # fmt: skip
+    med = {}
+    for r in rows:
+        if "error" in r:
+            lines.append(f"| {r['n']:,} | - | - | - | - | - | {r['error']} |")
+            continue
+        med[r["n"]] = float(np.median(r["s"]))
+        per = (r["peak_mb"] - r["base_mb"]) * 1e6 / (r["n_query"] + r["n_target"])
+        res = ("localized" if r["success"] else "not localized") + (
+            f", t_err {r['t_err']:.2f} m" if "t_err" in r else ""
+        )
+        stages = ", ".join(f"{k} {v:.2f}" for k, v in r["timings"].items())
+        lines.append(f"| {r['n']:,} | {r['n_query']:,}, {r['n_target']:,} | "
+                     f"{r['n_candidates']:,}, {r['n_survivors']:,} | {_mmm(r['s'])} | "
+                     f"{r['peak_mb']:.0f} | {per:.0f} | {res} ({stages}) |")  # fmt: skip
+    out = []
+    big = next((r for r in rows if r["n"] == 90_000 and "error" not in r), None)
+    if big is not None:
+        out.append(
+            f"- 90,000 objects per map: {med[90_000]:.2f} s median (<= {SCALE_GOAL_S:g} s: "
+            f"{_verdict(med[90_000] <= SCALE_GOAL_S)}), peak {big['peak_mb']:.0f} MB "
+            f"(<= {SCALE_GOAL_MB:g} MB: {_verdict(big['peak_mb'] <= SCALE_GOAL_MB)})."
+        )
+    if 90_000 in med and 10_000 in med:
+        ratio = med[90_000] / med[10_000]
+        out.append(f"- time ratio 90k / 10k: {ratio:.1f} (<= {SCALE_RATIO:g}: "
+                   f"{_verdict(ratio <= SCALE_RATIO)}).")  # fmt: skip
+    for r in rows:
+        if r["n"] > 90_000:
+            done = "error" not in r
+            out.append(f"- {r['n']:,} objects per map: "
+                       + (f"completes in {med[r['n']]:.0f} s, peak {r['peak_mb']:.0f} MB."
+                          if done else f"did not complete ({r['error']})."))  # fmt: skip
+    return lines + ["", *out, ""]
+
+
 def _mmm(v) -> str:
     v = np.asarray(v, float)
     return f"{np.median(v):.3g} ({v.min():.3g} – {v.max():.3g})"
@@ -489,6 +603,8 @@ def report(reg, threads, startup, cli, maps, args) -> list[str]:
         lines += report_startup(startup, cli)
     if maps:
         lines += report_maps(maps, args.cap_gb)
+    if args.scale_rows:
+        lines += report_scale(args.scale_rows, args)
     return lines
 
 
@@ -500,6 +616,9 @@ def main() -> None:
     ap.add_argument("--no-maps", action="store_true")
     ap.add_argument("--maps", type=int, nargs="*", default=[20000, 100000])
     ap.add_argument("--cap-gb", type=float, default=6.0)
+    ap.add_argument("--scale-sizes", type=int, nargs="*", default=[10_000, 20_000, 50_000, 90_000])
+    ap.add_argument("--scale-reps", type=int, default=3)
+    ap.add_argument("--scale-large", type=int, default=500_000, help="0: skip")
     ap.add_argument("--load", action="store_true", help="a busy process during the BLAS test")
     ap.add_argument("--update-docs", action="store_true", help="write docs/speed_benchmark.md")
     ap.add_argument("--only", nargs="+", choices=PARTS, default=list(PARTS),
@@ -519,6 +638,10 @@ def main() -> None:
     args.loads.append(os.getloadavg()[0])
     maps = run_maps(args.maps, args.cap_gb) if "maps" in parts and not args.no_maps else []
     args.loads.append(os.getloadavg()[0])
+    args.scale_rows = []
+    if "scale" in parts:
+        args.scale_rows = run_scale(args.scale_sizes, args.scale_reps, args.scale_large)
+        args.loads.append(os.getloadavg()[0])
     text = "\n".join(report(reg, threads, startup, cli, maps, args))
     print(text)
     partial = parts != set(PARTS)

@@ -13,13 +13,14 @@ import numpy as np
 
 from sgloc.errors import InvalidGraphError, SglocError
 
-#: Most objects in one graph. Memory grows with the candidate matches m (m <= n_query with the
-#: default top-1 matching): rejection and acceptance each hold an m x m consistency graph as
-#: packed bits (m^2 / 8 bytes: 1.25 GB at m = 100,000, one at a time), and the descriptors are
-#: n x L x bins floats per graph (distance_histogram: 16 bins, 1.3 KB per vertex for 10
-#: classes); similarities are computed in blocks (8 MB). At this limit two maps localize in
-#: about 2 GB; the consistency pass is quadratic in m (tens of seconds at the limit).
-MAX_VERTICES = 100_000
+#: Most objects in one graph (a city's object map). Memory is linear in the objects: the
+#: descriptors are n x L x bins floats per graph (distance_histogram: 16 bins, 1 KB per object
+#: for 8 classes), candidate matching works class by class in blocks, and above
+#: `sgloc.consistency.ALL_PAIRS_LIMIT` candidates rejection checks pairs only within a radius
+#: and acceptance samples pairs; no n x n array is built on the default path. Time is
+#: dominated by the descriptor comparison, which compares every query object with every
+#: target object of its class.
+MAX_VERTICES = 1_000_000
 #: Most distinct classes in one graph (class ids themselves may be any integer in [0, MAX_LABEL]:
 #: the localizer renumbers the classes present to 0..L-1 before sizing anything by them).
 MAX_CLASSES = 64
@@ -147,8 +148,8 @@ def check_graph_arrays(
         )
     if len(pos) > MAX_VERTICES:
         raise InvalidGraphError(
-            f"{name}: {len(pos)} objects, more than the limit of {MAX_VERTICES}; split the map "
-            "into submaps or merge nearby objects."
+            f"{name}: {len(pos)} objects, more than the limit of {MAX_VERTICES:,}; split the "
+            "map into submaps or merge nearby objects."
         )
     pos = pos.astype(np.float64)
     finite = np.isfinite(pos).all(axis=1)
@@ -290,6 +291,8 @@ SETTINGS: dict[str, dict[str, Any]] = {
         "eta": _real(0.0, 1.0),
         "form": _choice("distance", "neighbor", what="the consistency form"),
         "bound": _choice("remaining", "literal", what="Alg. 1's removal bound"),
+        "scope": _choice("auto", "all", "local", what="which pairs of candidates are checked"),
+        "local_radius": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
     },
     "CliqueRejector": {
         "tau": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
