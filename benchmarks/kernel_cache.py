@@ -155,6 +155,13 @@ def check_neighbors() -> None:
     assert got[0].sum() > 100
     for a, b in zip(got, ref, strict=True):
         assert np.array_equal(a, b), "near counts"
+    from sgloc.descriptors import DistanceHistogramDescriptor
+    from sgloc.kernels.neighbors import distance_histograms
+
+    desc = DistanceHistogramDescriptor()
+    got = distance_histograms(pts, labels.astype(np.int64), 5, 40.0, 16, 0.8, np.arange(300))
+    assert got.sum() > 300
+    assert np.array_equal(got, desc.histogram_reference(pts, labels, 5)), "distance histograms"
 
 
 def check_prune() -> None:
