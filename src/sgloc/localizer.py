@@ -27,6 +27,7 @@ from sgloc.estimation import (
 )
 from sgloc.graph import SemanticGraph
 from sgloc.matching import match_descriptors, match_flagged
+from sgloc.prepared import PreparedMap, prepare
 from sgloc.rejection import make_rejector
 from sgloc.verification import verify_small_query
 
@@ -100,19 +101,27 @@ class Localizer:
         self.descriptor = make_descriptor(self.config.descriptor, **self.config.descriptor_params)
         self.rejector = make_rejector(self.config.rejection, **self.config.rejection_params)
 
+    def prepare(self, target: SemanticGraph) -> PreparedMap:
+        """`target` prepared for this localizer's calls (`sgloc.prepared`): its canonical form,
+        descriptors and matching blocks built once; pass it where a target graph goes."""
+        return prepare(target, self.config)
+
     def __call__(
         self,
         query: SemanticGraph,
-        target: SemanticGraph,
+        target: SemanticGraph | PreparedMap,
         rng: np.random.Generator | int | None = 0,
         clock: Callable[[], float] = time.perf_counter,
     ) -> LocalizationResult:
         """Localize `query` in `target`; `clock` (seconds) times the stages (e.g.
-        time.thread_time for CPU time)."""
+        time.thread_time for CPU time). `target` may be a PreparedMap (the same result)."""
         _check_graph(query, "query")
-        _check_graph(target, "target")
         # Canonical vertex order and class ids 0..L-1 (sgloc.canonical); undone by restore().
-        canonical = CanonicalPair(query, target, self.config)
+        canonical = target.pair(query, self.config) if isinstance(target, PreparedMap) else None
+        if canonical is None:  # a graph, or a query with a class the prepared map lacks
+            target = target.graph if isinstance(target, PreparedMap) else target
+            _check_graph(target, "target")
+            canonical = CanonicalPair(query, target, self.config)
         query, target, cfg = canonical.query, canonical.target, canonical.config
         rng = np.random.default_rng(rng)
         timings: dict[str, float] = {}
@@ -120,14 +129,15 @@ class Localizer:
 
         n_classes = max(query.n_classes, target.n_classes)
         dq = self.descriptor(query, n_classes, rng)
-        dt = self.descriptor(target, n_classes, rng)
+        dt = canonical.target_descriptors  # None unless prepared
+        dt = self.descriptor(target, n_classes, rng) if dt is None else dt
         t1 = clock()
         timings["descriptors"] = t1 - t0
 
         # Also flags the candidates the acceptance test counts (its ratio test): one pass.
         flag_ratio = cfg.acceptance.ratio_for(len(query))
         candidates, scores, distinct = match_flagged(
-            dq, dt, query.labels, target.labels, cfg.matching, flag_ratio
+            dq, dt, query.labels, target.labels, cfg.matching, flag_ratio, canonical.target_blocks
         )
         t2 = clock()
         timings["matching"] = t2 - t1
@@ -325,7 +335,7 @@ def _tilt_reason(tilt: float, max_tilt: float) -> str:
 
 def localize(
     query: SemanticGraph,
-    target: SemanticGraph,
+    target: SemanticGraph | PreparedMap,
     descriptor: str | None = None,
     rejection: str | None = None,
     ransac_threshold: float | None = None,
@@ -339,7 +349,8 @@ def localize(
     """Find T_target_query, the rigid transform from `query`'s frame into `target`'s.
 
     Args:
-        query, target: the two robots' semantic graphs (positions in metres).
+        query, target: the two robots' semantic graphs (positions in metres); `target` may be
+            a PreparedMap (`sgloc.prepare`) for repeated queries against one map.
         descriptor: "distance_histogram" (default) | "triangles" | "histogram" (the paper's) |
             "random_walk" | "fast".
         rejection: "neighbor" (default; the paper's Alg. 1) | "none" (RANSAC alone) | others

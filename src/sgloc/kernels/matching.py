@@ -79,6 +79,39 @@ def _insert(best_s: np.ndarray, best_j: np.ndarray, n: int, s: float, j: int) ->
 
 
 @njit(cache=True, nogil=True)
+def class_blocks(
+    T: np.ndarray, order_t: np.ndarray, sorted_t: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The target side of `top_k_in_blocks`, built once per target: (blocks, block_class,
+    block_start). Per class (ascending), its rows of T (n,d) normalised and transposed into
+    one C-ordered (d, n_c) buffer, stored flat one after the other in `blocks`;
+    block_class (b,) its label, block_start (b+1,) its first position in sorted_t."""
+    n, d = T.shape
+    inv_t = inverse_norms(T)
+    blocks = np.empty(n * d)
+    n_blocks = 0
+    for j in range(n):
+        n_blocks += j == 0 or sorted_t[j] != sorted_t[j - 1]
+    block_class = np.empty(n_blocks, dtype=np.int64)
+    block_start = np.empty(n_blocks + 1, dtype=np.int64)
+    c = -1
+    for j in range(n):
+        if j == 0 or sorted_t[j] != sorted_t[j - 1]:
+            c += 1
+            block_class[c], block_start[c] = sorted_t[j], j
+    block_start[n_blocks] = n
+    for c in range(n_blocks):
+        b, b_end = block_start[c], block_start[c + 1]
+        Tt = blocks[b * d : b_end * d].reshape((d, b_end - b))
+        for j in range(b_end - b):
+            row = order_t[b + j]
+            w = inv_t[row]
+            for f in range(d):
+                Tt[f, j] = T[row, f] * w
+    return blocks, block_class, block_start
+
+
+@njit(cache=True, nogil=True)
 def top_k_same_class(
     Q: np.ndarray,
     T: np.ndarray,
@@ -102,8 +135,28 @@ def top_k_same_class(
     Returns (query idx, target idx, score, flag), ordered by query, then score descending,
     then target; among equal scores the lower target index ranks first.
     """
+    blocks, block_class, block_start = class_blocks(T, order_t, sorted_t)
+    return top_k_in_blocks(Q, order_q, sorted_q, blocks, block_class, block_start, order_t,
+                           k, min_sim, max_ratio, flag_ratio)  # fmt: skip
+
+
+@njit(cache=True, nogil=True)
+def top_k_in_blocks(
+    Q: np.ndarray,
+    order_q: np.ndarray,
+    sorted_q: np.ndarray,
+    blocks: np.ndarray,
+    block_class: np.ndarray,
+    block_start: np.ndarray,
+    order_t: np.ndarray,
+    k: int,
+    min_sim: float,
+    max_ratio: float,
+    flag_ratio: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`top_k_same_class` on the target's `class_blocks` (kept for many queries)."""
     n_q, d = Q.shape
-    inv_q, inv_t = inverse_norms(Q), inverse_norms(T)
+    inv_q = inverse_norms(Q)
     out_j = np.full((n_q, k), -1, dtype=np.int64)
     out_s = np.zeros((n_q, k))
     out_n = np.zeros(n_q, dtype=np.int64)
@@ -112,27 +165,21 @@ def top_k_same_class(
     qn = np.empty(d)
     nz = np.empty(d, dtype=np.int64)
     best_s, best_j = np.empty(k), np.empty(k, dtype=np.int64)
-    a, b = 0, 0
-    while a < order_q.shape[0] and b < order_t.shape[0]:
-        if sorted_q[a] < sorted_t[b]:
+    a, c = 0, 0
+    while a < order_q.shape[0] and c < block_class.shape[0]:
+        if sorted_q[a] < block_class[c]:
             a += 1
             continue
-        if sorted_q[a] > sorted_t[b]:
-            b += 1
+        if sorted_q[a] > block_class[c]:
+            c += 1
             continue
-        c = sorted_q[a]
-        a_end, b_end = a, b
-        while a_end < order_q.shape[0] and sorted_q[a_end] == c:
+        a_end = a
+        while a_end < order_q.shape[0] and sorted_q[a_end] == block_class[c]:
             a_end += 1
-        while b_end < order_t.shape[0] and sorted_t[b_end] == c:
-            b_end += 1
+        b, b_end = block_start[c], block_start[c + 1]
         n_t = b_end - b
         it = order_t[b:b_end]
-        Tt = np.empty((d, n_t))  # the class's normalised target rows, transposed
-        for j in range(n_t):
-            w = inv_t[it[j]]
-            for f in range(d):
-                Tt[f, j] = T[it[j], f] * w
+        Tt = blocks[b * d : b_end * d].reshape((d, n_t))  # the class's rows, transposed
         sim = np.empty(n_t)
         kk = min(k, n_t)
         for r in range(a, a_end):
@@ -168,7 +215,7 @@ def top_k_same_class(
                     out_j[i, m], out_s[i, m] = it[best_j[h]], best_s[h]
                     m += 1
             out_n[i] = m
-        a, b = a_end, b_end
+        a, c = a_end, c + 1
     total = out_n.sum()
     q = np.empty(total, dtype=np.int64)
     t = np.empty(total, dtype=np.int64)
