@@ -159,7 +159,8 @@ def check_neighbors() -> None:
     from sgloc.kernels.neighbors import distance_histograms
 
     desc = DistanceHistogramDescriptor()
-    got = distance_histograms(pts, labels.astype(np.int64), 5, 40.0, 16, 0.8, np.arange(300))
+    rows = np.arange(300)
+    got = distance_histograms(pts, rows, pts, labels.astype(np.int64), 5, 40.0, 16, 0.8)
     assert got.sum() > 300
     assert np.array_equal(got, desc.histogram_reference(pts, labels, 5)), "distance histograms"
 

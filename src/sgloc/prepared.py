@@ -17,6 +17,7 @@ objects a second, normalised copy grouped by class for the matching kernel.
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -26,6 +27,8 @@ from sgloc.config import LocalizerConfig
 from sgloc.descriptors import DistanceHistogramDescriptor, RandomWalkDescriptor
 from sgloc.errors import SglocError
 from sgloc.graph import SemanticGraph
+from sgloc.kernels import use_compiled
+from sgloc.validation import check_graph_arrays
 
 #: The file format's name and version (`PreparedMap.save`).
 FORMAT = "sgloc.PreparedMap"
@@ -101,6 +104,120 @@ class PreparedMap:
             f"classes={len(self.classes)}, descriptor={self.config.descriptor!r})"
         )
 
+    # -- growth -----------------------------------------------------------------------------
+    def add(self, positions: np.ndarray, labels: np.ndarray) -> PreparedMap:
+        """Add objects (positions (k,3) metres in the map's frame, labels (k,) class ids) to
+        the map, in place; they get the vertex indices len(map) .. len(map) + k - 1. With the
+        default descriptor only the descriptors within its radius of the new objects change
+        (updated exactly: the same bits as preparing the grown map anew); other descriptors
+        are recomputed whole. Returns the map."""
+        pos, lab = check_graph_arrays("added objects", positions, labels)
+        if len(pos) == 0:
+            return self
+        old = (self.graph, self.order, self.classes, self.target, self.descriptors)
+        g = self.graph
+        grown = SemanticGraph(
+            np.concatenate([g.positions, pos]), np.concatenate([g.labels, lab]),
+            g.edge_radius, g.name,
+        )  # fmt: skip
+        self._set_graph(grown)
+        incremental = isinstance(self.descriptor, DistanceHistogramDescriptor) and isinstance(
+            old[4], np.ndarray
+        )
+        if incremental and use_compiled(len(grown)):
+            self._set_descriptors(self._grown_descriptors(*old[1:], pos, lab))
+        else:
+            self._set_descriptors(self._describe())
+        return self
+
+    def _grown_descriptors(
+        self,
+        old_order: np.ndarray,
+        old_classes: np.ndarray,
+        old_target: SemanticGraph,
+        old_rows: np.ndarray,
+        pos: np.ndarray,
+        lab: np.ndarray,
+    ) -> np.ndarray:
+        """The grown map's canonical descriptor rows from the old ones: columns moved to the
+        new class table, the new objects' contributions added to the old rows within the
+        radius, the new objects' rows computed, all put in the new canonical order. Sums of
+        the descriptor's weights are exact, so this equals computing them anew."""
+        from sgloc.kernels.neighbors import distance_histograms, near_class_counts
+
+        desc, L = self.descriptor, len(self.classes)
+        nb, radius, taper = int(desc.n_bins), float(desc.radius), float(desc.taper)
+        n_old = len(old_target)
+        rows = np.zeros((n_old + len(pos), L * nb))
+        cols = (np.searchsorted(self.classes, old_classes)[:, None] * nb + np.arange(nb)).ravel()
+        rows[np.arange(n_old)[:, None], cols[None, :]] = old_rows
+        p_old = np.ascontiguousarray(old_target.positions)
+        l_old = np.searchsorted(self.classes, old_classes[old_target.labels])
+        l_new = np.searchsorted(self.classes, lab)
+        none = np.zeros(0)
+        near = near_class_counts(p_old, pos, np.zeros(len(pos), np.int64), 1, radius, none)[0]
+        hit = np.flatnonzero(near[:, 0] > 0)  # old objects within the radius of a new one
+        args = (L, radius, nb, taper)
+        rows[hit] += distance_histograms(p_old[hit], np.full(len(hit), -1), pos, l_new, *args)
+        local = np.concatenate([p_old[hit], pos])
+        local_labels = np.concatenate([l_old[hit], l_new])
+        self_index = len(hit) + np.arange(len(pos))
+        rows[n_old:] = distance_histograms(pos, self_index, local, local_labels, *args)
+        # Row of each caller index: old objects at their old canonical place, then the new.
+        where = np.empty(n_old + len(pos), dtype=np.int64)
+        where[old_order] = np.arange(n_old)
+        where[n_old:] = n_old + np.arange(len(pos))
+        return rows[where[self.order]]
+
+    # -- files ------------------------------------------------------------------------------
+    def save(self, path: str | Path) -> Path:
+        """Write the prepared map to one `.npz` file (numpy arrays, and a JSON header with the
+        format version and the config it was prepared for); returns the path. Descriptors are
+        stored, so loading skips their computation."""
+        path = Path(path)
+        meta = {
+            "format": FORMAT,
+            "version": VERSION,
+            "name": self.graph.name,
+            "edge_radius": self.graph.edge_radius,
+            "descriptor_settings": self.descriptor_settings(),
+            "config": _plain(self.config.to_dict()),
+        }
+        arrays = {"positions": self.graph.positions, "labels": self.graph.labels}
+        if isinstance(self.descriptors, np.ndarray):
+            arrays["descriptors"] = self.descriptors
+        with path.open("wb") as f:
+            np.savez(f, meta=np.array(json.dumps(meta)), **arrays)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path, config: LocalizerConfig | None = None) -> PreparedMap:
+        """Read a map written by `save`. `config`: the localizer config it will serve; its
+        descriptor must be the one the map was prepared for (PreparedMapError else). Without
+        it, the saved config is used."""
+        meta, arrays = _read(Path(path))
+        saved = LocalizerConfig.from_dict(meta["config"])
+        if config is not None:
+            mine = meta["descriptor_settings"]
+            theirs = descriptor_settings(config, float(meta["edge_radius"]))
+            if theirs != mine:
+                raise PreparedMapError(
+                    f"{path}: prepared for descriptor {mine}, the given config uses {theirs}; "
+                    "load it without a config, or prepare the map again with this config."
+                )
+        graph = SemanticGraph(arrays["positions"], arrays["labels"], float(meta["edge_radius"]),
+                              meta["name"])  # fmt: skip
+        out = cls.__new__(cls)
+        out.config = config or saved
+        out.descriptor = out.config.descriptor_config
+        out._set_graph(graph)
+        rows = arrays.get("descriptors")
+        expected = (len(graph), len(out.classes) * getattr(out.descriptor, "n_bins", 0))
+        if rows is None or rows.shape != expected or rows.dtype != np.float64:
+            rows = out._describe()  # not stored (sparse descriptors): computed anew
+        out._set_descriptors(rows)
+        return out
+
     def descriptor_settings(self) -> dict[str, Any]:
         """What binds a localizer to this map: the descriptor's name and parameters and the
         graph's edge radius (m)."""
@@ -137,6 +254,34 @@ def descriptor_settings(config: LocalizerConfig, edge_radius: float) -> dict[str
     return {"descriptor": d.name, "params": params, "edge_radius": float(edge_radius)}
 
 
+def _plain(value: Any) -> Any:
+    """`value` with numpy scalars and tuples made JSON values."""
+    return json.loads(json.dumps(value, default=lambda v: v.item() if hasattr(v, "item") else v))
+
+
+def _read(path: Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """(header, arrays) of a prepared-map file; PreparedMapError when it is not one."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+        meta = json.loads(str(arrays.pop("meta")))
+    except (OSError, ValueError, KeyError) as e:
+        raise PreparedMapError(
+            f"{path}: not a prepared map file ({e}); write one with PreparedMap.save."
+        ) from None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise PreparedMapError(f"{path}: not a prepared map file; write one with PreparedMap.save.")
+    if meta.get("version") != VERSION:
+        raise PreparedMapError(
+            f"{path}: prepared map format version {meta.get('version')}, this sgloc reads "
+            f"version {VERSION}; prepare the map again from its graph."
+        )
+    for key in ("positions", "labels"):
+        if key not in arrays:
+            raise PreparedMapError(f"{path}: prepared map file without {key!r}.")
+    return meta, arrays
+
+
 def _matching_blocks(descriptors, labels: np.ndarray):
     """The matching kernel's class blocks of the map (`sgloc.matching.TargetBlocks`), or None
     when matching runs without them (sparse descriptors, or a map small enough for the numpy
@@ -153,4 +298,3 @@ def prepare(target: SemanticGraph, config: LocalizerConfig | None = None) -> Pre
 
 
 __all__ = ["PreparedMap", "PreparedMapError", "descriptor_settings", "prepare"]
-_ = DistanceHistogramDescriptor  # the descriptor `add` updates row by row

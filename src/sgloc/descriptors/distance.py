@@ -94,10 +94,10 @@ class DistanceHistogramDescriptor(Descriptor):
         if use_compiled(len(positions)):
             from sgloc.kernels.neighbors import distance_histograms
 
+            positions = np.ascontiguousarray(positions, dtype=np.float64)
             return distance_histograms(
-                np.ascontiguousarray(positions, dtype=np.float64),
-                np.asarray(labels, dtype=np.int64), n_classes, float(self.radius),
-                int(self.n_bins), float(self.taper), rows,
+                positions[rows], rows, positions, np.asarray(labels, dtype=np.int64),
+                n_classes, float(self.radius), int(self.n_bins), float(self.taper),
             )  # fmt: skip
         return self.histogram_reference(positions, labels, n_classes)[rows]
 

@@ -139,33 +139,36 @@ def _counts_in_cells(
 
 
 def distance_histograms(
-    positions: np.ndarray,
+    centres: np.ndarray,
+    self_index: np.ndarray,
+    points: np.ndarray,
     labels: np.ndarray,
     n_classes: int,
     radius: float,
     n_bins: int,
     taper: float,
-    rows: np.ndarray,
 ) -> np.ndarray:
-    """(len(rows), n_classes * n_bins) float64: for each object index in `rows`, the
+    """(n_centres, n_classes * n_bins) float64: at each of `centres` (n_centres,3), the
     distance histogram of `sgloc.descriptors.distance.DistanceHistogramDescriptor` over the
-    other objects of `positions` (n,3) / `labels` (n,) int64 closer than `radius` metres."""
-    out = np.zeros((len(rows), n_classes * n_bins))
-    if len(positions) < 2 or len(rows) == 0:
+    `points` (n,3) of `labels` (n,) int64 closer than `radius` metres, leaving out the point
+    `self_index[i]` of centre i (-1: none; a centre that is itself one of the points)."""
+    out = np.zeros((len(centres), n_classes * n_bins))
+    if len(points) == 0 or len(centres) == 0:
         return out
-    keys, x0, y0, cell, n_y = _cell_keys(positions, radius)
+    keys, x0, y0, cell, n_y = _cell_keys(points, radius)
     order = np.argsort(keys, kind="stable")  # numpy's sort (module docstring of the package)
     grid = (order, keys[order], x0, y0, cell, n_y)
     width = float(radius) / int(n_bins)
-    _histograms_in_cells(out, rows, positions, labels, float(radius), int(n_bins), width,
-                         float(taper), *grid)  # fmt: skip
+    _histograms_in_cells(out, centres, self_index, points, labels, float(radius), int(n_bins),
+                         width, float(taper), *grid)  # fmt: skip
     return out
 
 
 @njit(cache=True, nogil=True)
 def _histograms_in_cells(
     out: np.ndarray,
-    rows: np.ndarray,
+    centres: np.ndarray,
+    self_index: np.ndarray,
     points: np.ndarray,
     labels: np.ndarray,
     radius: float,
@@ -196,12 +199,15 @@ def _histograms_in_cells(
     scale = 1.0 / WEIGHT_QUANTUM
     top = n_bins - 1.0
     near2 = radius * radius * (1.0 + 1e-9)  # a loose first test; the exact one is d < radius
-    for r in range(rows.shape[0]):
-        i = rows[r]
-        qx, qy, qz = points[i, 0], points[i, 1], points[i, 2]
-        cx = np.int64(np.floor((qx - x0) / cell)) + 1
-        cy = np.int64(np.floor((qy - y0) / cell)) + 1
+    for r in range(centres.shape[0]):
+        qx, qy, qz = centres[r, 0], centres[r, 1], centres[r, 2]
+        fx, fy = np.floor((qx - x0) / cell) + 1, np.floor((qy - y0) / cell) + 1
+        if not (fx >= 0 and fx <= n_x and fy >= 0 and fy <= n_y - 1):
+            continue  # a cell away from every point: nothing within the radius
+        cx, cy = np.int64(fx), np.int64(fy)
         for dx_cell in range(-1, 2):
+            if cx + dx_cell < 0 or cx + dx_cell > n_x:
+                continue
             lo_key = (cx + dx_cell) * n_y + max(cy - 1, 0)
             hi_key = (cx + dx_cell) * n_y + min(cy + 1, n_y - 1)
             if dense:
@@ -210,7 +216,7 @@ def _histograms_in_cells(
                 lo = _first_at_least(sorted_keys, lo_key)
                 hi = _first_at_least(sorted_keys, hi_key + 1)
             for s in range(lo, hi):
-                if order[s] == i:
+                if order[s] == self_index[r]:
                     continue
                 dx, dy, dz = qx - px[s], qy - py[s], qz - pz[s]
                 d2 = dx * dx + dy * dy + dz * dz
