@@ -149,8 +149,8 @@ class PreparedMap:
         nb, radius, taper = int(desc.n_bins), float(desc.radius), float(desc.taper)
         n_old = len(old_target)
         rows = np.zeros((n_old + len(pos), L * nb))
-        cols = (np.searchsorted(self.classes, old_classes)[:, None] * nb + np.arange(nb)).ravel()
-        rows[np.arange(n_old)[:, None], cols[None, :]] = old_rows
+        moved = np.searchsorted(self.classes, old_classes)  # new column block of each old one
+        rows[:n_old].reshape(n_old, L, nb)[:, moved, :] = old_rows.reshape(n_old, -1, nb)
         p_old = np.ascontiguousarray(old_target.positions)
         l_old = np.searchsorted(self.classes, old_classes[old_target.labels])
         l_new = np.searchsorted(self.classes, lab)
@@ -202,8 +202,9 @@ class PreparedMap:
             theirs = descriptor_settings(config, float(meta["edge_radius"]))
             if theirs != mine:
                 raise PreparedMapError(
-                    f"{path}: prepared for descriptor {mine}, the given config uses {theirs}; "
-                    "load it without a config, or prepare the map again with this config."
+                    f"{path}: prepared for another descriptor than the given config's "
+                    f"({_differences(mine, theirs)}); load it without a config, or prepare "
+                    "the map again with this config."
                 )
         graph = SemanticGraph(arrays["positions"], arrays["labels"], float(meta["edge_radius"]),
                               meta["name"])  # fmt: skip
@@ -231,9 +232,9 @@ class PreparedMap:
         theirs = descriptor_settings(config, self.graph.edge_radius)
         if theirs != mine:
             raise PreparedMapError(
-                f"map {self.graph.name!r} was prepared for descriptor {mine}, the localizer "
-                f"uses {theirs}; prepare the map with the localizer's config "
-                "(sgloc.prepare(graph, config))."
+                f"map {self.graph.name!r} was prepared for another descriptor than the "
+                f"localizer's ({_differences(mine, theirs)}); prepare it with the localizer's "
+                "config: sgloc.prepare(graph, config) or Localizer(config).prepare(graph)."
             )
         query_classes = np.unique(query.labels)
         if not np.all(np.isin(query_classes, self.classes)):
@@ -252,6 +253,14 @@ def descriptor_settings(config: LocalizerConfig, edge_radius: float) -> dict[str
     d = config.descriptor_config
     params = json.loads(json.dumps(d.get_params(), default=float))
     return {"descriptor": d.name, "params": params, "edge_radius": float(edge_radius)}
+
+
+def _differences(prepared: dict[str, Any], other: dict[str, Any]) -> str:
+    """'radius: prepared 40.0, here 30.0; ...' for the settings that differ."""
+    flat = [(k, prepared[k], other[k]) for k in ("descriptor", "edge_radius")]
+    keys = sorted(set(prepared["params"]) | set(other["params"]))
+    flat += [(k, prepared["params"].get(k), other["params"].get(k)) for k in keys]
+    return "; ".join(f"{k}: prepared {a!r}, here {b!r}" for k, a, b in flat if a != b)
 
 
 def _plain(value: Any) -> Any:
