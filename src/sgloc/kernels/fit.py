@@ -12,6 +12,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from sgloc.kernels import watch_compiles
+
 
 @njit(cache=True, nogil=True, inline="always")
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -489,3 +491,6 @@ def irls_class_scaled(
         if change < 1e-9:
             break
     return T
+
+
+watch_compiles()  # an install's first compile is said (sgloc.kernels)

@@ -13,6 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from sgloc.kernels import watch_compiles
+
 
 @njit(cache=True, nogil=True)
 def inverse_norms(D: np.ndarray) -> np.ndarray:
@@ -37,15 +39,20 @@ def inverse_norms(D: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def _similarities(sim: np.ndarray, Tt: np.ndarray, x: np.ndarray, nz: np.ndarray) -> None:
+def _similarities(
+    sim: np.ndarray, blocks: np.ndarray, base: int, x: np.ndarray, nz: np.ndarray
+) -> None:
     """sim[j] = sum over the features f in nz (ascending) of x[f] * Tt[f, j], added in that
-    order; four features per pass over sim (one load and store of sim[j] per four terms)."""
+    order, Tt (d, n) = the C-ordered buffer at blocks[base:] (n = len(sim)); four features per
+    pass over sim (one load and store of sim[j] per four terms)."""
     sim[:] = 0.0
+    n = sim.shape[0]
     p = 0
     while p + 4 <= nz.shape[0]:
         f0, f1, f2, f3 = nz[p], nz[p + 1], nz[p + 2], nz[p + 3]
         x0, x1, x2, x3 = x[f0], x[f1], x[f2], x[f3]
-        r0, r1, r2, r3 = Tt[f0], Tt[f1], Tt[f2], Tt[f3]
+        r0, r1 = blocks[base + f0 * n :], blocks[base + f1 * n :]
+        r2, r3 = blocks[base + f2 * n :], blocks[base + f3 * n :]
         for j in range(sim.shape[0]):
             acc = sim[j]
             acc += x0 * r0[j]
@@ -56,7 +63,7 @@ def _similarities(sim: np.ndarray, Tt: np.ndarray, x: np.ndarray, nz: np.ndarray
         p += 4
     while p < nz.shape[0]:
         f0 = nz[p]
-        x0, r0 = x[f0], Tt[f0]
+        x0, r0 = x[f0], blocks[base + f0 * n :]
         for j in range(sim.shape[0]):
             sim[j] += x0 * r0[j]
         p += 1
@@ -101,13 +108,12 @@ def class_blocks(
             block_class[c], block_start[c] = sorted_t[j], j
     block_start[n_blocks] = n
     for c in range(n_blocks):
-        b, b_end = block_start[c], block_start[c + 1]
-        Tt = blocks[b * d : b_end * d].reshape((d, b_end - b))
-        for j in range(b_end - b):
+        b, n_c = block_start[c], block_start[c + 1] - block_start[c]
+        for j in range(n_c):
             row = order_t[b + j]
             w = inv_t[row]
             for f in range(d):
-                Tt[f, j] = T[row, f] * w
+                blocks[b * d + f * n_c + j] = T[row, f] * w
     return blocks, block_class, block_start
 
 
@@ -179,7 +185,6 @@ def top_k_in_blocks(
         b, b_end = block_start[c], block_start[c + 1]
         n_t = b_end - b
         it = order_t[b:b_end]
-        Tt = blocks[b * d : b_end * d].reshape((d, n_t))  # the class's rows, transposed
         sim = np.empty(n_t)
         kk = min(k, n_t)
         for r in range(a, a_end):
@@ -190,7 +195,7 @@ def top_k_in_blocks(
                 qn[f] = Q[i, f] * w
                 nz[n_nz] = f
                 n_nz += qn[f] != 0.0
-            _similarities(sim, Tt, qn, nz[:n_nz])
+            _similarities(sim, blocks, b * d, qn, nz[:n_nz])
             s1, s2, j1 = -np.inf, -np.inf, 0
             for j in range(n_t):
                 s = sim[j]
@@ -227,3 +232,6 @@ def top_k_in_blocks(
             q[p], t[p], s[p], flag[p] = i, out_j[i, h], out_s[i, h], out_f[i]
             p += 1
     return q, t, s, flag
+
+
+watch_compiles()  # an install's first compile is said (sgloc.kernels)

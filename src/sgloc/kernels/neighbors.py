@@ -18,6 +18,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from sgloc.kernels import watch_compiles
+
 #: Cells are this much wider than the radius, so that rounding in the cell index never puts
 #: two points within the radius more than one cell apart.
 _CELL_MARGIN = 1.0 + 2.0**-10
@@ -151,7 +153,8 @@ def distance_histograms(
     """(n_centres, n_classes * n_bins) float64: at each of `centres` (n_centres,3), the
     distance histogram of `sgloc.descriptors.distance.DistanceHistogramDescriptor` over the
     `points` (n,3) of `labels` (n,) int64 closer than `radius` metres, leaving out the point
-    `self_index[i]` of centre i (-1: none; a centre that is itself one of the points)."""
+    `self_index[i]` of centre i (-1: none; a centre that is itself one of the points). When
+    the centres are the points themselves, in order, each pair is measured once."""
     out = np.zeros((len(centres), n_classes * n_bins))
     if len(points) == 0 or len(centres) == 0:
         return out
@@ -159,8 +162,10 @@ def distance_histograms(
     order = np.argsort(keys, kind="stable")  # numpy's sort (module docstring of the package)
     grid = (order, keys[order], x0, y0, cell, n_y)
     width = float(radius) / int(n_bins)
+    # Each pair once, for both ends (the sums are exact: the same bits as twice).
+    half = len(centres) == len(points) and bool(np.all(self_index == np.arange(len(points))))
     _histograms_in_cells(out, centres, self_index, points, labels, float(radius), int(n_bins),
-                         width, float(taper), *grid)  # fmt: skip
+                         width, float(taper), half, *grid)  # fmt: skip
     return out
 
 
@@ -175,6 +180,7 @@ def _histograms_in_cells(
     n_bins: int,
     width: float,
     taper: float,
+    half: bool,
     order: np.ndarray,
     sorted_keys: np.ndarray,
     x0: float,
@@ -183,7 +189,8 @@ def _histograms_in_cells(
     n_y: int,
 ) -> None:
     """`distance_histograms` on the grid of `_cell_keys` (`order` sorts the keys), into out.
-    The arithmetic of each weight is the numpy reference's, operation for operation."""
+    The arithmetic of each weight is the numpy reference's, operation for operation. half:
+    the centres are the points; each pair (i < j) is measured once and counts at both ends."""
     n = points.shape[0]
     n_x = sorted_keys[-1] // n_y + 2
     px, py, pz = points[order, 0], points[order, 1], points[order, 2]
@@ -216,7 +223,8 @@ def _histograms_in_cells(
                 lo = _first_at_least(sorted_keys, lo_key)
                 hi = _first_at_least(sorted_keys, hi_key + 1)
             for s in range(lo, hi):
-                if order[s] == self_index[r]:
+                j = order[s]
+                if j == self_index[r] or (half and j < r):
                     continue
                 dx, dy, dz = qx - px[s], qy - py[s], qz - pz[s]
                 d2 = dx * dx + dy * dy + dz * dz
@@ -229,8 +237,16 @@ def _histograms_in_cells(
                 b = np.int64(u)
                 frac = u - b
                 t = 1.0 - taper * d / radius
+                w_lo = np.floor((1.0 - frac) * t * scale + 0.5) * WEIGHT_QUANTUM
+                w_hi = np.floor(frac * t * scale + 0.5) * WEIGHT_QUANTUM
+                b_hi = min(b + 1, n_bins - 1)
                 col = lab[s] * n_bins
-                out[r, col + b] += np.floor((1.0 - frac) * t * scale + 0.5) * WEIGHT_QUANTUM
-                out[r, col + min(b + 1, n_bins - 1)] += (
-                    np.floor(frac * t * scale + 0.5) * WEIGHT_QUANTUM
-                )
+                out[r, col + b] += w_lo
+                out[r, col + b_hi] += w_hi
+                if half:
+                    col = labels[r] * n_bins
+                    out[j, col + b] += w_lo
+                    out[j, col + b_hi] += w_hi
+
+
+watch_compiles()  # an install's first compile is said (sgloc.kernels)

@@ -22,6 +22,7 @@ from sgloc.estimation import (
     draw_triplets,
     finish,
 )
+from sgloc.kernels import watch_compiles
 from sgloc.kernels.fit import fit_model
 
 _BLOCK = 2_000_000  # as sgloc.estimation: hypotheses x matches per block
@@ -80,6 +81,16 @@ def _score(
     return float(-count), inlier_sum, count
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _set_pose(T: np.ndarray, R: np.ndarray, t: np.ndarray) -> None:
+    """T[:3, :3], T[:3, 3] = R, t, element by element (a slice assignment compiles numba's
+    shape-mismatch error formatting: seconds of first-use compile for nothing)."""
+    for a in range(3):
+        for b in range(3):
+            T[a, b] = R[a, b]
+        T[a, 3] = t[a]
+
+
 @njit(cache=True, nogil=True)
 def score_block(
     src: np.ndarray, dst: np.ndarray, samples: np.ndarray, thr2: float, msac: bool
@@ -112,7 +123,7 @@ def score_block(
         max_count = max(max_count, count)
         if not found or primary < best_p or (primary == best_p and secondary < best_s):
             best_p, best_s, found = primary, secondary, True
-            best_T[:3, :3], best_T[:3, 3] = R, t
+            _set_pose(best_T, R, t)
     return found, best_p, best_s, best_T, max_count
 
 
@@ -147,7 +158,7 @@ def score_pair_block(
         max_count = max(max_count, count)
         if not found or primary < best_p or (primary == best_p and secondary < best_s):
             best_p, best_s, found = primary, secondary, True
-            best_T[:3, :3], best_T[:3, 3] = R, t
+            _set_pose(best_T, R, t)
     return found, best_p, best_s, best_T, max_count
 
 
@@ -238,3 +249,6 @@ def _best_hypothesis(
             w = max_count / m
             needed = min(needed, _needed_draws(w, cfg.confidence, cfg.iterations, size))
     return best_T
+
+
+watch_compiles()  # an install's first compile is said (sgloc.kernels)
