@@ -12,6 +12,9 @@
    descriptors).
 3. Start-up: `import sgloc`; the first call in a fresh process with an empty numba cache vs a
    later process; `sgloc localize` on the two Airsim maps as a whole process (after one run).
+5. Prepared maps and the cold call (benchmarks/prepared_speed.py): Airsim maps with new graph
+   objects per call, one scan against prepared maps of 15,000 and up to 1,000,000 objects, a
+   fresh process on two 20,000-object maps, a fresh install's first-use compile.
 4. Maps end to end: `localize` on two generated maps of n vertices each (50 % overlap), in a
    fresh process under a memory cap: wall time of the first call (loads the kernels) and of a
    second one (new graph objects), peak resident memory of that process (VmHWM).
@@ -37,6 +40,7 @@ if __package__ in (None, ""):
 import numpy as np
 from threadpoolctl import ThreadpoolController, threadpool_limits
 
+from benchmarks import prepared_speed
 from benchmarks.peers.methods import kiss_matcher_method
 from sgloc.consistency import consistency_bool
 from sgloc.estimation import RansacConfig, irls_refine, ransac_reference, weighted_kabsch
@@ -57,7 +61,7 @@ BURST = 3
 #: The plain numpy pipeline: one burst per set (it takes seconds at m = 10,000).
 REFERENCE = "sgloc numpy reference"
 #: The parts of the benchmark (`--only`).
-PARTS = ("register", "threads", "startup", "maps")
+PARTS = ("register", "threads", "startup", "maps", "prepared")
 
 
 def numpy_reference(src, dst, rng):
@@ -489,6 +493,8 @@ def report(reg, threads, startup, cli, maps, args) -> list[str]:
         lines += report_startup(startup, cli)
     if maps:
         lines += report_maps(maps, args.cap_gb)
+    if getattr(args, "prepared", None):
+        lines += prepared_speed.report(args.prepared)
     return lines
 
 
@@ -518,6 +524,8 @@ def main() -> None:
     cli = run_cli(args.startup_runs + 2) if "startup" in parts else []
     args.loads.append(os.getloadavg()[0])
     maps = run_maps(args.maps, args.cap_gb) if "maps" in parts and not args.no_maps else []
+    args.loads.append(os.getloadavg()[0])
+    args.prepared = prepared_speed.run(args) if "prepared" in parts else None
     args.loads.append(os.getloadavg()[0])
     text = "\n".join(report(reg, threads, startup, cli, maps, args))
     print(text)

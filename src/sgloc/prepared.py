@@ -88,6 +88,8 @@ class PreparedMap:
         rng = np.random.default_rng(0)  # unused: the descriptor is deterministic
         return self.descriptor(self.target, len(self.classes), rng)
 
+    _accepted: LocalizerConfig | None = None  # the last config `pair` checked
+
     def _set_descriptors(self, descriptors) -> None:
         if isinstance(descriptors, np.ndarray):
             descriptors.flags.writeable = False
@@ -224,10 +226,8 @@ class PreparedMap:
         graph's edge radius (m)."""
         return descriptor_settings(self.config, self.graph.edge_radius)
 
-    def pair(self, query: SemanticGraph, config: LocalizerConfig) -> CanonicalPair | None:
-        """The canonical (query, map) pair carrying the prepared descriptors and matching
-        blocks, for a localizer with `config`; None when the query holds a class the map does
-        not (the class table then differs: localize against `graph` instead)."""
+    def _check(self, config: LocalizerConfig) -> None:
+        """PreparedMapError unless `config`'s descriptor is the one this map was prepared for."""
         mine = self.descriptor_settings()
         theirs = descriptor_settings(config, self.graph.edge_radius)
         if theirs != mine:
@@ -236,6 +236,14 @@ class PreparedMap:
                 f"localizer's ({_differences(mine, theirs)}); prepare it with the localizer's "
                 "config: sgloc.prepare(graph, config) or Localizer(config).prepare(graph)."
             )
+
+    def pair(self, query: SemanticGraph, config: LocalizerConfig) -> CanonicalPair | None:
+        """The canonical (query, map) pair carrying the prepared descriptors and matching
+        blocks, for a localizer with `config`; None when the query holds a class the map does
+        not (the class table then differs: localize against `graph` instead)."""
+        if config is not self._accepted:  # a localizer passes the same config every call
+            self._check(config)
+            self._accepted = config
         query_classes = np.unique(query.labels)
         if not np.all(np.isin(query_classes, self.classes)):
             return None
