@@ -162,11 +162,93 @@ def distance_histograms(
     order = np.argsort(keys, kind="stable")  # numpy's sort (module docstring of the package)
     grid = (order, keys[order], x0, y0, cell, n_y)
     width = float(radius) / int(n_bins)
-    # Each pair once, for both ends (the sums are exact: the same bits as twice).
-    half = len(centres) == len(points) and bool(np.all(self_index == np.arange(len(points))))
-    _histograms_in_cells(out, centres, self_index, points, labels, float(radius), int(n_bins),
-                         width, float(taper), half, *grid)  # fmt: skip
+    weights = (float(radius), int(n_bins), width, float(taper))
+    if len(centres) == len(points) and np.array_equal(self_index, np.arange(len(points))):
+        # Each pair once, for both ends (the sums are exact: the same bits as twice).
+        _pair_histograms(out, points, labels, *weights, *grid)
+    else:
+        _histograms_in_cells(out, centres, self_index, points, labels, *weights, *grid)
     return out
+
+
+@njit(cache=True, nogil=True)
+def _pair_histograms(
+    out: np.ndarray,
+    points: np.ndarray,
+    labels: np.ndarray,
+    radius: float,
+    n_bins: int,
+    width: float,
+    taper: float,
+    order: np.ndarray,
+    sorted_keys: np.ndarray,
+    x0: float,
+    y0: float,
+    cell: float,
+    n_y: int,
+) -> None:
+    """`distance_histograms` of every point over the others, each pair measured once: from
+    each point (in cell order) only the points after it in its own and the next cell of its
+    column, and the three cells of the next column (the other half of the 3 x 3 block sees it
+    from there)."""
+    n = points.shape[0]
+    n_x = sorted_keys[-1] // n_y + 2
+    px, py, pz = points[order, 0], points[order, 1], points[order, 2]
+    lab = labels[order]
+    n_cells = (n_x + 1) * n_y
+    dense = n_cells <= 8 * n + 4096
+    start = np.zeros(n_cells + 1 if dense else 1, dtype=np.int64)
+    if dense:
+        for s in range(n):
+            start[sorted_keys[s] + 1] += 1
+        for c in range(n_cells):
+            start[c + 1] += start[c]
+    for a in range(n):
+        key = sorted_keys[a]
+        cy = key % n_y
+        # This cell after a, then the next cell of the column (keys are consecutive).
+        hi_key = key + 1 if cy + 1 <= n_y - 1 else key
+        hi = start[hi_key + 1] if dense else _first_at_least(sorted_keys, hi_key + 1)
+        _pair_run(out, a, a + 1, hi, order, px, py, pz, lab, radius, n_bins, width, taper)
+        lo_key = key + n_y - 1 if cy >= 1 else key + n_y
+        hi_key = key + n_y + 1 if cy + 1 <= n_y - 1 else key + n_y
+        if dense:
+            lo, hi = start[lo_key], start[hi_key + 1]
+        else:
+            lo = _first_at_least(sorted_keys, lo_key)
+            hi = _first_at_least(sorted_keys, hi_key + 1)
+        _pair_run(out, a, lo, hi, order, px, py, pz, lab, radius, n_bins, width, taper)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _pair_run(out, a, lo, hi, order, px, py, pz, lab, radius, n_bins, width, taper) -> None:
+    """The pairs (a, s) for s in [lo, hi) of the cell-sorted points, counted at both ends."""
+    scale = 1.0 / WEIGHT_QUANTUM
+    top = n_bins - 1.0
+    near2 = radius * radius * (1.0 + 1e-9)
+    i = order[a]
+    for s in range(lo, hi):
+        dx, dy, dz = px[a] - px[s], py[a] - py[s], pz[a] - pz[s]
+        d2 = dx * dx + dy * dy + dz * dz
+        if not d2 <= near2:
+            continue
+        d = np.sqrt(d2)
+        if not d < radius:
+            continue
+        u = min(max(d / width - 0.5, 0.0), top)
+        b = np.int64(u)
+        frac = u - b
+        t = 1.0 - taper * d / radius
+        w_lo = np.floor((1.0 - frac) * t * scale + 0.5) * WEIGHT_QUANTUM
+        w_hi = np.floor(frac * t * scale + 0.5) * WEIGHT_QUANTUM
+        b_hi = min(b + 1, n_bins - 1)
+        j = order[s]
+        col = lab[s] * n_bins
+        out[i, col + b] += w_lo
+        out[i, col + b_hi] += w_hi
+        col = lab[a] * n_bins
+        out[j, col + b] += w_lo
+        out[j, col + b_hi] += w_hi
 
 
 @njit(cache=True, nogil=True)
@@ -180,7 +262,6 @@ def _histograms_in_cells(
     n_bins: int,
     width: float,
     taper: float,
-    half: bool,
     order: np.ndarray,
     sorted_keys: np.ndarray,
     x0: float,
@@ -189,8 +270,7 @@ def _histograms_in_cells(
     n_y: int,
 ) -> None:
     """`distance_histograms` on the grid of `_cell_keys` (`order` sorts the keys), into out.
-    The arithmetic of each weight is the numpy reference's, operation for operation. half:
-    the centres are the points; each pair (i < j) is measured once and counts at both ends."""
+    The arithmetic of each weight is the numpy reference's, operation for operation."""
     n = points.shape[0]
     n_x = sorted_keys[-1] // n_y + 2
     px, py, pz = points[order, 0], points[order, 1], points[order, 2]
@@ -223,8 +303,7 @@ def _histograms_in_cells(
                 lo = _first_at_least(sorted_keys, lo_key)
                 hi = _first_at_least(sorted_keys, hi_key + 1)
             for s in range(lo, hi):
-                j = order[s]
-                if j == self_index[r] or (half and j < r):
+                if order[s] == self_index[r]:
                     continue
                 dx, dy, dz = qx - px[s], qy - py[s], qz - pz[s]
                 d2 = dx * dx + dy * dy + dz * dz
@@ -243,10 +322,6 @@ def _histograms_in_cells(
                 col = lab[s] * n_bins
                 out[r, col + b] += w_lo
                 out[r, col + b_hi] += w_hi
-                if half:
-                    col = labels[r] * n_bins
-                    out[j, col + b] += w_lo
-                    out[j, col + b_hi] += w_hi
 
 
 watch_compiles()  # an install's first compile is said (sgloc.kernels)
