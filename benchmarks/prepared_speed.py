@@ -7,8 +7,8 @@
    interleaved between the maps; the time to prepare each map.
 3. A fresh process (kernels cached) localizing two 20,000-object maps read from files: wall
    time from the process start to the answer.
-4. A fresh install's first use: `sgloc warmup` and one default `localize` each with an empty
-   numba cache (NUMBA_CACHE_DIR), the compile notice they print and its total.
+4. A fresh install's first use: `sgloc warmup`, and the localization of 3. with an empty numba
+   cache (NUMBA_CACHE_DIR) each, the compile notice they print and its total.
 """
 
 from __future__ import annotations
@@ -144,10 +144,10 @@ print(time.perf_counter() - t0, res.success)
 """
 
 
-def run_fresh_process(n: int, runs: int) -> dict:
-    """Wall seconds of whole processes (interpreter start to the answer) localizing two maps of
-    n objects (50 % overlap) read from .npz files, the kernels already cached (one untimed run
-    first); also the seconds from the script's first line to the answer."""
+def run_cold(n: int, runs: int) -> tuple[dict, list[dict]]:
+    """Two maps of n objects (50 % overlap) written to .npz files, then: whole processes
+    (interpreter start to the answer) localizing them with the kernels cached (one untimed run
+    first), and a fresh install's first use (`first_use`)."""
     from sgloc.sim.object_world import make_two_robot_scene
 
     scene = make_two_robot_scene(seed=0, overlap=0.5, stretch=n / 0.47, view_radius=130.0)
@@ -166,24 +166,19 @@ def run_fresh_process(n: int, runs: int) -> dict:
                 out["wall"].append(wall)
                 out["inside"].append(float(inside))
                 out["ok"].append(ok == "True")
-    return out
+        first = first_use(files)
+    return out, first
 
 
-_FIRST_LOCALIZE = """
-import sgloc
-from sgloc.data import airsim_guo
-print(sgloc.localize(*airsim_guo()).success)
-"""
-
-
-def run_first_use() -> list[dict]:
-    """`sgloc warmup` and one default localize (Airsim maps), each in a fresh process with an
-    empty numba cache: wall seconds, and the compile notice (stderr) with its totals."""
+def first_use(files: list[str]) -> list[dict]:
+    """`sgloc warmup`, and a localization of the two map `files` (a problem large enough for
+    the compiled kernels), each in a fresh process with an empty numba cache: wall seconds, and
+    the compile notice (stderr) with its totals."""
     rows = []
     commands = {
         "`sgloc warmup` (every kernel)": [sys.executable, "-m", "sgloc", "warmup"],
-        "first `localize` (Airsim maps, default settings)": [sys.executable, "-c",
-                                                              _FIRST_LOCALIZE],
+        "first `localize` of the two 20,000-object maps (default settings)":
+            [sys.executable, "-c", _FRESH, *files],
     }  # fmt: skip
     for what, cmd in commands.items():
         with tempfile.TemporaryDirectory() as cache:
@@ -210,8 +205,7 @@ def run(args) -> dict:
     return {
         "airsim": run_airsim(args.reps * 10),
         "scans": run_scans(sizes, n_scans=10, rounds=max(args.reps, 2), prepares=2),
-        "fresh": run_fresh_process(20_000, args.startup_runs),
-        "first_use": run_first_use(),
+        "cold": run_cold(20_000, args.startup_runs),
         "max_vertices": MAX_VERTICES,
     }
 
@@ -267,7 +261,7 @@ def _report_scans(r: dict) -> list[str]:
 
 
 def _report_cold(r: dict) -> list[str]:
-    f = r["fresh"]
+    f, first = r["cold"]
     wall, inside = float(np.median(f["wall"])), float(np.median(f["inside"]))
     lines = [f"A fresh process localizing two maps of {f['n'][0]:,} and {f['n'][1]:,} objects "
              "(50 % overlap) read from .npz files, the kernels already in the cache: wall "
@@ -282,9 +276,9 @@ def _report_cold(r: dict) -> list[str]:
              "| run | wall s | kernels compiled | compile s (CPU s) |",
              "|---|---|---|---|"]  # fmt: skip
     notices = []
-    for row in r["first_use"]:
+    for row in first:
         lines.append(f"| {row['what']} | {row['wall']:.1f} | {row['kernels']} | "
                      f"{row['compile_s']} ({row['compile_cpu_s']}) |")  # fmt: skip
         notices += [f"    {line}" for line in row["notice"]]
-    return lines + ["", "The notice (first use of `localize`; `<cache>`: the cache folder):", "",
+    return lines + ["", "The notice (the first `localize`; `<cache>`: the cache folder):", "",
                     *notices[-2:], ""]  # fmt: skip
