@@ -15,6 +15,8 @@ reference and an incremental update of a few rows give the same bits.
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 from numba import njit
 
@@ -42,12 +44,31 @@ def near_class_counts(
     the sum of their `weights` (n,) (an empty `weights`: the second array stays zero)."""
     if len(points) == 0 or len(query) == 0:
         return np.zeros((len(query), n_classes)), np.zeros((len(query), n_classes))
+    grid = _grid(points, radius)
+    return _counts_in_cells(query, points, labels, n_classes, radius, weights, *grid)
+
+
+#: Grids of read-only point arrays met recently (a prepared map's objects, searched by every
+#: query): id -> (weak reference to the array, radius, grid).
+_GRIDS: dict[int, tuple] = {}
+_GRIDS_KEPT = 4
+
+
+def _grid(points: np.ndarray, radius: float) -> tuple:
+    """(order, sorted keys, x0, y0, cell, n_y) of `_cell_keys`; kept for read-only arrays."""
+    kept = _GRIDS.get(id(points))
+    if kept is not None and kept[0]() is points and kept[1] == radius:
+        return kept[2]
     keys, x0, y0, cell, n_y = _cell_keys(points, radius)
     # numpy's sort: numba's sort and search helpers are better kept out of cached kernels
     # (their generated symbols can clash with another cached kernel's in one process).
     order = np.argsort(keys, kind="stable")
     grid = (order, keys[order], x0, y0, cell, n_y)
-    return _counts_in_cells(query, points, labels, n_classes, radius, weights, *grid)
+    if not points.flags.writeable and points.base is None:  # a graph's own, frozen array
+        if len(_GRIDS) >= _GRIDS_KEPT:
+            _GRIDS.pop(next(iter(_GRIDS)))
+        _GRIDS[id(points)] = (weakref.ref(points), radius, grid)
+    return grid
 
 
 @njit(cache=True, nogil=True)
