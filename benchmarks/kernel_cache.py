@@ -40,12 +40,10 @@ from typing import Any
 import numpy as np
 
 import sgloc
+from sgloc import kernels
 
 #: The kernel modules under `sgloc.kernels` with compiled (cached) code.
-MODULES = (
-    "clique", "consistency", "fit", "matching", "neighbors",
-    "prune", "ransac", "runner_up", "spectral", "triangles",
-)  # fmt: skip
+MODULES = kernels.MODULES
 
 
 @contextlib.contextmanager
