@@ -155,6 +155,11 @@ def test_load_refuses_other_files(tmp_path, airsim):
     np.savez(tmp_path / "future.npz", meta=np.array(json.dumps(meta)), **arrays)
     with pytest.raises(PreparedMapError, match="version 99"):
         PreparedMap.load(tmp_path / "future.npz")
+    meta["version"] = 1
+    del meta["edge_radius"]
+    np.savez(tmp_path / "broken.npz", meta=np.array(json.dumps(meta)), **arrays)
+    with pytest.raises(PreparedMapError, match="edge_radius"):
+        PreparedMap.load(tmp_path / "broken.npz")
 
 
 def test_refusals(airsim):

@@ -186,7 +186,7 @@ class PreparedMap:
             "config": _plain(self.config.to_dict()),
         }
         arrays = {"positions": self.graph.positions, "labels": self.graph.labels}
-        if isinstance(self.descriptors, np.ndarray):
+        if isinstance(self.descriptor, DistanceHistogramDescriptor):
             arrays["descriptors"] = self.descriptors
         with path.open("wb") as f:
             np.savez(f, meta=np.array(json.dumps(meta)), **arrays)
@@ -215,9 +215,8 @@ class PreparedMap:
         out.descriptor = out.config.descriptor_config
         out._set_graph(graph)
         rows = arrays.get("descriptors")
-        expected = (len(graph), len(out.classes) * getattr(out.descriptor, "n_bins", 0))
-        if rows is None or rows.shape != expected or rows.dtype != np.float64:
-            rows = out._describe()  # not stored (sparse descriptors): computed anew
+        if not _stored(out.descriptor, rows, len(graph), len(out.classes)):
+            rows = out._describe()  # not stored (another descriptor): computed anew
         out._set_descriptors(rows)
         return out
 
@@ -271,6 +270,14 @@ def _differences(prepared: dict[str, Any], other: dict[str, Any]) -> str:
     return "; ".join(f"{k}: prepared {a!r}, here {b!r}" for k, a, b in flat if a != b)
 
 
+def _stored(descriptor, rows: np.ndarray | None, n: int, n_classes: int) -> bool:
+    """Whether `rows` from a file are the default descriptor's rows of this map (shape and
+    type; the file's header named the same descriptor settings)."""
+    if not isinstance(descriptor, DistanceHistogramDescriptor) or rows is None:
+        return False
+    return rows.dtype == np.float64 and rows.shape == (n, n_classes * int(descriptor.n_bins))
+
+
 def _plain(value: Any) -> Any:
     """`value` with numpy scalars and tuples made JSON values."""
     return json.loads(json.dumps(value, default=lambda v: v.item() if hasattr(v, "item") else v))
@@ -296,6 +303,12 @@ def _read(path: Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     for key in ("positions", "labels"):
         if key not in arrays:
             raise PreparedMapError(f"{path}: prepared map file without {key!r}.")
+    for key, kind in (("name", str), ("edge_radius", float), ("descriptor_settings", dict),
+                      ("config", dict)):  # fmt: skip
+        if not isinstance(meta.get(key), kind):
+            raise PreparedMapError(
+                f"{path}: prepared map header without a valid {key!r}; save the map again."
+            )
     return meta, arrays
 
 
