@@ -206,7 +206,7 @@ def top_k_in_blocks(
             if kk == 1:
                 best_s[0], best_j[0] = s1, j1
             else:
-                n = 0
+                n = np.int64(0)  # one specialisation of _insert, not two
                 for j in range(n_t):
                     n = _insert(best_s[:kk], best_j[:kk], n, sim[j], j)
             if test_ratio and n_t > 1:
