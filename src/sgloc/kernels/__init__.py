@@ -79,16 +79,14 @@ def cache_dir() -> Path:
 
 def compiled_marker() -> Path:
     """The file whose presence says this install's kernels have compiled into `cache_dir()`
-    (named after the kernel sources' paths, sizes and times, sgloc's and numba's versions: a
+    (named after the kernel sources' paths, sizes and times, numba's and Python's versions: a
     new install or an upgrade compiles, and is said, anew)."""
     import hashlib
 
     import numba
 
-    from sgloc import __version__
-
     here = Path(__file__).resolve().parent
-    parts = [__version__, numba.__version__, str(here)]
+    parts = [numba.__version__, sys.version, str(here)]
     for name in MODULES:
         st = (here / f"{name}.py").stat()
         parts.append(f"{name}:{st.st_size}:{st.st_mtime_ns}")
