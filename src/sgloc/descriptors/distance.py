@@ -36,11 +36,11 @@ def neighbour_pairs(positions: np.ndarray, radius: float) -> tuple[np.ndarray, n
     return pairs[keep].astype(np.int64), d[keep]
 
 
-def soft_bins(values: np.ndarray, width: float, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
-    """Linear (tent) soft binning of `values` >= 0 into `n_bins` bins of `width`, bin b centred
-    at (b + 0.5) * width: (bins (v,2) int, weights (v,2)), weights summing to 1 per value.
-    Values below the first centre or beyond the last fall wholly in the end bin."""
-    u = np.clip(values / width - 0.5, 0.0, n_bins - 1.0)
+def soft_bins(values: np.ndarray, per_bin: float, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
+    """Linear (tent) soft binning of `values` >= 0 into `n_bins` bins of width 1 / per_bin,
+    bin b centred at (b + 0.5) / per_bin: (bins (v,2) int, weights (v,2)), weights summing to 1
+    per value. Values below the first centre or beyond the last fall wholly in the end bin."""
+    u = np.clip(values * per_bin - 0.5, 0.0, n_bins - 1.0)
     lo = u.astype(np.int64)  # u >= 0: truncation is floor
     frac = u - lo
     hi = np.minimum(lo + 1, n_bins - 1)
@@ -107,8 +107,8 @@ class DistanceHistogramDescriptor(Descriptor):
         """All rows by KD-tree pairs in numpy (the compiled kernel's reference)."""
         n, nb, R = len(positions), int(self.n_bins), float(self.radius)
         pairs, d = neighbour_pairs(positions, R)
-        bins, w = soft_bins(d, R / nb, nb)
-        w = w * (1.0 - self.taper * d / R)[:, None]
+        bins, w = soft_bins(d, nb / R, nb)
+        w = w * (1.0 - d * (float(self.taper) / R))[:, None]
         # Multiples of WEIGHT_QUANTUM: every bin's sum is exact, in any order of its terms.
         w = np.floor(w * (1.0 / WEIGHT_QUANTUM) + 0.5) * WEIGHT_QUANTUM
         i, j, lab = pairs[:, 0], pairs[:, 1], labels

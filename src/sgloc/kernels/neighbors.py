@@ -182,8 +182,9 @@ def distance_histograms(
     keys, x0, y0, cell, n_y = _cell_keys(points, radius)
     order = np.argsort(keys, kind="stable")  # numpy's sort (module docstring of the package)
     grid = (order, keys[order], x0, y0, cell, n_y)
-    width = float(radius) / int(n_bins)
-    weights = (float(radius), int(n_bins), width, float(taper))
+    # Multiplications, not divisions, per pair (the reference's arithmetic is the same).
+    r = float(radius)
+    weights = (r, int(n_bins), int(n_bins) / r, float(taper) / r)
     if len(centres) == len(points) and np.array_equal(self_index, np.arange(len(points))):
         # Each pair once, for both ends (the sums are exact: the same bits as twice).
         _pair_histograms(out, points, labels, *weights, *grid)
@@ -199,8 +200,8 @@ def _pair_histograms(
     labels: np.ndarray,
     radius: float,
     n_bins: int,
-    width: float,
-    taper: float,
+    per_bin: float,
+    slope: float,
     order: np.ndarray,
     sorted_keys: np.ndarray,
     x0: float,
@@ -230,7 +231,7 @@ def _pair_histograms(
         # This cell after a, then the next cell of the column (keys are consecutive).
         hi_key = key + 1 if cy + 1 <= n_y - 1 else key
         hi = start[hi_key + 1] if dense else _first_at_least(sorted_keys, hi_key + 1)
-        _pair_run(out, a, a + 1, hi, order, px, py, pz, lab, radius, n_bins, width, taper)
+        _pair_run(out, a, a + 1, hi, order, px, py, pz, lab, radius, n_bins, per_bin, slope)
         lo_key = key + n_y - 1 if cy >= 1 else key + n_y
         hi_key = key + n_y + 1 if cy + 1 <= n_y - 1 else key + n_y
         if dense:
@@ -238,11 +239,11 @@ def _pair_histograms(
         else:
             lo = _first_at_least(sorted_keys, lo_key)
             hi = _first_at_least(sorted_keys, hi_key + 1)
-        _pair_run(out, a, lo, hi, order, px, py, pz, lab, radius, n_bins, width, taper)
+        _pair_run(out, a, lo, hi, order, px, py, pz, lab, radius, n_bins, per_bin, slope)
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _pair_run(out, a, lo, hi, order, px, py, pz, lab, radius, n_bins, width, taper) -> None:
+def _pair_run(out, a, lo, hi, order, px, py, pz, lab, radius, n_bins, per_bin, slope) -> None:
     """The pairs (a, s) for s in [lo, hi) of the cell-sorted points, counted at both ends."""
     scale = 1.0 / WEIGHT_QUANTUM
     top = n_bins - 1.0
@@ -256,10 +257,10 @@ def _pair_run(out, a, lo, hi, order, px, py, pz, lab, radius, n_bins, width, tap
         d = np.sqrt(d2)
         if not d < radius:
             continue
-        u = min(max(d / width - 0.5, 0.0), top)
+        u = min(max(d * per_bin - 0.5, 0.0), top)
         b = np.int64(u)
         frac = u - b
-        t = 1.0 - taper * d / radius
+        t = 1.0 - d * slope
         w_lo = np.floor((1.0 - frac) * t * scale + 0.5) * WEIGHT_QUANTUM
         w_hi = np.floor(frac * t * scale + 0.5) * WEIGHT_QUANTUM
         b_hi = min(b + 1, n_bins - 1)
@@ -281,8 +282,8 @@ def _histograms_in_cells(
     labels: np.ndarray,
     radius: float,
     n_bins: int,
-    width: float,
-    taper: float,
+    per_bin: float,
+    slope: float,
     order: np.ndarray,
     sorted_keys: np.ndarray,
     x0: float,
@@ -333,10 +334,10 @@ def _histograms_in_cells(
                 d = np.sqrt(d2)
                 if not d < radius:
                     continue
-                u = min(max(d / width - 0.5, 0.0), top)
+                u = min(max(d * per_bin - 0.5, 0.0), top)
                 b = np.int64(u)
                 frac = u - b
-                t = 1.0 - taper * d / radius
+                t = 1.0 - d * slope
                 w_lo = np.floor((1.0 - frac) * t * scale + 0.5) * WEIGHT_QUANTUM
                 w_hi = np.floor(frac * t * scale + 0.5) * WEIGHT_QUANTUM
                 b_hi = min(b + 1, n_bins - 1)
