@@ -188,7 +188,7 @@ def first_use(files: list[str]) -> list[dict]:
             wall = time.perf_counter() - t0
         notice = [line.replace(cache, "<cache>") for line in res.stderr.splitlines()
                   if line.startswith("sgloc:")]  # fmt: skip
-        found = re.search(r"compiled (\d+) numba kernels in ([\d.]+) s \(([\d.]+) s CPU",
+        found = re.search(r"compiled (\d+) numba kernels? in ([\d.]+) s \(([\d.]+) s CPU",
                           res.stderr)  # fmt: skip
         rows.append({"what": what, "wall": wall, "notice": notice,
                      "kernels": int(found[1]) if found else None,

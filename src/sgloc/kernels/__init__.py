@@ -105,6 +105,8 @@ class _CompileNotice:
         self.said = False
 
     def on_start(self, ev) -> None:
+        if self.depth == 0 and not _ours(ev):
+            return  # another library's (or the user's) numba function: not ours to say
         if self.depth == 0:
             self.start, self.cpu_start = time.perf_counter(), time.process_time()
             if not self.said and not compiled_marker().exists():
@@ -119,9 +121,11 @@ class _CompileNotice:
         self.depth += 1
 
     def on_end(self, ev) -> None:
+        if self.depth == 0:
+            return  # the end of a compile `on_start` left alone
         self.depth -= 1
-        dispatcher = ev.data.get("dispatcher")
-        self.kernels.add(getattr(dispatcher, "__qualname__", "?"))
+        if _ours(ev):  # not numba's own helpers compiled on the way
+            self.kernels.add(ev.data["dispatcher"].py_func.__qualname__)
         if self.depth == 0:
             self.total += time.perf_counter() - self.start
             self.cpu += time.process_time() - self.cpu_start
@@ -129,9 +133,16 @@ class _CompileNotice:
                 _touch(compiled_marker())
 
     def summary(self) -> None:
-        print(f"sgloc: compiled {len(self.kernels)} numba kernels in {self.total:.1f} s "
+        n = len(self.kernels)
+        print(f"sgloc: compiled {n} numba kernel{'s' * (n != 1)} in {self.total:.1f} s "
               f"({self.cpu:.1f} s CPU; first use: later runs load them from the cache).",
               file=sys.stderr, flush=True)  # fmt: skip
+
+
+def _ours(ev) -> bool:
+    """Whether a numba compile event is of one of sgloc's kernels."""
+    func = getattr(ev.data.get("dispatcher"), "py_func", None)
+    return getattr(func, "__module__", "").startswith("sgloc.")
 
 
 def _touch(path: Path) -> None:
