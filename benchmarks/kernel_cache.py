@@ -40,12 +40,10 @@ from typing import Any
 import numpy as np
 
 import sgloc
+from sgloc import kernels
 
 #: The kernel modules under `sgloc.kernels` with compiled (cached) code.
-MODULES = (
-    "clique", "consistency", "fit", "local", "matching", "neighbors",
-    "prune", "ransac", "runner_up", "spectral", "triangles",
-)  # fmt: skip
+MODULES = kernels.MODULES
 
 
 @contextlib.contextmanager
@@ -170,6 +168,14 @@ def check_neighbors() -> None:
     assert got[0].sum() > 100
     for a, b in zip(got, ref, strict=True):
         assert np.array_equal(a, b), "near counts"
+    from sgloc.descriptors import DistanceHistogramDescriptor
+    from sgloc.kernels.neighbors import distance_histograms
+
+    desc = DistanceHistogramDescriptor()
+    rows = np.arange(300)
+    got = distance_histograms(pts, rows, pts, labels.astype(np.int64), 5, 40.0, 16, 0.8)
+    assert got.sum() > 300
+    assert np.array_equal(got, desc.histogram_reference(pts, labels, 5)), "distance histograms"
 
 
 def check_prune() -> None:

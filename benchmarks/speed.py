@@ -12,6 +12,9 @@
    descriptors).
 3. Start-up: `import sgloc`; the first call in a fresh process with an empty numba cache vs a
    later process; `sgloc localize` on the two Airsim maps as a whole process (after one run).
+5. Prepared maps and the cold call (benchmarks/prepared_speed.py): Airsim maps with new graph
+   objects per call, one scan against prepared maps of 15,000 and up to 1,000,000 objects, a
+   fresh process on two 20,000-object maps, a fresh install's first-use compile.
 4. Maps end to end: `localize` on two generated maps of n vertices each (50 % overlap), in a
    fresh process under a memory cap: wall time of the first call (loads the kernels) and of a
    second one (new graph objects), peak resident memory of that process (VmHWM).
@@ -41,6 +44,7 @@ if __package__ in (None, ""):
 import numpy as np
 from threadpoolctl import ThreadpoolController, threadpool_limits
 
+from benchmarks import prepared_speed
 from benchmarks.peers.methods import kiss_matcher_method
 from sgloc.consistency import consistency_bool
 from sgloc.estimation import RansacConfig, irls_refine, ransac_reference, weighted_kabsch
@@ -61,7 +65,7 @@ BURST = 3
 #: The plain numpy pipeline: one burst per set (it takes seconds at m = 10,000).
 REFERENCE = "sgloc numpy reference"
 #: The parts of the benchmark (`--only`).
-PARTS = ("register", "threads", "startup", "maps", "scale")
+PARTS = ("register", "threads", "startup", "maps", "scale", "prepared")
 
 
 def numpy_reference(src, dst, rng):
@@ -605,6 +609,8 @@ def report(reg, threads, startup, cli, maps, args) -> list[str]:
         lines += report_maps(maps, args.cap_gb)
     if args.scale_rows:
         lines += report_scale(args.scale_rows, args)
+    if getattr(args, "prepared", None):
+        lines += prepared_speed.report(args.prepared)
     return lines
 
 
@@ -642,6 +648,8 @@ def main() -> None:
     if "scale" in parts:
         args.scale_rows = run_scale(args.scale_sizes, args.scale_reps, args.scale_large)
         args.loads.append(os.getloadavg()[0])
+    args.prepared = prepared_speed.run(args) if "prepared" in parts else None
+    args.loads.append(os.getloadavg()[0])
     text = "\n".join(report(reg, threads, startup, cli, maps, args))
     print(text)
     partial = parts != set(PARTS)

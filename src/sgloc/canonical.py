@@ -54,10 +54,35 @@ class CanonicalPair:
     """(query, target) in canonical form, the config with class weights renumbered to match,
     and the maps back to the caller's vertex indices and class ids."""
 
+    #: The target's descriptors and matching blocks when they come prepared (sgloc.prepared).
+    target_descriptors = None
+    target_blocks = None
+
     def __init__(self, query: SemanticGraph, target: SemanticGraph, config: Any) -> None:
         self.classes = np.union1d(query.labels, target.labels)  # original id of each new id
         self.query_order, self.query = self._canonical(query)
         self.target_order, self.target = self._canonical(target)
+        self._set_config(config)
+
+    @classmethod
+    def with_canonical_target(
+        cls,
+        query: SemanticGraph,
+        classes: np.ndarray,
+        target_order: np.ndarray,
+        target: SemanticGraph,
+        config: Any,
+    ) -> CanonicalPair:
+        """The pair of `query` and a target already in canonical form under `classes` (which
+        hold every class of the query): nothing of the target's size is computed."""
+        pair = cls.__new__(cls)
+        pair.classes = classes
+        pair.query_order, pair.query = pair._canonical(query)
+        pair.target_order, pair.target = target_order, target
+        pair._set_config(config)
+        return pair
+
+    def _set_config(self, config: Any) -> None:
         self.original_config = config
         self.config = config
         if getattr(config, "class_weights", None):

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from sgloc.kernels import watch_compiles
 from sgloc.kernels.constants import COLLINEAR_WIDTH
 
 
@@ -493,3 +494,6 @@ def irls_class_scaled(
         if change < 1e-9:
             break
     return T
+
+
+watch_compiles()  # an install's first compile is said (sgloc.kernels)

@@ -13,6 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from sgloc.kernels import watch_compiles
+
 
 @njit(cache=True, nogil=True, inline="always")
 def _dist(p: np.ndarray, i: int, j: int) -> float:
@@ -170,3 +172,6 @@ def local_prune(
             out[k] = i
             k += 1
     return out
+
+
+watch_compiles()  # an install's first compile is said (sgloc.kernels)
