@@ -534,9 +534,9 @@ def report_startup(startup, cli) -> list[str]:
     lines = ["## Start-up", "",
              "Fresh processes; seconds, median (min – max). `import sgloc` loads neither numba "
              "nor the kernels (nor scipy.stats, matplotlib, dask). Loading numba and the cached "
-             "kernels costs a process about 0.7 s once, so small problems "
-             "(up to `sgloc.kernels.SMALL_PROBLEM` matches) run the numpy references, which "
-             "give the same results to rounding; larger problems run the kernels. The first "
+             "kernels costs a process a few tenths of a second once; every problem runs the "
+             "kernels (the numpy references, equal to rounding, serve the tests), so the same "
+             "inputs give the same bits in every process. The first "
              "compiled call compiles the kernels it uses (numba, `cache=True`) "
              "when the cache is empty "
              "and loads them afterwards. The compiled code is cached next to the installed "

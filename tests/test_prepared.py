@@ -12,6 +12,7 @@ import sgloc
 from sgloc import Localizer, LocalizerConfig, PreparedMap, SemanticGraph, kernels, localize
 from sgloc.data import airsim_guo
 from sgloc.descriptors import DistanceHistogramDescriptor
+from sgloc.matching import BLOCKS_MIN_OBJECTS
 from sgloc.prepared import PreparedMapError
 from sgloc.sim.object_world import make_two_robot_scene
 
@@ -29,9 +30,9 @@ def airsim() -> tuple[SemanticGraph, SemanticGraph]:
 
 @pytest.fixture(scope="module")
 def street() -> SemanticGraph:
-    """A map larger than SMALL_PROBLEM objects (the matching kernel's prepared blocks)."""
+    """A map larger than BLOCKS_MIN_OBJECTS objects (the matching kernel's prepared blocks)."""
     scene = make_two_robot_scene(seed=3, stretch=4000 / 0.47, view_radius=130.0)
-    assert len(scene.target) > kernels.SMALL_PROBLEM
+    assert len(scene.target) > BLOCKS_MIN_OBJECTS
     return scene.target
 
 

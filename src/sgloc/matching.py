@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 
-from sgloc.kernels import SMALL_PROBLEM, one_blas_thread, use_compiled
+from sgloc.kernels import one_blas_thread, use_compiled
 from sgloc.validation import validate_settings
 
 #: Similarities held at once per block (8 MB of float64).
@@ -162,12 +162,15 @@ class TargetBlocks:
     order: np.ndarray
 
 
+#: Targets of more objects than this keep their matching blocks when prepared (sgloc.prepared).
+BLOCKS_MIN_OBJECTS = 1500
+
+
 def target_blocks(desc_t, labels_t: np.ndarray) -> TargetBlocks | None:
     """The kernel's class blocks of a target's descriptors (n,d) and labels (n,), or None when
-    its matching never runs the kernel with them: sparse descriptors, or at most
-    `sgloc.kernels.SMALL_PROBLEM` rows (whether those use the kernel depends on the process).
-    Memory: another n x d floats."""
-    if sparse.issparse(desc_t) or len(labels_t) <= SMALL_PROBLEM:
+    they are not worth keeping: sparse descriptors, or at most BLOCKS_MIN_OBJECTS rows (blocks
+    that cheap are built per call). Memory: another n x d floats."""
+    if sparse.issparse(desc_t) or len(labels_t) <= BLOCKS_MIN_OBJECTS:
         return None
     from sgloc.kernels.matching import class_blocks
 

@@ -10,7 +10,7 @@ map, a fleet localizing new keyframes against a growing one).
 
 A localization against a prepared map gives the same result, bit for bit, as against the graph
 it holds (`prepared.graph`). Preparing costs memory linear in the map: the descriptors
-(objects x classes x bins floats), and for maps larger than `sgloc.kernels.SMALL_PROBLEM`
+(objects x classes x bins floats), and for maps larger than `sgloc.matching.BLOCKS_MIN_OBJECTS`
 objects a second, normalised copy grouped by class for the matching kernel.
 """
 

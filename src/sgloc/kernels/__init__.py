@@ -7,13 +7,10 @@ per-user cache directory; `NUMBA_CACHE_DIR` overrides both. When none of them is
 read-only install and home), the kernels are cached in a folder of the temporary directory, or,
 failing that, compiled in every process without a cache; either is said once on stderr.
 
-Loading numba and the cached kernels costs a process about 0.7 s once. Problems up to
-SMALL_PROBLEM matches therefore run the numpy references (`use_compiled`): a one-shot run on small
-maps (the command line) never pays that. The choice depends on the problem's size only, never on
-what the process did before, so the same inputs give the same bits in every process (the
-references and the kernels agree to rounding, not bit for bit). The price: a process solving
-many small problems runs the slower references (Guo's Airsim pair: about 4.4 ms of CPU a call
-against 1.9 ms compiled); `FORCE = "compiled"` trades the start-up for that.
+Every problem runs the compiled kernels (`use_compiled`; the numpy references are kept for the
+tests, `FORCE = "reference"`), so the same inputs give the same bits in every process whatever
+it ran before (the references and the kernels agree to rounding, not bit for bit). Loading
+numba and the cached kernels costs a process about 0.3 s once.
 
 Rule for every kernel here: no numba sort or search (np.sort, np.argsort, ndarray.sort,
 np.searchsorted, ...) inside a cached kernel: sort in numpy before the call, or write the loop
@@ -38,19 +35,17 @@ from sgloc.kernels.cache import ensure_cache_dir
 
 ensure_cache_dir()
 
-#: Problems up to this size (matches) run the numpy references, larger ones the kernels.
-SMALL_PROBLEM = 1500
-#: "compiled" or "reference" forces that path for every size (tests); None: the rule above.
+#: "compiled" or "reference" forces that path (tests); None: the compiled kernels.
 FORCE: str | None = None
 
 
 def use_compiled(size: int) -> bool:
     """Whether a problem of `size` matches runs the compiled kernel (else the numpy reference,
-    equal to rounding): a pure function of the size, so a result never depends on what the
-    process computed before."""
+    equal to rounding): every non-empty one, unless FORCE says otherwise. Never depends on
+    what the process computed before."""
     if FORCE is not None:
         return FORCE == "compiled"
-    return size > SMALL_PROBLEM
+    return size > 0
 
 
 _BLAS_CONTROLLER = None
