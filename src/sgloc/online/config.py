@@ -28,6 +28,12 @@ class OnlineConfig:
         sqrt(k) times that and still count as consistent.
     confirmations: accepted attempts of a pair, in a row and agreeing with each other (as a
         loop of 2 links), before its link is used (1: at once).
+    refine_links: refit each link on every object pair it co-locates in the two current maps
+        (mutual nearest same-class neighbours within the localizer's RANSAC threshold) when it
+        is accepted and whenever one of its maps has grown by growth_ratio / growth_objects
+        since; the refit replaces the link when it rests on more pairs than the link's matches
+        and agrees with it within the loop tolerance (a loop of 2). At most max_attempts
+        refits per update (None: all; 0: in `run_pending` only).
     solver: "auto" (gtsam when installed, else scipy), "gtsam" or "scipy".
     seed: attempt k of the pair (i, j) (robot indices, i < j) uses the seed [seed, i, j]
         (k = 0) or [seed, i, j, k].
@@ -43,6 +49,7 @@ class OnlineConfig:
     loop_translation: float = 3.0
     loop_rotation: float = 3.0
     confirmations: int = 1
+    refine_links: bool = True
     solver: str = "auto"
     seed: int = 0
 
