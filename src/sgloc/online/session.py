@@ -21,6 +21,7 @@ from sgloc.online.consistency import (
     loop_tolerance,
 )
 from sgloc.online.posegraph import fleet_frame
+from sgloc.online.precision import chain_covariance, predicted_error
 from sgloc.online.records import (
     LINK_ACCEPTED,
     LINK_REVOKED,
@@ -337,6 +338,8 @@ class OnlineSession:
         )
         active = set(frame.active)
         T_new = {names[r]: T for r, T in frame.T_fleet_robot.items()}
+        for r in self._held(frame, edges, [lk.covariance for lk in links]):
+            T_new.pop(r, None)
         lost = [r for r in names if r in self._T and r not in T_new]
         for k, lk in enumerate(links):
             was, now = lk.active, k in active
@@ -356,6 +359,23 @@ class OnlineSession:
                 self._emit(emit, stamp, ROBOT_JOINED, (r,),
                            "the fleet frame's root" if r == root else "placed in the fleet frame")
         self._T = T_new
+
+    def _held(self, frame, edges: list[Edge], covariances: list[np.ndarray]) -> list[str]:
+        """Robots the frame would newly place whose predicted error at their objects is beyond
+        the limits (`OnlineConfig.join_sigmas`); none when the hold is off."""
+        o, names = self.online, self.robots
+        if o.join_sigmas is None:
+            return []
+        root = names.index(self.root)
+        held = []
+        for r, path in frame.paths.items():
+            if r == root or names[r] in self._T:
+                continue
+            C = chain_covariance(edges, covariances, path, root)
+            m, deg = predicted_error(C, self._maps[names[r]].graph().positions, o.join_sigmas)
+            if m > o.loop_translation or deg > o.loop_rotation:
+                held.append(names[r])
+        return held
 
     def _emit(self, emit: bool, stamp: float, kind: str, robots: tuple, detail: str) -> None:
         if emit:
