@@ -92,3 +92,43 @@ def test_a_session_refits_its_link_as_the_maps_grow_and_that_is_more_precise():
     # At the end the refitted link is closer to the truth than the localizations alone.
     assert refined[-1][0] < plain[-1][0] and refined[-1][0] < 0.5
     assert np.trace(lk.covariance[3:, 3:]) < np.trace(lk_off.covariance[3:, 3:])
+
+
+def test_chain_covariance_matches_the_spread_of_composed_noisy_links():
+    from sgloc.covariance import se3_exp, se3_log
+    from sgloc.online.consistency import Edge
+    from sgloc.online.precision import chain_covariance
+
+    rng = np.random.default_rng(5)
+    T01, T21 = _yaw(30, [40.0, 5.0, 0.0]), _yaw(-50, [10.0, -30.0, 1.0])  # the second one 2 -> 1
+    A = rng.normal(size=(6, 6)) * 0.02
+    C01, C21 = A @ A.T + np.eye(6) * 1e-4, np.diag([1e-4, 2e-4, 3e-4, 0.04, 0.01, 0.02])
+    edges = [Edge(0, 1, T01, 1.0, 0.0), Edge(2, 1, T21, 1.0, 0.0)]
+    C = chain_covariance(edges, [C01, C21], [0, 1], 0)  # robot 2's pose via 0 -> 1 -> 2
+    T02 = T01 @ invert(T21)
+    L01, L21 = np.linalg.cholesky(C01), np.linalg.cholesky(C21)
+    xs = []
+    for _ in range(4000):
+        a, b = se3_exp(L01 @ rng.normal(size=6)), se3_exp(L21 @ rng.normal(size=6))
+        xs.append(se3_log(np.linalg.solve(T02, (T01 @ a) @ invert(T21 @ b))))
+    mc = np.cov(np.array(xs).T)
+    np.testing.assert_allclose(np.sqrt(np.diag(C)), np.sqrt(np.diag(mc)), rtol=0.1)
+
+
+def test_a_join_is_held_back_until_its_link_predicts_an_error_within_the_limits():
+    pts = np.random.default_rng(3).uniform(-20, 20, (10, 3)) + [150.0, 0.0, 0.0]
+    T = _yaw(10, [5.0, 2.0, 0.0])
+    loose = np.diag(np.r_[[np.radians(2.0) ** 2] * 3, [0.5**2] * 3])  # 2 deg: far off at 150 m
+    tight = np.diag(np.r_[[np.radians(0.2) ** 2] * 3, [0.2**2] * 3])
+    for sigmas, joins_at_once in ((None, True), (2.0, False)):
+        s = OnlineSession(online=OnlineConfig(min_observations=1, max_attempts=0,
+                                              join_sigmas=sigmas))
+        for r in ("a", "b"):
+            s.add_keyframe(r, 0.0, np.eye(4), pts, np.zeros(10, np.int64))
+        ev = s.add_link("a", "b", T, loose, stamp=1.0)
+        assert ("robot_joined" in [e.kind for e in ev]) == joins_at_once
+        assert (s.T_fleet_robot("b") is not None) == joins_at_once
+        if not joins_at_once:  # a tighter estimate of the same link lets it join
+            ev = s.add_link("a", "b", T @ _yaw(0.1, [0.1, 0, 0]), tight, stamp=2.0)
+            assert [e.kind for e in ev] == ["robot_joined"]
+            np.testing.assert_allclose(s.T_fleet_robot("b"), T @ _yaw(0.1, [0.1, 0, 0]))
