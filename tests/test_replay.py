@@ -146,3 +146,21 @@ def test_out_bag_must_be_new(replayed, tmp_path, capsys):
                str(tmp_path / "taken")])
     assert rc == 2 and "exists already" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()  # refused before replaying
+
+
+def test_a_join_is_judged_at_the_objects_the_robot_had_when_it_joined(world, tmp_path):
+    from sgloc.evaluation.online_replay import run_scenario
+    from sgloc.online import OnlineConfig, OnlineSession
+    from sgloc.replay import replay_logs
+
+    s = OnlineSession(online=OnlineConfig())
+    rec = replay_logs(world.logs, s)
+    joined = [r for r in s.robots if rec.joined_ns[r] is not None and r != s.root]
+    assert joined
+    for r in joined:  # fewer objects then than at the end: the map kept growing
+        assert 3 <= len(rec.join_objects[r]) < len(s.map(r))
+    rows = run_scenario(world, tmp_path / "out")["robots"]
+    for row in rows:
+        if row["join_error"] is not None and not row["root"]:
+            assert row["join_error_final"] is not None
+            assert row["join_error"] != row["join_error_final"]

@@ -48,8 +48,10 @@ def run_scenario(scenario: Any, out: Path, config: Any = None, online: Any = Non
 
 
 def robot_rows(scenario: Any, session: Any, record: Any) -> list[dict]:
-    """Per robot: joined vs oracle stamp, delay (fraction of its run), error when it joined and
-    at the end, latency."""
+    """Per robot: joined vs oracle stamp, delay (fraction of its run), latency, the error of the
+    first fleet frame it got at the objects it had then (`join_error`: what the join was decided
+    on) and at its final objects (`join_error_final`), and of its final fleet frame at its final
+    objects (`end_error`)."""
     from sgloc.replay.outputs import latency_stats
 
     root = session.root
@@ -75,6 +77,8 @@ def robot_rows(scenario: Any, session: Any, record: Any) -> list[dict]:
             "delay": None if j is None or not np.isfinite(oracle[g.name])
             else (j * 1e-9 - oracle[g.name]) / run,
             "join_error": None if g.name not in first_T
+            else robot_error(first_T[g.name], G_fleet, G, record.join_objects[g.name]),
+            "join_error_final": None if g.name not in first_T
             else robot_error(first_T[g.name], G_fleet, G, objs),
             "end_error": None if T_end is None else robot_error(T_end, G_fleet, G, objs),
             "latency": latency_stats(record.latency_ms[g.name]),

@@ -28,6 +28,16 @@ class OnlineConfig:
         sqrt(k) times that and still count as consistent.
     confirmations: accepted attempts of a pair, in a row and agreeing with each other (as a
         loop of 2 links), before its link is used (1: at once).
+    refine_links: refit each link on every object pair it co-locates in the two current maps
+        (mutual nearest same-class neighbours within the localizer's RANSAC threshold) when it
+        is accepted and whenever one of its maps has grown by growth_ratio / growth_objects
+        since; the refit replaces the link when it rests on more pairs than the link's matches
+        and agrees with it within the loop tolerance (a loop of 2). At most max_attempts
+        refits per update (None: all; 0: in `run_pending` only).
+    join_sigmas: None (off) or k: a robot not yet placed joins only once k standard deviations
+        of its predicted error (its links' covariances composed along its path from the root,
+        at the centroid of its objects, worst direction) are within loop_translation metres
+        and loop_rotation degrees; until then it is held back (placed robots stay placed).
     solver: "auto" (gtsam when installed, else scipy), "gtsam" or "scipy".
     seed: attempt k of the pair (i, j) (robot indices, i < j) uses the seed [seed, i, j]
         (k = 0) or [seed, i, j, k].
@@ -43,6 +53,8 @@ class OnlineConfig:
     loop_translation: float = 3.0
     loop_rotation: float = 3.0
     confirmations: int = 1
+    refine_links: bool = True
+    join_sigmas: float | None = None
     solver: str = "auto"
     seed: int = 0
 
@@ -53,6 +65,8 @@ class OnlineConfig:
                 "OnlineConfig: association_radius must be >= 0 m, min_observations and "
                 "confirmations >= 1, min_objects >= 3 (localization needs at least 3 objects)."
             )
+        if self.join_sigmas is not None and not self.join_sigmas > 0:
+            raise SglocError("OnlineConfig: join_sigmas must be > 0 or None (no hold).")
         if self.max_attempts is not None and self.max_attempts < 0:
             raise SglocError("OnlineConfig: max_attempts must be >= 0 or None (no limit).")
         if self.solver not in ("auto", "gtsam", "scipy"):

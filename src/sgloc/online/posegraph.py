@@ -16,11 +16,13 @@ from sgloc.online.solve import solve_pose_graph
 @dataclass
 class FleetFrame:
     """active: ids of the links in the consistent set; dropped: {id: reason} for the others;
-    T_fleet_robot: {robot index: (4,4)} for the robots connected to the root."""
+    T_fleet_robot: {robot index: (4,4)} for the robots connected to the root; paths: {robot
+    index: its path of link ids from the root along the spanning tree}."""
 
     active: list[int]
     dropped: dict[int, str]
     T_fleet_robot: dict[int, np.ndarray]
+    paths: dict[int, list[int]]
 
 
 def fleet_frame(
@@ -38,9 +40,9 @@ def fleet_frame(
     among them (points(robot): that robot's objects, for the loop tolerance in metres)."""
     active, dropped = select_consistent(n, edges, points, tol_m, tol_deg)
     tree = spanning_forest(n, edges, active)
-    initial, _ = tree_poses(n, edges, tree, root)
+    initial, paths = tree_poses(n, edges, tree, root)
     inside = [k for k in active if edges[k].a in initial and edges[k].b in initial]
     poses = solve_pose_graph(
         initial, [edges[k] for k in inside], [covariances[k] for k in inside], root, solver
     )
-    return FleetFrame(active, dropped, poses)
+    return FleetFrame(active, dropped, poses, paths)

@@ -22,7 +22,8 @@ class Link:
     active: True while the link is part of the consistent set the fleet frame is built from;
         reason: why not (or how the covariance was obtained).
     n_matches: the localization's inliers; agreed: how many accepted attempts of this pair in
-        a row agree with each other (`OnlineConfig.confirmations`).
+        a row agree with each other (`OnlineConfig.confirmations`); refined_pairs: the object
+        pairs of the link's last refit on the grown maps (0: as the localization gave it).
     """
 
     robot_a: str
@@ -35,6 +36,7 @@ class Link:
     reason: str = ""
     n_matches: int = 0
     agreed: int = 1
+    refined_pairs: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -42,6 +44,7 @@ class Link:
             "covariance": self.covariance.tolist(), "confidence": self.confidence,
             "stamp": self.stamp, "active": self.active, "reason": self.reason,
             "n_matches": self.n_matches, "agreed": self.agreed,
+            "refined_pairs": self.refined_pairs,
         }
 
     @classmethod

@@ -21,6 +21,7 @@ from sgloc.online.consistency import (
     loop_tolerance,
 )
 from sgloc.online.posegraph import fleet_frame
+from sgloc.online.precision import chain_covariance, predicted_error
 from sgloc.online.records import (
     LINK_ACCEPTED,
     LINK_REVOKED,
@@ -29,6 +30,7 @@ from sgloc.online.records import (
     Event,
     Link,
 )
+from sgloc.online.refine import refine_link
 from sgloc.online.robot_map import RobotMap
 from sgloc.online.schedule import due_pairs
 
@@ -55,6 +57,7 @@ class OnlineSession:
         self._maps: dict[str, RobotMap] = {}
         self._last: dict[tuple[int, int], tuple[int, int]] = {}
         self._tries: dict[tuple[int, int], int] = {}
+        self._refined: dict[tuple[int, int], tuple[int, int]] = {}
         self._links: dict[tuple[int, int], Link] = {}
         self._T: dict[str, np.ndarray] = {}
         self.attempts: list[Attempt] = []
@@ -164,18 +167,18 @@ class OnlineSession:
         sizes = [self._maps[r].n_confirmed for r in names]
         o = self.online
         due = due_pairs(sizes, self._last, o.min_objects, o.growth_ratio, o.growth_objects)
-        if not due:
-            return []
-        group = self._groups()
-        due.sort(key=lambda p: group[p[0]] == group[p[1]])  # stable: growth order within
-        due = due if max_attempts is None else due[:max_attempts]
-        # Each attempt on graphs rebuilt from arrays, wherever it runs: the localizer's caches
-        # on a reused graph shift results by ~1e-13 with their history, and a resumed session
-        # or a worker process must give the same results bit for bit.
-        results = run_tasks([self._task(i, j) for i, j in due], scheduler, workers)
         changed = False
-        for (i, j), r in zip(due, results, strict=True):
-            changed |= self._record(i, j, sizes, r, stamp)
+        if due:
+            group = self._groups()
+            due.sort(key=lambda p: group[p[0]] == group[p[1]])  # stable: growth order within
+            due = due if max_attempts is None else due[:max_attempts]
+            # Each attempt on graphs rebuilt from arrays, wherever it runs: the localizer's
+            # caches on a reused graph shift results by ~1e-13 with their history, and a
+            # resumed session or a worker process must give the same results bit for bit.
+            results = run_tasks([self._task(i, j) for i, j in due], scheduler, workers)
+            for (i, j), r in zip(due, results, strict=True):
+                changed |= self._record(i, j, sizes, r, stamp)
+        changed |= self._refine_due(sizes, max_attempts)
         if changed:
             self._refresh(stamp)
         return self.events[n_events:]
@@ -227,6 +230,7 @@ class OnlineSession:
                    float(confidence), float(stamp), active=False, reason=reason,
                    n_matches=int(n_matches))
         self._links[(i, j)] = new
+        self._refined.pop((i, j), None)  # the new link is refitted at the next chance
         if old is None:
             return
         dt, dr = loop_error(invert(old.T_a_b) @ new.T_a_b, self._maps[names[j]].graph().positions)
@@ -237,6 +241,38 @@ class OnlineSession:
             self._emit(True, float(stamp), LINK_REVOKED, (names[i], names[j]),
                        f"a later attempt of this pair disagrees with it by {dt:.2f} m / "
                        f"{dr:.2f} deg")
+
+    def _refine_due(self, sizes: list[int], budget: int | None) -> bool:
+        """Refit the links whose maps have grown (growth rule of the attempts; never-refitted
+        links first), at most `budget` (None: all). True when a link changed."""
+        o = self.online
+        if not o.refine_links or not self._links:
+            return False
+        due = [p for p in due_pairs(sizes, self._refined, o.min_objects, o.growth_ratio,
+                                    o.growth_objects) if p in self._links]
+        changed = False
+        for i, j in due if budget is None else due[:budget]:
+            self._refined[(i, j)] = (sizes[i], sizes[j])
+            changed |= self._refine(i, j)
+        return changed
+
+    def _refine(self, i: int, j: int) -> bool:
+        """Refit the link (i, j) on every object pair it co-locates in the current maps; keep
+        the refit when it rests on at least the link's matches and agrees with the link
+        within the loop tolerance (a loop of 2)."""
+        names, o = self.robots, self.online
+        lk = self._links[(i, j)]
+        a, b = self._maps[names[i]].graph(), self._maps[names[j]].graph()
+        r = refine_link(b.positions, b.labels, a.positions, a.labels, lk.T_a_b,
+                        self.config.motion, self.config.ransac.threshold)
+        if r is None or r.n_pairs < lk.n_matches:
+            return False
+        dt, dr = loop_error(invert(lk.T_a_b) @ r.T_a_b, b.positions)
+        lim_m, lim_deg = loop_tolerance(o.loop_translation, o.loop_rotation, 2)
+        if dt > lim_m or dr > lim_deg:
+            return False
+        lk.T_a_b, lk.covariance, lk.refined_pairs = r.T_a_b, r.covariance, r.n_pairs
+        return True
 
     def add_link(
         self,
@@ -302,6 +338,8 @@ class OnlineSession:
         )
         active = set(frame.active)
         T_new = {names[r]: T for r, T in frame.T_fleet_robot.items()}
+        for r in self._held(frame, edges, [lk.covariance for lk in links]):
+            T_new.pop(r, None)
         lost = [r for r in names if r in self._T and r not in T_new]
         for k, lk in enumerate(links):
             was, now = lk.active, k in active
@@ -322,6 +360,23 @@ class OnlineSession:
                            "the fleet frame's root" if r == root else "placed in the fleet frame")
         self._T = T_new
 
+    def _held(self, frame, edges: list[Edge], covariances: list[np.ndarray]) -> list[str]:
+        """Robots the frame would newly place whose predicted error at their objects is beyond
+        the limits (`OnlineConfig.join_sigmas`); none when the hold is off."""
+        o, names = self.online, self.robots
+        if o.join_sigmas is None:
+            return []
+        root = names.index(self.root)
+        held = []
+        for r, path in frame.paths.items():
+            if r == root or names[r] in self._T:
+                continue
+            C = chain_covariance(edges, covariances, path, root)
+            m, deg = predicted_error(C, self._maps[names[r]].graph().positions, o.join_sigmas)
+            if m > o.loop_translation or deg > o.loop_rotation:
+                held.append(names[r])
+        return held
+
     def _emit(self, emit: bool, stamp: float, kind: str, robots: tuple, detail: str) -> None:
         if emit:
             self.events.append(Event(stamp, kind, tuple(robots), detail))
@@ -336,6 +391,7 @@ class OnlineSession:
             "robots": self.robots,
             "last": [[i, j, *v] for (i, j), v in sorted(self._last.items())],
             "tries": [[i, j, v] for (i, j), v in sorted(self._tries.items())],
+            "refined": [[i, j, *v] for (i, j), v in sorted(self._refined.items())],
             "links": [[i, j, lk.to_dict()] for (i, j), lk in sorted(self._links.items())],
             "attempts": [a.to_dict() for a in self.attempts],
             "events": [e.to_dict() for e in self.events],
@@ -358,6 +414,7 @@ class OnlineSession:
             s._maps[r] = m
         s._last = {(i, j): (a, b) for i, j, a, b in meta["last"]}
         s._tries = {(i, j): v for i, j, v in meta["tries"]}
+        s._refined = {(i, j): (a, b) for i, j, a, b in meta.get("refined", [])}
         s._links = {(i, j): Link.from_dict(d) for i, j, d in meta["links"]}
         s.attempts = [Attempt.from_dict(d) for d in meta["attempts"]]
         s.events = [Event.from_dict(d) for d in meta["events"]]

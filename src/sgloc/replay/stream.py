@@ -21,11 +21,14 @@ class ReplayRecord:
     joined_ns: per robot, the stamp of the first keyframe after which the robot had a fleet
         frame (None: never placed).
     transforms: (stamp ns, robot, T_fleet_odom) each time a robot's fleet frame took a new value.
+    join_objects: per placed robot, its confirmed objects (k,3) (odometry frame, metres) when it
+        was first placed: what the join was decided on.
     """
 
     latency_ms: dict[str, np.ndarray]
     joined_ns: dict[str, int | None]
     transforms: list[tuple[int, str, np.ndarray]] = field(default_factory=list)
+    join_objects: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def keyframe_order(logs: Sequence[RobotLog]) -> np.ndarray:
@@ -79,6 +82,7 @@ def _track(session: Any, stamp_ns: int, last: dict[str, np.ndarray], rec: Replay
             continue
         if rec.joined_ns.get(robot) is None:
             rec.joined_ns[robot] = stamp_ns
+            rec.join_objects[robot] = session.map(robot).positions.copy()
         if robot not in last or not np.array_equal(last[robot], T):
             last[robot] = T
             rec.transforms.append((stamp_ns, robot, T))
