@@ -57,6 +57,7 @@ def _localizations() -> None:
     q, t = scene.query, scene.target
     for rejection in REJECTORS:
         localize(q, t, rejection=rejection)
+    localize(q, t, scope="local")  # the local neighbour constraint of large problems
     localize(q, t, dof=6, max_tilt=None)
     localize(q, t, class_scale="height")
     small = SemanticGraph(q.positions[:20], q.labels[:20])
