@@ -29,6 +29,7 @@ import numpy as np
 from rich.progress import track
 
 from sgloc.acceptance import AcceptanceConfig
+from sgloc.downloads import present_or_say
 from sgloc.evaluation.acceptance_pairs import NEGATIVE_CUT, default_pair_sets
 from sgloc.geometry import apply, transform_error
 from sgloc.localizer import localize
@@ -116,7 +117,8 @@ negatives = the same sources with every query object within 25 m (ground truth) 
 object removed (Airsim both directions; KITTI ranges whose trajectories are >= 50 m apart;
 object world and city at overlap 0), plus object-world and city robots from two different
 worlds. A pair without an estimated transform (RANSAC or Guo's rule failed) counts as
-rejected. Times: same process, median; the machine was shared by several jobs.
+rejected. Times: same process, median, measured with other processes running (compare them
+within one run only).
 
 Goal: no false accept on at least 100 negative pairs with at least 95 % of the positives
 accepted. Columns: true accepts = positives accepted with error <= 10 m and 5 deg (paper-style:
@@ -357,12 +359,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=root / "results" / "acceptance_roc")
     ap.add_argument("--update-docs", action="store_true", help="also write docs/acceptance.md")
     args = ap.parse_args(argv)
+    kitti = present_or_say("kitti00", "the KITTI 00 pairs", args.update_docs)
     warnings.filterwarnings("ignore", category=RuntimeWarning)
     default = AcceptanceConfig().min_confidence
     sections, rows_by_seed, small_rows = [], {}, []
     for seed in args.seed:
         t0 = time.perf_counter()
-        pairs = default_pair_sets(seed, args.scale, city=args.city)
+        pairs = default_pair_sets(seed, args.scale, city=args.city, kitti=kitti)
         print(f"seed {seed}: {len(pairs)} pairs built in {time.perf_counter() - t0:.1f} s")
         rows = evaluate(pairs)
         rows_by_seed[seed] = rows

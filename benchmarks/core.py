@@ -5,9 +5,9 @@
 Trial k takes the `airsim-guo` pair of seed k: cloud2 moved by a random rigid transform (any yaw,
 roll/pitch <= 5 deg, translation <= 200 m), cloud1 localized against it (T_error = 5 m). Errors
 are T_gt^-1 @ T_est, in the Airsim world frame where both maps live (ground truth: identity).
-Times are medians over the trials; the machine is shared, so each trial also times a fixed numpy
-reference workload and the table gives the stage times in units of it too (a ratio stable under
-load).
+Times are medians over the trials; other processes may run at the same time, so each trial
+also times a fixed numpy reference workload and the table gives the stage times in units of
+it too (a ratio stable under load).
 """
 
 from __future__ import annotations
@@ -170,7 +170,8 @@ def main() -> None:
         "# Core benchmark: Guo's Airsim maps",
         "",
         f"Command: `python benchmarks/core.py --trials {args.trials}` "
-        f"({time.strftime('%Y-%m-%d')}, 2-core shared machine; reference workload median "
+        f"({time.strftime('%Y-%m-%d')}, 2 cores, other processes running; reference workload "
+        "median "
         f"{ref_ms:.2f} ms).",
         "",
         "cloud1 localized against cloud2 moved by random rigid transforms (any yaw, roll/pitch "

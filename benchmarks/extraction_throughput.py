@@ -6,7 +6,8 @@
 For each image size (320x180 and 1024x576) robot A ("forwardCar") of a synthetic run drives its
 route; its frames are rendered (sgloc.sim.render, in memory) and then extracted into a graph
 (sgloc.extraction.build_graph, paper defaults). Reported: frames/s of each stage (wall clock
-and CPU time of this process: the machine may be shared, CPU time shows what the code costs),
+and CPU time of this process: other processes may run at the same time; CPU time shows what
+the code costs),
 the whole run's time, and the graph size. Goal: a 300-frame run at 320x180 rendered and
 extracted in under 30 s. Also times writing the run in the Airsim layout (PNG encoding).
 """
@@ -115,7 +116,7 @@ def main() -> None:
         "rendered in memory by `sgloc.sim.render` (vectorised ray casting of boxes and "
         "cylinders), then extracted by `sgloc.extraction.build_graph` with the paper's defaults "
         "(max depth 30 m, min 5000 px at 1024x576 scaled, merge 5 m). Wall clock and CPU time "
-        "of the process; the machine has 2 cores shared with other jobs (1-min load average "
+        "of the process, measured on 2 cores with other processes running (1-min load average "
         f"at start: {load:.1f}), so CPU time is the better measure of the code's cost.",
         "",
         "| " + " | ".join(name for name, _, _ in cols) + " |",

@@ -40,12 +40,10 @@ from typing import Any
 import numpy as np
 
 import sgloc
+from sgloc import kernels
 
 #: The kernel modules under `sgloc.kernels` with compiled (cached) code.
-MODULES = (
-    "clique", "consistency", "fit", "matching", "neighbors",
-    "prune", "ransac", "runner_up", "spectral", "triangles",
-)  # fmt: skip
+MODULES = kernels.MODULES
 
 
 @contextlib.contextmanager
@@ -120,6 +118,21 @@ def check_fit() -> None:
         assert np.abs(out["compiled"] - out["reference"]).max() < 1e-9, f"irls {kw}"
 
 
+def check_local() -> None:
+    from sgloc.kernels.local import local_counts, local_prune
+    from sgloc.local_consistency import CellGrid, local_counts_reference, prune_local_reference
+
+    src, dst = _matches(400, 11)
+    for radius in (20.0, 1e4):
+        g = CellGrid.build(src, radius)
+        grid = (g.order, g.cell_start, g.point_cell, g.near_cells, radius)
+        got = local_counts(src, dst, *grid, 5.0, False)
+        ref = local_counts_reference(src, dst, 5.0, radius)
+        assert all(np.array_equal(a, b) for a, b in zip(got, ref, strict=True)), "local counts"
+        kept = local_prune(src, dst, *grid, 5.0, False, 0.5, 0)
+        assert np.array_equal(kept, prune_local_reference(src, dst, 5.0, 0.5, radius)), "local"
+
+
 def check_matching() -> None:
     import sgloc.kernels.matching  # noqa: F401 (loaded first, then called through matching)
     from sgloc.matching import MatchingConfig, match_flagged
@@ -155,6 +168,14 @@ def check_neighbors() -> None:
     assert got[0].sum() > 100
     for a, b in zip(got, ref, strict=True):
         assert np.array_equal(a, b), "near counts"
+    from sgloc.descriptors import DistanceHistogramDescriptor
+    from sgloc.kernels.neighbors import distance_histograms
+
+    desc = DistanceHistogramDescriptor()
+    rows = np.arange(300)
+    got = distance_histograms(pts, rows, pts, labels.astype(np.int64), 5, 40.0, 16, 0.8)
+    assert got.sum() > 300
+    assert np.array_equal(got, desc.histogram_reference(pts, labels, 5)), "distance histograms"
 
 
 def check_prune() -> None:

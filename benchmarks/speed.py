@@ -12,9 +12,16 @@
    descriptors).
 3. Start-up: `import sgloc`; the first call in a fresh process with an empty numba cache vs a
    later process; `sgloc localize` on the two Airsim maps as a whole process (after one run).
+5. Prepared maps and the cold call (benchmarks/prepared_speed.py): Airsim maps with new graph
+   objects per call, one scan against prepared maps of 15,000 and up to 1,000,000 objects, a
+   fresh process on two 20,000-object maps, a fresh install's first-use compile.
 4. Maps end to end: `localize` on two generated maps of n vertices each (50 % overlap), in a
    fresh process under a memory cap: wall time of the first call (loads the kernels) and of a
    second one (new graph objects), peak resident memory of that process (VmHWM).
+5. Map-to-map scale: two maps of N objects (50 % overlap), new graph objects every call, N =
+   10k / 20k / 50k / 90k, each N in a fresh process (median, min, max; peak memory); the time
+   ratio 90k / 10k; two maps of 500,000 objects (`--only scale`, `--scale-sizes`,
+   `--scale-large`).
 
 Writes the tables to results/speed_benchmark.md, or docs/speed_benchmark.md with --update-docs.
 KISS-Matcher is used when `kiss_matcher` is importable (`pip install kiss-matcher`).
@@ -37,6 +44,7 @@ if __package__ in (None, ""):
 import numpy as np
 from threadpoolctl import ThreadpoolController, threadpool_limits
 
+from benchmarks import prepared_speed
 from benchmarks.peers.methods import kiss_matcher_method
 from sgloc.consistency import consistency_bool
 from sgloc.estimation import RansacConfig, irls_refine, ransac_reference, weighted_kabsch
@@ -57,7 +65,7 @@ BURST = 3
 #: The plain numpy pipeline: one burst per set (it takes seconds at m = 10,000).
 REFERENCE = "sgloc numpy reference"
 #: The parts of the benchmark (`--only`).
-PARTS = ("register", "threads", "startup", "maps")
+PARTS = ("register", "threads", "startup", "maps", "scale", "prepared")
 
 
 def numpy_reference(src, dst, rng):
@@ -323,6 +331,116 @@ def run_maps(sizes: list[int], cap_gb: float, second_below: int = 50_000) -> lis
     return rows
 
 
+_SCALE = """
+import json, sys, time
+import numpy as np
+from sgloc import localize
+from sgloc.geometry import transform_error
+from sgloc.sim.object_world import make_two_robot_scene
+
+
+def scene(n):
+    # Robots see whole cross streets (view radius 130 m): about 0.47 objects per metre of street.
+    return make_two_robot_scene(seed=0, overlap=0.5, stretch=n / 0.47, view_radius=130.0)
+
+
+def peak_mb():
+    for line in open("/proc/self/status"):  # VmHWM: this process's peak resident set
+        if line.startswith("VmHWM"):
+            return int(line.split()[1]) / 1e3
+
+
+n, reps = int(sys.argv[1]), int(sys.argv[2])
+small = scene(2000)
+localize(small.query, small.target, seed=0, scope="local")  # loads the kernels (not timed)
+s = scene(n)
+out = {"n_query": len(s.query), "n_target": len(s.target), "base_mb": peak_mb(), "s": []}
+for _ in range(reps):
+    # New graph objects every call: nothing computed for the last call is reused.
+    q, t = s.query.subgraph(np.arange(len(s.query))), s.target.subgraph(np.arange(len(s.target)))
+    t0 = time.perf_counter()
+    res = localize(q, t, seed=0)
+    out["s"].append(time.perf_counter() - t0)
+    out["timings"] = res.timings
+out["success"] = bool(res.success)
+if res.transform is not None:
+    out["t_err"] = float(transform_error(res.transform, s.T_target_query)[0])
+out["n_candidates"], out["n_survivors"] = len(res.candidates), len(res.survivors)
+out["peak_mb"] = peak_mb()
+print(json.dumps(out))
+"""
+
+#: Map-to-map goals: 90k objects per map in at most this many seconds and MB, time ratio
+#: 90k / 10k at most SCALE_RATIO.
+SCALE_GOAL_S, SCALE_GOAL_MB, SCALE_RATIO = 3.0, 1000.0, 15.0
+
+
+def run_scale(sizes: list[int], reps: int, large: int) -> list[dict]:
+    """Each map size in a fresh process: `reps` calls on new graph objects (`large`: one)."""
+    rows = []
+    for n, r in [(n, reps) for n in sizes] + ([(large, 1)] if large else []):
+        res = subprocess.run([sys.executable, "-c", _SCALE, str(n), str(r)],
+                             capture_output=True, text=True)  # fmt: skip
+        if res.returncode == 0:
+            rows.append({"n": n, **json.loads(res.stdout.strip().splitlines()[-1])})
+        else:
+            rows.append({"n": n, "error": (res.stderr.strip().splitlines() or ["?"])[-1][:120]})
+    return rows
+
+
+def report_scale(rows: list[dict], args) -> list[str]:
+    """The map-to-map table and its goals."""
+    reps = args.scale_reps
+    sizes = " ".join(str(n) for n in args.scale_sizes)
+    lines = ["## Map to map at scale", "",
+             f"Command: `python -m benchmarks.speed --only scale --scale-sizes {sizes} "
+             f"--scale-reps {reps} --scale-large {args.scale_large}` "
+             f"({time.strftime('%Y-%m-%d')}). "
+             "`localize(query, target)` with default settings on two generated object maps of "
+             "N objects each (`sgloc.sim.object_world`, 50 % overlap, view radius 130 m), new "
+             f"graph objects every call (nothing cached), {reps} calls per size in a fresh "
+             "process after one untimed call on small maps (kernels loaded); the largest size "
+             "once. Wall seconds median (min – max); peak memory: the process's peak resident "
+             "set (VmHWM, including about 200 MB of Python, numpy, scipy and numba); bytes per "
+             "object: (peak - resident set before the calls) / objects of both maps.", "",
+             "| N per map | objects (query, target) | candidates, survivors | s median (min – max) "
+             "| peak MB | bytes / object | outcome (stages of the last call, s) |",
+             "|---|---|---|---|---|---|---|"]  # fmt: skip
+    med = {}
+    for r in rows:
+        if "error" in r:
+            lines.append(f"| {r['n']:,} | - | - | - | - | - | {r['error']} |")
+            continue
+        med[r["n"]] = float(np.median(r["s"]))
+        per = (r["peak_mb"] - r["base_mb"]) * 1e6 / (r["n_query"] + r["n_target"])
+        res = ("localized" if r["success"] else "not localized") + (
+            f", t_err {r['t_err']:.2f} m" if "t_err" in r else ""
+        )
+        stages = ", ".join(f"{k} {v:.2f}" for k, v in r["timings"].items())
+        lines.append(f"| {r['n']:,} | {r['n_query']:,}, {r['n_target']:,} | "
+                     f"{r['n_candidates']:,}, {r['n_survivors']:,} | {_mmm(r['s'])} | "
+                     f"{r['peak_mb']:.0f} | {per:.0f} | {res} ({stages}) |")  # fmt: skip
+    out = []
+    big = next((r for r in rows if r["n"] == 90_000 and "error" not in r), None)
+    if big is not None:
+        out.append(
+            f"- 90,000 objects per map: {med[90_000]:.2f} s median (<= {SCALE_GOAL_S:g} s: "
+            f"{_verdict(med[90_000] <= SCALE_GOAL_S)}), peak {big['peak_mb']:.0f} MB "
+            f"(<= {SCALE_GOAL_MB:g} MB: {_verdict(big['peak_mb'] <= SCALE_GOAL_MB)})."
+        )
+    if 90_000 in med and 10_000 in med:
+        ratio = med[90_000] / med[10_000]
+        out.append(f"- time ratio 90k / 10k: {ratio:.1f} (<= {SCALE_RATIO:g}: "
+                   f"{_verdict(ratio <= SCALE_RATIO)}).")  # fmt: skip
+    for r in rows:
+        if r["n"] > 90_000:
+            done = "error" not in r
+            out.append(f"- {r['n']:,} objects per map: "
+                       + (f"completes in {med[r['n']]:.0f} s, peak {r['peak_mb']:.0f} MB."
+                          if done else f"did not complete ({r['error']})."))  # fmt: skip
+    return lines + ["", *out, ""]
+
+
 def _mmm(v) -> str:
     v = np.asarray(v, float)
     return f"{np.median(v):.3g} ({v.min():.3g} – {v.max():.3g})"
@@ -336,7 +454,7 @@ def report_register(reg, args) -> list[str]:
     lines = [
         f"Command: `python -m benchmarks.speed --seeds {args.seeds} --reps {args.reps} "
         f"--startup-runs {args.startup_runs}{' --load' if args.load else ''}` "
-        f"({time.strftime('%Y-%m-%d')}, {os.cpu_count()}-core machine shared with other jobs, "
+        f"({time.strftime('%Y-%m-%d')}, {os.cpu_count()} cores, other processes running, "
         "default BLAS threads unless said). Wall-clock milliseconds: median (min – max) over "
         f"all calls ({args.seeds} seeds x 2 outlier kinds x {args.reps} turns x {BURST} calls "
         "per size); "
@@ -344,7 +462,7 @@ def report_register(reg, args) -> list[str]:
         f"Methods take turns (the order rotates) in bursts of {BURST} calls on the same set, "
         f"each burst after an untimed {COOL_DOWN_S * 1e3:g} ms pause (threads left spinning by "
         "one method must not slow down the next); every call counts. In-process timings run "
-        "the compiled kernels (`sgloc.kernels.FORCE = 'compiled'`: a process's first small "
+        "the compiled kernels (`sgloc.kernels.FORCE = 'compiled'`: small "
         "problems would otherwise run the numpy references, see Start-up). "
         "register runs neighbor rejection (tau = 5 m), RANSAC (threshold 5 m) and the IRLS fit; "
         "KISS-Matcher runs `prune_and_solve` with noise bounds tau / 2 (the same consistency "
@@ -386,8 +504,8 @@ def report_threads(threads, args) -> list[str]:
              "The default BLAS threads vs one (threadpoolctl), in rounds where every call and "
              f"setting takes a turn of 5 calls on the same input ({args.reps * THREAD_ROUNDS} "
              f"rounds; each turn after an untimed {COOL_DOWN_S * 1e3:g} ms pause), so that "
-             "bursts of load fall on all alike; the machine is shared with "
-             f"other jobs{load}. `localize` runs "
+             "bursts of load fall on all alike; other processes ran at the "
+             f"same time{load}. `localize` runs "
              "Guo's Airsim maps (cloud1 against cloud2, 318 and 328 objects) with default "
              "settings; with the same graph objects every call (a map localized against "
              "several others is described once: descriptors are cached per graph) and with "
@@ -416,11 +534,11 @@ def report_startup(startup, cli) -> list[str]:
     lines = ["## Start-up", "",
              "Fresh processes; seconds, median (min – max). `import sgloc` loads neither numba "
              "nor the kernels (nor scipy.stats, matplotlib, dask). Loading numba and the cached "
-             "kernels costs a process about 0.7 s once, so a process's first small problems "
-             "(up to `sgloc.kernels.SMALL_PROBLEM` matches, the first "
-             "`sgloc.kernels.REFERENCE_CALLS` of them) run the numpy references, which give "
-             "the same results; later and larger problems run the kernels. The first compiled "
-             "call compiles the kernels it uses (numba, `cache=True`) when the cache is empty "
+             "kernels costs a process a few tenths of a second once; every problem runs the "
+             "kernels (the numpy references, equal to rounding, serve the tests), so the same "
+             "inputs give the same bits in every process. The first "
+             "compiled call compiles the kernels it uses (numba, `cache=True`) "
+             "when the cache is empty "
              "and loads them afterwards. The compiled code is cached next to the installed "
              "sources (`sgloc/kernels/__pycache__`) when that folder is writable, otherwise in "
              "numba's per-user cache folder (`~/.cache/numba` on Linux); `NUMBA_CACHE_DIR` "
@@ -489,6 +607,10 @@ def report(reg, threads, startup, cli, maps, args) -> list[str]:
         lines += report_startup(startup, cli)
     if maps:
         lines += report_maps(maps, args.cap_gb)
+    if args.scale_rows:
+        lines += report_scale(args.scale_rows, args)
+    if getattr(args, "prepared", None):
+        lines += prepared_speed.report(args.prepared)
     return lines
 
 
@@ -500,6 +622,9 @@ def main() -> None:
     ap.add_argument("--no-maps", action="store_true")
     ap.add_argument("--maps", type=int, nargs="*", default=[20000, 100000])
     ap.add_argument("--cap-gb", type=float, default=6.0)
+    ap.add_argument("--scale-sizes", type=int, nargs="*", default=[10_000, 20_000, 50_000, 90_000])
+    ap.add_argument("--scale-reps", type=int, default=3)
+    ap.add_argument("--scale-large", type=int, default=500_000, help="0: skip")
     ap.add_argument("--load", action="store_true", help="a busy process during the BLAS test")
     ap.add_argument("--update-docs", action="store_true", help="write docs/speed_benchmark.md")
     ap.add_argument("--only", nargs="+", choices=PARTS, default=list(PARTS),
@@ -518,6 +643,12 @@ def main() -> None:
     cli = run_cli(args.startup_runs + 2) if "startup" in parts else []
     args.loads.append(os.getloadavg()[0])
     maps = run_maps(args.maps, args.cap_gb) if "maps" in parts and not args.no_maps else []
+    args.loads.append(os.getloadavg()[0])
+    args.scale_rows = []
+    if "scale" in parts:
+        args.scale_rows = run_scale(args.scale_sizes, args.scale_reps, args.scale_large)
+        args.loads.append(os.getloadavg()[0])
+    args.prepared = prepared_speed.run(args) if "prepared" in parts else None
     args.loads.append(os.getloadavg()[0])
     text = "\n".join(report(reg, threads, startup, cli, maps, args))
     print(text)

@@ -125,8 +125,8 @@ def test_paper_preset_rejection_is_alg1_as_written(seed):
 
 @pytest.fixture(params=["compiled", "reference"])
 def kernel_path(request, monkeypatch):
-    """Each bound on both paths: the compiled kernel and the numpy reference that a process's
-    first small problems run."""
+    """Each bound on both paths: the compiled kernel and the numpy reference that small
+    problems run."""
     from sgloc import kernels
 
     monkeypatch.setattr(kernels, "FORCE", request.param)

@@ -19,7 +19,7 @@ def test_localize_writes_json(airsim_dir, tmp_path, capsys):
     assert rc == 0
     res = json.loads(out.read_text())
     assert res["success"] and res["n_matches"] > 10
-    T = np.array(res["transform"])
+    T = np.array(res["T_target_query"])
     assert np.linalg.norm(T[:3, 3]) < 5.0  # ground truth is the identity
     printed = capsys.readouterr().out
     assert "T_target_query" in printed and "ransac" in printed

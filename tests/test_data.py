@@ -166,3 +166,28 @@ def test_fetch_uses_a_verified_copy_already_in_a_data_folder(tmp_path, no_data, 
     (checkout / "airsim_guo" / "cloud1.pcd").write_text("changed")
     with pytest.raises(DatasetError):
         sd.fetch("airsim_guo")
+
+
+def test_failed_fetch_leaves_no_folder_and_path_checks_completeness(no_data, monkeypatch, capsys):
+    monkeypatch.setenv("SGLOC_DATA_URL", "http://127.0.0.1:9/")  # nothing listens there
+    assert main(["data", "fetch", "kitti00"]) == 2
+    assert not (no_data / "kitti00").exists()
+    capsys.readouterr()
+    (no_data / "kitti00").mkdir(parents=True)  # what an interrupted download used to leave
+    assert main(["data", "path", "kitti00"]) == 2
+    err = capsys.readouterr().err
+    assert "incomplete" in err and "sgloc data fetch kitti00" in err
+    argv = ["experiment", "overlap", "--dataset", "kitti00", "--trials", "1", "--workers", "1",
+            "--out", str(no_data / "exp")]  # fmt: skip
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "sgloc data fetch kitti00" in err and "pose file" not in err
+
+
+def test_benchmarks_leave_out_a_missing_set_and_say_so(no_data, capsys):
+    assert not sd.present_or_say("kitti00", "the KITTI 00 pairs")
+    err = capsys.readouterr().err
+    assert "the KITTI 00 pairs is left out" in err and "sgloc data fetch kitti00" in err
+    with pytest.raises(SystemExit, match="sgloc data fetch kitti00"):
+        sd.present_or_say("kitti00", "the KITTI 00 pairs", required=True)
+    assert sd.present_or_say("airsim_guo", "the Airsim pairs")  # shipped

@@ -67,7 +67,7 @@ def test_random_walk_is_seeded():
     assert not np.array_equal(a, c)
     # Every vertex with a neighbour has n_walks walks.
     has_nb = g.degrees > 0
-    np.testing.assert_array_equal(a.sum(axis=1)[has_nb], 200)
+    np.testing.assert_array_equal(a.sum(axis=1)[has_nb], rw.n_walks)
 
 
 @pytest.mark.parametrize("name", [n for n in DESCRIPTORS if n != "triangles"])

@@ -1,4 +1,4 @@
-"""localize_fleet: pairs, acceptance, spanning tree, cycle check, merged map, CLI, Dask."""
+"""localize_fleet: pairs, acceptance, loop check, pose graph, merged map, CLI, Dask."""
 
 from __future__ import annotations
 
@@ -10,9 +10,12 @@ import pytest
 from sgloc.cli import main
 from sgloc.errors import SglocError
 from sgloc.evaluation.fleet_scenes import fleet_errors, kitti_fleet, world_fleet
-from sgloc.fleet import FleetConfig, PairLink, build_common_frame, localize_fleet, merge_graphs
+from sgloc.fleet import localize_fleet
 from sgloc.geometry import invert, make_transform
 from sgloc.graph import SemanticGraph
+from sgloc.merge import merge_graphs
+from sgloc.online.consistency import Edge
+from sgloc.online.posegraph import fleet_frame
 
 
 def _check_placed(res, scene, max_m=3.0, max_deg=3.0):
@@ -50,31 +53,24 @@ def test_kitti_fleet_places_robots_within_3m_3deg():
     assert set(res.placed) | set(res.unplaced) == set(range(len(scene.graphs)))
 
 
-def _link(i, j, T, conf=1.0):
-    return PairLink(i, j, True, T, conf, 20)
-
-
-def test_cycle_check_drops_the_link_that_disagrees_around_loops(rng):
+def test_loop_check_drops_the_link_that_disagrees_around_loops(rng):
     # Four robots with known poses; every pair linked; one confident link is wrong by 30 m.
     pts = rng.uniform(-50, 50, (40, 3))
-    graphs = [SemanticGraph(pts, rng.integers(0, 3, 40), name=f"r{i}") for i in range(4)]
     G = [make_transform(np.eye(3), np.array([40.0 * i, 0, 0])) for i in range(4)]
-    links = []
+    edges = []
     for i in range(4):
         for j in range(i + 1, 4):
-            T = invert(G[j]) @ G[i]
+            T = invert(G[i]) @ G[j]  # T_i_j
             if (i, j) == (0, 2):
                 T = make_transform(np.eye(3), np.array([30.0, 0, 0])) @ T
-                links.append(_link(i, j, T, conf=1.0))
-            else:
-                links.append(_link(i, j, T, conf=0.999))
-    root, poses, reasons = build_common_frame(graphs, links, FleetConfig())
-    assert sorted(poses) == [0, 1, 2, 3] and not reasons
-    bad = next(lk for lk in links if (lk.query, lk.target) == (0, 2))
-    assert bad.used == "dropped" and "loop" in bad.reason
-    for i in range(4):
-        T_gt = invert(G[root]) @ G[i]
-        assert np.allclose(poses[i], T_gt, atol=1e-6)
+            edges.append(Edge(i, j, T, 1.0 if (i, j) == (0, 2) else 0.999, 0.0))
+    cov = [np.eye(6) * 0.01] * len(edges)
+    frame = fleet_frame(4, edges, cov, 1, lambda r: pts)
+    bad = next(k for k, e in enumerate(edges) if (e.a, e.b) == (0, 2))
+    assert sorted(frame.active) == sorted(set(range(6)) - {bad})
+    assert "loop" in frame.dropped[bad]
+    for i in range(4):  # rooted at robot 1
+        assert np.allclose(frame.T_fleet_robot[i], invert(G[1]) @ G[i], atol=1e-6)
 
 
 def test_merge_fuses_same_class_duplicates_only():
@@ -96,6 +92,10 @@ def test_local_processes_and_dask_give_the_same_fleet():
 
     graphs = world_fleet(2).graphs[:4]
     local = localize_fleet(graphs, workers=2)
+    here = localize_fleet(graphs, workers=0)  # in this process
+    assert here.placed == local.placed
+    for i in local.placed:
+        np.testing.assert_array_equal(here.T_world_robot[i], local.T_world_robot[i])
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=False) as cluster:
         with Client(cluster):
             dask = localize_fleet(graphs, scheduler=cluster.scheduler_address)

@@ -1,33 +1,97 @@
-"""`sgloc fleet` outputs: every placed robot's pose as TUM and KITTI, the settings used."""
+"""`sgloc fleet` outputs: every placed robot's pose as TUM and KITTI (keyed by unique robot
+name), the inter-robot factors as g2o, the settings used; the root can be chosen."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
+import pytest
 import yaml
 
 from sgloc.cli import main
-from sgloc.evaluation.fleet_scenes import world_fleet
+from sgloc.evaluation.fleet_scenes import fleet_errors, world_fleet
 from sgloc.fleet import localize_fleet
+from sgloc.io.g2o import read_g2o
+from sgloc.io.names import robot_names
 from sgloc.io.poses import read_kitti_poses, read_tum_poses
 
 
-def test_fleet_writes_tum_and_kitti_poses(tmp_path):
+@pytest.fixture(scope="module")
+def fleet4(tmp_path_factory):
+    out = tmp_path_factory.mktemp("fleet4")
     scene = world_fleet(0)
-    res = localize_fleet(scene.graphs[:4], workers=0, out=tmp_path)
+    return scene, localize_fleet(scene.graphs[:4], workers=0, out=out), out
+
+
+def test_fleet_writes_tum_and_kitti_poses(fleet4):
+    scene, res, out = fleet4
     placed = sorted(res.T_world_robot)
     assert len(placed) >= 2
-    stamps, T_tum = read_tum_poses(tmp_path / "poses.tum")
-    T_kitti = read_kitti_poses(tmp_path / "poses.kitti")
-    assert stamps.astype(int).tolist() == placed
+    stamps, T_tum = read_tum_poses(out / "poses.tum")
+    T_kitti = read_kitti_poses(out / "poses.kitti")
+    assert stamps.tolist() == [0.0] * len(placed)  # whole maps have no time of their own
     for k, i in enumerate(placed):
         np.testing.assert_allclose(T_tum[k], res.T_world_robot[i], atol=1e-6)
         np.testing.assert_allclose(T_kitti[k], res.T_world_robot[i], atol=1e-6)
-        stem = scene.graphs[i].name.rsplit(".", 1)[0]
         np.testing.assert_allclose(
-            read_kitti_poses(tmp_path / "poses" / f"{stem}.kitti")[0], res.T_world_robot[i],
-            atol=1e-6,
+            read_kitti_poses(out / "poses" / f"{scene.graphs[i].name}.kitti")[0],
+            res.T_world_robot[i], atol=1e-6,
         )
-    assert (tmp_path / "config.yaml").is_file()
+    assert (out / "config.yaml").is_file()
+
+
+def test_links_g2o_parses_back(fleet4):
+    _, res, out = fleet4
+    vertices, edges = read_g2o(out / "links.g2o")
+    assert sorted(vertices) == res.placed
+    for i, T in vertices.items():
+        np.testing.assert_allclose(T, res.T_world_robot[i], atol=1e-6)
+    kept = [lk for lk in res.links if lk.used in ("tree", "loop")]
+    assert len(edges) == len(kept) >= len(res.placed) - 1
+    for (a, b, T, cov), lk in zip(edges, kept, strict=True):
+        assert (a, b) == (lk.target, lk.query)
+        np.testing.assert_allclose(T, lk.transform, atol=1e-6)
+        np.testing.assert_allclose(cov, lk.covariance, rtol=1e-5, atol=1e-12)
+    import gtsam
+
+    graph, initial = gtsam.readG2o(str(out / "links.g2o"), True)
+    assert graph.size() == len(edges) and initial.size() == len(vertices)
+
+
+def test_same_named_files_do_not_overwrite_each_other(tmp_path):
+    graphs = world_fleet(0).graphs[:2]
+    paths = []
+    for k, g in enumerate(graphs):
+        (tmp_path / f"r{k + 1}").mkdir()
+        paths.append(str(g.save(tmp_path / f"r{k + 1}" / "map.json")))
+    assert robot_names(paths) == ["r1-map", "r2-map"]
+    assert robot_names(["a/Map.pcd", "b/map.ply", "c.json"]) == ["a-Map", "b-map", "c"]
+    assert robot_names(["x/r 1.pcd", "x/r 1.ply"]) == ["x-r-1-0", "x-r-1-1"]
+    out = tmp_path / "out"
+    assert main(["fleet", *paths, "--out", str(out), "--workers", "0"]) == 0
+    info = json.loads((out / "fleet.json").read_text())
+    assert info["robots"] == ["r1-map", "r2-map"] and len(info["placed"]) == 2
+    a = read_kitti_poses(out / "poses" / "r1-map.kitti")[0]
+    b = read_kitti_poses(out / "poses" / "r2-map.kitti")[0]
+    assert not np.allclose(a, b, atol=1.0)  # two robots, two different poses
+
+
+def test_root_can_be_chosen(tmp_path):
+    scene = world_fleet(0)
+    graphs = scene.graphs[:3]
+    res = localize_fleet(graphs, workers=0, root="world2")
+    assert res.names[res.root] == "world2"
+    np.testing.assert_allclose(res.T_world_robot[2], np.eye(4), atol=1e-12)
+    for dt, dr in fleet_errors(res.T_world_robot, scene.T_gt_robot, 2, graphs).values():
+        assert dt < 3.0 and dr < 3.0
+    paths = [str(g.save(tmp_path / f"{g.name}.json")) for g in graphs]
+    out = tmp_path / "out"
+    assert main(["fleet", *paths, "--out", str(out), "--workers", "0", "--root", "world1"]) == 0
+    assert json.loads((out / "fleet.json").read_text())["root_name"] == "world1"
+    np.testing.assert_allclose(read_kitti_poses(out / "poses" / "world1.kitti")[0], np.eye(4),
+                               atol=1e-9)
+    assert main(["fleet", *paths, "--workers", "0", "--root", "nobody"]) == 2
 
 
 def test_cli_fleet_preset_and_set(tmp_path, capsys):

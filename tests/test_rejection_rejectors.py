@@ -125,6 +125,6 @@ def test_cli_localize_with_rejection(name, airsim_dir, tmp_path):
     res = json.loads(out.read_text())
     assert res["success"] and res["config"]["rejection"] == name
     # Same frame: the transform is near the identity.
-    T = np.array(res["transform"])
+    T = np.array(res["T_target_query"])
     assert np.linalg.norm(T[:3, 3]) < 10.0
     assert 0 < res["n_survivors"] < res["n_candidates"]

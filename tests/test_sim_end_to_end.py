@@ -34,10 +34,16 @@ def test_localize_recovers_ground_truth_on_the_city_for_9_of_10_seeds():
     assert ok.sum() >= 9, f"only {ok.sum()} of 10 seeds within 3 m and 3 deg: {report}"
 
 
-def test_demo_objects_only_runs():
-    result = CliRunner().invoke(app, ["demo", "--objects-only", "--seed", "1"])
+def test_demo_objects_only_runs_with_its_options(tmp_path):
+    out = tmp_path / "objects.png"
+    args = ["demo", "--objects-only", "--seed", "1", "--out", str(out)]
+    result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
-    assert "error against ground truth" in result.output
+    assert "error vs ground truth" in result.output and out.read_bytes()[:4] == b"\x89PNG"
+    from sgloc.cli import main
+
+    assert main([*args, "--set", "tau=-1"]) == 2  # --set and --preset are read
+    assert main([*args, "--preset", "nope"]) == 2
 
 
 def test_demo_renders_once_then_uses_the_cache(tmp_path):
@@ -51,9 +57,16 @@ def test_demo_renders_once_then_uses_the_cache(tmp_path):
     runs = list((tmp_path / "cache" / "demo").iterdir())
     assert len(runs) == 1 and (runs[0] / "run.json").is_file()
     assert (runs[0] / "forwardCar" / "airsim.txt").is_file()
+    assert len(list(runs[0].glob("graph-*.json"))) == 2  # both robots' extracted graphs
     second = CliRunner().invoke(app, args)
-    assert "using the cached run" in second.output
+    assert "using the cached run" in second.output and "extracting" not in second.output
     assert second.exit_code == first.exit_code
+
+    def body(out: str) -> list[str]:  # the report's graphs, matches and errors
+        keys = ("vertices", "candidates", "error vs", "not localized")
+        return [ln for ln in out.splitlines() if any(k in ln for k in keys)]
+
+    assert body(second.output) == body(first.output)  # the cached graphs give the same answer
 
 
 def test_demo_rejects_bad_overlap(tmp_path):

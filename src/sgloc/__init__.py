@@ -14,6 +14,7 @@ from sgloc.errors import SglocError
 from sgloc.fleet import localize_fleet as localize_fleet  # re-exported beside localize
 from sgloc.graph import SemanticGraph
 from sgloc.localizer import LocalizationResult, Localizer, NotLocalizedError, localize
+from sgloc.prepared import PreparedMap, prepare
 from sgloc.registration import RegistrationResult, register
 
 __version__ = "0.1.0"
@@ -23,10 +24,12 @@ __all__ = [
     "Localizer",
     "LocalizerConfig",
     "NotLocalizedError",
+    "PreparedMap",
     "RegistrationResult",
     "SemanticGraph",
     "SglocError",
     "__version__",
     "localize",
+    "prepare",
     "register",
 ]

@@ -1,5 +1,6 @@
-"""Canonical form of a graph pair at the localizer's entry: vertices sorted by (class, x, y, z)
-and the classes present renumbered 0..L-1. The pipeline then gives the same answer for any
+"""Canonical form of a graph pair at the localizer's entry: vertices sorted by (class, x, y, z),
+an object listed twice (same class, within DUPLICATE_RADIUS) kept once, and the classes present
+renumbered 0..L-1. The pipeline then gives the same answer for any
 vertex order of either graph, and no array is sized by a large class id. `restore` maps the
 result's vertex indices back to the caller's order."""
 
@@ -18,6 +19,9 @@ from sgloc.graph import SemanticGraph
 #: graph): {class table bytes: (order, canonical graph)}. Reusing the canonical graph lets its
 #: own caches (descriptors, adjacency) serve every later call with the same map.
 CANONICAL_FORMS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+#: Objects of one class closer than this (metres) are one object listed twice: kept once (the
+#: first in canonical order), else every copy would be a rival of its twin in the ratio tests.
+DUPLICATE_RADIUS = 1e-3
 #: Class tables kept per graph (a map localized against maps with other classes).
 _FORMS_PER_GRAPH = 4
 
@@ -28,14 +32,57 @@ def canonical_order(graph: SemanticGraph) -> np.ndarray:
     return np.lexsort((p[:, 2], p[:, 1], p[:, 0], graph.labels))
 
 
+def without_duplicates(graph: SemanticGraph, order: np.ndarray) -> np.ndarray:
+    """`order` without the vertices that repeat an earlier one of it (same class, closer than
+    DUPLICATE_RADIUS); an order of a graph without duplicates comes back unchanged."""
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(graph.positions[order]).query_pairs(DUPLICATE_RADIUS, output_type="ndarray")
+    lab = graph.labels[order]
+    pairs = pairs[lab[pairs[:, 0]] == lab[pairs[:, 1]]]
+    if len(pairs) == 0:
+        return order
+    n = len(order)
+    links = sparse.coo_array((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, group = connected_components(links, directed=False)
+    first = np.unique(group, return_index=True)[1]
+    return order[np.sort(first)]
+
+
 class CanonicalPair:
     """(query, target) in canonical form, the config with class weights renumbered to match,
     and the maps back to the caller's vertex indices and class ids."""
+
+    #: The target's descriptors and matching blocks when they come prepared (sgloc.prepared).
+    target_descriptors = None
+    target_blocks = None
 
     def __init__(self, query: SemanticGraph, target: SemanticGraph, config: Any) -> None:
         self.classes = np.union1d(query.labels, target.labels)  # original id of each new id
         self.query_order, self.query = self._canonical(query)
         self.target_order, self.target = self._canonical(target)
+        self._set_config(config)
+
+    @classmethod
+    def with_canonical_target(
+        cls,
+        query: SemanticGraph,
+        classes: np.ndarray,
+        target_order: np.ndarray,
+        target: SemanticGraph,
+        config: Any,
+    ) -> CanonicalPair:
+        """The pair of `query` and a target already in canonical form under `classes` (which
+        hold every class of the query): nothing of the target's size is computed."""
+        pair = cls.__new__(cls)
+        pair.classes = classes
+        pair.query_order, pair.query = pair._canonical(query)
+        pair.target_order, pair.target = target_order, target
+        pair._set_config(config)
+        return pair
+
+    def _set_config(self, config: Any) -> None:
         self.original_config = config
         self.config = config
         if getattr(config, "class_weights", None):
@@ -53,7 +100,7 @@ class CanonicalPair:
         if key not in forms:
             if len(forms) >= _FORMS_PER_GRAPH:
                 forms.pop(next(iter(forms)))
-            order = canonical_order(graph)
+            order = without_duplicates(graph, canonical_order(graph))
             order.flags.writeable = False
             forms[key] = (order, self._rebuilt(graph, order))
         return forms[key]

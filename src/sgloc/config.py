@@ -361,9 +361,14 @@ def _route(
     if found:
         options = ", ".join(f"{_PREFIX[s]}_{n}" if s in _PREFIX else n for s, n in found)
         raise UnknownNameError(f"setting {key!r} is ambiguous; use one of {options}.")
+    import difflib
+
+    close = difflib.get_close_matches(key, list(routes) + list(FLAT_AMBIGUOUS), n=1)
+    hint = f"did you mean {' or '.join(map(repr, close))}? " if close else ""
     raise UnknownNameError(
         f"unknown setting {key!r} for descriptor {descriptor!r} and rejection {rejection!r}; "
-        "see LocalizerConfig and the stage configs."
+        f"{hint}every setting and its default is in the config.yaml that "
+        "`sgloc localize --example --out DIR` writes (docs/formats.md)."
     )
 
 

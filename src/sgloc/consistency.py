@@ -22,9 +22,15 @@ import numpy as np
 from sgloc.errors import TooManyMatchesError, UnknownNameError
 from sgloc.kernels import one_blas_thread, use_compiled
 
-#: Most matches the pairwise consistency pass takes: its packed rows hold m^2 / 8 bytes
-#: (2.8 GB here), beside the two graphs; 100,000-vertex maps give about 100,000 at top_k=1.
+#: Most matches the all-pairs consistency pass takes: its packed rows hold m^2 / 8 bytes
+#: (2.8 GB here), beside the two graphs. The default settings never reach it: above
+#: ALL_PAIRS_LIMIT candidates they check pairs within a radius (`sgloc.local_consistency`).
 MAX_MATCHES = 150_000
+
+#: Candidate counts up to which the default settings check all pairs (the neighbor rejector's
+#: scope "auto", the acceptance test's hypothesis count); above, only pairs within a radius
+#: (`sgloc.local_consistency`) or a random sample of pairs: 12.5 MB of packed rows at this size.
+ALL_PAIRS_LIMIT = 10_000
 
 #: Side of the square tiles computed at once: 512 x 512 float32 = 1 MB per temporary (L2-sized).
 TILE = 512
@@ -156,7 +162,8 @@ def check_match_count(m: int) -> None:
         raise TooManyMatchesError(
             f"{m:,} matches are too many for the pairwise consistency check (it would need "
             f"{m * m / 8e9:.1f} GB; at most {MAX_MATCHES:,}): keep fewer candidates (lower "
-            "top_k or max_candidates, or raise min_similarity) or pass fewer correspondences."
+            "top_k or max_candidates, or raise min_similarity), pass fewer correspondences, "
+            "or use the neighbor rejector's local scope (scope='local')."
         )
 
 

@@ -16,6 +16,8 @@ Caches (rendered synthetic runs, extracted graphs) go to `cache_dir()`.
 from __future__ import annotations
 
 import os
+import shutil
+import sys
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -192,6 +194,12 @@ def dataset_dir(name: str) -> Path:
             f"data set {ds.name!r} not found (looked in {where}); "
             f"run `sgloc data fetch {ds.name}` or set SGLOC_DATA to the folder holding {ds.name}/."
         )
+    missing = [f.name for f in dataset(name).files if not (found / f.name).is_file()]
+    if missing:  # e.g. left by a failed download
+        raise DatasetError(
+            f"data set {dataset(name).name!r} in {found} is incomplete (missing "
+            f"{', '.join(missing)}); run `sgloc data fetch {dataset(name).name}`."
+        )
     return found
 
 
@@ -242,6 +250,19 @@ def is_complete(name: str, folder: Path | None = None) -> bool:
     return folder is not None and all((folder / f.name).is_file() for f in ds.files)
 
 
+def present_or_say(name: str, part: str, required: bool = False) -> bool:
+    """Whether data set `name` is complete; if not, say on stderr that `part` is left out and
+    how to get the set (a benchmark runs the rest), or with `required` exit with that."""
+    if is_complete(name):
+        return True
+    how = f"run `sgloc data fetch {name}` (or set SGLOC_DATA to the folder holding {name}/)"
+    if required:
+        raise SystemExit(f"error: data set {name} not found: {how}; it is needed here.")
+    print(f"note: data set {name} not found, so {part} is left out; {how} to include it.",
+          file=sys.stderr)  # fmt: skip
+    return False
+
+
 def verified_copy(name: str) -> Path | None:
     """The folder of a complete copy of data set `name` in one of `data_roots()` whose every
     file matches its pinned sha256 (not the copy shipped in the package), or None."""
@@ -263,7 +284,21 @@ def fetch(name: str, dest: Path | None = None, progress: bool = False) -> Path:
     if dest is None and (found := verified_copy(ds.name)) is not None:
         return found  # already in a data folder (e.g. beside a checkout): nothing to download
     folder = Path(dest if dest is not None else fetch_dir()) / ds.name
+    created = not folder.exists()
     folder.mkdir(parents=True, exist_ok=True)
+    try:
+        _fetch_files(ds, folder, progress)
+    except BaseException:
+        for partial in folder.glob("*.download"):
+            partial.unlink(missing_ok=True)
+        if created:  # leave no folder that looks like a data set
+            shutil.rmtree(folder, ignore_errors=True)
+        raise
+    return folder
+
+
+def _fetch_files(ds: DataSet, folder: Path, progress: bool) -> None:
+    """Download the files of `ds` missing from `folder` (or with another hash)."""
     for f in ds.files:
         target = folder / f.name
         if target.is_file() and _sha256(target) == f.sha256:
@@ -277,7 +312,6 @@ def fetch(name: str, dest: Path | None = None, progress: bool = False) -> Path:
                 raise DatasetError(f"{url}: the rows of sequence {f.keep_sequence} do not match "
                                    f"their pinned sha256 {f.sha256}.")
         got.replace(target)
-    return folder
 
 
 def _download(url: str, sha256: str, folder: Path, fname: str, progress: bool) -> Path:

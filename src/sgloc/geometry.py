@@ -58,3 +58,20 @@ def transform_error(T_est: np.ndarray, T_gt: np.ndarray) -> tuple[float, float]:
     """
     E = T_est @ invert(T_gt)
     return float(np.linalg.norm(E[:3, 3])), rotation_angle_deg(E[:3, :3])
+
+
+def regularized_covariance(cov: np.ndarray, floor: float = 1e-12) -> np.ndarray:
+    """A covariance made symmetric with eigenvalues >= `floor`, so that it can be inverted
+    (an information matrix) or factorised whatever its source."""
+    c = np.asarray(cov, dtype=np.float64)
+    c = 0.5 * (c + c.T)
+    w, v = np.linalg.eigh(c)
+    return (v * np.maximum(w, floor)) @ v.T
+
+
+def translation_error_at(T_est: np.ndarray, T_gt: np.ndarray, point: np.ndarray) -> float:
+    """How far apart (metres) T_est and T_gt put `point` (3,) of their common source frame:
+    the translation error where the maps overlap when `point` is the query objects' centroid
+    (`transform_error` measures at the target frame's origin instead)."""
+    p = np.append(np.asarray(point, dtype=np.float64).reshape(3), 1.0)
+    return float(np.linalg.norm((T_est @ p - T_gt @ p)[:3]))

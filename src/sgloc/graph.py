@@ -12,6 +12,8 @@ from sgloc.errors import InvalidGraphError, SglocError
 from sgloc.validation import check_graph_arrays, check_real
 
 DEFAULT_EDGE_RADIUS = 20.0
+#: Most vertices for which `SemanticGraph.distances` builds the dense matrix (3.2 GB here).
+DENSE_LIMIT = 20_000
 
 
 class SemanticGraph:
@@ -25,8 +27,9 @@ class SemanticGraph:
         edge_radius: two vertices are neighbours when closer than this (metres, Guo: 20 m).
         name: optional name used in messages.
 
-    The full distance matrix is kept (the paper's weighted graph); the adjacency is derived
-    from it. Both are computed lazily and cached; the graph is immutable.
+    The full distance matrix (the paper's weighted graph) and the adjacency are computed
+    lazily and cached; the graph is immutable. The pipeline never builds the distance matrix
+    (n^2 floats): it queries neighbours within a radius (KD-trees, grids).
     """
 
     def __init__(
@@ -69,7 +72,14 @@ class SemanticGraph:
 
     @cached_property
     def distances(self) -> np.ndarray:
-        """(n,n) Euclidean distances between all vertices, metres."""
+        """(n,n) Euclidean distances between all vertices, metres: 8 n^2 bytes, for small
+        graphs (at most DENSE_LIMIT vertices; InvalidGraphError beyond)."""
+        if len(self) > DENSE_LIMIT:
+            raise InvalidGraphError(
+                f"{self.name}: the dense distance matrix of {len(self):,} objects would take "
+                f"{8e-9 * len(self) ** 2:.1f} GB (at most {DENSE_LIMIT:,} objects); query "
+                "neighbours within a radius instead (scipy.spatial.cKDTree of graph.positions)."
+            )
         from scipy.spatial.distance import cdist  # deferred: scipy.spatial loads in ~0.2 s
 
         d = cdist(self.positions, self.positions)
@@ -124,14 +134,16 @@ class SemanticGraph:
     # -- files ------------------------------------------------------------------------------
     @classmethod
     def load(cls, path: str | Path, edge_radius: float = DEFAULT_EDGE_RADIUS) -> SemanticGraph:
-        """Read a graph from `.pcd` (Guo's packed-rgb Airsim classes), `.json` or `.npz`."""
+        """Read a graph from `.pcd` (Guo's packed-rgb Airsim classes), `.json`, `.npz`, `.ply`,
+        `.csv` or `.txt` (docs/formats.md)."""
         from sgloc.io.graph_files import read_graph
 
         positions, labels = read_graph(path)
         return cls(positions, labels, edge_radius, name=Path(path).name)
 
     def save(self, path: str | Path) -> Path:
-        """Write the graph as `.pcd`, `.json` or `.npz` (chosen by the suffix)."""
+        """Write the graph as `.pcd`, `.json`, `.npz`, `.ply`, `.csv` or `.txt` (chosen by the
+        suffix; `load` reads each back)."""
         from sgloc.io.graph_files import write_graph
 
         return write_graph(path, self.positions, self.labels, edge_radius=self.edge_radius)

@@ -18,8 +18,11 @@ from sgloc.errors import InvalidGraphError, SglocError
 from sgloc.estimation import FinalFit, PoseEstimate, estimate_pose, final_fit, icp_refine
 from sgloc.graph import SemanticGraph
 from sgloc.matching import match_flagged
+from sgloc.prepared import PreparedMap, prepare
 from sgloc.rejection import make_rejector
 from sgloc.timing import StageTimer
+from sgloc.units import units_hint
+from sgloc.validation import check_seed
 
 MIN_VERTICES = 3
 
@@ -62,20 +65,11 @@ class LocalizationResult:
         return self
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready summary."""
-        return {
-            "success": self.success,
-            "reason": self.reason,
-            "confidence": self.confidence,
-            "transform": None if self.transform is None else self.transform.tolist(),
-            "covariance": None if self.covariance is None else self.covariance.tolist(),
-            "n_candidates": int(len(self.candidates)),
-            "n_survivors": int(len(self.survivors)),
-            "n_matches": int(len(self.matches)),
-            "matches": self.matches.tolist(),
-            "timings": self.timings,
-            "config": self.config,
-        }
+        """The JSON result document with every match (`sgloc.io.results.document`; schema
+        in docs/formats.md)."""
+        from sgloc.io.results import document
+
+        return document(self, full=True)
 
 
 def _check_graph(graph: SemanticGraph, role: str) -> None:
@@ -100,7 +94,7 @@ def stage_streams(rng: np.random.Generator | int | None) -> dict[str, np.random.
     if isinstance(rng, np.random.Generator):
         children = rng.spawn(len(RANDOM_STAGES))
     else:
-        seeds = np.random.SeedSequence(rng).spawn(len(RANDOM_STAGES))
+        seeds = np.random.SeedSequence(check_seed(rng)).spawn(len(RANDOM_STAGES))
         children = [np.random.default_rng(s) for s in seeds]
     return dict(zip(RANDOM_STAGES, children, strict=True))
 
@@ -124,28 +118,38 @@ class Localizer:
         self.descriptor = make_descriptor(self.config.descriptor, **self.config.descriptor_params)
         self.rejector = make_rejector(self.config.rejection, **self.config.rejection_params)
 
+    def prepare(self, target: SemanticGraph) -> PreparedMap:
+        """`target` prepared for this localizer's calls (`sgloc.prepared`): its canonical form,
+        descriptors and matching blocks built once; pass it where a target graph goes."""
+        return prepare(target, self.config)
+
     def __call__(
         self,
         query: SemanticGraph,
-        target: SemanticGraph,
+        target: SemanticGraph | PreparedMap,
         rng: np.random.Generator | int | None = 0,
         clock: Callable[[], float] = time.perf_counter,
     ) -> LocalizationResult:
         """Localize `query` in `target`. `rng`: a seed or generator, split into one stream
         per random stage (`stage_streams`); `clock` (seconds) times the stages (e.g.
-        time.thread_time for CPU time)."""
+        time.thread_time for CPU time). `target` may be a PreparedMap (the same result)."""
         _check_graph(query, "query")
-        _check_graph(target, "target")
         # Canonical vertex order and class ids 0..L-1 (sgloc.canonical); undone by restore().
-        canonical = CanonicalPair(query, target, self.config)
+        canonical = target.pair(query, self.config) if isinstance(target, PreparedMap) else None
+        if canonical is None:  # a graph, or a query with a class the prepared map lacks
+            target = target.graph if isinstance(target, PreparedMap) else target
+            _check_graph(target, "target")
+            canonical = CanonicalPair(query, target, self.config)
         query, target, cfg = canonical.query, canonical.target, canonical.config
         streams, timer = stage_streams(rng), StageTimer(clock)
         n_classes = max(query.n_classes, target.n_classes)
         with timer("descriptors"):
             dq = self.descriptor(query, n_classes, streams["descriptors"])
-            dt = self.descriptor(target, n_classes, streams["descriptors"])
+            dt = canonical.target_descriptors  # None unless prepared
+            if dt is None:
+                dt = self.descriptor(target, n_classes, streams["descriptors"])
         with timer("matching"):
-            matched = _match(dq, dt, query, target, cfg)
+            matched = _match(dq, dt, query, target, cfg, canonical.target_blocks)
         c = matched.candidates
         weights = _match_weights(cfg, query, c, n_classes)
         pose = estimate_pose(
@@ -199,17 +203,25 @@ class Localizer:
             refit=lambda matches: _fit_matches(query, target, matches, cfg),
         )  # fmt: skip
         timer.add(verdict.timings)
+        if not verdict.accepted:
+            verdict.reason += units_hint(query, target)
         return verdict
 
 
 def _match(
-    dq: Any, dt: Any, query: SemanticGraph, target: SemanticGraph, cfg: LocalizerConfig
+    dq: Any,
+    dt: Any,
+    query: SemanticGraph,
+    target: SemanticGraph,
+    cfg: LocalizerConfig,
+    target_blocks: Any = None,
 ) -> _Matched:
     """Candidate matches of the descriptors; also flags the candidates the acceptance test
-    counts (its ratio test) in the same pass."""
+    counts (its ratio test) in the same pass. `target_blocks`: the target's matching blocks
+    when prepared (sgloc.prepared)."""
     flag_ratio = cfg.acceptance.evidence.ratio_for(len(query))
     candidates, scores, distinct = match_flagged(
-        dq, dt, query.labels, target.labels, cfg.matching, flag_ratio
+        dq, dt, query.labels, target.labels, cfg.matching, flag_ratio, target_blocks
     )
     return _Matched(candidates, scores, distinct, flag_ratio)
 
@@ -277,7 +289,7 @@ def _fit_matches(
 
 def localize(
     query: SemanticGraph,
-    target: SemanticGraph,
+    target: SemanticGraph | PreparedMap,
     descriptor: str | None = None,
     rejection: str | None = None,
     ransac_threshold: float | None = None,
@@ -291,7 +303,8 @@ def localize(
     """Find T_target_query, the rigid transform from `query`'s frame into `target`'s.
 
     Args:
-        query, target: the two robots' semantic graphs (positions in metres).
+        query, target: the two robots' semantic graphs (positions in metres); `target` may be
+            a PreparedMap (`sgloc.prepare`) for repeated queries against one map.
         descriptor: "distance_histogram" (default) | "triangles" | "histogram" (the paper's) |
             "random_walk" | "fast".
         rejection: "neighbor" (default; the paper's Alg. 1) | "none" (RANSAC alone) | others

@@ -107,15 +107,17 @@ def _top_k(
     max_ratio: float | None = None,
     flag_ratio: float | None = None,
     compiled: bool = False,
+    blocks: TargetBlocks | None = None,
 ) -> tuple[np.ndarray, ...]:
     """Per query row its k most similar same-class targets with similarity >= min_sim and > 0
     (and passing the ratio test when max_ratio is set): (query idx, target idx, score, flag),
     ordered by query, then score descending, then target; flag: the query passes the ratio
     test at `flag_ratio` (all True when it is None). Of equally similar targets the lower
-    index ranks first. `compiled`: by the kernel (dense descriptors only, `_use_kernel`)."""
+    index ranks first. `compiled`: by the kernel (dense descriptors only, `_use_kernel`), on
+    the target's prepared `blocks` when given."""
     if compiled:
         return _compiled_top_k(desc_q, desc_t, labels_q, labels_t, k, min_sim, max_ratio,
-                               flag_ratio)  # fmt: skip
+                               flag_ratio, blocks)  # fmt: skip
     Q, T = unit_rows(desc_q), unit_rows(desc_t)
     out_q, out_t, out_s, out_f = [], [], [], []
     for rows, it, S in _blocks(Q, T, labels_q, labels_t):
@@ -159,27 +161,58 @@ def _use_kernel(desc_q, desc_t) -> bool:
     return use_compiled(max(len(desc_q), len(desc_t)))
 
 
-def _compiled_top_k(desc_q, desc_t, labels_q, labels_t, k, min_sim, max_ratio, flag_ratio):
+@dataclass(frozen=True)
+class TargetBlocks:
+    """A target's descriptors as the matching kernel reads them, built once for many queries
+    (`target_blocks`): per class, its unit rows transposed (`sgloc.kernels.matching`)."""
+
+    n_rows: int
+    blocks: np.ndarray
+    block_class: np.ndarray
+    block_start: np.ndarray
+    order: np.ndarray
+
+
+#: Targets of more objects than this keep their matching blocks when prepared (sgloc.prepared).
+BLOCKS_MIN_OBJECTS = 1500
+
+
+def target_blocks(desc_t, labels_t: np.ndarray) -> TargetBlocks | None:
+    """The kernel's class blocks of a target's descriptors (n,d) and labels (n,), or None when
+    they are not worth keeping: sparse descriptors, or at most BLOCKS_MIN_OBJECTS rows (blocks
+    that cheap are built per call). Memory: another n x d floats."""
+    if sparse.issparse(desc_t) or len(labels_t) <= BLOCKS_MIN_OBJECTS:
+        return None
+    from sgloc.kernels.matching import class_blocks
+
+    labels_t = np.asarray(labels_t, dtype=np.int64)
+    order_t = np.argsort(labels_t, kind="stable")
+    parts = class_blocks(np.ascontiguousarray(desc_t, dtype=np.float64), order_t,
+                         labels_t[order_t])  # fmt: skip
+    for a in (*parts, order_t):
+        a.flags.writeable = False
+    return TargetBlocks(len(labels_t), *parts, order_t)
+
+
+def _compiled_top_k(desc_q, desc_t, labels_q, labels_t, k, min_sim, max_ratio, flag_ratio,
+                    blocks: TargetBlocks | None = None):  # fmt: skip
     """`_top_k` by `sgloc.kernels.matching.top_k_same_class` (same candidates; similarities
-    equal to rounding)."""
-    from sgloc.kernels.matching import top_k_same_class
+    equal to rounding), on the target's prepared `blocks` when given (the same bits)."""
+    from sgloc.kernels.matching import top_k_in_blocks, top_k_same_class
 
     labels_q = np.asarray(labels_q, dtype=np.int64)
-    labels_t = np.asarray(labels_t, dtype=np.int64)
     order_q = np.argsort(labels_q, kind="stable")
+    query = (np.ascontiguousarray(desc_q, dtype=np.float64), order_q, labels_q[order_q])
+    tests = (int(k), float(min_sim), np.nan if max_ratio is None else float(max_ratio),
+             np.nan if flag_ratio is None else float(flag_ratio))  # fmt: skip
+    if blocks is not None:
+        target = (blocks.blocks, blocks.block_class, blocks.block_start, blocks.order)
+        return top_k_in_blocks(*query, *target, *tests)
+    labels_t = np.asarray(labels_t, dtype=np.int64)
     order_t = np.argsort(labels_t, kind="stable")
-    return top_k_same_class(
-        np.ascontiguousarray(desc_q, dtype=np.float64),
-        np.ascontiguousarray(desc_t, dtype=np.float64),
-        order_q,
-        labels_q[order_q],
-        order_t,
-        labels_t[order_t],
-        int(k),
-        float(min_sim),
-        np.nan if max_ratio is None else float(max_ratio),
-        np.nan if flag_ratio is None else float(flag_ratio),
-    )
+    Q, order_q, sorted_q = query
+    T = np.ascontiguousarray(desc_t, dtype=np.float64)
+    return top_k_same_class(Q, T, order_q, sorted_q, order_t, labels_t[order_t], *tests)
 
 
 def _all_pairs(Q, T, labels_q, labels_t, cap: int, min_sim: float) -> tuple[np.ndarray, ...]:
@@ -227,12 +260,13 @@ def match_flagged(
     labels_t: np.ndarray,
     config: MatchingConfig | None = None,
     flag_ratio: float | None = None,
+    blocks: TargetBlocks | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """`match_descriptors` plus, per candidate, whether it is also a candidate of the same
     matching with `max_ratio=flag_ratio` (one pass instead of two): (candidates, scores,
     flags (m,) bool). flags is None when that set is not a subset of these candidates (a
     looser flag_ratio than the config's max_ratio); strategy "all" has no ratio test: all
-    True."""
+    True. blocks: the target's `target_blocks`, kept for many queries (the same result)."""
     cfg = config or MatchingConfig()
     if cfg.strategy not in STRATEGIES:
         raise ValueError(f"unknown matching strategy {cfg.strategy!r}; use one of {STRATEGIES}")
@@ -240,7 +274,7 @@ def match_flagged(
         return (*match_descriptors(desc_q, desc_t, labels_q, labels_t, cfg), None)
     desc_q, desc_t = _as_matrix(desc_q), _as_matrix(desc_t)
     if cfg.strategy == "top_k" and _use_kernel(desc_q, desc_t):  # no BLAS products
-        return _match(desc_q, desc_t, labels_q, labels_t, cfg, flag_ratio, compiled=True)
+        return _match(desc_q, desc_t, labels_q, labels_t, cfg, flag_ratio, True, blocks)
     with one_blas_thread():  # small block products
         return _match(desc_q, desc_t, labels_q, labels_t, cfg, flag_ratio)
 
@@ -253,6 +287,7 @@ def _match(
     cfg: MatchingConfig,
     flag_ratio: float | None = None,
     compiled: bool = False,
+    blocks: TargetBlocks | None = None,
 ) -> tuple[np.ndarray, ...]:
     if desc_q.shape[0] == 0 or desc_t.shape[0] == 0:
         return np.zeros((0, 2), dtype=np.int64), np.zeros(0), np.zeros(0, bool)
@@ -263,7 +298,7 @@ def _match(
         f = np.ones(len(q), dtype=bool)
     else:
         k = max(int(cfg.top_k), 1)
-        args = (labels_q, labels_t, k, min_sim, cfg.max_ratio, flag_ratio, compiled)
+        args = (labels_q, labels_t, k, min_sim, cfg.max_ratio, flag_ratio, compiled, blocks)
         q, t, s, f = _top_k(desc_q, desc_t, *args)
         if cfg.mutual and q.size:
             # j's best k queries (any similarity), by the same blocks with the roles swapped.

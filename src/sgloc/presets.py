@@ -67,7 +67,7 @@ _GUO: dict[str, Any] = {
 LOCALIZER_PRESETS: Registry[dict[str, Any]] = Registry("preset", {
     "default": {},
     "paper": {**_GUO, "rejection": "neighbor", "tau": 5.0, "eta": 0.5, "form": "distance",
-              "bound": "literal"},  # fmt: skip
+              "bound": "literal", "scope": "all"},  # fmt: skip
     "guo": _GUO,
     "airsim-guo": {},
     "city": {"class_weights": {0: 0.1}},

@@ -28,6 +28,7 @@ from sgloc.estimation import (
 )
 from sgloc.rejection import REJECTORS, Rejector, make_rejector
 from sgloc.timing import StageTimer
+from sgloc.validation import random_generator
 
 
 @dataclass
@@ -123,7 +124,8 @@ def register(
     motion: the motion model (`sgloc.estimation.MotionModel`); by default any rigid motion,
         as correspondences may come in any orientation. The flat settings dof= and max_tilt=
         override its fields.
-    settings: rejector parameters (tau, eta, form, ...) and RansacConfig fields (threshold,
+    settings: rejector parameters (tau, eta, form, scope, local_radius, ...) and RansacConfig
+        fields (threshold,
         iterations, confidence, min_inliers, ...).
 
     Rejection, RANSAC and the final fit are `sgloc.estimation.estimate_pose`, as in `localize`.
@@ -141,7 +143,7 @@ def register(
     rej, cfg = _stage_settings(rejection, noise_bound, motion, settings)
     timer = StageTimer(names={"estimation": "refine"})
     pose = estimate_pose(
-        src, dst, rej, cfg, rng if rng is not None else np.random.default_rng(seed),
+        src, dst, rej, cfg, rng if rng is not None else random_generator(seed),
         fit=FinalFit(refine=refine), timer=timer,
     )  # fmt: skip
     return RegistrationResult(

@@ -6,10 +6,11 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import as_completed
 from typing import Any, TypeVar
 
 from sgloc.errors import SglocError
+from sgloc.workers import process_pool
 
 Task = TypeVar("Task")
 #: Called with the number of tasks just finished (for a progress bar).
@@ -43,7 +44,7 @@ def run_all(
             rows.append(fn(t))
             tick(1)
         return rows
-    with ProcessPoolExecutor(max_workers=min(workers, len(tasks))) as pool:
+    with process_pool(min(workers, len(tasks))) as pool:
         return _collect([pool.submit(fn, t) for t in tasks], as_completed, tick)
 
 

@@ -14,13 +14,14 @@ import numpy as np
 
 from sgloc.errors import InvalidGraphError, SglocError
 
-#: Most objects in one graph. Memory grows with the candidate matches m (m <= n_query with the
-#: default top-1 matching): rejection and acceptance each hold an m x m consistency graph as
-#: packed bits (m^2 / 8 bytes: 1.25 GB at m = 100,000, one at a time), and the descriptors are
-#: n x L x bins floats per graph (distance_histogram: 16 bins, 1.3 KB per vertex for 10
-#: classes); similarities are computed in blocks (8 MB). At this limit two maps localize in
-#: about 2 GB; the consistency pass is quadratic in m (tens of seconds at the limit).
-MAX_VERTICES = 100_000
+#: Most objects in one graph (a city's object map). Memory is linear in the objects: the
+#: descriptors are n x L x bins floats per graph (distance_histogram: 16 bins, 1 KB per object
+#: for 8 classes), candidate matching works class by class in blocks, and above
+#: `sgloc.consistency.ALL_PAIRS_LIMIT` candidates rejection checks pairs only within a radius
+#: and acceptance samples pairs; no n x n array is built on the default path. Time is
+#: dominated by the descriptor comparison, which compares every query object with every
+#: target object of its class.
+MAX_VERTICES = 1_000_000
 #: Most distinct classes in one graph (class ids themselves may be any integer in [0, MAX_LABEL]:
 #: the localizer renumbers the classes present to 0..L-1 before sizing anything by them).
 MAX_CLASSES = 64
@@ -148,8 +149,8 @@ def check_graph_arrays(
         )
     if len(pos) > MAX_VERTICES:
         raise InvalidGraphError(
-            f"{name}: {len(pos)} objects, more than the limit of {MAX_VERTICES}; split the map "
-            "into submaps or merge nearby objects."
+            f"{name}: {len(pos)} objects, more than the limit of {MAX_VERTICES:,}; split the "
+            "map into submaps or merge nearby objects."
         )
     pos = pos.astype(np.float64)
     finite = np.isfinite(pos).all(axis=1)
@@ -298,3 +299,20 @@ def parameters(name: str, value: Any) -> Any:
     if not isinstance(value, Mapping):
         raise InvalidSettingError(f"setting {name}: must be a mapping of parameters.")
     return value
+
+
+def check_seed(seed: Any, name: str = "seed") -> Any:
+    """`seed` as given when it is a Generator, None (fresh entropy) or a non-negative integer
+    (returned as int); anything else (negative, fractional, bool, text) is refused."""
+    if seed is None or isinstance(seed, np.random.Generator):
+        return seed
+    if not isinstance(seed, numbers.Integral) or isinstance(seed, bool | np.bool_) or seed < 0:
+        raise InvalidSettingError(
+            f"{name}={seed!r}: must be a non-negative integer (or None for a fresh random seed)."
+        )
+    return int(seed)
+
+
+def random_generator(seed: Any, name: str = "seed") -> np.random.Generator:
+    """A numpy Generator from `seed` (`check_seed`; a Generator is used as is)."""
+    return np.random.default_rng(check_seed(seed, name))

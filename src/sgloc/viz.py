@@ -38,6 +38,41 @@ def class_legend_handles(labels: np.ndarray, names: Sequence[str] | None = None)
     return out
 
 
+#: Colour of the lines joining matched objects.
+MATCH_COLOUR = "#FF00FF"
+
+
+def _draw_maps(ax, t: np.ndarray, q: np.ndarray, target: SemanticGraph, query: SemanticGraph):
+    """Robot A's objects (filled circles) under robot B's (hollow triangles, drawn on top)."""
+    ax.scatter(t[:, 0], t[:, 1], s=14, c=class_colours(target.labels), marker="o",
+               edgecolors="none", alpha=0.7, zorder=2)
+    ax.scatter(q[:, 0], q[:, 1], s=30, facecolors="none", edgecolors=class_colours(query.labels),
+               marker="^", linewidths=1.1, zorder=3)
+
+
+def _draw_matches(ax, q: np.ndarray, t: np.ndarray, m: np.ndarray) -> None:
+    """A line from each matched query object to its target object."""
+    from matplotlib.collections import LineCollection
+
+    segs = np.stack([q[m[:, 0], :2], t[m[:, 1], :2]], axis=1)
+    ax.add_collection(LineCollection(segs, colors=MATCH_COLOUR, lw=0.8, alpha=0.8, zorder=4))
+
+
+def _beside(t: np.ndarray, q: np.ndarray, gap: float = 30.0) -> np.ndarray:
+    """The query's points (its own frame) moved to the right of the target's, for the matches
+    panel: the same shape, only shifted."""
+    shift = np.zeros(3)
+    shift[0] = t[:, 0].max() + gap - q[:, 0].min()
+    shift[1] = np.median(t[:, 1]) - np.median(q[:, 1])
+    return q + shift
+
+
+def _wrapped(title: str, width: int) -> str:
+    import textwrap
+
+    return "\n".join(textwrap.fill(line, width) for line in title.splitlines())
+
+
 def plot_aligned_maps(
     target: SemanticGraph,
     query: SemanticGraph,
@@ -48,39 +83,41 @@ def plot_aligned_maps(
     class_names: Sequence[str] | None = None,
     routes: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Path:
-    """PNG: robot A's map (target, circles) and robot B's map (query, triangles) placed by
-    `T_target_query`, classes in colour, the final matches as lines, optional routes (positions
-    (n,3) in each robot's own frame). Top-down: x right, y up."""
+    """PNG: robot A's map (target, circles) and robot B's map (query, triangles, on top), classes
+    in colour and named by `class_names`. With final matches, two panels: the matches as lines
+    from B (in its own frame, set beside A) to A, and B placed in A's map by `T_target_query`;
+    without, the one panel. Optional routes (positions (n,3) in each robot's own frame).
+    Top-down on every panel: x right, y up, metres."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.collections import LineCollection
     from matplotlib.lines import Line2D
 
     t = target.positions
     q = apply(T_target_query, query.positions)
+    m = np.asarray(matches, dtype=np.int64).reshape(-1, 2)
     both = np.concatenate([t, q])
     w, h = np.ptp(both[:, 0]) + 20.0, np.ptp(both[:, 1]) + 20.0
-    fig, ax = plt.subplots(figsize=(float(np.clip(6.0 * w / h, 4.5, 10.0)) + 2.0, 6.0))
-    ax.scatter(t[:, 0], t[:, 1], s=16, c=class_colours(target.labels), marker="o",
-               edgecolors="none", alpha=0.85)
-    ax.scatter(q[:, 0], q[:, 1], s=26, facecolors="none", edgecolors=class_colours(query.labels),
-               marker="^", linewidths=1.0)
+    panel_w = float(np.clip(6.0 * w / h, 4.5, 10.0))
+    n_panels = 2 if len(m) else 1
+    fig, axes = plt.subplots(1, n_panels, figsize=(panel_w * n_panels + 2.2, 6.4), squeeze=False)
+    ax = axes[0, -1]
+    _draw_maps(ax, t, q, target, query)
     handles = [
         Line2D([], [], ls="", marker="o", color="0.3", label=f"robot A (target), {len(t)} objects"),
         Line2D([], [], ls="", marker="^", mfc="none", color="0.3",
                label=f"robot B (query), {len(q)} objects"),
     ]
-    m = np.asarray(matches, dtype=np.int64).reshape(-1, 2)
     if len(m):
-        segs = np.stack([q[m[:, 0], :2], t[m[:, 1], :2]], axis=1)
-        ax.add_collection(LineCollection(segs, colors="#FF00FF", lw=1.6, alpha=0.9))
-        # matched pairs usually lie on top of each other once aligned: ring them
-        ax.scatter(t[m[:, 1], 0], t[m[:, 1], 1], s=90, facecolors="none", edgecolors="#FF00FF",
-                   linewidths=1.1)
-    handles.append(Line2D([], [], ls="-", marker="o", mfc="none", color="#FF00FF", lw=1.6,
-                          label=f"{len(m)} final matches"))
+        side = axes[0, 0]
+        own = _beside(t, query.positions)
+        _draw_maps(side, t, own, target, query)
+        _draw_matches(side, own, t, m)
+        side.set_title(f"{len(m)} final matches (B in its own frame, beside A)", fontsize=9)
+        top_down(side)
+        handles.append(Line2D([], [], color=MATCH_COLOUR, lw=1.0, label=f"{len(m)} final matches"))
+        ax.set_title("B placed in A's map", fontsize=9)
     if routes is not None:
         ra, rb = routes[0], apply(T_target_query, routes[1])
         ax.plot(ra[:, 0], ra[:, 1], "-", c="0.35", lw=1.0)
@@ -90,11 +127,45 @@ def plot_aligned_maps(
     handles += class_legend_handles(np.concatenate([target.labels, query.labels]), class_names)
     ax.legend(handles=handles, fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0),
               borderaxespad=0.0, frameon=False)
-    ax.set_title(title, fontsize=9)
     top_down(ax)
+    fig.suptitle(_wrapped(title, int(11 * fig.get_figwidth())), fontsize=9)  # ~11 chars an inch
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_fleet(result, graphs: Sequence, path) -> Path:
+    """PNG of a fleet result's merged map, top-down (x right, y up): each placed robot's
+    objects (`graphs`, each in its own frame) with its own marker and colour, the fused objects
+    as rings; unplaced robots named in the title."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.5, 6), dpi=100)
+    for i in result.placed:
+        p = apply(result.T_world_robot[i], graphs[i].positions)
+        root = " (world frame)" if i == result.root else ""
+        ax.scatter(p[:, 0], p[:, 1], s=9, color=CLASS_PALETTE[i % len(CLASS_PALETTE)],
+                   marker=ROBOT_MARKERS[i % len(ROBOT_MARKERS)], alpha=0.75,
+                   label=f"{result.names[i]}{root}")
+    if result.merged is not None and len(result.merged):
+        ax.scatter(*result.merged.positions[:, :2].T, s=20, facecolors="none", edgecolors="k",
+                   linewidths=0.3, label=f"merged map, {len(result.merged)} objects")
+    title = f"{len(result.placed)} of {len(result.names)} robots placed"
+    if result.unplaced:
+        title += " (unplaced: " + ", ".join(result.names[i] for i in result.unplaced) + ")"
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7, markerscale=1.5, loc="upper left", bbox_to_anchor=(1.01, 1.0),
+              frameon=False)
+    top_down(ax)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
     plt.close(fig)
     return path

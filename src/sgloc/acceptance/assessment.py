@@ -72,10 +72,11 @@ from sgloc.acceptance.chance import (
 )
 from sgloc.acceptance.config import AcceptanceConfig
 from sgloc.acceptance.rivals import runner_up
-from sgloc.consistency import ConsistentPairs
+from sgloc.consistency import ALL_PAIRS_LIMIT, ConsistentPairs
 from sgloc.estimation import ANY_RIGID, MotionModel
 from sgloc.geometry import apply
 from sgloc.graph import SemanticGraph
+from sgloc.sampled_consistency import SampledConsistency
 
 #: With dof=4, inliers must extend this many times `min_spread` along their first xy axis
 #: (measured: at 1 x, clusters of a few exact coincidences in the rendered city's regular
@@ -151,14 +152,20 @@ class _Tests:
     """The hypotheses RANSAC can form from the candidates: consistent pairs (4 dof) or
     consistent triples (6 dof); `sample` matches fix one."""
 
-    consistency: np.ndarray
-    edges: ConsistentPairs
+    consistency: np.ndarray | None
+    edges: ConsistentPairs | SampledConsistency
     n_tests: float
     sample: int
 
     @classmethod
-    def of(cls, c: _Candidates, radius: float, dof: int) -> _Tests:
+    def of(cls, c: _Candidates, radius: float, dof: int, rng: np.random.Generator) -> _Tests:
+        """Up to ALL_PAIRS_LIMIT candidates from all pairs; above, estimated from a sample of
+        pairs (`sgloc.sampled_consistency`: memory linear in the candidates)."""
         m = len(c.cand)
+        if m > ALL_PAIRS_LIMIT:
+            sampled = SampledConsistency(c.src, c.dst, 2.0 * radius, rng)
+            n = sampled.n_pairs if dof == 4 else sampled.n_triangles()
+            return cls(None, sampled, float(n), 2 if dof == 4 else 3)
         if m >= 3:
             consistency, _ = pair_consistency(c.src, c.dst, radius)  # packed (m, ceil(m / 64))
         else:
@@ -258,7 +265,7 @@ def assess(
     r = float(cfg.radius or radius)
     c = _Candidates.of(query, target, candidates, transform, r)
     chance = ChanceModel(target, r, max(query.n_classes, target.n_classes))
-    tests = _Tests.of(c, r, dof)
+    tests = _Tests.of(c, r, dof, rng)
     details = _best_evidence(query, target, c, transform, chance, tests)
     lg_best = details["log10_nfa"]
     spread = inlier_spread(c.dst[c.inlier], dof)
@@ -274,11 +281,28 @@ def assess(
     details |= {"runner_up_inliers": k2, "runner_up_log10_nfa": float(lg_second),
                 "spread_m": spread}  # fmt: skip
     conf = confidence(lg_best, lg_second)
+    if details["candidates"] == 0 or details["inliers"] < 3:
+        return Assessment(False, 0.0, _few_reason(details, r), details)
     if spread < min_spread:
         return Assessment(False, 0.0, _spread_reason(details, min_spread, dof), details)
     if conf < cfg.min_confidence:
         return Assessment(False, conf, _chance_reason(details, conf, cfg), details)
     return Assessment(True, conf, "", details)
+
+
+def _few_reason(details: dict, radius: float) -> str:
+    """Why nothing (no distinctive candidate) or too little (< 3 inliers) backs the estimate."""
+    if details["candidates"] == 0:
+        return (
+            "no candidate match is distinctive: every object's descriptor nearly ties with "
+            "another object of its class (objects listed twice side by side, or a scene that "
+            "repeats); merge duplicate objects, or turn the ratio test off with "
+            "--set distinct_ratio=null (Python: distinct_ratio=None)"
+        )
+    return (
+        f"only {details['inliers']} query object(s) agree with the best alignment (within "
+        f"{radius:g} m); the maps may not overlap"
+    )
 
 
 def _spread_reason(details: dict, min_spread: float, dof: int) -> str:
@@ -306,7 +330,8 @@ def _chance_reason(details: dict, conf: float, cfg: AcceptanceConfig) -> str:
         )
     return (
         f"{k} inliers of {details['candidates']} candidate matches could be chance "
-        f"({details['expected_chance_inliers']:.1f} expected from repeated objects; log10 NFA "
-        f"{lg_best:.1f}); confidence {conf:.6g} < min_confidence {cfg.min_confidence}; the "
-        "maps may not overlap"
+        f"({details['expected_chance_inliers']:.1f} expected from repeated objects; about "
+        f"10^{lg_best:.1f} such alignments expected by chance); confidence {conf:.6g} < "
+        f"min_confidence {cfg.min_confidence} (a lower one accepts more: --set "
+        "min_confidence=0.99); the maps may not overlap"
     )

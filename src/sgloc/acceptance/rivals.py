@@ -20,6 +20,7 @@ from sgloc.estimation import (
     yaw_from_pairs,
 )
 from sgloc.kernels import use_compiled
+from sgloc.sampled_consistency import SampledConsistency
 
 
 def distinct_from(
@@ -38,8 +39,8 @@ def runner_up(
     dst: np.ndarray,
     T: np.ndarray,
     exclude: np.ndarray,
-    consistency: np.ndarray,
-    edges: ConsistentPairs,
+    consistency: np.ndarray | None,
+    edges: ConsistentPairs | SampledConsistency,
     radius: float,
     cfg: AcceptanceConfig,
     rng: np.random.Generator,
@@ -52,24 +53,31 @@ def runner_up(
     candidates outside `exclude` (those T explains within twice the radius), so a slight tilt of
     T that keeps most of T's matches is not counted as a rival. Hypotheses come from triples of
     pairwise-consistent candidates (`consistency`, packed rows: |D(q_i,q_j) - D(t_i,t_j)| <
-    2 * radius), drawn at random and fitted in one batch; those within the distinctness bounds of T
-    are discarded. dof=4: hypotheses about the z axis from the consistent pairs themselves;
-    `max_tilt` (degrees): hypotheses tilting the up axis more are not alternatives.
+    2 * radius; above ALL_PAIRS_LIMIT candidates `edges` is a sample of pairs), drawn at
+    random and fitted in one batch; those within the distinctness bounds of T are discarded.
+    dof=4: hypotheses about the z axis from the consistent pairs themselves; `max_tilt`
+    (degrees): hypotheses tilting the up axis more are not alternatives.
     """
     free = ~exclude
     if free.sum() < 3 or cfg.runner_up_samples <= 0:
         return 0, None
     ps, pd = src[free], dst[free]
-    kept = edges.within(free)
-    if kept.size == 0:
-        return 0, None
-    i, j = kept.at(rng.integers(0, kept.size, cfg.runner_up_samples))
+    if isinstance(edges, SampledConsistency):
+        i, j = edges.draw(free, cfg.runner_up_samples, rng)
+        if len(i) == 0:
+            return 0, None
+    else:
+        kept = edges.within(free)
+        if kept.size == 0:
+            return 0, None
+        i, j = kept.at(rng.integers(0, kept.size, cfg.runner_up_samples))
     if dof == 4 and use_compiled(len(src)):
         return _compiled_yaw_runner_up(src, dst, T, exclude, i, j, radius, cfg)
     if dof == 4:
         hyp = _yaw_hypotheses(src, dst, *_first_draws(i, j, len(src)))
     else:
-        hyp = _triplet_hypotheses(src, dst, i, j, consistency, free, rng, max_tilt)
+        rows = edges if isinstance(edges, SampledConsistency) else consistency
+        hyp = _triplet_hypotheses(src, dst, i, j, rows, free, rng, max_tilt)
     if hyp is None:
         return 0, None
     R, t = hyp
@@ -136,12 +144,18 @@ def _triplet_hypotheses(
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """6-dof hypotheses: each consistent pair (i, j) completed by a random candidate
     consistent with both; tilted beyond `max_tilt` degrees dropped."""
-    common = unpack_rows(consistency[i] & consistency[j], len(free)) & free
-    has = common.any(axis=1)
-    if not has.any():
-        return None
-    keys = np.where(common, rng.random(common.shape, dtype=np.float32), -1.0)
-    k3 = np.argmax(keys, axis=1)
+    if isinstance(consistency, SampledConsistency):
+        k3 = consistency.third(i, j, free, rng)
+        has = k3 >= 0
+        if not has.any():
+            return None
+    else:
+        common = unpack_rows(consistency[i] & consistency[j], len(free)) & free
+        has = common.any(axis=1)
+        if not has.any():
+            return None
+        keys = np.where(common, rng.random(common.shape, dtype=np.float32), -1.0)
+        k3 = np.argmax(keys, axis=1)
     trip = np.column_stack([i, j, k3])[has]
     S, D = src[trip], dst[trip]
     ok = non_collinear(S, 1e-2) & non_collinear(D, 1e-2)

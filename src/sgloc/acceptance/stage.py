@@ -19,6 +19,7 @@ import numpy as np
 from sgloc.acceptance.assessment import Assessment, assess
 from sgloc.acceptance.config import AcceptanceConfig
 from sgloc.acceptance.evidence import select_evidence
+from sgloc.acceptance.mirror import looks_mirrored
 from sgloc.acceptance.verification import Verification, verify_small_query
 from sgloc.estimation import GROUND_VEHICLE, MotionModel
 from sgloc.graph import SemanticGraph
@@ -113,12 +114,30 @@ def accept(
         a = assess(query, target, tested, transform, radius, cfg, rng, motion)
         verdict = Verdict(a.accepted, transform if a.accepted else None, matches, a.confidence,
                           a.reason, assessment=a)  # fmt: skip
+        if verdict.accepted:  # a self-similar strip of a mirrored map (acceptance.mirror)
+            _refuse_mirrored(verdict, query, target, radius)
         verdict.timings["acceptance"] = clock() - t0
     if not verdict.accepted and verifies(cfg, motion, len(query)):
         t0 = clock()
         _verify(verdict, query, target, desc_q, desc_t, cfg, matching, motion, refit)
         verdict.timings["verification"] = clock() - t0
     return _settled(verdict, len(candidates))
+
+
+def _refuse_mirrored(
+    verdict: Verdict, query: SemanticGraph, target: SemanticGraph, radius: float
+) -> None:
+    """Refuse `verdict`'s alignment when the query, reflected across its inliers' line, lands
+    clearly more objects on the target (`looks_mirrored`); updates `verdict`."""
+    inliers = np.unique(verdict.matches[:, 0])
+    mirrored, plain, flipped = looks_mirrored(query, target, verdict.transform, inliers, radius)
+    if mirrored:
+        verdict.accepted, verdict.transform, verdict.confidence = False, None, 0.0
+        verdict.reason = (
+            f"the query looks mirrored against the target: reflected across the line of its "
+            f"{len(inliers)} inliers it lands {flipped} objects on the target's, the alignment "
+            f"only {plain}; check the frame conventions (one map may be left-handed, x -> -x)"
+        )
 
 
 def _settled(verdict: Verdict, n_candidates: int) -> Verdict:
@@ -131,7 +150,8 @@ def _settled(verdict: Verdict, n_candidates: int) -> Verdict:
     if n_candidates < MIN_CANDIDATES:
         verdict.reason = (
             f"only {n_candidates} candidate match(es) between the graphs (fewer than "
-            f"{MIN_CANDIDATES}); the maps may not overlap, or lower min_similarity"
+            f"{MIN_CANDIDATES}); the maps may not overlap, or lower the similarity needed for a "
+            "match (--set min_similarity=0.5; Python: min_similarity=0.5)"
         )
     return verdict
 

@@ -5,6 +5,8 @@ import sgloc.cli.build_graph_cmd  # noqa: F401
 import sgloc.cli.data_cmd  # noqa: F401
 import sgloc.cli.experiment_cmd  # noqa: F401
 import sgloc.cli.fleet_cmd  # noqa: F401
+import sgloc.cli.replay_cmd  # noqa: F401
+import sgloc.cli.warmup_cmd  # noqa: F401
 from sgloc.cli import demo_cmd, localize_cmd  # noqa: F401  (registers the commands)
 from sgloc.cli.app import app, main
 

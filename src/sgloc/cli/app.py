@@ -24,6 +24,33 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 
+
+
+def _plain_help_types() -> None:
+    """Help without `<bool>` after flags (--help, --version, --example) and with `TYPE ...`
+    rather than `<list[TYPE]>` after repeatable options (typer's rich help shows both)."""
+    try:
+        from typer.core import TyperOption
+    except ImportError:  # another typer: its own help
+        return
+    shown = getattr(TyperOption, "display_type_rich", None)
+    if shown is None or getattr(shown, "sgloc_plain", False):
+        return
+
+    def display_type_rich(self, ctx):
+        if self.metavar is None and getattr(self, "is_flag", False):
+            return None
+        label = shown(self, ctx)
+        if self.metavar is None and getattr(self, "multiple", False) and label:
+            label = label.replace("<list[", "<").replace("]>", "> ...")
+        return label
+
+    display_type_rich.sgloc_plain = True
+    TyperOption.display_type_rich = display_type_rich
+
+
+_plain_help_types()
+
 EXIT_OK = 0
 EXIT_NOT_LOCALIZED = 1
 EXIT_USER_ERROR = 2
@@ -99,9 +126,28 @@ def _framework_exit(e: BaseException) -> int:
     return int(code if code is not None else EXIT_USER_ERROR)
 
 
+def _one_line_summaries(typer_app: typer.Typer) -> None:
+    """Each command's help as paragraphs of one line each, its summary in the command list the
+    first (rich help keeps a docstring's line breaks, cutting sentences)."""
+    import inspect
+
+    for info in typer_app.registered_commands:
+        doc = inspect.cleandoc(info.help or (info.callback.__doc__ if info.callback else "") or "")
+        if not doc:
+            continue
+        paragraphs = [" ".join(p.split()) for p in doc.split("\n\n")]
+        info.help = "\n\n".join(paragraphs)
+        if info.short_help is None:
+            info.short_help = paragraphs[0]
+    for group in typer_app.registered_groups:
+        if group.typer_instance is not None:
+            _one_line_summaries(group.typer_instance)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Console entry point. A user error (SglocError, bad usage) becomes one line on stderr and
     exit 2; "not localized" exits 1; no traceback reaches the user for either."""
+    _one_line_summaries(app)
     try:
         rc = app(args=argv, prog_name="sgloc", standalone_mode=False)
     except SglocError as e:

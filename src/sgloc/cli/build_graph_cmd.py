@@ -69,7 +69,8 @@ def build_graph_cmd(
 ) -> None:
     """Build a robot's semantic graph from a dataset's frames and write it to a file.
 
-    Example: sgloc build-graph kitti_objects kitti00 --scans 0-800 --start-frame -o A.json
+    Example: sgloc build-graph kitti_objects "$(sgloc data path kitti00)" --scans 0-800
+    --start-frame -o A.json
     """
     options = _loader_options(
         dataset, {"robot": robot, "frames": frames, "start_frame": start_frame}
@@ -113,14 +114,5 @@ def build_graph_cmd(
 
 
 def _save(graph, out: Path) -> Path:
-    """Write the graph; .ply and .csv/.txt besides SemanticGraph.save's formats."""
-    suffix = out.suffix.lower()
-    if suffix == ".ply":
-        from sgloc.io.ply import write_ply
-
-        return write_ply(out, graph.positions, graph.labels)
-    if suffix in (".csv", ".txt"):
-        from sgloc.io.table import write_table
-
-        return write_table(out, graph.positions, graph.labels)
+    """Write the graph (every format SemanticGraph.save writes)."""
     return graph.save(out)

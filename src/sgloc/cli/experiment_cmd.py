@@ -43,6 +43,7 @@ def _settings(items: list[str]) -> dict:
 
 @app.command("experiment")
 def experiment_cmd(
+    ctx: typer.Context,
     name: str = typer.Argument(..., help=f"One of: {' | '.join(EXPERIMENTS)}."),
     dataset: str = typer.Option(
         "airsim-guo", "--dataset", "-d", help="airsim-guo | kitti00 | synthetic | a folder."
@@ -57,7 +58,7 @@ def experiment_cmd(
         "(needs pip install 'sgloc\\[dask]').",
     ),
     workers: int | None = typer.Option(
-        None, help="Local worker processes (default: all CPUs; 0 or 1 = in this process)."
+        None, min=1, help="Local worker processes (default: all CPUs; 1 = in this process)."
     ),
     seed: int = typer.Option(0, min=0, help="Seed of the first trial (trial i uses seed + i)."),
     threshold: float | None = typer.Option(
@@ -81,13 +82,14 @@ def experiment_cmd(
     setting: list[str] = typer.Option(
         [],
         "--set",
+        metavar="NAME=VALUE",
         help="Localizer setting NAME=VALUE (repeatable), e.g. --set tau=3; "
         "overrides the dataset's recommended settings.",
     ),
     preset: str | None = preset_option(),
     config: Path | None = config_option(),
     dataset_param: list[str] = typer.Option(
-        [], "--param", help="Dataset parameter NAME=VALUE (repeatable)."
+        [], "--param", metavar="NAME=VALUE", help="Dataset parameter NAME=VALUE (repeatable)."
     ),
     repeats: int = typer.Option(
         1, help="Timing repeats per trial; each stage's fastest time is kept (results equal)."
@@ -113,6 +115,8 @@ def experiment_cmd(
         raise fail(f"--trials must be >= 1, got {trials}")
     if from_csv is not None and not from_csv.is_file():
         raise fail(f"--from-csv {from_csv}: no such file")
+    if from_csv is not None:
+        _no_trial_options(ctx, from_csv)
     opt = ExperimentOptions(
         trials=trials,
         first_seed=seed,
@@ -156,3 +160,28 @@ def experiment_cmd(
             raise
     console.print(result.markdown, markup=False, highlight=False, soft_wrap=True)
     console.print(f"results in {result.folder}/: " + ", ".join(p.name for p in result.files))
+
+
+#: Options that only shape how trials run; --from-csv runs none.
+_TRIAL_OPTIONS = ("workers", "scheduler", "repeats", "clock")
+
+
+def _no_trial_options(ctx: typer.Context, from_csv: Path) -> None:
+    """Refuse options given with --from-csv that it would ignore (it re-makes the tables from
+    the CSV's trials and runs none): --trials and --seed unless they agree with the CSV."""
+    from sgloc.evaluation.report import read_csv
+
+    def typed(name: str) -> bool:  # by the enum's name: typer may bundle its own click
+        return getattr(ctx.get_parameter_source(name), "name", "") == "COMMANDLINE"
+
+    seeds = sorted({int(r["seed"]) for r in read_csv(str(from_csv)) if "seed" in r})
+    csv = {"trials": len(seeds), "seed": seeds[0] if seeds else None}
+    given = [n for n in _TRIAL_OPTIONS if typed(n)]
+    given += [n for n in ("trials", "seed") if typed(n) and ctx.params[n] != csv[n]]
+    if given:
+        flags = ", ".join("--" + n for n in given)
+        raise fail(
+            f"{flags}: --from-csv runs no trials (its {from_csv.name} holds {csv['trials']} "
+            f"per setting from seed {csv['seed']}); drop {'it' if len(given) == 1 else 'them'}, "
+            "or drop --from-csv to run new trials."
+        )

@@ -20,6 +20,7 @@ from sgloc.cli.options import (
     set_option,
 )
 from sgloc.fleet import FleetConfig, localize_fleet
+from sgloc.io.names import robot_names
 
 
 @app.command("fleet")
@@ -34,8 +35,13 @@ def fleet_cmd(
     ),
     out: Path = typer.Option(
         Path("fleet_out"),
-        help="Folder for merged.json, fleet.json, poses.tum, poses.kitti, poses/, config.yaml, "
-        "fleet.png.",
+        help="Folder for merged.json, fleet.json, poses.tum, poses.kitti, poses/, links.g2o, "
+        "config.yaml, fleet.png.",
+    ),
+    root: str | None = typer.Option(
+        None,
+        help="Robot whose frame is the fleet frame, by name (the file's stem; parent-stem when "
+        "two files share a stem). Default: the best-connected robot of the largest group.",
     ),
     min_confidence: float | None = typer.Option(
         None, help="Acceptance strictness for each pair, 0-1 (default: the library's 0.9999)."
@@ -51,9 +57,10 @@ def fleet_cmd(
 ) -> None:
     """Place N robots' graphs in one common frame and merge their maps.
 
-    Every pair is localized (in parallel), pairs failing the acceptance test are dropped, a
-    maximum-confidence spanning tree plus a loop-consistency check places the robots, and the
-    robots that cannot be placed are reported.
+    Every pair is localized (in parallel), pairs failing the acceptance test are dropped,
+    links that disagree around loops are dropped, a pose graph over the remaining links places
+    the robots, and the robots that cannot be placed are reported. Robots are named by their
+    file's stem (r1/map.pcd and r2/map.pcd: r1-map and r2-map).
 
     Example: sgloc fleet a.pcd b.pcd c.json d.npz --out fleet_out --scheduler tcp://10.0.0.5:8786
     """
@@ -61,7 +68,8 @@ def fleet_cmd(
     gs = [load_graph(p, edge_radius, label_field, colour_table) for p in graphs]
     cfg = FleetConfig(localizer=localizer, seed=seed)
     res = localize_fleet(
-        gs, cfg, names=[p.name for p in graphs], scheduler=scheduler, workers=workers, out=out
+        gs, cfg, names=robot_names(graphs), root=root, scheduler=scheduler, workers=workers,
+        out=out,
     )
     console = Console()
     table = Table("robot", "placed", "x (m)", "y (m)", "yaw (deg)", "note", title="fleet")
@@ -84,7 +92,7 @@ def fleet_cmd(
     )
     console.print(
         f"results in {out}/: merged.json, fleet.json, poses.tum, poses.kitti, poses/, "
-        "config.yaml, fleet.png"
+        "links.g2o, config.yaml, fleet.png"
     )
     if len(res.T_world_robot) < len(res.names):
         unplaced = len(res.names) - len(res.T_world_robot)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +11,7 @@ from rich.table import Table
 
 from sgloc.cli.app import app, not_localized
 from sgloc.cli.options import (
+    CLASSES_HELP,
     COLOURS_HELP,
     LABEL_HELP,
     config_option,
@@ -20,7 +20,9 @@ from sgloc.cli.options import (
     preset_option,
     set_option,
 )
-from sgloc.io.results import FORMATS, render, write_results
+from sgloc.io.files import write_text_atomic
+from sgloc.io.inputs import check_reader_options
+from sgloc.io.results import FORMATS, compact_json, document, render, write_results
 from sgloc.localizer import Localizer
 
 
@@ -46,6 +48,7 @@ def localize_cmd(
     seed: int = typer.Option(0, min=0, help="Random seed."),
     label_field: str | None = typer.Option(None, help=LABEL_HELP),
     colour_table: Path | None = typer.Option(None, help=COLOURS_HELP),
+    class_table: Path | None = typer.Option(None, help=CLASSES_HELP),
     out: Path | None = typer.Option(
         None, help="Results folder: result.json, T_target_query*.txt, config.yaml, PNG."
     ),
@@ -53,7 +56,8 @@ def localize_cmd(
         None, "--format", help=f"Print only the result to stdout as {' | '.join(FORMATS)}."
     ),
     json_out: Path | None = typer.Option(
-        None, "--json", help="Write the full result (with every match) as JSON here."
+        None, "--json", help="Write the full result as JSON here: result.json's fields plus "
+        "every match, candidate and the configuration (docs/formats.md)."
     ),
     rerun: Path | None = typer.Option(
         None, "--rerun", help="Write both maps, the matches and the transform as a Rerun "
@@ -90,21 +94,25 @@ def localize_cmd(
         preset, config, setting,
         descriptor=descriptor, rejection=rejection, ransac_threshold=ransac_threshold,
     )
-    q = load_graph(query, edge_radius, label_field, colour_table)
-    t = load_graph(target, edge_radius, label_field, colour_table)
+    check_reader_options([query, target], label_field, colour_table, class_table)
+    q = load_graph(query, edge_radius, label_field, colour_table, class_table)
+    t = load_graph(target, edge_radius, label_field, colour_table, class_table)
     res = Localizer(cfg)(q, t, seed)
     info = {"query": str(query), "target": str(target), "seed": seed}
     if out is not None:
-        files = write_results(out, res, cfg, **info)
-        files["png"] = _picture(out / "aligned_maps.png", q, t, res, example)
+        names = _class_names(class_table, colour_table)
+
+        def picture(folder: Path) -> Path:
+            return _picture(folder / "aligned_maps.png", q, t, res, example, names)
+
+        files = write_results(out, res, cfg, picture, **info)
     if rerun is not None:
         from sgloc.io.rerun_file import write_rerun
 
         T = res.transform if res.success else np.eye(4)
         write_rerun(rerun, t, q, T, res.matches if res.success else np.zeros((0, 2)))
     if json_out is not None:
-        json_out.parent.mkdir(parents=True, exist_ok=True)
-        json_out.write_text(json.dumps(res.to_dict(), indent=1))
+        write_text_atomic(json_out, compact_json(document(res, full=True, **info)))
     console = Console(stderr=fmt is not None)
     _report(console, q, t, res, example)
     if out is not None:
@@ -130,13 +138,34 @@ def _report(console: Console, q, t, res, example: bool) -> None:
         with np.printoptions(precision=4, suppress=True):
             console.print(f"confidence {conf}\nT_target_query =\n{res.transform}")
         if example:
-            from sgloc.geometry import transform_error
+            from sgloc.geometry import transform_error, translation_error_at
 
             te, re = transform_error(res.transform, np.eye(4))
-            console.print(f"error against the ground truth (identity): {te:.2f} m, {re:.2f} deg")
+            tc = translation_error_at(res.transform, np.eye(4), q.positions.mean(axis=0))
+            console.print(
+                f"error against the ground truth (identity): {te:.2f} m at the target's origin, "
+                f"{tc:.2f} m at the query objects' centroid, {re:.2f} deg (docs/formats.md)"
+            )
 
 
-def _picture(path: Path, q, t, res, example: bool) -> Path:
+def _class_names(class_table: Path | None, colour_table: Path | None) -> list[str] | None:
+    """Class names for the picture's legend (index = class id), from the class table or the
+    colour table's names; None: "class k"."""
+    if class_table is not None:
+        from sgloc.io.class_table import read_class_table
+
+        by_id: dict[int, str] = {}
+        for name, cid in read_class_table(class_table).items():
+            by_id.setdefault(cid, name)
+        return [by_id.get(i, f"class {i}") for i in range(max(by_id) + 1)]
+    if colour_table is not None:
+        from sgloc.io.colour_table import read_colour_table
+
+        return read_colour_table(colour_table)[1]
+    return None
+
+
+def _picture(path: Path, q, t, res, example: bool, names: list[str] | None = None) -> Path:
     from sgloc.viz import plot_aligned_maps
 
     if res.success:
@@ -149,6 +178,6 @@ def _picture(path: Path, q, t, res, example: bool) -> Path:
             title += f"\nerror vs ground truth {te:.2f} m / {re:.2f}°"
         T = res.transform
     else:
-        title = f"not localized ({res.reason}); B shown in its own frame"
+        title = f"not localized: {res.reason}\nB shown in its own frame (no transform)"
         T = np.eye(4)
-    return plot_aligned_maps(t, q, T, res.matches if res.success else [], path, title)
+    return plot_aligned_maps(t, q, T, res.matches if res.success else [], path, title, names)

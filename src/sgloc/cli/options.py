@@ -19,6 +19,7 @@ CONFIG_HELP = "Localizer settings from a YAML file (as written by --out DIR/conf
 SET_HELP = "A localizer setting NAME=VALUE (repeatable), e.g. --set tau=3 --set top_k=2."
 LABEL_HELP = "Class column of .ply/.csv/.txt graphs: a field name or a 0-based column index."
 COLOURS_HELP = "Colour table (lines `class r g b \\[name]`) for graphs whose classes are colours."
+CLASSES_HELP = "Class table (lines `class_id name`) for .csv/.txt graphs whose classes are names."
 
 
 def preset_option() -> Any:
@@ -30,7 +31,7 @@ def config_option() -> Any:
 
 
 def set_option() -> Any:
-    return typer.Option([], "--set", help=SET_HELP)
+    return typer.Option([], "--set", metavar="NAME=VALUE", help=SET_HELP)
 
 
 def parse_settings(items: list[str]) -> dict[str, Any]:
@@ -43,6 +44,9 @@ def parse_settings(items: list[str]) -> dict[str, Any]:
         if "=" not in item:
             raise SglocError(f"--set expects NAME=VALUE, got {item!r}.")
         key, text = item.split("=", 1)
+        if text.strip() in ("none", "None"):  # YAML's null, as Python users write it
+            out[key.strip()] = None
+            continue
         try:
             out[key.strip()] = yaml.safe_load(text)
         except yaml.YAMLError:
@@ -104,9 +108,10 @@ def load_graph(
     edge_radius: float = 20.0,
     label_field: str | None = None,
     colour_table: Path | None = None,
+    class_table: Path | None = None,
 ) -> SemanticGraph:
     """A graph file with the reader options of the command line."""
     from sgloc.io.inputs import read_graph_with
 
-    positions, labels = read_graph_with(path, label_field=label_field, colour_table=colour_table)
+    positions, labels = read_graph_with(path, label_field, colour_table, class_table)
     return SemanticGraph(positions, labels, edge_radius, name=Path(path).name)

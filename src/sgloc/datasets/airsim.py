@@ -54,7 +54,8 @@ def find_robot_folder(path: Path, robot: str | None) -> Path:
     if len(robots) == 1:
         return path / robots[0]
     if robots:
-        raise DatasetError(f"{path} holds several robots {robots}; choose one with robot=NAME.")
+        raise DatasetError(f"{path} holds several robots {robots}; choose one with --robot NAME "
+                           "(Python: robot=NAME).")
     raise DatasetError(f"{path / 'airsim.txt'}: missing Airsim pose file (no robot folder found).")
 
 

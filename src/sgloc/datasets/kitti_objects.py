@@ -25,6 +25,7 @@ from sgloc.datasets.base import Dataset, Frame, parse_range, require_file
 from sgloc.errors import DatasetError
 from sgloc.io.files import MAX_TEXT_FILE_BYTES, read_regular_file
 from sgloc.io.poses import read_kitti_poses
+from sgloc.validation import MAX_VERTICES
 
 #: Class ids of the detections (the column order of bow.txt).
 CLASS_NAMES = ("vehicle", "trunk", "pole")
@@ -39,6 +40,8 @@ TR_KITTI_00 = np.array(
 )
 
 _CENTROID_NAME = re.compile(r"(?:^|/)centroids/(\d+)\.txt$")
+#: One bow.txt row: three counts "vehicle,trunk,pole" (digits only).
+_BOW_ROW = re.compile(r"[0-9]+,[0-9]+,[0-9]+")
 
 
 def _read_text_bytes(path: Path, what: str) -> bytes:
@@ -50,11 +53,17 @@ def _read_text_bytes(path: Path, what: str) -> bytes:
 def _parse_bow(data: bytes, where: str) -> np.ndarray:
     rows = [r for r in data.decode("ascii", "replace").split() if r]
     try:
+        if not all(_BOW_ROW.fullmatch(r) for r in rows):
+            raise ValueError
         bow = np.array([[int(v) for v in r.split(",")] for r in rows], dtype=np.int64)
-    except ValueError:
+    except (ValueError, OverflowError):
         raise DatasetError(f"{where}: rows must be three integer counts `v,t,p`.") from None
     if bow.ndim != 2 or bow.shape[1] != len(CLASS_NAMES) or (bow < 0).any():
         raise DatasetError(f"{where}: rows must be three non-negative counts `vehicle,trunk,pole`.")
+    if (bow > MAX_VERTICES).any():
+        raise DatasetError(
+            f"{where}: a count above {MAX_VERTICES} objects in one scan; the file is damaged."
+        )
     return bow
 
 

@@ -10,7 +10,11 @@ from scipy import sparse
 
 from sgloc.descriptors.base import Descriptor
 from sgloc.graph import SemanticGraph
+from sgloc.kernels import use_compiled
 from sgloc.validation import MAX_COORDINATE, integer, real, setting
+
+#: Descriptor weights are multiples of this (`sgloc.kernels.neighbors.WEIGHT_QUANTUM`).
+WEIGHT_QUANTUM = 2.0**-24
 
 #: Descriptors already computed, per graph (graphs are immutable; entries go with the graph).
 DESCRIPTOR_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -27,16 +31,17 @@ def neighbour_pairs(positions: np.ndarray, radius: float) -> tuple[np.ndarray, n
     if pairs.size == 0:
         return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
     v = positions[pairs[:, 0]] - positions[pairs[:, 1]]
-    d = np.sqrt(np.einsum("ij,ij->i", v, v))
+    # Summed as x, y, z in turn: the rounding of the compiled descriptor kernel.
+    d = np.sqrt(v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1] + v[:, 2] * v[:, 2])
     keep = d < radius
     return pairs[keep].astype(np.int64), d[keep]
 
 
-def soft_bins(values: np.ndarray, width: float, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
-    """Linear (tent) soft binning of `values` >= 0 into `n_bins` bins of `width`, bin b centred
-    at (b + 0.5) * width: (bins (v,2) int, weights (v,2)), weights summing to 1 per value.
-    Values below the first centre or beyond the last fall wholly in the end bin."""
-    u = np.clip(values / width - 0.5, 0.0, n_bins - 1.0)
+def soft_bins(values: np.ndarray, per_bin: float, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
+    """Linear (tent) soft binning of `values` >= 0 into `n_bins` bins of width 1 / per_bin,
+    bin b centred at (b + 0.5) / per_bin: (bins (v,2) int, weights (v,2)), weights summing to 1
+    per value. Values below the first centre or beyond the last fall wholly in the end bin."""
+    u = np.clip(values * per_bin - 0.5, 0.0, n_bins - 1.0)
     lo = u.astype(np.int64)  # u >= 0: truncation is floor
     frac = u - lo
     hi = np.minimum(lo + 1, n_bins - 1)
@@ -74,12 +79,40 @@ class DistanceHistogramDescriptor(Descriptor):
         return per_graph[key]
 
     def _compute(self, graph: SemanticGraph, n_classes: int) -> np.ndarray:
-        n, nb, R = len(graph), int(self.n_bins), float(self.radius)
-        pairs, d = neighbour_pairs(graph.positions, R)
-        bins, w = soft_bins(d, R / nb, nb)
-        if self.taper:
-            w = w * (1.0 - self.taper * d / R)[:, None]
-        i, j, lab = pairs[:, 0], pairs[:, 1], graph.labels
+        return self.rows(graph.positions, graph.labels, n_classes)
+
+    def rows(
+        self,
+        positions: np.ndarray,
+        labels: np.ndarray,
+        n_classes: int,
+        rows: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """The descriptors of the objects `rows` (default all) of the map (positions (n,3) m,
+        labels (n,) class ids < n_classes): (len(rows), n_classes * n_bins). The same bits by
+        the compiled kernel and the numpy reference (`histogram_reference`)."""
+        rows = np.arange(len(positions)) if rows is None else np.asarray(rows, dtype=np.int64)
+        if use_compiled(len(positions)):
+            from sgloc.kernels.neighbors import distance_histograms
+
+            positions = np.ascontiguousarray(positions, dtype=np.float64)
+            return distance_histograms(
+                positions[rows], rows, positions, np.asarray(labels, dtype=np.int64),
+                n_classes, float(self.radius), int(self.n_bins), float(self.taper),
+            )  # fmt: skip
+        return self.histogram_reference(positions, labels, n_classes)[rows]
+
+    def histogram_reference(
+        self, positions: np.ndarray, labels: np.ndarray, n_classes: int
+    ) -> np.ndarray:
+        """All rows by KD-tree pairs in numpy (the compiled kernel's reference)."""
+        n, nb, R = len(positions), int(self.n_bins), float(self.radius)
+        pairs, d = neighbour_pairs(positions, R)
+        bins, w = soft_bins(d, nb / R, nb)
+        w = w * (1.0 - d * (float(self.taper) / R))[:, None]
+        # Multiples of WEIGHT_QUANTUM: every bin's sum is exact, in any order of its terms.
+        w = np.floor(w * (1.0 / WEIGHT_QUANTUM) + 0.5) * WEIGHT_QUANTUM
+        i, j, lab = pairs[:, 0], pairs[:, 1], labels
         # Each pair counts in both endpoints' histograms, under the other endpoint's class.
         # Dense: n x (classes x bins) floats, linear in the vertices (cheaper than CSR here).
         row_i = (i * n_classes + lab[j]) * nb

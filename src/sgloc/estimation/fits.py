@@ -7,6 +7,7 @@ import numpy as np
 
 from sgloc.errors import DegenerateGeometryError
 from sgloc.geometry import make_transform
+from sgloc.kernels.constants import COLLINEAR_WIDTH
 
 #: Relative size under which a point set counts as collinear (second principal extent over the
 #: first). Objects of a city map are metres apart; 1e-3 is a line to within a millimetre per metre.
@@ -28,12 +29,16 @@ def check_not_degenerate(points: np.ndarray, what: str = "points") -> None:
 
 
 def _collinear(points: np.ndarray) -> bool:
-    """True when `points` (n,3) are fewer than 3 or (nearly) collinear (COLLINEAR_RATIO)."""
+    """True when `points` (n,3) are fewer than 3 or (nearly) collinear: the second principal
+    extent under COLLINEAR_RATIO times the first and its standard deviation under
+    COLLINEAR_WIDTH metres."""
     if len(points) < 3:
         return True
     c = points - points.mean(axis=0)
     ev = np.linalg.eigvalsh(c.T @ c)
-    return bool(ev[2] <= 0 or np.sqrt(max(ev[1], 0.0) / ev[2]) < COLLINEAR_RATIO)
+    second = max(ev[1], 0.0)
+    thin = second < COLLINEAR_WIDTH**2 * len(points)
+    return bool(ev[2] <= 0 or (np.sqrt(second / ev[2]) < COLLINEAR_RATIO and thin))
 
 
 def weighted_kabsch(

@@ -144,13 +144,6 @@ def ransac_reference(
     samples (3 matches; 2 with dof=4; Guo's 4) at once and are scored by matrix products; the
     best is refit on its inliers (`fit_rigid`)."""
     cfg = config or RansacConfig()
-    if cfg.scoring not in ("count", "msac", "first"):
-        raise ValueError(f"unknown RANSAC scoring {cfg.scoring!r}; use 'msac', 'count' or 'first'")
-    if cfg.sampler == "guo" and cfg.dof != 6:
-        raise InvalidSettingError(
-            f"setting ransac.sampler='guo' needs ransac.dof=6 (got dof={cfg.dof}): Guo's samples "
-            "fix any rigid motion; use sampler='minimal' for dof=4."
-        )
     return _run(src, dst, cfg, rng or np.random.default_rng(0), weights, compiled=False)
 
 
@@ -167,11 +160,6 @@ def ransac_compiled(
     cfg = config or RansacConfig()
     if cfg.dof == 6 and cfg.max_tilt is not None:
         raise ValueError("the compiled RANSAC has no gravity gate for dof=6: use ransac_reference")
-    if cfg.scoring not in ("count", "msac") or cfg.sampler != "minimal":
-        raise ValueError(
-            f"the compiled RANSAC scores minimal samples by 'count' or 'msac' (got scoring="
-            f"{cfg.scoring!r}, sampler={cfg.sampler!r}): use ransac_reference"
-        )
     return _run(src, dst, cfg, rng or np.random.default_rng(0), weights, compiled=True)
 
 
@@ -192,8 +180,7 @@ def _run(
         return RansacResult(
             None, reason=f"only {m} match(es) reached RANSAC; at least 3 are needed"
         )
-    if cfg.dof not in (4, 6):
-        raise ValueError(f"RANSAC dof must be 4 (x, y, z, yaw) or 6, got {cfg.dof!r}")
+    _check_settings(cfg, compiled)
     # Centre both sets: better conditioned residual expansion; undone at the end.
     cs, cd = src.mean(axis=0), dst.mean(axis=0)
     src_c, dst_c = np.ascontiguousarray(src - cs), np.ascontiguousarray(dst - cd)
@@ -213,6 +200,25 @@ def _run(
         return fit_model(s, d, w, cfg.dof, max_tilt)
 
     return finish(best_T, src, src_c, dst_c, cs, cd, w_all, cfg, fit, inliers)
+
+
+def _check_settings(cfg: RansacConfig, compiled: bool) -> None:
+    """Refuse settings the chosen scorer cannot run (checked once matches reach RANSAC)."""
+    scorings = ("count", "msac") if compiled else ("count", "msac", "first")
+    if cfg.scoring not in scorings:
+        raise ValueError(
+            f"unknown RANSAC scoring {cfg.scoring!r} for the "
+            f"{'compiled' if compiled else 'numpy'} scorer; use one of {', '.join(scorings)}"
+        )
+    if cfg.dof not in (4, 6):
+        raise ValueError(f"RANSAC dof must be 4 (x, y, z, yaw) or 6, got {cfg.dof!r}")
+    if cfg.sampler == "guo" and (compiled or cfg.dof != 6):
+        if compiled:
+            raise ValueError("the compiled RANSAC draws minimal samples: use ransac_reference")
+        raise InvalidSettingError(
+            f"setting ransac.sampler='guo' needs ransac.dof=6 (got dof={cfg.dof}): Guo's samples "
+            "fix any rigid motion; use sampler='minimal' for dof=4."
+        )
 
 
 def adaptive_search(m: int, cfg: RansacConfig, score: Scorer) -> np.ndarray | None:

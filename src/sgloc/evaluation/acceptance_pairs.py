@@ -198,12 +198,16 @@ def city_pairs(
     return out
 
 
-def default_pair_sets(seed: int = 0, scale: int = 1, city: bool = False) -> list[LabeledPair]:
+def default_pair_sets(
+    seed: int = 0, scale: int = 1, city: bool = False, kitti: bool = True
+) -> list[LabeledPair]:
     """The benchmark's sets: per source `scale` x (positives, negatives) =
-    airsim (40, 40), object world (40, 40), KITTI 00 (40, 40), and with `city` the rendered
-    city (40, 40; renders and caches 3 worlds x 5 runs on first use)."""
+    airsim (40, 40), object world (40, 40), KITTI 00 (40, 40; needs the downloaded set, left
+    out with `kitti=False`), and with `city` the rendered city (40, 40; renders and caches
+    3 worlds x 5 runs on first use)."""
     out: list[LabeledPair] = []
-    sources = [(airsim_pairs, {"keep": 0.9}), (world_pairs, {}), (kitti_pairs, {})]
+    sources = [(airsim_pairs, {"keep": 0.9}), (world_pairs, {})]
+    sources += [(kitti_pairs, {})] if kitti else []
     for build, kw in sources + ([(city_pairs, {})] if city else []):
         out += build(40 * scale, True, seed, **kw) + build(40 * scale, False, seed, **kw)
     return out

@@ -42,6 +42,7 @@ from sgloc.evaluation.trials import (
     run_prepare,
     run_tasks,
 )
+from sgloc.io.files import naming, staged_folder
 from sgloc.localizer import Localizer
 
 EXPERIMENTS = ("table", "threshold", "pr", "overlap", "matches")
@@ -226,8 +227,24 @@ def run_experiment(
     """
     if name not in EXPERIMENTS:
         raise _unknown(name)
-    folder = Path(out)
-    folder.mkdir(parents=True, exist_ok=True)
+    out = Path(out)
+    with staged_folder(out) as stage:  # the folder appears complete or not at all
+        result = _run_into(name, dataset, stage, options, workers, scheduler, progress)
+    return dataclasses.replace(
+        result, folder=out, files=[out / p.relative_to(stage) for p in result.files]
+    )
+
+
+def _run_into(
+    name: str,
+    dataset: str,
+    folder: Path,
+    options: ExperimentOptions | None,
+    workers: int | None,
+    scheduler: Any,
+    progress: Callable[[int, int, str], None] | None,
+) -> ExperimentOutput:
+    """run_experiment's work, written into `folder`."""
     opt = resolved_options(dataset, options or ExperimentOptions())  # fails early on a bad name
     if name == "matches":
         return _matches(dataset, folder, opt)
@@ -253,7 +270,8 @@ def run_experiment(
         last = sweep.first_seed + sweep.trials - 1
         run = f"{sweep.trials} per cell, seeds {sweep.first_seed}-{last}; wall time {wall:.0f} s"
     md = f"# {name} on {dataset}\n\n{len(rows)} trials ({run}).\n\n" + md
-    (folder / "table.md").write_text(md)
+    with naming(folder / "table.md"):
+        (folder / "table.md").write_text(md)
     files.append(folder / "table.md")
     cfg_path = folder / "config.yaml"
     if not (opt.from_csv and cfg_path.exists()):  # keep the config of the run that made the CSV
@@ -324,7 +342,8 @@ def _matches(dataset: str, folder: Path, opt: ExperimentOptions) -> ExperimentOu
         te, re = pair.own_frame_errors(res.transform)
         md += f"\n{rej}: localized={res.success}, translation error {fmt(te)} m, "
         md += f"rotation error {fmt(re)} deg"
-    (folder / "table.md").write_text(md + "\n")
+    with naming(folder / "table.md"):
+        (folder / "table.md").write_text(md + "\n")
     exp = {"name": "matches", "dataset": dataset, "dataset_params": opt.dataset_params}
     configs = {k: c.to_dict() for k, c in cfgs.items()}
     cfg_file = write_config_yaml(folder / "config.yaml", {**exp, "seed": seed}, configs)

@@ -21,6 +21,7 @@ from matplotlib.patches import Patch  # noqa: E402
 from sgloc.evaluation.metrics import correct_matches  # noqa: E402
 from sgloc.evaluation.report import column, group_rows, setting_label, summarize  # noqa: E402
 from sgloc.geometry import apply  # noqa: E402
+from sgloc.io.files import naming  # noqa: E402
 
 DPI = 110
 COLORS = {"histogram": "tab:blue", "fast": "tab:orange", "random_walk": "tab:green"}
@@ -35,12 +36,39 @@ def _style(descriptor: str, rejection: str) -> dict[str, Any]:
     }
 
 
+def _plain_log_ticks(ax, axis: str = "y") -> None:
+    """Log-scale ticks written as plain numbers (0.5, 2, 10), not as 5x10^-1."""
+    from matplotlib.ticker import FuncFormatter, LogLocator
+
+    which = ax.yaxis if axis == "y" else ax.xaxis
+    which.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+    which.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    which.set_minor_formatter(FuncFormatter(lambda v, _: ""))
+
+
+def _failure_axis(ax, values: Sequence[float]) -> None:
+    """A failures-% axis from 0 (never -0.05..0.05 when nothing failed)."""
+    top = max([float(v) for v in values if np.isfinite(v)] + [0.0])
+    ax.set_ylim(0, max(5.0, top * 1.1))
+
+
+def _trials_per_point(rows: Sequence[dict[str, Any]], by: list[str]) -> str:
+    """"n = k" (or "n = a-b") trials per plotted point, for titles."""
+    sizes = sorted({len(g) for g in group_rows(rows, by).values()})
+    if not sizes:
+        return "n = 0"
+    return f"n = {sizes[0]}" if len(sizes) == 1 else f"n = {sizes[0]}-{sizes[-1]}"
+
+
 def _save(fig: plt.Figure, path: str | Path, top: float = 1.0, dpi: int = DPI) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout(rect=(0, 0, 1, top))
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
+    try:
+        with naming(path):
+            fig.savefig(path, dpi=dpi)
+    finally:
+        plt.close(fig)
     return path
 
 
@@ -50,6 +78,7 @@ def error_vs_threshold(rows: Sequence[dict[str, Any]], path: str | Path) -> Path
     fig, (ax, ax2) = plt.subplots(
         2, 1, figsize=(6.4, 5.6), sharex=True, gridspec_kw={"height_ratios": [3, 1.3]}
     )
+    fails: list[float] = []
     for (d, r), g in group_rows(rows, ["descriptor", "rejection"]).items():
         s = summarize(g, ["ransac_threshold"])
         x = np.array([c["ransac_threshold"] for c in s])
@@ -58,8 +87,12 @@ def error_vs_threshold(rows: Sequence[dict[str, Any]], path: str | Path) -> Path
         st = _style(d, r)
         ax.plot(x, m, label=setting_label(d, r), **st)
         ax.fill_between(x, m - sd, m + sd, color=st["color"], alpha=0.08)
+        fails += [100 * c["failures"] / c["trials"] for c in s]
         ax2.plot(x, [100 * c["failures"] / c["trials"] for c in s], **st)
-    ax.set_title("Translation error vs RANSAC threshold (mean +- std)")
+    n = _trials_per_point(rows, ["descriptor", "rejection", "ransac_threshold"])
+    ax.set_title(f"Translation error vs RANSAC threshold (mean ± std, {n} trials a point)",
+                 fontsize=10)  # fmt: skip
+    _failure_axis(ax2, fails)
     ax.set_ylabel("translation error (m)")
     ax.set_ylim(bottom=0)
     ax.grid(alpha=0.3)
@@ -79,16 +112,19 @@ def error_distribution(
     labels, te, re = [], [], []
     for (d, r), g in groups.items():
         fails = sum(bool(x["failed"]) for x in g)
-        labels.append(f"{setting_label(d, r)}\n({fails} fail)")
+        labels.append(f"{setting_label(d, r)}\n(n = {len(g)}, {fails} failed)")
         te.append(column(g, "translation_error_m")[np.isfinite(column(g, "translation_error_m"))])
         re.append(column(g, "rotation_error_deg")[np.isfinite(column(g, "rotation_error_deg"))])
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.8))
     for ax, data, name in ((axes[0], te, "translation error (m)"), (axes[1], re, "rotation (deg)")):
-        ax.boxplot([x if x.size else np.array([np.nan]) for x in data], showfliers=True)
+        ax.boxplot([x if x.size else np.array([np.nan]) for x in data], showfliers=True,
+                   medianprops={"color": "k", "lw": 1.5})  # fmt: skip
         ax.set_xticks(range(1, len(labels) + 1), labels, rotation=35, ha="right", fontsize=7)
         ax.set(yscale="log", ylabel=name)
+        _plain_log_ticks(ax)
         ax.grid(alpha=0.3, axis="y")
-    fig.suptitle(f"Error distribution at T_error = {threshold:g} m")
+    fig.suptitle(f"Error distribution at T_error = {threshold:g} m (boxes: localized trials; "
+                 "line: median)", fontsize=10)  # fmt: skip
     return _save(fig, path, top=0.93)
 
 
@@ -100,11 +136,15 @@ def pr_curves(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
         s = summarize(g, ["ransac_threshold"])
         rec = np.array([100 * c["recall"] for c in s])
         pre = np.array([100 * c["precision"] for c in s])
-        ax.plot(rec, pre, label=setting_label(d, r), **_style(d, r))
-        for c, x, y in ((s[0], rec[0], pre[0]), (s[-1], rec[-1], pre[-1])):
-            ax.annotate(f"{c['ransac_threshold']:g}", (x, y), fontsize=6, alpha=0.7)
-    ax.set(xlabel="recall %", ylabel="precision %")
-    ax.set_title("Precision-recall over the RANSAC threshold")
+        st = _style(d, r)
+        ax.plot(rec, pre, label=setting_label(d, r), **st)
+        for c, x, y, dy in ((s[0], rec[0], pre[0], -10), (s[-1], rec[-1], pre[-1], -10)):
+            ax.annotate(f"{c['ransac_threshold']:g} m", (x, y), xytext=(4, dy),
+                        textcoords="offset points", fontsize=7, color=st["color"])  # fmt: skip
+    ax.set(xlabel="recall of the final matches (%)", ylabel="precision of the final matches (%)")
+    n = _trials_per_point(rows, ["descriptor", "rejection", "ransac_threshold"])
+    ax.set_title(f"Precision-recall over the RANSAC threshold\n(means, {n} trials a point; "
+                 "the end points' thresholds in m)", fontsize=9)  # fmt: skip
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     return _save(fig, path)
@@ -123,6 +163,7 @@ def overlap_boxplots(
         2, 1, figsize=(7.5, 5.4), sharex=True, gridspec_kw={"height_ratios": [3, 1.2]}
     )
     width = 0.8 / max(len(rejections), 1)
+    bars: list[float] = []
     top = ax.get_xaxis_transform()  # x in data, y in axes fraction
     for k, rej in enumerate(rejections):
         color = "tab:red" if rej == "none" else "tab:blue"
@@ -145,14 +186,17 @@ def overlap_boxplots(
         bp = ax.boxplot(
             data, positions=pos, widths=width * 0.9, patch_artist=True, showfliers=True,
             flierprops={"markersize": 2, "markeredgecolor": color},
+            medianprops={"color": color, "lw": 2.0},
         )  # fmt: skip
         for b in bp["boxes"]:
             b.set(facecolor=color, alpha=0.35)
-        ax.plot([], [], color=color, lw=6, alpha=0.35, label=label)
+        ax.plot([], [], color=color, lw=6, alpha=0.35, label=f"{label} (line: median)")
         ax2.bar(pos, wrong, width=width * 0.9, color=color, alpha=0.8)
         ax2.bar(pos, unloc, bottom=wrong, width=width * 0.9, color=color, alpha=0.3, hatch="//")
+        bars += [w + u for w, u in zip(wrong, unloc, strict=True)]
     ax.axhline(failure_m, color="k", lw=0.8, ls=":", label=f"failure ({failure_m:g} m)")
     ax.set_yscale("log")
+    _plain_log_ticks(ax)
     lo, hi = ax.get_ylim()
     ax.set_ylim(lo, hi * 4)  # room for the unlocalized counts
     ax.set_ylabel("translation error of localized trials (m)")
@@ -161,6 +205,7 @@ def overlap_boxplots(
     ax.grid(alpha=0.3, axis="y")
     ax2.set_xticks(range(len(overlaps)), [f"{o:g}" for o in overlaps])
     ax2.set(xlabel="overlap rate", ylabel="failures %")
+    _failure_axis(ax2, bars)
     ax2.legend(
         handles=[
             Patch(facecolor="0.4", alpha=0.8, label=f"wrong (> {failure_m:g} m)"),
@@ -206,9 +251,11 @@ def matches_picture(
         ax.add_collection(LineCollection(segs[~ok], colors="tab:red", lw=0.4, alpha=0.5))
         ax.add_collection(LineCollection(segs[ok], colors="tab:green", lw=0.5, alpha=0.7))
         ax.set_title(f"{name}\n{len(m)} matches, {int(ok.sum())} correct", fontsize=8)
-        ax.set_aspect("equal")
-        ax.set_xticks([])
-        ax.set_yticks([])
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_xlabel("x (m) →", fontsize=7)
+        ax.set_ylabel("y (m) ↑", fontsize=7)
+        ax.tick_params(labelsize=6)
+        ax.grid(True, lw=0.3, alpha=0.4)
     axes[0][0].legend(fontsize=6, loc="lower left")
     if title:
         fig.suptitle(title, fontsize=10)

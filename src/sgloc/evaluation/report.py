@@ -24,6 +24,7 @@ import yaml
 
 from sgloc import __version__
 from sgloc.downloads import PROJECT_ROOT
+from sgloc.io.files import naming
 
 #: The paper's Table 1 (Airsim, T_error = 5 m; i7-9700, C++): descriptor, rejection -> values.
 PAPER_TABLE1: dict[tuple[str, str], dict[str, str]] = {
@@ -51,7 +52,7 @@ def write_csv(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
     """Write trial rows (flat dicts with the same keys) as CSV, one row per trial."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as f:
+    with naming(path), path.open("w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(dict.fromkeys(k for r in rows for k in r)))
         w.writeheader()
         w.writerows(rows)
@@ -231,5 +232,6 @@ def write_config_yaml(path: str | Path, experiment: dict[str, Any], configs: dic
     }
     path = Path(path)
     plain = json.loads(json.dumps(doc, default=lambda x: x.item()))  # numpy scalars, tuples
-    path.write_text(yaml.safe_dump(plain, sort_keys=False))
+    with naming(path):
+        path.write_text(yaml.safe_dump(plain, sort_keys=False))
     return path

@@ -50,6 +50,26 @@ class GraphBuilder:
     def labels(self) -> np.ndarray:
         return self._labels.copy()
 
+    def state(self) -> dict[str, np.ndarray]:
+        """The builder's arrays (sums of positions (n,3), counts (n,), labels (n,), n_frames,
+        n_observations), enough to resume it exactly with `from_state`."""
+        return {"sums": self._sums.copy(), "counts": self._counts.copy(),
+                "labels": self._labels.copy(), "n_frames": np.array(self.n_frames),
+                "n_observations": np.array(self.n_observations)}
+
+    @classmethod
+    def from_state(cls, config: ExtractionConfig, state: dict[str, np.ndarray]) -> GraphBuilder:
+        """A builder resumed from `state()`'s arrays."""
+        b = cls(config)
+        b._sums = np.asarray(state["sums"], np.float64).reshape(-1, 3)
+        b._counts = np.asarray(state["counts"], np.int64).ravel()
+        b._labels = np.asarray(state["labels"], np.int64).ravel()
+        if not len(b._sums) == len(b._counts) == len(b._labels):
+            raise SglocError("GraphBuilder state: sums, counts and labels differ in length.")
+        b.n_frames = int(state["n_frames"])
+        b.n_observations = int(state["n_observations"])
+        return b
+
     def add_observations(self, positions: np.ndarray, labels: np.ndarray) -> np.ndarray:
         """Associate one frame's observations ((k,3) map-frame metres, (k,) class ids).
 

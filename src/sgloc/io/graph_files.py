@@ -202,8 +202,8 @@ READERS: dict[str, Callable[[Path], GraphArrays]] = {
     ".csv": _read_table,
     ".txt": _read_table,
 }
-#: Suffixes `write_graph` writes.
-SUFFIXES = (".pcd", ".json", ".npz")
+#: Suffixes `write_graph` writes (every suffix `read_graph` reads).
+SUFFIXES = (".pcd", ".json", ".npz", ".ply", ".csv", ".txt")
 
 
 def read_graph(path: str | Path) -> GraphArrays:
@@ -228,7 +228,8 @@ def read_graph(path: str | Path) -> GraphArrays:
 def write_graph(
     path: str | Path, positions: np.ndarray, labels: np.ndarray, edge_radius: float | None = None
 ) -> Path:
-    """Write a graph; the format follows the suffix (.pcd, .json, .npz)."""
+    """Write a graph; the format follows the suffix (.pcd, .json, .npz, .ply, .csv, .txt);
+    only .json keeps `edge_radius`."""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in SUFFIXES:
@@ -240,6 +241,14 @@ def write_graph(
         from sgloc.io.pcd import write_pcd
 
         write_pcd(path, positions, labels)
+    elif suffix == ".ply":
+        from sgloc.io.ply import write_ply
+
+        write_ply(path, positions, labels)
+    elif suffix in (".csv", ".txt"):
+        from sgloc.io.table import write_table
+
+        write_table(path, positions, labels)
     elif suffix == ".json":
         data = {
             "positions": np.asarray(positions).tolist(),

@@ -9,6 +9,7 @@ silently shorter map.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,6 +37,11 @@ _VERSIONS = {"0.7", ".7", "0.6", ".6", "0.5", ".5"}
 _MODES = ("ascii", "binary", "binary_compressed")
 _MAX_HEADER_BYTES = 1 << 16
 _WHAT = ".pcd graph file"
+#: Bytes an ASCII PCD data section may hold: numbers (with nan / inf) and blanks. Python's float()
+#: would also read "1_0", and str.split() splits numbers at control bytes.
+_ASCII_DATA = re.compile(r"[^0-9eE.+\-nNaAiIfFtTyY \t\r\n]")
+#: An integer field's value, as PCL writes it ("5.", "1e-400" or "1_0" are not integers).
+_INTEGER = re.compile(r"[+-]?[0-9]+")
 
 
 @dataclass(frozen=True)
@@ -155,6 +161,12 @@ def _ascii_columns(raw: bytes, h: PcdHeader, path: Path) -> dict[str, np.ndarray
         raise GraphFileError(
             f"{path}: non-ASCII bytes in ASCII PCD data; the file is damaged or not DATA ascii."
         ) from None
+    stray = _ASCII_DATA.search(text)
+    if stray is not None:
+        raise GraphFileError(
+            f"{path}: non-numeric character {stray.group()!r} in the ASCII PCD data (byte "
+            f"{h.offset + stray.start()}); every value must be a plain number."
+        )
     rows = [r for r in (line.split() for line in text.splitlines()) if r]
     if len(rows) != h.n:
         raise GraphFileError(
@@ -178,6 +190,7 @@ def _ascii_columns(raw: bytes, h: PcdHeader, path: Path) -> dict[str, np.ndarray
         col = table[:, start : start + c]
         start += c
         if t in "UI":
+            _check_integer_text(rows, start - c, c, f, path)
             info = np.iinfo(np.dtype(_NP_TYPES[(t, s)]))
             if np.any(col != np.round(col)) or np.any((col < info.min) | (col > info.max)):
                 raise GraphFileError(
@@ -189,6 +202,17 @@ def _ascii_columns(raw: bytes, h: PcdHeader, path: Path) -> dict[str, np.ndarray
             col = col.astype(np.float32).view(np.uint32)
         cols[f] = col
     return cols
+
+
+def _check_integer_text(rows: list[list[str]], first: int, count: int, field: str, path: Path):
+    """Every value of an integer field written as an integer (digits, an optional sign)."""
+    for k, row in enumerate(rows):
+        for value in row[first : first + count]:
+            if not _INTEGER.fullmatch(value):
+                raise GraphFileError(
+                    f"{path}: data row {k}: field {field!r} is an integer field but holds "
+                    f"{value!r}; values that are not integers in plain digits are refused."
+                )
 
 
 def _binary_columns(raw: bytes, h: PcdHeader, path: Path) -> dict[str, np.ndarray]:

@@ -4,12 +4,15 @@ a compact JSON summary; and the results folder `sgloc localize --out DIR` writes
 from __future__ import annotations
 
 import json
+import re
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from sgloc.io.files import naming, staged_folder
 from sgloc.io.poses import write_kitti_poses, write_tum_poses
 
 FORMATS = ("kitti", "tum", "json", "matrix")
@@ -22,19 +25,28 @@ FILES = {
 }
 
 
+#: Version of the JSON result document (`--json`, result.json, `--format json`); docs/formats.md.
+SCHEMA = "sgloc.result/1"
+
+
+def _array(a: Any, decimals: int | None = None) -> list | None:
+    if a is None:
+        return None
+    a = np.asarray(a)
+    return (np.round(a, decimals) if decimals is not None else a).tolist()
+
+
 def summary(result: Any, **extra: Any) -> dict[str, Any]:
-    """The compact JSON summary of a LocalizationResult (no per-match lists). `covariance`:
-    the (6,6) covariance of T_target_query (tangent [rx, ry, rz, tx, ty, tz] in rad and m, in
-    the query frame: T_true = T_target_query @ Exp(xi); `sgloc.covariance`), None when not
-    localized."""
-    T = result.transform
-    C = getattr(result, "covariance", None)
+    """The JSON result document without per-match lists (result.json, `--format json`):
+    schema, success, reason, confidence, T_target_query (4x4, metres), covariance (6x6 or
+    None), counts, timings_ms, then `extra` (query, target, seed)."""
     d = {
+        "schema": SCHEMA,
         "success": bool(result.success),
         "reason": result.reason,
         "confidence": None if result.confidence is None else round(float(result.confidence), 6),
-        "T_target_query": None if T is None else np.round(T, 9).tolist(),
-        "covariance": None if C is None else [[float(f"{v:.9g}") for v in row] for row in C],
+        "T_target_query": _array(result.transform, 9),
+        "covariance": _array(getattr(result, "covariance", None)),
         "n_candidates": int(len(result.candidates)),
         "n_survivors": int(len(result.survivors)),
         "n_matches": int(len(result.matches)),
@@ -44,14 +56,28 @@ def summary(result: Any, **extra: Any) -> dict[str, Any]:
     return d
 
 
+def document(result: Any, full: bool = False, **extra: Any) -> dict[str, Any]:
+    """The JSON result document: `summary`, and with `full` the index pairs (query index,
+    target index) of the matches, survivors and candidates, the candidates' scores and the
+    configuration (`--json FILE`, `LocalizationResult.to_dict`)."""
+    d = summary(result, **extra)
+    if full:
+        for name in ("matches", "survivors", "candidates"):
+            d[name] = np.asarray(getattr(result, name), dtype=np.int64).reshape(-1, 2).tolist()
+        d["scores"] = _array(np.asarray(result.scores, dtype=np.float64), 9)
+        d["config"] = result.config
+    return d
+
+
+#: An innermost JSON array (no nested array, object or string): printed on one line.
+_INNER_ARRAY = re.compile(r"\[\s*([^\[\]{}\"]*?)\s*\]")
+
+
 def compact_json(d: dict[str, Any]) -> str:
-    """JSON with two-space indent, but each matrix row (transform, covariance) on one line."""
-    matrices = {k: d[k] for k in ("T_target_query", "covariance") if d.get(k) is not None}
-    text = json.dumps({**d, **{k: f"@{k}@" for k in matrices}}, indent=2)
-    for key, M in matrices.items():
-        rows = ",\n    ".join(json.dumps(r) for r in M)
-        text = text.replace(f'"@{key}@"', "[\n    " + rows + "\n  ]")
-    return text + "\n"
+    """JSON with two-space indent, but each innermost array (a matrix row, a match) on one
+    line."""
+    text = json.dumps(d, indent=2)
+    return _INNER_ARRAY.sub(lambda m: "[" + re.sub(r"\s*\n\s*", " ", m.group(1)) + "]", text) + "\n"
 
 
 def write_matrix(path: str | Path, T: np.ndarray) -> Path:
@@ -79,15 +105,33 @@ def render(result: Any, fmt: str, **extra: Any) -> str:
         return write_transform(Path(d) / "T.txt", result.transform, fmt).read_text()
 
 
-def write_results(out: str | Path, result: Any, config: Any, **extra: Any) -> dict[str, Path]:
-    """Write the results folder: result.json, config.yaml and, when localized,
-    T_target_query.txt (4x4), T_target_query_kitti.txt, T_target_query_tum.txt."""
+def write_results(
+    out: str | Path,
+    result: Any,
+    config: Any,
+    picture: Callable[[Path], Path] | None = None,
+    **extra: Any,
+) -> dict[str, Path]:
+    """Write the results folder atomically: result.json, config.yaml and, when localized,
+    T_target_query.txt (4x4), T_target_query_kitti.txt, T_target_query_tum.txt; `picture`
+    (folder -> the PNG it wrote) adds a picture. Returns the files by kind."""
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    with staged_folder(out) as stage:  # the folder appears complete or not at all
+        files = write_results_into(stage, result, config, **extra)
+        if picture is not None:
+            files["png"] = picture(stage)
+    return {k: out / p.relative_to(stage) for k, p in files.items()}
+
+
+def write_results_into(out: Path, result: Any, config: Any, **extra: Any) -> dict[str, Path]:
+    """write_results' files, written into the existing folder `out`."""
     files = {"json": out / FILES["json"], "config": out / "config.yaml"}
-    files["json"].write_text(compact_json(summary(result, **extra)))
-    config.to_yaml(files["config"])
+    with naming(files["json"]):
+        files["json"].write_text(compact_json(summary(result, **extra)))
+    with naming(files["config"]):
+        config.to_yaml(files["config"])
     if result.success:
         for fmt in ("matrix", "kitti", "tum"):
-            files[fmt] = write_transform(out / FILES[fmt], result.transform, fmt)
+            with naming(out / FILES[fmt]):
+                files[fmt] = write_transform(out / FILES[fmt], result.transform, fmt)
     return files

@@ -3,7 +3,8 @@
 Columns are found by name when the first row is a header (`x,y,z,label`; class column named
 by `label_field`, else the first of label/class/class_id/semantic/category), else by position:
 x y z in columns 0-2 and the class in column 3 (or `label_field` as a 0-based index).
-Separators: commas, semicolons, tabs or spaces; `#` starts a comment.
+Separators: commas, semicolons, tabs or spaces; `#` starts a comment. The class column holds
+integer class ids, or class names turned into ids by a class table (`sgloc.io.class_table`).
 """
 
 from __future__ import annotations
@@ -14,13 +15,17 @@ from pathlib import Path
 import numpy as np
 
 from sgloc.errors import GraphFileError
+from sgloc.io.class_table import class_ids
 from sgloc.io.ply import LABEL_FIELDS
 
 _SPLIT = re.compile(r"[,;\s]+")
 
 
-def read_table(path: str | Path, label_field: str | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Read object positions (n,3) and class ids (n,) from a CSV or whitespace table."""
+def read_table(
+    path: str | Path, label_field: str | None = None, classes: dict[str, int] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Read object positions (n,3) and class ids (n,) from a CSV or whitespace table; `classes`
+    ({name: id}, `sgloc.io.class_table.read_class_table`) reads a class column of names."""
     path = Path(path)
     rows = [
         _SPLIT.split(ln.split("#", 1)[0].strip())
@@ -33,10 +38,15 @@ def read_table(path: str | Path, label_field: str | None = None) -> tuple[np.nda
     body = rows[1:] if header else rows
     cx, cy, cz, cl = _columns(path, header, label_field, len(body[0]) if body else 0)
     try:
-        vals = np.array([[r[cx], r[cy], r[cz], r[cl]] for r in body], dtype=np.float64)
+        names = [r[cl] for r in body]
+        if names and not all(_is_number(n) for n in names):
+            names = [str(c) for c in class_ids(names, classes, path)]
+        vals = np.array(
+            [[r[cx], r[cy], r[cz], n] for r, n in zip(body, names, strict=True)], dtype=np.float64
+        )
     except (IndexError, ValueError) as e:
         raise GraphFileError(
-            f"{path}: every row needs numbers in the x y z and class columns ({e})."
+            f"{path}: every row needs numbers in the x y z columns and a class column value ({e})."
         ) from e
     lab = vals[:, 3]
     if np.any(~np.isfinite(lab)) or np.any(lab != np.round(lab)):

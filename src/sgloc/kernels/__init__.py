@@ -3,12 +3,14 @@
 Importing this package is cheap: numba is imported, and each kernel compiled, only when a
 kernel module is first imported (callers import them inside functions). Compiled code is cached
 on disk (`cache=True`): next to the sources when that directory is writable, otherwise in numba's
-per-user cache directory; `NUMBA_CACHE_DIR` overrides both.
+per-user cache directory; `NUMBA_CACHE_DIR` overrides both. When none of them is writable (a
+read-only install and home), the kernels are cached in a folder of the temporary directory, or,
+failing that, compiled in every process without a cache; either is said once on stderr.
 
-Loading numba and the cached kernels costs a process about 0.7 s once. The first few small
-problems of a process (`use_compiled`) therefore run the numpy references, which give the same
-results: a one-shot run on small maps (the command line) never pays that, while a process that
-keeps working, or meets a large problem, loads the kernels.
+Every problem runs the compiled kernels (`use_compiled`; the numpy references are kept for the
+tests, `FORCE = "reference"`), so the same inputs give the same bits in every process whatever
+it ran before (the references and the kernels agree to rounding, not bit for bit). Loading
+numba and the cached kernels costs a process about 0.3 s once.
 
 Rule for every kernel here: no numba sort or search (np.sort, np.argsort, ndarray.sort,
 np.searchsorted, ...) inside a cached kernel: sort in numpy before the call, or write the loop
@@ -24,32 +26,149 @@ their references.
 
 from __future__ import annotations
 
+import os
 import sys
+import time
+from pathlib import Path
 
-#: Problems up to this size (matches) may run the numpy references while numba is not loaded.
-SMALL_PROBLEM = 1500
-#: Small problems a process solves with the references before it loads the kernels.
-REFERENCE_CALLS = 24
-#: "compiled" or "reference" forces that path for every size (tests); None: the rule above.
+from sgloc.kernels.cache import ensure_cache_dir
+
+ensure_cache_dir()
+
+#: "compiled" or "reference" forces that path (tests); None: the compiled kernels.
 FORCE: str | None = None
-
-_reference_calls = 0
 
 
 def use_compiled(size: int) -> bool:
-    """Whether a problem of `size` matches should run the compiled kernel (else the numpy
-    reference, with the same result): yes once numba is loaded, for large problems, and
-    after the first REFERENCE_CALLS small ones."""
-    global _reference_calls
+    """Whether a problem of `size` matches runs the compiled kernel (else the numpy reference,
+    equal to rounding): every non-empty one, unless FORCE says otherwise. Never depends on
+    what the process computed before."""
     if FORCE is not None:
         return FORCE == "compiled"
-    if size > SMALL_PROBLEM or "numba" in sys.modules:
-        return True
-    _reference_calls += 1
-    return _reference_calls > REFERENCE_CALLS
+    return size > 0
 
 
 _BLAS_CONTROLLER = None
+
+#: The kernel modules (each compiled on first use, `cache=True`).
+MODULES = (
+    "clique", "consistency", "fit", "matching", "neighbors",
+    "local", "prune", "ransac", "runner_up", "spectral", "triangles",
+)  # fmt: skip
+
+
+def cache_dir() -> Path:
+    """The folder numba caches these kernels in: NUMBA_CACHE_DIR when set, else this
+    package's `__pycache__` when the package folder is writable, else numba's per-user cache
+    folder (as numba chooses)."""
+    from numba.core import config
+
+    if config.CACHE_DIR:
+        return Path(config.CACHE_DIR)
+    here = Path(__file__).resolve().parent
+    if os.access(here, os.W_OK):
+        return here / "__pycache__"
+    from numba.misc.appdirs import AppDirs
+
+    return Path(AppDirs(appname="numba", appauthor=False).user_cache_dir)
+
+
+def compiled_marker() -> Path:
+    """The file whose presence says this install's kernels have compiled into `cache_dir()`
+    (named after the kernel sources' paths, sizes and times, numba's and Python's versions: a
+    new install or an upgrade compiles, and is said, anew)."""
+    import hashlib
+
+    import numba
+
+    here = Path(__file__).resolve().parent
+    parts = [numba.__version__, sys.version, str(here)]
+    for name in MODULES:
+        st = (here / f"{name}.py").stat()
+        parts.append(f"{name}:{st.st_size}:{st.st_mtime_ns}")
+    digest = hashlib.sha1("|".join(parts).encode()).hexdigest()[:16]
+    return cache_dir() / f"sgloc-kernels-{digest}.compiled"
+
+
+class _CompileNotice:
+    """numba compile listener (`watch_compiles`): on an install's first compile, one line on
+    stderr saying what compiles and where it is cached, and at exit how long it took."""
+
+    def __init__(self) -> None:
+        self.depth, self.start, self.total = 0, 0.0, 0.0
+        self.cpu_start, self.cpu = 0.0, 0.0
+        self.kernels: set[str] = set()
+        self.said = False
+
+    def on_start(self, ev) -> None:
+        if self.depth == 0 and not _ours(ev):
+            return  # another library's (or the user's) numba function: not ours to say
+        if self.depth == 0:
+            self.start, self.cpu_start = time.perf_counter(), time.process_time()
+            if not self.said and not compiled_marker().exists():
+                self.said = True
+                name = getattr(ev.data.get("dispatcher"), "__qualname__", "kernels")
+                print(f"sgloc: compiling numba kernels for first use ({name}, ...), once per "
+                      f"install; cached in {cache_dir()}. `sgloc warmup` compiles them all "
+                      "ahead.", file=sys.stderr, flush=True)  # fmt: skip
+                import atexit
+
+                atexit.register(self.summary)
+        self.depth += 1
+
+    def on_end(self, ev) -> None:
+        if self.depth == 0:
+            return  # the end of a compile `on_start` left alone
+        self.depth -= 1
+        if _ours(ev):  # not numba's own helpers compiled on the way
+            self.kernels.add(ev.data["dispatcher"].py_func.__qualname__)
+        if self.depth == 0:
+            self.total += time.perf_counter() - self.start
+            self.cpu += time.process_time() - self.cpu_start
+            if self.said:
+                _touch(compiled_marker())
+
+    def summary(self) -> None:
+        n = len(self.kernels)
+        print(f"sgloc: compiled {n} numba kernel{'s' * (n != 1)} in {self.total:.1f} s "
+              f"({self.cpu:.1f} s CPU; first use: later runs load them from the cache).",
+              file=sys.stderr, flush=True)  # fmt: skip
+
+
+def _ours(ev) -> bool:
+    """Whether a numba compile event is of one of sgloc's kernels."""
+    func = getattr(ev.data.get("dispatcher"), "py_func", None)
+    return getattr(func, "__module__", "").startswith("sgloc.")
+
+
+def _touch(path: Path) -> None:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.touch()
+    except OSError:
+        pass  # a read-only cache: the notice is said again next time, nothing else changes
+
+
+_NOTICE: list[_CompileNotice] = []
+
+
+def watch_compiles() -> None:
+    """Listen to numba's compiles (once per process; each kernel module calls this when
+    imported): an install's first compile is said on stderr, with its duration at exit."""
+    if _NOTICE:
+        return
+    from numba.core import event
+
+    class Notice(_CompileNotice, event.Listener):
+        pass
+
+    _NOTICE.append(Notice())
+    event.register("numba:compile", _NOTICE[0])
+
+
+def compile_seconds() -> tuple[float, float]:
+    """(wall, CPU) seconds this process has spent compiling kernels ((0, 0): none compiled)."""
+    return (_NOTICE[0].total, _NOTICE[0].cpu) if _NOTICE else (0.0, 0.0)
 
 
 def one_blas_thread():

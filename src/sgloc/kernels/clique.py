@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from sgloc.kernels import watch_compiles
 from sgloc.kernels.bits import WORD, cttz, popcount
 
 
@@ -97,3 +98,6 @@ def _sorted_members(members: np.ndarray, m: int) -> np.ndarray:
             out[n] = v
             n += 1
     return out
+
+
+watch_compiles()  # an install's first compile is said (sgloc.kernels)

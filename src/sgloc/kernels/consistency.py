@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from sgloc.kernels import watch_compiles
 from sgloc.kernels.bits import WORD
 
 #: Bound, relative to (R_src + R_dst + tau) with R the largest norm of a centred point set, on
@@ -139,3 +140,6 @@ def _transpose64(a: np.ndarray) -> None:
                 a[k | j] ^= t
         j >>= 1
         mask ^= mask << np.uint64(j)
+
+
+watch_compiles()  # an install's first compile is said (sgloc.kernels)

@@ -12,6 +12,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from sgloc.kernels import watch_compiles
+from sgloc.kernels.constants import COLLINEAR_WIDTH
+
 
 @njit(cache=True, nogil=True, inline="always")
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -193,7 +196,7 @@ def residual_norms(src: np.ndarray, dst: np.ndarray, T: np.ndarray) -> np.ndarra
 @njit(cache=True, nogil=True)
 def collinear(points: np.ndarray, ratio: float) -> bool:
     """`sgloc.estimation._collinear`: fewer than 3 points, or the second principal extent
-    under `ratio` times the first."""
+    under `ratio` times the first and its standard deviation under COLLINEAR_WIDTH metres."""
     m = points.shape[0]
     if m < 3:
         return True
@@ -208,7 +211,9 @@ def collinear(points: np.ndarray, ratio: float) -> bool:
             for b in range(3):
                 C[a, b] += (points[i, a] - mean[a]) * (points[i, b] - mean[b])
     ev, _ = _symmetric_eigen(C)
-    return ev[0] <= 0.0 or np.sqrt(max(ev[1], 0.0) / ev[0]) < ratio
+    second = max(ev[1], 0.0)
+    thin = second < COLLINEAR_WIDTH * COLLINEAR_WIDTH * m
+    return ev[0] <= 0.0 or (np.sqrt(second / ev[0]) < ratio and thin)
 
 
 @njit(cache=True, nogil=True)
@@ -489,3 +494,6 @@ def irls_class_scaled(
         if change < 1e-9:
             break
     return T
+
+
+watch_compiles()  # an install's first compile is said (sgloc.kernels)

@@ -13,6 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from sgloc.kernels import watch_compiles
+
 
 @njit(cache=True, nogil=True)
 def inverse_norms(D: np.ndarray) -> np.ndarray:
@@ -37,15 +39,20 @@ def inverse_norms(D: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def _similarities(sim: np.ndarray, Tt: np.ndarray, x: np.ndarray, nz: np.ndarray) -> None:
+def _similarities(
+    sim: np.ndarray, blocks: np.ndarray, base: int, x: np.ndarray, nz: np.ndarray
+) -> None:
     """sim[j] = sum over the features f in nz (ascending) of x[f] * Tt[f, j], added in that
-    order; four features per pass over sim (one load and store of sim[j] per four terms)."""
+    order, Tt (d, n) = the C-ordered buffer at blocks[base:] (n = len(sim)); four features per
+    pass over sim (one load and store of sim[j] per four terms)."""
     sim[:] = 0.0
+    n = sim.shape[0]
     p = 0
     while p + 4 <= nz.shape[0]:
         f0, f1, f2, f3 = nz[p], nz[p + 1], nz[p + 2], nz[p + 3]
         x0, x1, x2, x3 = x[f0], x[f1], x[f2], x[f3]
-        r0, r1, r2, r3 = Tt[f0], Tt[f1], Tt[f2], Tt[f3]
+        r0, r1 = blocks[base + f0 * n :], blocks[base + f1 * n :]
+        r2, r3 = blocks[base + f2 * n :], blocks[base + f3 * n :]
         for j in range(sim.shape[0]):
             acc = sim[j]
             acc += x0 * r0[j]
@@ -56,7 +63,7 @@ def _similarities(sim: np.ndarray, Tt: np.ndarray, x: np.ndarray, nz: np.ndarray
         p += 4
     while p < nz.shape[0]:
         f0 = nz[p]
-        x0, r0 = x[f0], Tt[f0]
+        x0, r0 = x[f0], blocks[base + f0 * n :]
         for j in range(sim.shape[0]):
             sim[j] += x0 * r0[j]
         p += 1
@@ -76,6 +83,38 @@ def _insert(best_s: np.ndarray, best_j: np.ndarray, n: int, s: float, j: int) ->
         pos -= 1
     best_s[pos], best_j[pos] = s, j
     return min(n + 1, kk)
+
+
+@njit(cache=True, nogil=True)
+def class_blocks(
+    T: np.ndarray, order_t: np.ndarray, sorted_t: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The target side of `top_k_in_blocks`, built once per target: (blocks, block_class,
+    block_start). Per class (ascending), its rows of T (n,d) normalised and transposed into
+    one C-ordered (d, n_c) buffer, stored flat one after the other in `blocks`;
+    block_class (b,) its label, block_start (b+1,) its first position in sorted_t."""
+    n, d = T.shape
+    inv_t = inverse_norms(T)
+    blocks = np.empty(n * d)
+    n_blocks = 0
+    for j in range(n):
+        n_blocks += j == 0 or sorted_t[j] != sorted_t[j - 1]
+    block_class = np.empty(n_blocks, dtype=np.int64)
+    block_start = np.empty(n_blocks + 1, dtype=np.int64)
+    c = -1
+    for j in range(n):
+        if j == 0 or sorted_t[j] != sorted_t[j - 1]:
+            c += 1
+            block_class[c], block_start[c] = sorted_t[j], j
+    block_start[n_blocks] = n
+    for c in range(n_blocks):
+        b, n_c = block_start[c], block_start[c + 1] - block_start[c]
+        for j in range(n_c):
+            row = order_t[b + j]
+            w = inv_t[row]
+            for f in range(d):
+                blocks[b * d + f * n_c + j] = T[row, f] * w
+    return blocks, block_class, block_start
 
 
 @njit(cache=True, nogil=True)
@@ -102,8 +141,28 @@ def top_k_same_class(
     Returns (query idx, target idx, score, flag), ordered by query, then score descending,
     then target; among equal scores the lower target index ranks first.
     """
+    blocks, block_class, block_start = class_blocks(T, order_t, sorted_t)
+    return top_k_in_blocks(Q, order_q, sorted_q, blocks, block_class, block_start, order_t,
+                           k, min_sim, max_ratio, flag_ratio)  # fmt: skip
+
+
+@njit(cache=True, nogil=True)
+def top_k_in_blocks(
+    Q: np.ndarray,
+    order_q: np.ndarray,
+    sorted_q: np.ndarray,
+    blocks: np.ndarray,
+    block_class: np.ndarray,
+    block_start: np.ndarray,
+    order_t: np.ndarray,
+    k: int,
+    min_sim: float,
+    max_ratio: float,
+    flag_ratio: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`top_k_same_class` on the target's `class_blocks` (kept for many queries)."""
     n_q, d = Q.shape
-    inv_q, inv_t = inverse_norms(Q), inverse_norms(T)
+    inv_q = inverse_norms(Q)
     out_j = np.full((n_q, k), -1, dtype=np.int64)
     out_s = np.zeros((n_q, k))
     out_n = np.zeros(n_q, dtype=np.int64)
@@ -112,27 +171,20 @@ def top_k_same_class(
     qn = np.empty(d)
     nz = np.empty(d, dtype=np.int64)
     best_s, best_j = np.empty(k), np.empty(k, dtype=np.int64)
-    a, b = 0, 0
-    while a < order_q.shape[0] and b < order_t.shape[0]:
-        if sorted_q[a] < sorted_t[b]:
+    a, c = 0, 0
+    while a < order_q.shape[0] and c < block_class.shape[0]:
+        if sorted_q[a] < block_class[c]:
             a += 1
             continue
-        if sorted_q[a] > sorted_t[b]:
-            b += 1
+        if sorted_q[a] > block_class[c]:
+            c += 1
             continue
-        c = sorted_q[a]
-        a_end, b_end = a, b
-        while a_end < order_q.shape[0] and sorted_q[a_end] == c:
+        a_end = a
+        while a_end < order_q.shape[0] and sorted_q[a_end] == block_class[c]:
             a_end += 1
-        while b_end < order_t.shape[0] and sorted_t[b_end] == c:
-            b_end += 1
+        b, b_end = block_start[c], block_start[c + 1]
         n_t = b_end - b
         it = order_t[b:b_end]
-        Tt = np.empty((d, n_t))  # the class's normalised target rows, transposed
-        for j in range(n_t):
-            w = inv_t[it[j]]
-            for f in range(d):
-                Tt[f, j] = T[it[j], f] * w
         sim = np.empty(n_t)
         kk = min(k, n_t)
         for r in range(a, a_end):
@@ -143,7 +195,7 @@ def top_k_same_class(
                 qn[f] = Q[i, f] * w
                 nz[n_nz] = f
                 n_nz += qn[f] != 0.0
-            _similarities(sim, Tt, qn, nz[:n_nz])
+            _similarities(sim, blocks, b * d, qn, nz[:n_nz])
             s1, s2, j1 = -np.inf, -np.inf, 0
             for j in range(n_t):
                 s = sim[j]
@@ -154,7 +206,7 @@ def top_k_same_class(
             if kk == 1:
                 best_s[0], best_j[0] = s1, j1
             else:
-                n = 0
+                n = np.int64(0)  # one specialisation of _insert, not two
                 for j in range(n_t):
                     n = _insert(best_s[:kk], best_j[:kk], n, sim[j], j)
             if test_ratio and n_t > 1:
@@ -168,7 +220,7 @@ def top_k_same_class(
                     out_j[i, m], out_s[i, m] = it[best_j[h]], best_s[h]
                     m += 1
             out_n[i] = m
-        a, b = a_end, b_end
+        a, c = a_end, c + 1
     total = out_n.sum()
     q = np.empty(total, dtype=np.int64)
     t = np.empty(total, dtype=np.int64)
@@ -180,3 +232,6 @@ def top_k_same_class(
             q[p], t[p], s[p], flag[p] = i, out_j[i, h], out_s[i, h], out_f[i]
             p += 1
     return q, t, s, flag
+
+
+watch_compiles()  # an install's first compile is said (sgloc.kernels)

@@ -5,18 +5,30 @@ The points are bucketed on an xy grid of cells at least the radius wide (sorted 
 each query point scans the 3 x 3 cells around its own. A pair counts when its squared distance
 dx*dx + dy*dy + dz*dz <= radius * radius, in float64, the test (and the rounding) of
 scipy's cKDTree.sparse_distance_matrix.
+
+`distance_histograms` uses the same grid for the default vertex descriptor
+(`sgloc.descriptors.distance`): per object, soft-binned counts of the other objects within the
+radius by (class, distance). Its weights are rounded to multiples of 2**-24 (`WEIGHT_QUANTUM`),
+so every bin's sum is exact in float64 whatever the order of its terms: the kernel, the numpy
+reference and an incremental update of a few rows give the same bits.
 """
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 from numba import njit
+
+from sgloc.kernels import watch_compiles
 
 #: Cells are this much wider than the radius, so that rounding in the cell index never puts
 #: two points within the radius more than one cell apart.
 _CELL_MARGIN = 1.0 + 2.0**-10
 #: Largest number of cells per axis (cell keys stay far inside int64).
 _MAX_CELLS = 2**30
+#: Descriptor weights are multiples of this (sums of up to 2**29 of them are exact).
+WEIGHT_QUANTUM = 2.0**-24
 
 
 def near_class_counts(
@@ -32,12 +44,31 @@ def near_class_counts(
     the sum of their `weights` (n,) (an empty `weights`: the second array stays zero)."""
     if len(points) == 0 or len(query) == 0:
         return np.zeros((len(query), n_classes)), np.zeros((len(query), n_classes))
+    grid = _grid(points, radius)
+    return _counts_in_cells(query, points, labels, n_classes, radius, weights, *grid)
+
+
+#: Grids of read-only point arrays met recently (a prepared map's objects, searched by every
+#: query): id -> (weak reference to the array, radius, grid).
+_GRIDS: dict[int, tuple] = {}
+_GRIDS_KEPT = 4
+
+
+def _grid(points: np.ndarray, radius: float) -> tuple:
+    """(order, sorted keys, x0, y0, cell, n_y) of `_cell_keys`; kept for read-only arrays."""
+    kept = _GRIDS.get(id(points))
+    if kept is not None and kept[0]() is points and kept[1] == radius:
+        return kept[2]
     keys, x0, y0, cell, n_y = _cell_keys(points, radius)
     # numpy's sort: numba's sort and search helpers are better kept out of cached kernels
     # (their generated symbols can clash with another cached kernel's in one process).
     order = np.argsort(keys, kind="stable")
     grid = (order, keys[order], x0, y0, cell, n_y)
-    return _counts_in_cells(query, points, labels, n_classes, radius, weights, *grid)
+    if not points.flags.writeable and points.base is None:  # a graph's own, frozen array
+        if len(_GRIDS) >= _GRIDS_KEPT:
+            _GRIDS.pop(next(iter(_GRIDS)))
+        _GRIDS[id(points)] = (weakref.ref(points), radius, grid)
+    return grid
 
 
 @njit(cache=True, nogil=True)
@@ -128,3 +159,191 @@ def _counts_in_cells(
                     if use_weights:
                         weighted[i, lab[s]] += w[s]
     return counts, weighted
+
+
+def distance_histograms(
+    centres: np.ndarray,
+    self_index: np.ndarray,
+    points: np.ndarray,
+    labels: np.ndarray,
+    n_classes: int,
+    radius: float,
+    n_bins: int,
+    taper: float,
+) -> np.ndarray:
+    """(n_centres, n_classes * n_bins) float64: at each of `centres` (n_centres,3), the
+    distance histogram of `sgloc.descriptors.distance.DistanceHistogramDescriptor` over the
+    `points` (n,3) of `labels` (n,) int64 closer than `radius` metres, leaving out the point
+    `self_index[i]` of centre i (-1: none; a centre that is itself one of the points). When
+    the centres are the points themselves, in order, each pair is measured once."""
+    out = np.zeros((len(centres), n_classes * n_bins))
+    if len(points) == 0 or len(centres) == 0:
+        return out
+    keys, x0, y0, cell, n_y = _cell_keys(points, radius)
+    order = np.argsort(keys, kind="stable")  # numpy's sort (module docstring of the package)
+    grid = (order, keys[order], x0, y0, cell, n_y)
+    # Multiplications, not divisions, per pair (the reference's arithmetic is the same).
+    r = float(radius)
+    weights = (r, int(n_bins), int(n_bins) / r, float(taper) / r)
+    if len(centres) == len(points) and np.array_equal(self_index, np.arange(len(points))):
+        # Each pair once, for both ends (the sums are exact: the same bits as twice).
+        _pair_histograms(out, points, labels, *weights, *grid)
+    else:
+        _histograms_in_cells(out, centres, self_index, points, labels, *weights, *grid)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _pair_histograms(
+    out: np.ndarray,
+    points: np.ndarray,
+    labels: np.ndarray,
+    radius: float,
+    n_bins: int,
+    per_bin: float,
+    slope: float,
+    order: np.ndarray,
+    sorted_keys: np.ndarray,
+    x0: float,
+    y0: float,
+    cell: float,
+    n_y: int,
+) -> None:
+    """`distance_histograms` of every point over the others, each pair measured once: from
+    each point (in cell order) only the points after it in its own and the next cell of its
+    column, and the three cells of the next column (the other half of the 3 x 3 block sees it
+    from there)."""
+    n = points.shape[0]
+    n_x = sorted_keys[-1] // n_y + 2
+    px, py, pz = points[order, 0], points[order, 1], points[order, 2]
+    lab = labels[order]
+    n_cells = (n_x + 1) * n_y
+    dense = n_cells <= 8 * n + 4096
+    start = np.zeros(n_cells + 1 if dense else 1, dtype=np.int64)
+    if dense:
+        for s in range(n):
+            start[sorted_keys[s] + 1] += 1
+        for c in range(n_cells):
+            start[c + 1] += start[c]
+    for a in range(n):
+        key = sorted_keys[a]
+        cy = key % n_y
+        # This cell after a, then the next cell of the column (keys are consecutive).
+        hi_key = key + 1 if cy + 1 <= n_y - 1 else key
+        hi = start[hi_key + 1] if dense else _first_at_least(sorted_keys, hi_key + 1)
+        _pair_run(out, a, a + 1, hi, order, px, py, pz, lab, radius, n_bins, per_bin, slope)
+        lo_key = key + n_y - 1 if cy >= 1 else key + n_y
+        hi_key = key + n_y + 1 if cy + 1 <= n_y - 1 else key + n_y
+        if dense:
+            lo, hi = start[lo_key], start[hi_key + 1]
+        else:
+            lo = _first_at_least(sorted_keys, lo_key)
+            hi = _first_at_least(sorted_keys, hi_key + 1)
+        _pair_run(out, a, lo, hi, order, px, py, pz, lab, radius, n_bins, per_bin, slope)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _pair_run(out, a, lo, hi, order, px, py, pz, lab, radius, n_bins, per_bin, slope) -> None:
+    """The pairs (a, s) for s in [lo, hi) of the cell-sorted points, counted at both ends."""
+    scale = 1.0 / WEIGHT_QUANTUM
+    top = n_bins - 1.0
+    near2 = radius * radius * (1.0 + 1e-9)
+    i = order[a]
+    for s in range(lo, hi):
+        dx, dy, dz = px[a] - px[s], py[a] - py[s], pz[a] - pz[s]
+        d2 = dx * dx + dy * dy + dz * dz
+        if not d2 <= near2:
+            continue
+        d = np.sqrt(d2)
+        if not d < radius:
+            continue
+        u = min(max(d * per_bin - 0.5, 0.0), top)
+        b = np.int64(u)
+        frac = u - b
+        t = 1.0 - d * slope
+        w_lo = np.floor((1.0 - frac) * t * scale + 0.5) * WEIGHT_QUANTUM
+        w_hi = np.floor(frac * t * scale + 0.5) * WEIGHT_QUANTUM
+        b_hi = min(b + 1, n_bins - 1)
+        j = order[s]
+        col = lab[s] * n_bins
+        out[i, col + b] += w_lo
+        out[i, col + b_hi] += w_hi
+        col = lab[a] * n_bins
+        out[j, col + b] += w_lo
+        out[j, col + b_hi] += w_hi
+
+
+@njit(cache=True, nogil=True)
+def _histograms_in_cells(
+    out: np.ndarray,
+    centres: np.ndarray,
+    self_index: np.ndarray,
+    points: np.ndarray,
+    labels: np.ndarray,
+    radius: float,
+    n_bins: int,
+    per_bin: float,
+    slope: float,
+    order: np.ndarray,
+    sorted_keys: np.ndarray,
+    x0: float,
+    y0: float,
+    cell: float,
+    n_y: int,
+) -> None:
+    """`distance_histograms` on the grid of `_cell_keys` (`order` sorts the keys), into out.
+    The arithmetic of each weight is the numpy reference's, operation for operation."""
+    n = points.shape[0]
+    n_x = sorted_keys[-1] // n_y + 2
+    px, py, pz = points[order, 0], points[order, 1], points[order, 2]
+    lab = labels[order]
+    n_cells = (n_x + 1) * n_y
+    dense = n_cells <= 8 * n + 4096
+    start = np.zeros(n_cells + 1 if dense else 1, dtype=np.int64)
+    if dense:
+        for s in range(n):
+            start[sorted_keys[s] + 1] += 1
+        for c in range(n_cells):
+            start[c + 1] += start[c]
+    scale = 1.0 / WEIGHT_QUANTUM
+    top = n_bins - 1.0
+    near2 = radius * radius * (1.0 + 1e-9)  # a loose first test; the exact one is d < radius
+    for r in range(centres.shape[0]):
+        qx, qy, qz = centres[r, 0], centres[r, 1], centres[r, 2]
+        fx, fy = np.floor((qx - x0) / cell) + 1, np.floor((qy - y0) / cell) + 1
+        if not (fx >= 0 and fx <= n_x and fy >= 0 and fy <= n_y - 1):
+            continue  # a cell away from every point: nothing within the radius
+        cx, cy = np.int64(fx), np.int64(fy)
+        for dx_cell in range(-1, 2):
+            if cx + dx_cell < 0 or cx + dx_cell > n_x:
+                continue
+            lo_key = (cx + dx_cell) * n_y + max(cy - 1, 0)
+            hi_key = (cx + dx_cell) * n_y + min(cy + 1, n_y - 1)
+            if dense:
+                lo, hi = start[lo_key], start[hi_key + 1]
+            else:
+                lo = _first_at_least(sorted_keys, lo_key)
+                hi = _first_at_least(sorted_keys, hi_key + 1)
+            for s in range(lo, hi):
+                if order[s] == self_index[r]:
+                    continue
+                dx, dy, dz = qx - px[s], qy - py[s], qz - pz[s]
+                d2 = dx * dx + dy * dy + dz * dz
+                if not d2 <= near2:
+                    continue
+                d = np.sqrt(d2)
+                if not d < radius:
+                    continue
+                u = min(max(d * per_bin - 0.5, 0.0), top)
+                b = np.int64(u)
+                frac = u - b
+                t = 1.0 - d * slope
+                w_lo = np.floor((1.0 - frac) * t * scale + 0.5) * WEIGHT_QUANTUM
+                w_hi = np.floor(frac * t * scale + 0.5) * WEIGHT_QUANTUM
+                b_hi = min(b + 1, n_bins - 1)
+                col = lab[s] * n_bins
+                out[r, col + b] += w_lo
+                out[r, col + b_hi] += w_hi
+
+
+watch_compiles()  # an install's first compile is said (sgloc.kernels)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from sgloc.kernels import watch_compiles
 from sgloc.kernels.bits import WORD, cttz
 
 #: Keys are support << 32 | index: the least key is the least support and, among equal
@@ -65,3 +66,6 @@ def prune_bits(bits: np.ndarray, degree: np.ndarray, eta: float) -> np.ndarray:
             out[n] = i
             n += 1
     return out
+
+
+watch_compiles()  # an install's first compile is said (sgloc.kernels)

@@ -12,6 +12,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from sgloc.kernels import watch_compiles
+
 
 @njit(cache=True, nogil=True, inline="always")
 def _non_collinear(p: np.ndarray, ratio: float) -> bool:
@@ -66,6 +68,16 @@ def _score(
     return float(-count), inlier_sum, count
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _set_pose(T: np.ndarray, R: np.ndarray, t: np.ndarray) -> None:
+    """T[:3, :3], T[:3, 3] = R, t, element by element (a slice assignment compiles numba's
+    shape-mismatch error formatting: seconds of first-use compile for nothing)."""
+    for a in range(3):
+        for b in range(3):
+            T[a, b] = R[a, b]
+        T[a, 3] = t[a]
+
+
 @njit(cache=True, nogil=True)
 def score_block(
     src: np.ndarray, dst: np.ndarray, samples: np.ndarray, thr2: float, msac: bool, ratio: float
@@ -99,7 +111,7 @@ def score_block(
         max_count = max(max_count, count)
         if not found or primary < best_p or (primary == best_p and secondary < best_s):
             best_p, best_s, found = primary, secondary, True
-            best_T[:3, :3], best_T[:3, 3] = R, t
+            _set_pose(best_T, R, t)
     return found, best_p, best_s, best_T, max_count
 
 
@@ -134,7 +146,7 @@ def score_pair_block(
         max_count = max(max_count, count)
         if not found or primary < best_p or (primary == best_p and secondary < best_s):
             best_p, best_s, found = primary, secondary, True
-            best_T[:3, :3], best_T[:3, 3] = R, t
+            _set_pose(best_T, R, t)
     return found, best_p, best_s, best_T, max_count
 
 
@@ -150,3 +162,6 @@ def inliers(T: np.ndarray, src: np.ndarray, dst: np.ndarray, thr2: float) -> np.
             r2 += e * e
         keep[i] = r2 < thr2
     return np.flatnonzero(keep)
+
+
+watch_compiles()  # an install's first compile is said (sgloc.kernels)

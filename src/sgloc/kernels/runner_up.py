@@ -12,6 +12,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from sgloc.kernels import watch_compiles
+
 
 @njit(cache=True, nogil=True)
 def best_yaw_alternative(
@@ -75,9 +77,18 @@ def best_yaw_alternative(
                 count += e0 * e0 + e1 * e1 + e2 * e2 < r2
         if count > best_count:
             best_count, found = count, True
-            best_R[:, :] = R
-            best_t[:] = t
+            # Element by element: a slice assignment compiles numba's shape-mismatch error
+            # formatting (seconds of first-use compile).
+            for a in range(3):
+                best_t[a] = t[a]
+                for b in range(3):
+                    best_R[a, b] = R[a, b]
     T2 = np.eye(4)
-    T2[:3, :3] = best_R
-    T2[:3, 3] = best_t
+    for a in range(3):
+        T2[a, 3] = best_t[a]
+        for b in range(3):
+            T2[a, b] = best_R[a, b]
     return max(best_count, 0), T2, found
+
+
+watch_compiles()  # an install's first compile is said (sgloc.kernels)

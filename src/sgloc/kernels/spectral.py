@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from sgloc.kernels import watch_compiles
 from sgloc.kernels.bits import WORD, cttz
 
 
@@ -98,3 +99,6 @@ def greedy_select(
                     agree[w * WORD + np.int64(cttz(y))] += 1
                     y &= y - np.uint64(1)
     return np.flatnonzero(kept)
+
+
+watch_compiles()  # an install's first compile is said (sgloc.kernels)

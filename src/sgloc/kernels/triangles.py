@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from sgloc.kernels import watch_compiles
 from sgloc.kernels.bits import WORD, cttz, popcount
 
 
@@ -114,3 +115,6 @@ def edges_at(
         ii[n] = r
         jj[n] = w * WORD + np.int64(cttz(x))
     return ii, jj
+
+
+watch_compiles()  # an install's first compile is said (sgloc.kernels)

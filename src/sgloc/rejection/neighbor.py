@@ -7,7 +7,8 @@ from typing import Literal
 
 import numpy as np
 
-from sgloc.consistency import consistency_bits, consistency_matrix, pack_rows
+from sgloc.consistency import ALL_PAIRS_LIMIT, consistency_bits, consistency_matrix, pack_rows
+from sgloc.local_consistency import prune_local
 from sgloc.rejection.base import Rejector
 from sgloc.validation import MAX_COORDINATE, choice, real, setting
 
@@ -32,6 +33,9 @@ _WIDE_LIMIT = 4096
 
 #: Alg. 1's removal bounds (see NeighborRejector).
 BOUNDS = ("remaining", "literal")
+
+#: Which pairs of candidates are checked (see NeighborRejector).
+SCOPES = ("auto", "all", "local")
 
 
 def prune_by_support(M: np.ndarray, eta: float, bound: str = "remaining") -> np.ndarray:
@@ -71,7 +75,7 @@ def prune_bits(
 
 def _prune_remaining(bits: np.ndarray, degree: np.ndarray, eta: float) -> np.ndarray:
     """The "remaining" rule on packed rows: compiled, or the numpy reference for a process's
-    first small problems (`sgloc.kernels.use_compiled`)."""
+    small problems (`sgloc.kernels.use_compiled`)."""
     from sgloc.kernels import use_compiled
 
     if not use_compiled(len(bits)):
@@ -154,6 +158,19 @@ class NeighborRejector(Rejector):
           V_i < 0.5 * rows of M_0, and M_0 loses a row per removal, so its rows are r.
         With eta = 0.5 the two differ only when r is even and the least support is
         V_i = r/2 - 1: "remaining" removes that match, "literal" stops there.
+    scope: which pairs of candidates are checked.
+        - "all": every pair (Alg. 1 as published; m^2 work, m^2 / 8 bytes; at most
+          `sgloc.consistency.MAX_MATCHES` candidates).
+        - "local": only candidates whose query objects lie closer than `local_radius`
+          (`sgloc.local_consistency`): r_i and V_i count the remaining candidates within the
+          radius of i and those consistent with i; the least supported fraction V_i / r_i is
+          removed first, while V_i < eta * r_i ("literal": 1 + V_i < eta * (1 + r_i)). Work
+          grows with the candidates times those within the radius, memory with the
+          candidates. A radius covering the whole query map gives the result of "all".
+        - "auto" (the default): "all" up to `sgloc.consistency.ALL_PAIRS_LIMIT` (10,000)
+          candidates, "local" above (small problems keep the published form exactly).
+    local_radius: metres, the neighbourhood of the "local" scope in the query map (the
+        default descriptor's radius).
     """
 
     tau: float = setting(5.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
@@ -164,10 +181,23 @@ class NeighborRejector(Rejector):
     bound: Literal["remaining", "literal"] = setting(
         "remaining", check=choice("remaining", "literal", what="Alg. 1's removal bound")
     )
+    scope: Literal["auto", "all", "local"] = setting(
+        "auto", check=choice("auto", "all", "local", what="which pairs of candidates are checked")
+    )
+    local_radius: float = setting(40.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
     name = "neighbor"
 
     def __call__(self, src, dst, scores=None):
         if len(src) == 0:
             return np.zeros(0, dtype=np.int64)
+        if self.uses_local(len(src)):
+            self_vote = 1 if self.bound == "literal" else 0
+            return prune_local(
+                src, dst, self.tau, self.eta, self.local_radius, self.form, self_vote
+            )
         bits, degree = consistency_bits(src, dst, self.tau, self.form)
         return prune_bits(bits, degree, self.eta, self.bound)
+
+    def uses_local(self, m: int) -> bool:
+        """Whether `m` candidates are pruned within the local radius (scope, see above)."""
+        return self.scope == "local" or (self.scope == "auto" and m > ALL_PAIRS_LIMIT)

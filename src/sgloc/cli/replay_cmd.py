@@ -1,0 +1,124 @@
+"""`sgloc replay`: stream recorded multi-robot runs through an online session."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from sgloc.cli.app import app, fail, not_localized
+from sgloc.cli.options import config_option, localizer_config, preset_option, set_option
+
+
+@app.command("replay")
+def replay_cmd(
+    source: Path | None = typer.Argument(
+        None, help="A plain layout folder (one folder per robot: odometry.tum, objects.csv), a "
+        "rosbag2 folder or an .mcap/.db3 file."
+    ),
+    kitti00: bool = typer.Option(False, "--kitti00", help="Replay KITTI 00 (data `kitti00`) "
+                                 "cut into --robots consecutive segments."),
+    city: bool = typer.Option(False, "--city", help="Replay the synthetic city's two routes cut "
+                              "into --robots robots (objects only, no rendering)."),
+    robots: int = typer.Option(4, min=1, help="Robots to cut --kitti00 / --city into."),
+    scans: str = typer.Option("0-2999", help="KITTI 00 scans to cut (--kitti00), first-last."),
+    every: int = typer.Option(1, min=1, help="Use every n-th scan as a keyframe (--kitti00)."),
+    seed: int = typer.Option(0, min=0, help="City (--city) and session seed."),
+    out: Path = typer.Option(Path("replay_out"), help="Output folder (replaced if it holds an "
+                             "earlier replay)."),
+    out_bag: Path | None = typer.Option(None, help="Also write the fleet frames as "
+                                        "geometry_msgs/TransformStamped into this new ROS 2 bag."),
+    classes: Path | None = typer.Option(None, help="Class table (`class_id name` lines) for "
+                                        "class names in objects.csv or marker namespaces."),
+    odom_topic: str | None = typer.Option(None, help="Odometry topic template (default "
+                                          "/{robot}/odom)."),
+    objects_topic: str | None = typer.Option(None, help="Object topic template (default "
+                                             "/{robot}/objects)."),
+    root: str | None = typer.Option(None, help="Robot whose odometry frame is the fleet frame "
+                                    "(default: the first to send a keyframe)."),
+    preset: str | None = preset_option(),
+    config: Path | None = config_option(),
+    setting: list[str] = set_option(),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bar or table."),
+) -> None:
+    """Stream every robot's keyframes, interleaved by stamp, through one online session and
+    write the fleet: fleet/<robot>.tum, events.csv, links.g2o, summary.json, timeline.png,
+    fleet.png.
+
+    Examples: sgloc replay runs/campus --out replay_out --out-bag replay_bag
+    |   sgloc replay --kitti00 --robots 4 --every 2   |   sgloc replay --city --robots 8
+    """
+    from sgloc.online import OnlineConfig, OnlineSession
+    from sgloc.replay import replay_logs
+    from sgloc.replay.outputs import write_replay
+
+    if out_bag is not None and out_bag.exists():
+        raise fail(f"{out_bag}: exists already; give a new path for --out-bag.")
+    logs, default_preset = _inputs(source, kitti00, city, robots, scans, every, seed, classes,
+                                   odom_topic, objects_topic)
+    if root is not None and root not in {g.name for g in logs}:
+        raise fail(f"--root {root!r} is not a robot of the input; robots: "
+                   f"{', '.join(g.name for g in logs)}.")
+    cfg = localizer_config(preset or default_preset, config, setting)
+    session = OnlineSession(cfg, OnlineConfig(seed=seed), root=root)
+    console = Console(quiet=quiet)
+    with Progress(TextColumn("[bold]replaying"), BarColumn(), MofNCompleteColumn(),
+                  TimeElapsedColumn(), console=console, disable=quiet) as bar:
+        task = bar.add_task("keyframes", total=sum(len(g) for g in logs))
+        record = replay_logs(logs, session, progress=lambda n: bar.advance(task, n))
+    summary = write_replay(out, logs, session, record)
+    if out_bag is not None:
+        from sgloc.io.rosbag import write_fleet_bag
+
+        write_fleet_bag(out_bag, record.transforms + _final(logs, session))
+    _print(console, summary, out, out_bag)
+    if len(logs) > 1 and summary["placed"] < 2:
+        raise not_localized(f"no robot joined the fleet frame of {summary['root']}.")
+
+
+def _inputs(source, kitti00, city, robots, scans, every, seed, classes, odom_topic,
+            objects_topic):
+    """(robot logs, default localizer preset) of the chosen input."""
+    from sgloc.evaluation import replay_scenarios as scenarios
+    from sgloc.replay.inputs import read_logs
+
+    if (source is not None) + kitti00 + city != 1:
+        raise fail("give exactly one input: a layout folder or bag, --kitti00, or --city.")
+    if kitti00:
+        try:
+            first, last = (int(v) for v in scans.split("-"))
+        except ValueError:
+            raise fail(f"--scans {scans!r}: give first-last, e.g. 0-2999.") from None
+        return scenarios.kitti_scenario(robots, first, last, every).logs, "kitti-objects"
+    if city:
+        return scenarios.city_scenario(robots, seed).logs, "city"
+    return read_logs(source, classes, odom_topic, objects_topic), None
+
+
+def _final(logs, session) -> list:
+    """The fleet frame of every placed robot at the last stamp."""
+    end = max(int(g.stamps_ns[-1]) for g in logs)
+    out = []
+    for g in logs:
+        T = session.T_fleet_robot(g.name) if g.name in session.robots else None
+        if T is not None:
+            out.append((end, g.name, T))
+    return out
+
+
+def _print(console: Console, summary: dict, out: Path, out_bag: Path | None) -> None:
+    table = Table("robot", "keyframes", "joined at (s)", "placed", "latency median / p99 / max "
+                  "(ms)", title="replay")
+    for name, r in summary["robots"].items():
+        lat = r["latency"]
+        table.add_row(name, str(r["keyframes"]), r["joined_stamp"] or "-",
+                      "yes" if r["placed"] else "NO",
+                      f"{lat['median_ms']:.2f} / {lat['p99_ms']:.1f} / {lat['max_ms']:.1f}")
+    console.print(table)
+    ev = summary["events"]
+    console.print(f"{summary['placed']} of {len(summary['robots'])} robots placed in the frame of "
+                  f"{summary['root']}; {ev['link_accepted']} links accepted, "
+                  f"{ev['link_revoked']} revoked -> {out}" + (f", {out_bag}" if out_bag else ""))

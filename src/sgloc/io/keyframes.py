@@ -1,0 +1,132 @@
+"""One robot's recorded keyframes: stamps, odometry poses and what each keyframe saw.
+
+The common in-memory form of every replay input (plain layout, ROS 2 bag, cut data sets).
+Stamps are kept as integer nanoseconds (exact for any decimal stamp a file can hold, and what
+ROS messages carry), poses as translation + unit quaternion (x, y, z, w) as in TUM files and
+ROS messages, so that a log written in one form and read back in another is bit-identical.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from decimal import Decimal, InvalidOperation
+
+import numpy as np
+
+from sgloc.errors import DatasetError
+
+
+@dataclass(frozen=True)
+class RobotLog:
+    """The keyframes of one robot.
+
+    name: robot name (unique in a fleet).
+    stamps_ns: (N,) int64 keyframe stamps, nanoseconds, strictly increasing.
+    xyz, quat: (N,3) metres and (N,4) unit quaternions (x, y, z, w): T_odom_sensor of each
+        keyframe (the sensor pose in the robot's odometry frame).
+    keyframe: (M,) int64 index into the keyframes of each observed object.
+    positions: (M,3) object positions in that keyframe's SENSOR frame, metres.
+    labels: (M,) int64 class ids (>= 0).
+    """
+
+    name: str
+    stamps_ns: np.ndarray
+    xyz: np.ndarray
+    quat: np.ndarray
+    keyframe: np.ndarray
+    positions: np.ndarray
+    labels: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.stamps_ns.shape[0])
+
+    @property
+    def stamps(self) -> np.ndarray:
+        """(N,) keyframe stamps in seconds (float64)."""
+        return self.stamps_ns * 1e-9
+
+    @property
+    def poses(self) -> np.ndarray:
+        """(N,4,4) T_odom_sensor of each keyframe."""
+        from scipy.spatial.transform import Rotation  # deferred: scipy.spatial loads slowly
+
+        T = np.tile(np.eye(4), (len(self), 1, 1))
+        q = self.quat / np.linalg.norm(self.quat, axis=1, keepdims=True)
+        T[:, :3, :3] = Rotation.from_quat(q).as_matrix()
+        T[:, :3, 3] = self.xyz
+        return T
+
+    def observations(self) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+        """(keyframe index, positions (n,3) sensor frame, labels (n,)) for every keyframe, in
+        order (n may be 0)."""
+        bounds = np.searchsorted(self.keyframe, np.arange(len(self) + 1))
+        for i in range(len(self)):
+            s = slice(bounds[i], bounds[i + 1])
+            yield i, self.positions[s], self.labels[s]
+
+
+def make_robot_log(
+    name: str,
+    stamps_ns: np.ndarray,
+    xyz: np.ndarray,
+    quat: np.ndarray,
+    keyframe: np.ndarray,
+    positions: np.ndarray,
+    labels: np.ndarray,
+    where: str = "",
+) -> RobotLog:
+    """A checked RobotLog (observations sorted by keyframe, stably); DatasetError naming
+    `where` when stamps do not increase, a pose is not finite or a quaternion is zero."""
+    where = where or f"robot {name!r}"
+    stamps_ns = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
+    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    quat = np.asarray(quat, dtype=np.float64).reshape(-1, 4)
+    if len(stamps_ns) == 0:
+        raise DatasetError(f"{where}: no keyframes; give at least one odometry pose.")
+    if np.any(np.diff(stamps_ns) <= 0):
+        k = int(np.flatnonzero(np.diff(stamps_ns) <= 0)[0]) + 1
+        raise DatasetError(
+            f"{where}: keyframe {k + 1} (stamp {format_stamp(stamps_ns[k])}) does not come after "
+            "the one before; give keyframes in increasing stamp order, one pose per stamp."
+        )
+    if not (np.all(np.isfinite(xyz)) and np.all(np.isfinite(quat))):
+        raise DatasetError(f"{where}: NaN or infinite odometry values; fix or drop those poses.")
+    if np.any(np.linalg.norm(quat, axis=1) < 1e-9):
+        raise DatasetError(f"{where}: a zero quaternion; give unit quaternions qx qy qz qw.")
+    keyframe = np.asarray(keyframe, dtype=np.int64).reshape(-1)
+    order = np.argsort(keyframe, kind="stable")
+    return RobotLog(
+        name,
+        stamps_ns,
+        xyz,
+        quat,
+        keyframe[order],
+        np.asarray(positions, dtype=np.float64).reshape(-1, 3)[order],
+        np.asarray(labels, dtype=np.int64).reshape(-1)[order],
+    )
+
+
+def parse_stamp(text: str) -> int:
+    """A decimal stamp in seconds (`1403636579.763555527`, `12`, `1.5e3`) -> exact integer
+    nanoseconds; ValueError if it is not a finite number."""
+    try:
+        d = Decimal(text.strip())
+    except InvalidOperation:
+        raise ValueError(text) from None
+    if not d.is_finite():
+        raise ValueError(text)
+    return int((d * 1_000_000_000).to_integral_value())
+
+
+def format_stamp(ns: int | np.integer) -> str:
+    """Integer nanoseconds -> `seconds.nanoseconds` text (exact; parse_stamp inverts it)."""
+    ns = int(ns)
+    sign = "-" if ns < 0 else ""
+    s, f = divmod(abs(ns), 1_000_000_000)
+    return f"{sign}{s}.{f:09d}"
+
+
+def float_text(x: float) -> str:
+    """The shortest text that reads back as exactly `x`."""
+    return repr(float(x))

@@ -1,0 +1,290 @@
+"""ROS 2 bags and mcap files through `rosbags` (pure Python; no ROS install needed).
+
+Message layout read and written (one robot = one pair of topics; `{robot}` in a topic template
+is the robot name):
+
+- `/{robot}/odom`, nav_msgs/msg/Odometry: one message per keyframe. header.stamp = the
+  keyframe stamp; pose.pose = T_odom_sensor (the sensor pose in the robot's odometry frame;
+  header.frame_id `{robot}/odom`, child_frame_id `{robot}/sensor` when written here).
+- `/{robot}/objects`, visualization_msgs/msg/MarkerArray: what keyframes saw, one marker per
+  object. marker.header.stamp = the stamp of the keyframe that saw it (an Odometry stamp of the
+  same robot); pose.position = the object's position in that keyframe's SENSOR frame (metres);
+  `ns` = the class: an integer id, or a name resolved through a class table. Markers whose
+  action is not ADD (e.g. DELETEALL) are ignored. A keyframe that saw nothing needs no marker.
+- Output: `/fleet/transforms` (default), geometry_msgs/msg/TransformStamped: header.frame_id
+  `fleet`, child_frame_id `{robot}/odom`, the transform T_fleet_odom of a placed robot, stamped
+  at the keyframe after which it took that value (and once more at the end).
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sgloc.errors import DatasetError
+from sgloc.io.class_names import resolve_class
+from sgloc.io.keyframes import RobotLog, make_robot_log
+from sgloc.optional import require
+
+ODOM_TOPIC, OBJECTS_TOPIC, FLEET_TOPIC = "/{robot}/odom", "/{robot}/objects", "/fleet/transforms"
+ODOMETRY, MARKERS, TRANSFORM = (
+    "nav_msgs/msg/Odometry",
+    "visualization_msgs/msg/MarkerArray",
+    "geometry_msgs/msg/TransformStamped",
+)
+FLEET_FRAME = "fleet"
+
+
+def _rosbags() -> tuple[Any, Any, Any]:
+    """(rosbags.rosbag2, rosbags.highlevel, the ROS 2 Humble typestore), or one clear error."""
+    require("rosbags", "ros", "reading and writing ROS 2 bags")
+    from rosbags import highlevel, rosbag2
+    from rosbags.typesys import Stores, get_typestore
+
+    return rosbag2, highlevel, get_typestore(Stores.ROS2_HUMBLE)
+
+
+def topic_regex(template: str) -> re.Pattern[str]:
+    """A regex matching topics of a `{robot}` template; group `robot` is the robot name."""
+    if template.count("{robot}") != 1:
+        raise DatasetError(f"topic template {template!r}: must hold `{{robot}}` exactly once.")
+    head, tail = template.split("{robot}")
+    return re.compile(f"^{re.escape(head)}(?P<robot>.+?){re.escape(tail)}$")
+
+
+def read_bag(
+    path: str | Path,
+    odom_topic: str = ODOM_TOPIC,
+    objects_topic: str = OBJECTS_TOPIC,
+    classes: dict[str, int] | None = None,
+    robots: Sequence[str] | None = None,
+) -> list[RobotLog]:
+    """Every robot of a ROS 2 bag (folder, .db3 or .mcap) in the layout above, sorted by name;
+    `robots` selects some. DatasetError naming the bag, topic and fix on any mismatch."""
+    _, highlevel, typestore = _rosbags()
+    path = Path(path)
+    if not path.exists():
+        raise DatasetError(f"{path}: no such bag; give a rosbag2 folder, .db3 or .mcap file.")
+    try:
+        with highlevel.AnyReader([path], default_typestore=typestore) as reader:
+            return _read_robots(reader, path, odom_topic, objects_topic, classes, robots)
+    except (highlevel.AnyReaderError, OSError, KeyError, AssertionError) as e:
+        raise DatasetError(f"{path}: cannot read the bag ({e}).") from None
+
+
+def _read_robots(reader, path, odom_topic, objects_topic, classes, robots) -> list[RobotLog]:
+    pattern = topic_regex(odom_topic)
+    found = {}
+    for c in reader.connections:
+        m = pattern.match(c.topic)
+        if m and c.msgtype == ODOMETRY:
+            found.setdefault(m["robot"], []).append(c)
+    names = sorted(found) if robots is None else list(robots)
+    missing = [r for r in names if r not in found]
+    if not names or missing:
+        topics = ", ".join(sorted({c.topic for c in reader.connections})) or "none"
+        raise DatasetError(
+            f"{path}: no {ODOMETRY} topic matching {odom_topic!r} for robot(s) "
+            f"{', '.join(missing) or 'any'} (topics in the bag: {topics}); set the topic "
+            "template with --odom-topic."
+        )
+    logs = []
+    for r in names:
+        obj_topic = objects_topic.replace("{robot}", r)
+        obj = [c for c in reader.connections if c.topic == obj_topic]
+        if not obj or any(c.msgtype != MARKERS for c in obj):
+            raise DatasetError(
+                f"{path}: robot {r!r} has no {MARKERS} topic {obj_topic!r}; set the object "
+                "topic template with --objects-topic."
+            )
+        logs.append(_read_robot(reader, path, r, found[r], obj, classes))
+    return logs
+
+
+def _read_robot(reader, path, name, odom_conns, obj_conns, classes) -> RobotLog:
+    stamps, xyz, quat = [], [], []
+    for conn, _, raw in reader.messages(connections=odom_conns):
+        msg = reader.deserialize(raw, conn.msgtype)
+        p, q = msg.pose.pose.position, msg.pose.pose.orientation
+        stamps.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+        xyz.append((p.x, p.y, p.z))
+        quat.append((q.x, q.y, q.z, q.w))
+    index = {s: i for i, s in enumerate(stamps)}
+    kf, pos, lab = [], [], []
+    for n, (conn, _, raw) in enumerate(reader.messages(connections=obj_conns), 1):
+        for mk in reader.deserialize(raw, conn.msgtype).markers:
+            if mk.action != 0:
+                continue
+            s = mk.header.stamp.sec * 1_000_000_000 + mk.header.stamp.nanosec
+            where = f"{path}: {conn.topic} message {n} marker {mk.id}"
+            if s not in index:
+                raise DatasetError(
+                    f"{where}: stamp {s} ns is no {ODOMETRY} stamp of robot {name!r}; stamp "
+                    "each marker with the keyframe that saw it."
+                )
+            kf.append(index[s])
+            pos.append((mk.pose.position.x, mk.pose.position.y, mk.pose.position.z))
+            lab.append(resolve_class(mk.ns, classes, where))
+    order = np.argsort(stamps, kind="stable")  # messages come by log time, not header stamp
+    rank = np.argsort(order)
+    return make_robot_log(
+        name,
+        np.array(stamps, np.int64)[order],
+        np.array(xyz, np.float64).reshape(-1, 3)[order],
+        np.array(quat, np.float64).reshape(-1, 4)[order],
+        rank[np.array(kf, np.int64)] if kf else np.zeros(0, np.int64),
+        np.array(pos, np.float64).reshape(-1, 3),
+        np.array(lab, np.int64),
+        where=f"{path}: robot {name!r}",
+    )
+
+
+def _stamp(ts, ns: int) -> Any:
+    return ts.types["builtin_interfaces/msg/Time"](sec=int(ns) // 1_000_000_000,
+                                                   nanosec=int(ns) % 1_000_000_000)
+
+
+def _header(ts, ns: int, frame: str) -> Any:
+    return ts.types["std_msgs/msg/Header"](stamp=_stamp(ts, ns), frame_id=frame)
+
+
+def _odometry(ts, name: str, ns: int, xyz: np.ndarray, quat: np.ndarray) -> Any:
+    t = ts.types
+    pose = t["geometry_msgs/msg/Pose"](
+        position=t["geometry_msgs/msg/Point"](*map(float, xyz)),
+        orientation=t["geometry_msgs/msg/Quaternion"](*map(float, quat)),
+    )
+    zero3 = t["geometry_msgs/msg/Vector3"](0.0, 0.0, 0.0)
+    return t[ODOMETRY](
+        header=_header(ts, ns, f"{name}/odom"),
+        child_frame_id=f"{name}/sensor",
+        pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
+        twist=t["geometry_msgs/msg/TwistWithCovariance"](
+            twist=t["geometry_msgs/msg/Twist"](linear=zero3, angular=zero3),
+            covariance=np.zeros(36),
+        ),
+    )
+
+
+def _marker(ts, name: str, ns: int, k: int, p: np.ndarray, cls: str) -> Any:
+    t = ts.types
+    M = t["visualization_msgs/msg/Marker"]
+    return M(
+        header=_header(ts, ns, f"{name}/sensor"), ns=cls, id=k, type=M.SPHERE, action=M.ADD,
+        pose=t["geometry_msgs/msg/Pose"](
+            position=t["geometry_msgs/msg/Point"](*map(float, p)),
+            orientation=t["geometry_msgs/msg/Quaternion"](0.0, 0.0, 0.0, 1.0),
+        ),
+        scale=t["geometry_msgs/msg/Vector3"](0.5, 0.5, 0.5),
+        color=t["std_msgs/msg/ColorRGBA"](1.0, 0.5, 0.0, 1.0),
+        lifetime=t["builtin_interfaces/msg/Duration"](sec=0, nanosec=0),
+        frame_locked=False, points=[], colors=[], texture_resource="",
+        texture=t["sensor_msgs/msg/CompressedImage"](
+            header=_header(ts, 0, ""), format="", data=np.zeros(0, np.uint8)
+        ),
+        uv_coordinates=[], text="", mesh_resource="",
+        mesh_file=t["visualization_msgs/msg/MeshFile"](filename="", data=np.zeros(0, np.uint8)),
+        mesh_use_embedded_materials=False,
+    )
+
+
+def _open_writer(rosbag2, path: Path) -> Any:
+    if path.exists():
+        raise DatasetError(f"{path}: exists already; give a new path for the output bag.")
+    return rosbag2.Writer(path, version=9, storage_plugin=rosbag2.StoragePlugin.MCAP)
+
+
+def write_bag(
+    path: str | Path,
+    logs: Sequence[RobotLog],
+    class_names: Sequence[str] | None = None,
+    odom_topic: str = ODOM_TOPIC,
+    objects_topic: str = OBJECTS_TOPIC,
+) -> Path:
+    """Write robots as a ROS 2 bag folder (mcap storage) in the layout above; classes as names
+    when `class_names` is given, else as integer ids. `path` must not exist."""
+    rosbag2, _, ts = _rosbags()
+    path = Path(path)
+    with _open_writer(rosbag2, path) as w:
+        for log in logs:
+            odom = w.add_connection(odom_topic.replace("{robot}", log.name), ODOMETRY, typestore=ts)
+            objs = w.add_connection(
+                objects_topic.replace("{robot}", log.name), MARKERS, typestore=ts
+            )
+            for i, p, lab in log.observations():
+                ns = int(log.stamps_ns[i])
+                msg = _odometry(ts, log.name, ns, log.xyz[i], log.quat[i])
+                w.write(odom, ns, ts.serialize_cdr(msg, ODOMETRY))
+                if len(p):
+                    cls = [class_names[c] if class_names else str(int(c)) for c in lab]
+                    marks = [_marker(ts, log.name, ns, k, q, c) for k, (q, c) in
+                             enumerate(zip(p, cls, strict=True))]
+                    arr = ts.types[MARKERS](markers=marks)
+                    w.write(objs, ns, ts.serialize_cdr(arr, MARKERS))
+    return path
+
+
+def write_fleet_bag(
+    path: str | Path,
+    transforms: Sequence[tuple[int, str, np.ndarray]],
+    topic: str = FLEET_TOPIC,
+) -> Path:
+    """Write (stamp ns, robot, T_fleet_odom (4,4)) as geometry_msgs/TransformStamped on `topic`
+    (frame `fleet` -> `{robot}/odom`) into a new ROS 2 bag folder (mcap storage)."""
+    rosbag2, _, ts = _rosbags()
+    path = Path(path)
+    if path.exists():
+        raise DatasetError(f"{path}: exists already; give a new path for the output bag.")
+    # Written in a temporary sibling folder under its final name, then moved: never half a bag.
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    try:
+        _write_transforms(rosbag2, ts, tmp / path.name, transforms, topic)
+        (tmp / path.name).rename(path)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return path
+
+
+def _write_transforms(rosbag2, ts, path: Path, transforms, topic: str) -> None:
+    from scipy.spatial.transform import Rotation
+
+    t = ts.types
+    with _open_writer(rosbag2, path) as w:
+        conn = w.add_connection(topic, TRANSFORM, typestore=ts)
+        for ns, robot, T in sorted(transforms, key=lambda x: (x[0], x[1])):
+            q = Rotation.from_matrix(np.asarray(T)[:3, :3]).as_quat()
+            msg = t[TRANSFORM](
+                header=_header(ts, ns, FLEET_FRAME),
+                child_frame_id=f"{robot}/odom",
+                transform=t["geometry_msgs/msg/Transform"](
+                    translation=t["geometry_msgs/msg/Vector3"](*map(float, T[:3, 3])),
+                    rotation=t["geometry_msgs/msg/Quaternion"](*map(float, q)),
+                ),
+            )
+            w.write(conn, int(ns), ts.serialize_cdr(msg, TRANSFORM))
+
+
+def read_fleet_bag(path: str | Path, topic: str = FLEET_TOPIC) -> list[tuple[int, str, np.ndarray]]:
+    """The (stamp ns, robot, T_fleet_odom) messages of a bag written by write_fleet_bag."""
+    from scipy.spatial.transform import Rotation
+
+    _, highlevel, typestore = _rosbags()
+    out = []
+    with highlevel.AnyReader([Path(path)], default_typestore=typestore) as reader:
+        conns = [c for c in reader.connections if c.topic == topic]
+        for conn, _, raw in reader.messages(connections=conns):
+            m = reader.deserialize(raw, conn.msgtype)
+            tr, r = m.transform.translation, m.transform.rotation
+            T = np.eye(4)
+            T[:3, :3] = Rotation.from_quat([r.x, r.y, r.z, r.w]).as_matrix()
+            T[:3, 3] = (tr.x, tr.y, tr.z)
+            robot = m.child_frame_id.removesuffix("/odom")
+            out.append((m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec, robot, T))
+    return out

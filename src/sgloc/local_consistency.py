@@ -1,0 +1,166 @@
+"""Consistency within a radius: the neighbour constraint at a cost linear in the candidates.
+
+The all-pairs form (`sgloc.consistency`) checks every pair of candidate matches: m^2 work and
+m^2 / 8 bytes. Here two candidates are compared only when their query objects lie closer than
+`radius` metres (the paper's neighbours), so work grows with m x the candidates within the
+radius and memory with m. A candidate's support is the count of its spatial neighbours it is
+consistent with; Alg. 1 removes the least supported fraction first (`prune_local`). With a
+radius that covers the whole query map every candidate neighbours every other and the result
+equals Alg. 1 on all pairs (`sgloc.rejection.neighbor.prune_bits`).
+
+`prune_local` runs the compiled kernel (`sgloc.kernels.local`); `local_counts_reference` and
+`prune_local_reference` are the numpy references (dense, m^2: small problems and tests).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sgloc.consistency import check_form, consistency_bool
+from sgloc.kernels import use_compiled
+
+#: Cells per axis at most: cells are widened beyond the radius when a map is wider than this
+#: many radii, so that a cell's integer key (x, y, z) fits in an int64.
+MAX_CELLS_PER_AXIS = 1 << 20
+
+
+@dataclass(frozen=True)
+class CellGrid:
+    """Points bucketed on a grid of cells at least `radius` wide (every point within the
+    radius of a point lies in one of the 27 cells around its cell).
+
+    order: (m,) point indices sorted by cell; cell_start: (n_cells + 1,) each cell's run in
+    `order`; point_cell: (m,) each point's cell; near_cells: (n_cells, 27) the occupied cells
+    around each cell, -1 where there is none."""
+
+    order: np.ndarray
+    cell_start: np.ndarray
+    point_cell: np.ndarray
+    near_cells: np.ndarray
+
+    @classmethod
+    def build(cls, points: np.ndarray, radius: float) -> CellGrid:
+        """The grid of `points` (m,3) metres for neighbours closer than `radius` metres."""
+        points = np.asarray(points, dtype=np.float64)
+        lo = points.min(axis=0) if len(points) else np.zeros(3)
+        extent = (points.max(axis=0) - lo) if len(points) else np.zeros(3)
+        width = max(float(radius), float(extent.max()) / (MAX_CELLS_PER_AXIS - 2), 1e-300)
+        cell = np.floor((points - lo) / width).astype(np.int64)
+        dims = cell.max(axis=0) + 3 if len(points) else np.ones(3, np.int64)
+        # Keys with a margin of one cell on every side: a neighbour offset never wraps.
+        key = ((cell[:, 0] + 1) * dims[1] + cell[:, 1] + 1) * dims[2] + cell[:, 2] + 1
+        order = np.argsort(key, kind="stable")
+        keys, start, point_cell = np.unique(key[order], return_index=True, return_inverse=True)
+        cell_of = np.empty(len(points), dtype=np.int64)
+        cell_of[order] = point_cell
+        offsets = np.array(
+            [(a * dims[1] + b) * dims[2] + c for a in (-1, 0, 1) for b in (-1, 0, 1)
+             for c in (-1, 0, 1)], dtype=np.int64,
+        )  # fmt: skip
+        wanted = keys[:, None] + offsets[None, :]
+        at = np.minimum(np.searchsorted(keys, wanted), len(keys) - 1)
+        near = np.where(keys[at] == wanted, at, -1) if len(keys) else wanted[:, :0]
+        return cls(
+            order.astype(np.int64),
+            np.append(start, len(points)).astype(np.int64),
+            cell_of,
+            np.ascontiguousarray(near, dtype=np.int64),
+        )
+
+
+def _kernel_args(src, dst, radius: float) -> tuple:
+    src = np.ascontiguousarray(src, dtype=np.float64)
+    dst = np.ascontiguousarray(dst, dtype=np.float64)
+    g = CellGrid.build(src, radius)
+    return src, dst, g.order, g.cell_start, g.point_cell, g.near_cells, float(radius)
+
+
+def local_counts(
+    src: np.ndarray, dst: np.ndarray, tau: float, radius: float, form: str = "distance"
+) -> tuple[np.ndarray, np.ndarray]:
+    """(r, V) int64 (m,): per candidate match i (src_i (m,3) query, dst_i target, metres), the
+    other candidates whose query points lie closer than `radius` to src_i, and those of them
+    consistent with i (`sgloc.consistency` forms). Compiled; memory linear in m."""
+    check_form(form)
+    if not use_compiled(len(src)):
+        return local_counts_reference(src, dst, tau, radius, form)
+    from sgloc.kernels.local import local_counts as kernel
+
+    return kernel(*_kernel_args(src, dst, radius), float(tau), form == "neighbor")
+
+
+def prune_local(
+    src: np.ndarray,
+    dst: np.ndarray,
+    tau: float,
+    eta: float,
+    radius: float,
+    form: str = "distance",
+    self_vote: int = 0,
+) -> np.ndarray:
+    """Sorted indices of the candidates that survive Alg. 1 on local supports: while the
+    remaining candidate with the least support fraction (V_i + s) / (r_i + s) (ties: the lowest
+    index) has V_i + s < eta * (r_i + s), remove it (r_i, V_i: `local_counts` among the
+    remaining candidates; s = self_vote, 1 for the literal bound). Compiled (the numpy
+    reference for a process's first small problems, `sgloc.kernels.use_compiled`)."""
+    check_form(form)
+    if len(src) == 0:
+        return np.zeros(0, dtype=np.int64)
+    if not use_compiled(len(src)):
+        return prune_local_reference(src, dst, tau, eta, radius, form, self_vote)
+    from sgloc.kernels.local import local_prune
+
+    args = _kernel_args(src, dst, radius)
+    return local_prune(*args, float(tau), form == "neighbor", float(eta), int(self_vote))
+
+
+def _neighbours_reference(src: np.ndarray, radius: float) -> np.ndarray:
+    """(m,m) bool: query points closer than `radius` (float64 as cdist), no diagonal."""
+    from scipy.spatial.distance import cdist
+
+    near = cdist(src, src) < radius
+    np.fill_diagonal(near, False)
+    return near
+
+
+def local_counts_reference(
+    src: np.ndarray, dst: np.ndarray, tau: float, radius: float, form: str = "distance"
+) -> tuple[np.ndarray, np.ndarray]:
+    """`local_counts` in numpy (dense m x m: the reference)."""
+    src = np.asarray(src, dtype=np.float64)
+    near = _neighbours_reference(src, radius)
+    ok = consistency_bool(src, dst, tau, form) & near
+    return near.sum(axis=1, dtype=np.int64), ok.sum(axis=1, dtype=np.int64)
+
+
+def prune_local_reference(
+    src: np.ndarray,
+    dst: np.ndarray,
+    tau: float,
+    eta: float,
+    radius: float,
+    form: str = "distance",
+    self_vote: int = 0,
+) -> np.ndarray:
+    """`prune_local` in numpy (dense m x m, one removal per step: the reference)."""
+    src = np.asarray(src, dtype=np.float64)
+    near = _neighbours_reference(src, radius)
+    ok = consistency_bool(src, dst, tau, form) & near
+    r = near.sum(axis=1).astype(np.int64)
+    V = ok.sum(axis=1).astype(np.int64)
+    alive = np.ones(len(src), dtype=bool)
+    s = int(self_vote)
+    while alive.any():
+        with np.errstate(divide="ignore", invalid="ignore"):
+            frac = np.where(r + s > 0, (V + s) / (r + s), np.inf)
+        frac[~alive] = np.nan
+        i = int(np.nanargmin(frac))  # the first of equal minima: the lowest index
+        if not V[i] + s < eta * (r[i] + s):
+            break
+        alive[i] = False
+        hit = near[i] & alive
+        r[hit] -= 1
+        V[ok[i] & alive] -= 1
+    return np.flatnonzero(alive).astype(np.int64)

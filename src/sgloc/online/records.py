@@ -1,0 +1,107 @@
+"""The records an online session exposes: links between robots, events, attempts."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+#: Event kinds.
+ROBOT_JOINED, LINK_ACCEPTED, LINK_REVOKED = "robot_joined", "link_accepted", "link_revoked"
+
+
+@dataclass
+class Link:
+    """An accepted localization between two robots.
+
+    T_a_b: (4,4) maps robot_b's odometry frame into robot_a's (p_a = R @ p_b + t).
+    covariance: (6,6) of T_a_b, GTSAM Pose3 tangent order [rx ry rz tx ty tz] (rad, m), right
+        perturbation (T_true = T_a_b @ Exp(xi), in b's frame).
+    confidence: the acceptance test's, in [0, 1]. stamp: when the link was (last) accepted.
+    active: True while the link is part of the consistent set the fleet frame is built from;
+        reason: why not (or how the covariance was obtained).
+    n_matches: the localization's inliers; agreed: how many accepted attempts of this pair in
+        a row agree with each other (`OnlineConfig.confirmations`); refined_pairs: the object
+        pairs of the link's last refit on the grown maps (0: as the localization gave it).
+    """
+
+    robot_a: str
+    robot_b: str
+    T_a_b: np.ndarray
+    covariance: np.ndarray
+    confidence: float
+    stamp: float
+    active: bool = True
+    reason: str = ""
+    n_matches: int = 0
+    agreed: int = 1
+    refined_pairs: int = 0
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "robot_a": self.robot_a, "robot_b": self.robot_b, "T_a_b": self.T_a_b.tolist(),
+            "covariance": self.covariance.tolist(), "confidence": self.confidence,
+            "stamp": self.stamp, "active": self.active, "reason": self.reason,
+            "n_matches": self.n_matches, "agreed": self.agreed,
+            "refined_pairs": self.refined_pairs,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Link:
+        d = dict(d)
+        d["T_a_b"] = np.array(d["T_a_b"], dtype=np.float64)
+        d["covariance"] = np.array(d["covariance"], dtype=np.float64)
+        return cls(**d)
+
+
+@dataclass(frozen=True)
+class Event:
+    """Something that changed the fleet: kind in {"robot_joined", "link_accepted",
+    "link_revoked"}, the robots concerned, a sentence of detail; stamp = the keyframe's."""
+
+    stamp: float
+    kind: str
+    robots: tuple[str, ...]
+    detail: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"stamp": self.stamp, "kind": self.kind, "robots": list(self.robots),
+                "detail": self.detail}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Event:
+        return cls(float(d["stamp"]), d["kind"], tuple(d["robots"]), d.get("detail", ""))
+
+
+@dataclass
+class Attempt:
+    """One localization attempt of robot `query` in robot `target`'s map (both names):
+    `transform` = T_target_query when accepted."""
+
+    query: str
+    target: str
+    stamp: float
+    accepted: bool
+    transform: np.ndarray | None
+    confidence: float
+    n_matches: int
+    reason: str
+    seconds: float
+    sizes: tuple[int, int]  # confirmed objects of (query, target) at the attempt
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "query": self.query, "target": self.target, "stamp": self.stamp,
+            "accepted": self.accepted,
+            "transform": None if self.transform is None else self.transform.tolist(),
+            "confidence": self.confidence, "n_matches": self.n_matches, "reason": self.reason,
+            "seconds": self.seconds, "sizes": list(self.sizes),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Attempt:
+        d = dict(d)
+        d["transform"] = None if d["transform"] is None else np.array(d["transform"], float)
+        d["sizes"] = tuple(d["sizes"])
+        return cls(**d)

@@ -1,0 +1,447 @@
+"""OnlineSession: robots' maps grow keyframe by keyframe; the session localizes robot pairs
+when their maps have grown enough and keeps one fleet frame over the consistent links."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from sgloc.config import LocalizerConfig
+from sgloc.errors import SglocError
+from sgloc.geometry import invert
+from sgloc.graph import SemanticGraph
+from sgloc.online.attempts import run_tasks
+from sgloc.online.config import OnlineConfig
+from sgloc.online.consistency import (
+    Edge,
+    invert_with_covariance,
+    loop_error,
+    loop_tolerance,
+)
+from sgloc.online.posegraph import fleet_frame
+from sgloc.online.precision import chain_covariance, predicted_error
+from sgloc.online.records import (
+    LINK_ACCEPTED,
+    LINK_REVOKED,
+    ROBOT_JOINED,
+    Attempt,
+    Event,
+    Link,
+)
+from sgloc.online.refine import refine_link
+from sgloc.online.robot_map import RobotMap
+from sgloc.online.schedule import due_pairs
+
+
+class OnlineSession:
+    """A fleet's common frame, built while the robots explore.
+
+    Args:
+        config: the pairwise localizer's settings (LocalizerConfig; default: the library's).
+        online: association, scheduling and consistency settings (OnlineConfig).
+        root: the robot whose odometry frame is the fleet frame (default: the first robot to
+            send a keyframe).
+    """
+
+    def __init__(
+        self,
+        config: LocalizerConfig | None = None,
+        online: OnlineConfig | None = None,
+        root: str | None = None,
+    ) -> None:
+        self.config = config or LocalizerConfig()
+        self.online = online or OnlineConfig()
+        self._root = root
+        self._maps: dict[str, RobotMap] = {}
+        self._last: dict[tuple[int, int], tuple[int, int]] = {}
+        self._tries: dict[tuple[int, int], int] = {}
+        self._refined: dict[tuple[int, int], tuple[int, int]] = {}
+        self._links: dict[tuple[int, int], Link] = {}
+        self._T: dict[str, np.ndarray] = {}
+        self.attempts: list[Attempt] = []
+        self.events: list[Event] = []
+
+    # -- what the session knows ---------------------------------------------------------------
+    @property
+    def robots(self) -> list[str]:
+        """Robot names in the order of their first keyframe."""
+        return list(self._maps)
+
+    @property
+    def root(self) -> str | None:
+        """The robot whose odometry frame is the fleet frame (None before any keyframe)."""
+        if self._root is not None:
+            return self._root
+        return next(iter(self._maps), None)
+
+    @property
+    def links(self) -> list[Link]:
+        """Every accepted link (one per robot pair, the newest), active or not."""
+        return [self._links[k] for k in sorted(self._links)]
+
+    def T_fleet_robot(self, robot: str) -> np.ndarray | None:
+        """(4,4) mapping `robot`'s odometry frame into the fleet frame; None while unplaced."""
+        self._index(robot)
+        T = self._T.get(robot)
+        return None if T is None else T.copy()
+
+    def map(self, robot: str) -> SemanticGraph:
+        """`robot`'s confirmed objects in its odometry frame."""
+        return self._maps[self.robots[self._index(robot)]].graph()
+
+    def keyframes(self, robot: str) -> tuple[np.ndarray, np.ndarray]:
+        """(stamps (k,) seconds, T_odom_sensor (k,4,4)) of `robot`'s keyframes so far."""
+        return self._maps[self.robots[self._index(robot)]].trajectory()
+
+    def trajectory(self, robot: str) -> tuple[np.ndarray, np.ndarray] | None:
+        """(stamps (k,), T_fleet_sensor (k,4,4)): `robot`'s keyframe poses in the fleet frame
+        as it stands now; None while the robot is unplaced."""
+        T = self.T_fleet_robot(robot)
+        if T is None:
+            return None
+        stamps, poses = self.keyframes(robot)
+        return stamps, T @ poses
+
+    def _now(self) -> float:
+        """The newest keyframe stamp of any robot (0.0 before the first)."""
+        return max((m.stamps[-1] for m in self._maps.values() if m.stamps), default=0.0)
+
+    def _index(self, robot: str) -> int:
+        try:
+            return self.robots.index(robot)
+        except ValueError:
+            raise SglocError(
+                f"unknown robot {robot!r}; robots so far: {', '.join(self.robots) or 'none'}."
+            ) from None
+
+    # -- updates -------------------------------------------------------------------------------
+    def add_keyframe(
+        self,
+        robot: str,
+        stamp: float,
+        T_odom_sensor: np.ndarray,
+        positions: np.ndarray,
+        labels: np.ndarray,
+    ) -> list[Event]:
+        """Add what one keyframe of `robot` saw: positions (n,3) metres in the sensor frame,
+        labels (n,) class ids, T_odom_sensor (4,4) the keyframe's pose in the robot's odometry
+        frame; stamp in seconds. Runs at most `online.max_attempts` localization attempts.
+        Returns the events this update caused."""
+        if not isinstance(robot, str) or not robot:
+            raise SglocError(f"robot must be a non-empty name, got {robot!r}.")
+        try:
+            stamp = float(stamp)
+        except (TypeError, ValueError):
+            stamp = math.nan
+        if not math.isfinite(stamp):
+            raise SglocError(f"robot {robot!r}: the keyframe stamp must be a finite number of "
+                             "seconds.")
+        n_events = len(self.events)
+        if robot not in self._maps:
+            o = self.online
+            self._maps[robot] = RobotMap(robot, o.association_radius, o.min_observations,
+                                         o.edge_radius)
+        self._maps[robot].add(stamp, T_odom_sensor, positions, labels)
+        if robot == self.root and robot not in self._T:
+            self._refresh(stamp)
+        if self.online.max_attempts != 0:
+            self.run_pending(stamp, self.online.max_attempts)
+        return self.events[n_events:]
+
+    def run_pending(
+        self,
+        stamp: float | None = None,
+        max_attempts: int | None = None,
+        *,
+        scheduler: str | None = None,
+        workers: int | None = 0,
+    ) -> list[Event]:
+        """Attempt the due robot pairs (at most `max_attempts`; None: all), pairs that would
+        join two separate groups first; on `workers` local processes or a Dask `scheduler`.
+        stamp: the events' stamp (default: the newest keyframe's)."""
+        stamp = float(stamp) if stamp is not None else self._now()
+        n_events = len(self.events)
+        names = self.robots
+        sizes = [self._maps[r].n_confirmed for r in names]
+        o = self.online
+        due = due_pairs(sizes, self._last, o.min_objects, o.growth_ratio, o.growth_objects)
+        changed = False
+        if due:
+            group = self._groups()
+            due.sort(key=lambda p: group[p[0]] == group[p[1]])  # stable: growth order within
+            due = due if max_attempts is None else due[:max_attempts]
+            # Each attempt on graphs rebuilt from arrays, wherever it runs: the localizer's
+            # caches on a reused graph shift results by ~1e-13 with their history, and a
+            # resumed session or a worker process must give the same results bit for bit.
+            results = run_tasks([self._task(i, j) for i, j in due], scheduler, workers)
+            for (i, j), r in zip(due, results, strict=True):
+                changed |= self._record(i, j, sizes, r, stamp)
+        changed |= self._refine_due(sizes, max_attempts)
+        if changed:
+            self._refresh(stamp)
+        return self.events[n_events:]
+
+    def _groups(self) -> np.ndarray:
+        """Per robot index, a label of its group of robots joined by active links."""
+        from scipy import sparse
+        from scipy.sparse.csgraph import connected_components
+
+        n = len(self._maps)
+        ij = np.array([k for k, lk in self._links.items() if lk.active], np.int64).reshape(-1, 2)
+        adj = sparse.coo_array((np.ones(len(ij)), (ij[:, 0], ij[:, 1])), shape=(n, n))
+        return connected_components(adj, directed=False)[1]
+
+    def _seed(self, i: int, j: int) -> list[int]:
+        k = self._tries.get((i, j), 0)
+        return [self.online.seed, i, j] if k == 0 else [self.online.seed, i, j, k]
+
+    def _task(self, i: int, j: int) -> tuple:
+        """Robot j (query) in robot i's map (target), as arrays: the result is T_i_j."""
+        names = self.robots
+        q, t = self._maps[names[j]].graph(), self._maps[names[i]].graph()
+        return ((i, j), q.positions, q.labels, q.edge_radius, t.positions, t.labels,
+                t.edge_radius, self.config.to_dict(), self._seed(i, j))
+
+    def _record(self, i: int, j: int, sizes: list[int], r: dict, stamp: float) -> bool:
+        """Store one attempt; True when it added or replaced a link."""
+        names = self.robots
+        self._last[(i, j)] = (sizes[i], sizes[j])
+        self._tries[(i, j)] = self._tries.get((i, j), 0) + 1
+        self.attempts.append(Attempt(
+            names[j], names[i], stamp, r["accepted"], r["transform"], r["confidence"],
+            r["n_matches"], r["reason"], r["seconds"], (sizes[j], sizes[i]),
+        ))
+        if not r["accepted"]:
+            return False
+        self._store_link(i, j, r["transform"], r["covariance"], r["confidence"], stamp,
+                         r["n_matches"], "")
+        return True
+
+    def _store_link(self, i, j, T, cov, confidence, stamp, n_matches, reason) -> None:
+        """Make (T_i_j, cov) the pair's link. If the pair had a link that agrees with it within
+        the loop tolerance (a loop of 2), the new one inherits its place in the consistent set
+        and counts one more agreeing attempt (`Link.agreed`); a disagreeing active link is
+        revoked (the newer attempt, on larger maps, is taken), the new one then re-checked."""
+        names = self.robots
+        old = self._links.get((i, j))
+        new = Link(names[i], names[j], np.asarray(T, np.float64), np.asarray(cov, np.float64),
+                   float(confidence), float(stamp), active=False, reason=reason,
+                   n_matches=int(n_matches))
+        self._links[(i, j)] = new
+        self._refined.pop((i, j), None)  # the new link is refitted at the next chance
+        if old is None:
+            return
+        dt, dr = loop_error(invert(old.T_a_b) @ new.T_a_b, self._maps[names[j]].graph().positions)
+        lim_m, lim_deg = loop_tolerance(self.online.loop_translation, self.online.loop_rotation, 2)
+        if dt <= lim_m and dr <= lim_deg:
+            new.active, new.agreed = old.active, old.agreed + 1
+        elif old.active:
+            self._emit(True, float(stamp), LINK_REVOKED, (names[i], names[j]),
+                       f"a later attempt of this pair disagrees with it by {dt:.2f} m / "
+                       f"{dr:.2f} deg")
+
+    def _refine_due(self, sizes: list[int], budget: int | None) -> bool:
+        """Refit the links whose maps have grown (growth rule of the attempts; never-refitted
+        links first), at most `budget` (None: all). True when a link changed."""
+        o = self.online
+        if not o.refine_links or not self._links:
+            return False
+        due = [p for p in due_pairs(sizes, self._refined, o.min_objects, o.growth_ratio,
+                                    o.growth_objects) if p in self._links]
+        changed = False
+        for i, j in due if budget is None else due[:budget]:
+            self._refined[(i, j)] = (sizes[i], sizes[j])
+            changed |= self._refine(i, j)
+        return changed
+
+    def _refine(self, i: int, j: int) -> bool:
+        """Refit the link (i, j) on every object pair it co-locates in the current maps; keep
+        the refit when it rests on at least the link's matches and agrees with the link
+        within the loop tolerance (a loop of 2)."""
+        names, o = self.robots, self.online
+        lk = self._links[(i, j)]
+        a, b = self._maps[names[i]].graph(), self._maps[names[j]].graph()
+        r = refine_link(b.positions, b.labels, a.positions, a.labels, lk.T_a_b,
+                        self.config.motion, self.config.ransac.threshold)
+        if r is None or r.n_pairs < lk.n_matches:
+            return False
+        dt, dr = loop_error(invert(lk.T_a_b) @ r.T_a_b, b.positions)
+        lim_m, lim_deg = loop_tolerance(o.loop_translation, o.loop_rotation, 2)
+        if dt > lim_m or dr > lim_deg:
+            return False
+        lk.T_a_b, lk.covariance, lk.refined_pairs = r.T_a_b, r.covariance, r.n_pairs
+        return True
+
+    def add_link(
+        self,
+        robot_a: str,
+        robot_b: str,
+        T_a_b: np.ndarray,
+        covariance: np.ndarray,
+        confidence: float = 1.0,
+        stamp: float | None = None,
+    ) -> list[Event]:
+        """Add an inter-robot link found elsewhere (e.g. another place recognizer): T_a_b (4,4)
+        maps b's odometry frame into a's, covariance (6,6) as `Link.covariance`. It replaces the
+        pair's current link and goes through the same consistency check. Returns the events."""
+        i, j = self._index(robot_a), self._index(robot_b)
+        if i == j:
+            raise SglocError(f"a link needs two different robots, got {robot_a!r} twice.")
+        T = np.asarray(T_a_b, np.float64)
+        cov = np.asarray(covariance, np.float64)
+        if T.shape != (4, 4) or cov.shape != (6, 6) or not (np.isfinite(T).all()
+                                                           and np.isfinite(cov).all()):
+            raise SglocError("add_link: T_a_b must be a finite (4,4) and covariance a finite "
+                             f"(6,6) array, got {T.shape} and {cov.shape}.")
+        if i > j:
+            i, j = j, i
+            T, cov = invert_with_covariance(T, cov)
+        n_events = len(self.events)
+        stamp = float(stamp) if stamp is not None else self._now()
+        self._store_link(i, j, T, cov, confidence, stamp, 0, "added link")
+        self._refresh(stamp)
+        return self.events[n_events:]
+
+    def set_root(self, robot: str, stamp: float | None = None) -> list[Event]:
+        """Make `robot`'s odometry frame the fleet frame (re-solves; returns the events,
+        stamped `stamp`, default: the newest keyframe's)."""
+        self._index(robot)
+        stamp = float(stamp) if stamp is not None else self._now()
+        n_events = len(self.events)
+        self._root = robot
+        self._T = {}
+        self._refresh(stamp)
+        return self.events[n_events:]
+
+    # -- the fleet frame -----------------------------------------------------------------------
+    def _refresh(self, stamp: float, emit: bool = True) -> None:
+        """Re-select the consistent links, re-solve the fleet frame, emit what changed."""
+        names = self.robots
+        o = self.online
+        for lk in self._links.values():
+            if lk.agreed < o.confirmations:
+                lk.reason = f"awaiting confirmation: {lk.agreed} of {o.confirmations} attempts"
+        keys = sorted(k for k, lk in self._links.items() if lk.agreed >= o.confirmations)
+        links = [self._links[k] for k in keys]
+        edges = [Edge(i, j, lk.T_a_b, lk.confidence, lk.stamp)
+                 for (i, j), lk in zip(keys, links, strict=True)]
+        root = self.root
+        if root not in self._maps:
+            self._T = {}
+            return
+        frame = fleet_frame(
+            len(names), edges, [lk.covariance for lk in links], names.index(root),
+            lambda r: self._maps[names[r]].graph().positions,
+            o.loop_translation, o.loop_rotation, o.solver,
+        )
+        active = set(frame.active)
+        T_new = {names[r]: T for r, T in frame.T_fleet_robot.items()}
+        for r in self._held(frame, edges, [lk.covariance for lk in links]):
+            T_new.pop(r, None)
+        lost = [r for r in names if r in self._T and r not in T_new]
+        for k, lk in enumerate(links):
+            was, now = lk.active, k in active
+            if was and not now:
+                lk.reason = frame.dropped.get(k, "")
+                note = f"; no longer placed: {', '.join(lost)}" if lost else ""
+                self._emit(emit, stamp, LINK_REVOKED, (lk.robot_a, lk.robot_b), lk.reason + note)
+            elif now and not was:
+                lk.reason = ""
+                self._emit(emit, stamp, LINK_ACCEPTED, (lk.robot_a, lk.robot_b),
+                           f"confidence {lk.confidence:.6f}, {lk.n_matches} matches")
+            elif not now:
+                lk.reason = frame.dropped.get(k, lk.reason)
+            lk.active = now
+        for r in names:
+            if r in T_new and r not in self._T:
+                self._emit(emit, stamp, ROBOT_JOINED, (r,),
+                           "the fleet frame's root" if r == root else "placed in the fleet frame")
+        self._T = T_new
+
+    def _held(self, frame, edges: list[Edge], covariances: list[np.ndarray]) -> list[str]:
+        """Robots the frame would newly place whose predicted error at their objects is beyond
+        the limits (`OnlineConfig.join_sigmas`); none when the hold is off."""
+        o, names = self.online, self.robots
+        if o.join_sigmas is None:
+            return []
+        root = names.index(self.root)
+        held = []
+        for r, path in frame.paths.items():
+            if r == root or names[r] in self._T:
+                continue
+            C = chain_covariance(edges, covariances, path, root)
+            m, deg = predicted_error(C, self._maps[names[r]].graph().positions, o.join_sigmas)
+            if m > o.loop_translation or deg > o.loop_rotation:
+                held.append(names[r])
+        return held
+
+    def _emit(self, emit: bool, stamp: float, kind: str, robots: tuple, detail: str) -> None:
+        if emit:
+            self.events.append(Event(stamp, kind, tuple(robots), detail))
+
+    # -- state and files -----------------------------------------------------------------------
+    def to_state(self) -> tuple[dict, dict[str, np.ndarray]]:
+        """(JSON-ready dict, arrays) holding the whole session (`from_state` rebuilds it)."""
+        meta = {
+            "config": self.config.to_dict(),
+            "online": self.online.to_dict(),
+            "root": self._root,
+            "robots": self.robots,
+            "last": [[i, j, *v] for (i, j), v in sorted(self._last.items())],
+            "tries": [[i, j, v] for (i, j), v in sorted(self._tries.items())],
+            "refined": [[i, j, *v] for (i, j), v in sorted(self._refined.items())],
+            "links": [[i, j, lk.to_dict()] for (i, j), lk in sorted(self._links.items())],
+            "attempts": [a.to_dict() for a in self.attempts],
+            "events": [e.to_dict() for e in self.events],
+        }
+        arrays = {f"map{k}_{key}": arr for k, r in enumerate(self.robots)
+                  for key, arr in self._maps[r].state().items()}
+        return meta, arrays
+
+    @classmethod
+    def from_state(cls, meta: dict, arrays: dict[str, np.ndarray]) -> OnlineSession:
+        """The session `to_state` described (its fleet frame re-solved from the links)."""
+        s = cls(LocalizerConfig.from_dict(meta["config"]), OnlineConfig.from_dict(meta["online"]),
+                meta["root"])
+        o = s.online
+        for k, r in enumerate(meta["robots"]):
+            m = RobotMap(r, o.association_radius, o.min_observations, o.edge_radius)
+            prefix = f"map{k}_"
+            m.set_state({key[len(prefix):]: v for key, v in arrays.items()
+                         if key.startswith(prefix)})
+            s._maps[r] = m
+        s._last = {(i, j): (a, b) for i, j, a, b in meta["last"]}
+        s._tries = {(i, j): v for i, j, v in meta["tries"]}
+        s._refined = {(i, j): (a, b) for i, j, a, b in meta.get("refined", [])}
+        s._links = {(i, j): Link.from_dict(d) for i, j, d in meta["links"]}
+        s.attempts = [Attempt.from_dict(d) for d in meta["attempts"]]
+        s.events = [Event.from_dict(d) for d in meta["events"]]
+        if s.robots:
+            s._refresh(0.0, emit=False)
+        return s
+
+    def save(self, path: str | Path) -> Path:
+        """Write the whole session (maps, attempts, links, events, settings) to one .npz."""
+        from sgloc.online.store import save_session
+
+        return save_session(self, path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> OnlineSession:
+        """A session written by `save`, ready to take more keyframes."""
+        from sgloc.online.store import load_session
+
+        return load_session(cls, path)
+
+    def write_g2o(self, path: str | Path) -> Path:
+        """g2o file: VERTEX_SE3:QUAT per placed robot (its T_fleet_robot; id = robot index),
+        EDGE_SE3:QUAT per active link with its information matrix (g2o order [t, r])."""
+        from sgloc.io.g2o import write_g2o
+
+        names = self.robots
+        vertices = {names.index(r): T for r, T in self._T.items()}
+        edges = [(names.index(lk.robot_a), names.index(lk.robot_b), lk.T_a_b, lk.covariance)
+                 for lk in self.links if lk.active]
+        return write_g2o(path, vertices, edges)
