@@ -129,13 +129,16 @@ def test_vertex_limit_is_a_clear_error():
 
 def _stage_configs() -> list[type]:
     from sgloc.acceptance import AcceptanceConfig, EvidenceConfig, VerificationConfig
+    from sgloc.covariance import CovarianceInflation
     from sgloc.descriptors import DESCRIPTORS
     from sgloc.estimation import RansacConfig
     from sgloc.matching import MatchingConfig
+    from sgloc.online import OnlineConfig
     from sgloc.rejection import REJECTORS
 
     return [*DESCRIPTORS.values(), *REJECTORS.values(), MatchingConfig, RansacConfig,
-            AcceptanceConfig, EvidenceConfig, VerificationConfig, LocalizerConfig]  # fmt: skip
+            AcceptanceConfig, EvidenceConfig, VerificationConfig, LocalizerConfig,
+            CovarianceInflation, OnlineConfig]  # fmt: skip
 
 
 def test_every_stage_setting_declares_its_bounds_beside_its_field():

@@ -32,6 +32,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from sgloc.errors import SglocError
+from sgloc.validation import MAX_COORDINATE, real, setting, validate_settings
 
 #: Tukey biweight's support in robust scales (that of `sgloc.estimation.irls_refine`).
 TUKEY_C = 4.685
@@ -54,19 +55,13 @@ class CovarianceInflation:
     scale: factor on the whole covariance (1: none).
     """
 
-    noise_floor: float = 0.0
-    offset_t: float = 0.0
-    offset_r: float = 0.0
-    scale: float = 1.0
+    noise_floor: float = setting(0.0, check=real(0.0, MAX_COORDINATE, unit="m"))
+    offset_t: float = setting(0.0, check=real(0.0, MAX_COORDINATE, unit="m"))
+    offset_r: float = setting(0.0, check=real(0.0, unit="rad"))
+    scale: float = setting(1.0, check=real(0.0, low_open=True))
 
     def __post_init__(self) -> None:
-        for name in ("noise_floor", "offset_t", "offset_r", "scale"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v >= 0) or (name == "scale" and v == 0):
-                raise SglocError(
-                    f"CovarianceInflation.{name} must be a finite number >= 0 (scale > 0), got "
-                    f"{v!r}."
-                )
+        validate_settings(self, "CovarianceInflation")
 
 
 #: No inflation: the plain least-squares covariance.

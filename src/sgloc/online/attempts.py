@@ -3,7 +3,6 @@ cluster; each attempt is a pure function of its arrays, config and seed."""
 
 from __future__ import annotations
 
-import os
 import time
 from typing import Any
 
@@ -12,6 +11,7 @@ import numpy as np
 from sgloc.config import LocalizerConfig
 from sgloc.errors import SglocError
 from sgloc.graph import SemanticGraph
+from sgloc.tasks import run_all
 
 
 def localize_pair(
@@ -52,27 +52,7 @@ def localize_task(task: tuple) -> dict[str, Any]:
 def run_tasks(
     tasks: list[tuple], scheduler: str | None = None, workers: int | None = 0
 ) -> list[dict]:
-    """Run `localize_task` over `tasks`: on the Dask scheduler at `scheduler`, else on
-    `workers` local processes (None: CPU count; 0 or 1: in this process). Results in order."""
-    if scheduler:
-        from sgloc.optional import require
-
-        Client = require("distributed", "dask", "--scheduler (a Dask cluster)").Client
-        try:
-            client = Client(scheduler, timeout=10)
-        except (OSError, ValueError, TypeError) as e:  # unreachable or malformed address
-            raise SglocError(
-                f"cannot reach the Dask scheduler at {scheduler!r} ({e}); start one with "
-                "`dask scheduler` or omit --scheduler to use local processes."
-            ) from None
-        try:
-            return client.gather(client.map(localize_task, tasks, pure=False))
-        finally:
-            client.close()
-    n = workers if workers is not None else (os.cpu_count() or 1)
-    if n <= 1 or len(tasks) <= 1:
-        return [localize_task(t) for t in tasks]
-    from concurrent.futures import ProcessPoolExecutor
-
-    with ProcessPoolExecutor(max_workers=min(n, len(tasks))) as pool:
-        return list(pool.map(localize_task, tasks, chunksize=max(1, len(tasks) // (4 * n))))
+    """Run `localize_task` over `tasks` (`sgloc.tasks.run_all`): on the Dask scheduler at
+    `scheduler`, else on `workers` local processes (None: CPU count; 0 or 1: in this process).
+    Results in order."""
+    return run_all(tasks, localize_task, workers, scheduler or None)

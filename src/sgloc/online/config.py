@@ -6,8 +6,18 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from sgloc.errors import SglocError
 from sgloc.graph import DEFAULT_EDGE_RADIUS
+from sgloc.validation import (
+    MAX_COORDINATE,
+    MAX_ITERATIONS,
+    MAX_VERTICES,
+    choice,
+    flag,
+    integer,
+    real,
+    setting,
+    validate_settings,
+)
 
 
 @dataclass(frozen=True)
@@ -43,36 +53,26 @@ class OnlineConfig:
         (k = 0) or [seed, i, j, k].
     """
 
-    association_radius: float = 1.5
-    min_observations: int = 2
-    edge_radius: float = DEFAULT_EDGE_RADIUS
-    min_objects: int = 6
-    growth_ratio: float = 0.10
-    growth_objects: int = 10
-    max_attempts: int | None = 2
-    loop_translation: float = 3.0
-    loop_rotation: float = 3.0
-    confirmations: int = 1
-    refine_links: bool = True
-    join_sigmas: float | None = None
-    solver: str = "auto"
-    seed: int = 0
+    association_radius: float = setting(1.5, check=real(0.0, MAX_COORDINATE, unit="m"))
+    min_observations: int = setting(2, check=integer(1, MAX_ITERATIONS))
+    edge_radius: float = setting(
+        DEFAULT_EDGE_RADIUS, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m")
+    )
+    # A localization needs at least 3 objects.
+    min_objects: int = setting(6, check=integer(3, MAX_VERTICES))
+    growth_ratio: float = setting(0.10, check=real(0.0))
+    growth_objects: int = setting(10, check=integer(0, MAX_VERTICES))
+    max_attempts: int | None = setting(2, check=integer(0, MAX_ITERATIONS, none_ok=True))
+    loop_translation: float = setting(3.0, check=real(0.0, MAX_COORDINATE, unit="m"))
+    loop_rotation: float = setting(3.0, check=real(0.0, 180.0, unit="degrees"))
+    confirmations: int = setting(1, check=integer(1, MAX_ITERATIONS))
+    refine_links: bool = setting(True, check=flag())
+    join_sigmas: float | None = setting(None, check=real(0.0, low_open=True, none_ok=True))
+    solver: str = setting("auto", check=choice("auto", "gtsam", "scipy", what="the solver"))
+    seed: int = setting(0, check=integer(0))
 
     def __post_init__(self) -> None:
-        if (self.association_radius < 0 or self.min_observations < 1 or self.min_objects < 3
-                or self.confirmations < 1):
-            raise SglocError(
-                "OnlineConfig: association_radius must be >= 0 m, min_observations and "
-                "confirmations >= 1, min_objects >= 3 (localization needs at least 3 objects)."
-            )
-        if self.join_sigmas is not None and not self.join_sigmas > 0:
-            raise SglocError("OnlineConfig: join_sigmas must be > 0 or None (no hold).")
-        if self.max_attempts is not None and self.max_attempts < 0:
-            raise SglocError("OnlineConfig: max_attempts must be >= 0 or None (no limit).")
-        if self.solver not in ("auto", "gtsam", "scipy"):
-            raise SglocError(
-                f"OnlineConfig: solver {self.solver!r} is unknown; use 'auto', 'gtsam' or 'scipy'."
-            )
+        validate_settings(self, "OnlineConfig")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -1,14 +1,13 @@
 """One robot's growing object map in its odometry frame: sightings associated and averaged by
-the same association as offline map building (`sgloc.extraction.GraphBuilder`)."""
+the same association as offline map building (`sgloc.association`)."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from sgloc.association import AssociationSettings, ObjectAssociation
 from sgloc.errors import SglocError
-from sgloc.extraction.backprojection import to_map
-from sgloc.extraction.builder import GraphBuilder
-from sgloc.extraction.config import ExtractionConfig
+from sgloc.geometry import apply
 from sgloc.graph import SemanticGraph
 from sgloc.validation import check_graph_arrays
 
@@ -25,10 +24,10 @@ class RobotMap:
     def __init__(self, name: str, radius: float, min_observations: int, edge_radius: float):
         self.name = name
         self.min_observations = int(min_observations)
-        self.builder = GraphBuilder(ExtractionConfig(
+        self.builder = ObjectAssociation(AssociationSettings(
             merge_distance=float(radius), min_observations=int(min_observations),
             edge_radius=float(edge_radius),
-        ))
+        ))  # fmt: skip
         self._graph: SemanticGraph | None = None
         self._confirmed = 0
         self.stamps: list[float] = []
@@ -56,7 +55,7 @@ class RobotMap:
                 f"{T.shape}; pass the keyframe's pose in the robot's odometry frame."
             )
         pos, lab = check_graph_arrays(f"robot {self.name!r} keyframe", positions, labels)
-        went = self.builder.add_observations(to_map(pos, T), lab)
+        went = self.builder.add_observations(apply(T, pos), lab)
         self.stamps.append(float(stamp))
         self.poses.append(T.copy())
         counts = self.builder.counts
@@ -81,7 +80,7 @@ class RobotMap:
         return {**self.builder.state(), "stamps": stamps, "poses": poses}
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
-        self.builder = GraphBuilder.from_state(self.builder.config, state)
+        self.builder = ObjectAssociation.from_state(self.builder.config, state)
         self.stamps = [float(t) for t in state["stamps"]]
         self.poses = [np.array(T) for T in np.asarray(state["poses"]).reshape(-1, 4, 4)]
         self._confirmed = int(np.count_nonzero(self.builder.counts >= self.min_observations))
