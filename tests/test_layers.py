@@ -46,7 +46,6 @@ LAYERS: dict[str, int] = {
     "sgloc.estimation": 4,
     "sgloc.covariance": 4,
     "sgloc.acceptance": 5,
-    "sgloc.mirror": 5,  # a check of an accepted alignment, which the localizer runs
     # the localizer and its settings
     "sgloc.config": 6,
     "sgloc.presets": 6,
@@ -57,7 +56,6 @@ LAYERS: dict[str, int] = {
     "sgloc": 7,  # the package's own __init__: the public API, up to the fleet
     # many maps
     "sgloc.online": 7,
-    "sgloc.keyframes": 7,
     "sgloc.fleet": 7,
     "sgloc.merge": 7,
     # tools around the library
