@@ -87,48 +87,74 @@ def consistent_blocks(
     # |sqrt(a) - sqrt(b)| <= sqrt(|a - b|): each distance is off by at most sqrt(err).
     err_s = float(np.sqrt(_GRAM_REL_ERROR)) * Rs + 1e-6
     err_t = float(np.sqrt(_GRAM_REL_ERROR)) * Rt + 1e-6
-    tau32 = np.float32(tau)
-    band_s, band_t = np.float32(err_s), np.float32(err_t)
-    band = np.float32(err_s + err_t)
     for i0 in range(0, m, TILE):
         rows = slice(i0, min(m, i0 + TILE))
         for j0 in range(i0, m, TILE):
             cols = slice(j0, min(m, j0 + TILE))
-            with one_blas_thread():  # (512 x 5 products: a second thread only waits)
-                dq = As[rows] @ Bs[cols].T
-                dt = At[rows] @ Bt[cols].T
-            np.maximum(dq, 0.0, out=dq)  # rounding can make a tiny square negative
-            np.sqrt(dq, out=dq)
-            np.maximum(dt, 0.0, out=dt)
-            np.sqrt(dt, out=dt)
-            if form == "distance":
-                diff = np.subtract(dq, dt, out=dq)
-                np.abs(diff, out=diff)
-                np.subtract(diff, tau32, out=dt)  # dt now holds diff - tau
-                ok = dt < 0
-                np.abs(dt, out=dt)
-                amb = dt < band  # not certainly on one side of tau: recompute in float64
-            else:
-                ok = (dq < tau32) == (dt < tau32)
-                np.subtract(dq, tau32, out=dq)
-                np.abs(dq, out=dq)
-                amb = dq < band_s
-                np.subtract(dt, tau32, out=dt)
-                np.abs(dt, out=dt)
-                amb |= dt < band_t
-                diff = None
-            flat = np.flatnonzero(amb)
-            if len(flat):
-                bi, bj = np.divmod(flat, cols.stop - j0)
-                gi, gj = bi + i0, bj + j0
-                eq = _exact_distances(cols_s, gi, gj)
-                et = _exact_distances(cols_t, gi, gj)
-                if form == "distance":
-                    ok.ravel()[flat] = np.abs(eq - et) < tau
-                    diff.ravel()[flat] = np.abs(eq - et)
-                else:
-                    ok.ravel()[flat] = (eq < tau) == (et < tau)
+            dq = _tile_distances(As, Bs, rows, cols)
+            dt = _tile_distances(At, Bt, rows, cols)
+            ok, diff, amb = _classify_tile(dq, dt, form, tau, err_s, err_t)
+            _recheck_ambiguous(ok, diff, amb, rows, cols, cols_s, cols_t, tau)
             yield rows, cols, ok, diff
+
+
+def _tile_distances(A: np.ndarray, B: np.ndarray, rows: slice, cols: slice) -> np.ndarray:
+    """Float32 (len(rows), len(cols)) distances of one tile from the augmented Gram factors."""
+    with one_blas_thread():  # (512 x 5 products: a second thread only waits)
+        d = A[rows] @ B[cols].T
+    np.maximum(d, 0.0, out=d)  # rounding can make a tiny square negative
+    np.sqrt(d, out=d)
+    return d
+
+
+def _classify_tile(
+    dq: np.ndarray, dt: np.ndarray, form: str, tau: float, err_s: float, err_t: float
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+    """(ok, diff, amb) of one tile from its float32 distances (overwritten): the float32
+    decision, |dq - dt| for form "distance" (None otherwise), and the pairs too close to tau
+    (within the error bounds err_s, err_t, metres) to be sure of."""
+    tau32 = np.float32(tau)
+    if form == "distance":
+        diff = np.subtract(dq, dt, out=dq)
+        np.abs(diff, out=diff)
+        np.subtract(diff, tau32, out=dt)  # dt now holds diff - tau
+        ok = dt < 0
+        np.abs(dt, out=dt)
+        amb = dt < np.float32(err_s + err_t)  # not certainly on one side of tau
+        return ok, diff, amb
+    ok = (dq < tau32) == (dt < tau32)
+    np.subtract(dq, tau32, out=dq)
+    np.abs(dq, out=dq)
+    amb = dq < np.float32(err_s)
+    np.subtract(dt, tau32, out=dt)
+    np.abs(dt, out=dt)
+    amb |= dt < np.float32(err_t)
+    return ok, None, amb
+
+
+def _recheck_ambiguous(
+    ok: np.ndarray,
+    diff: np.ndarray | None,
+    amb: np.ndarray,
+    rows: slice,
+    cols: slice,
+    cols_s: np.ndarray,
+    cols_t: np.ndarray,
+    tau: float,
+) -> None:
+    """Recompute the tile's ambiguous pairs in float64, in place in ok (and diff)."""
+    flat = np.flatnonzero(amb)
+    if not len(flat):
+        return
+    bi, bj = np.divmod(flat, cols.stop - cols.start)
+    gi, gj = bi + rows.start, bj + cols.start
+    eq = _exact_distances(cols_s, gi, gj)
+    et = _exact_distances(cols_t, gi, gj)
+    if diff is not None:
+        ok.ravel()[flat] = np.abs(eq - et) < tau
+        diff.ravel()[flat] = np.abs(eq - et)
+    else:
+        ok.ravel()[flat] = (eq < tau) == (et < tau)
 
 
 def check_form(form: str) -> None:

@@ -110,20 +110,10 @@ def plot_aligned_maps(
                label=f"robot B (query), {len(q)} objects"),
     ]
     if len(m):
-        side = axes[0, 0]
-        own = _beside(t, query.positions)
-        _draw_maps(side, t, own, target, query)
-        _draw_matches(side, own, t, m)
-        side.set_title(f"{len(m)} final matches (B in its own frame, beside A)", fontsize=9)
-        top_down(side)
-        handles.append(Line2D([], [], color=MATCH_COLOUR, lw=1.0, label=f"{len(m)} final matches"))
+        handles.append(_matches_panel(axes[0, 0], t, target, query, m))
         ax.set_title("B placed in A's map", fontsize=9)
     if routes is not None:
-        ra, rb = routes[0], apply(T_target_query, routes[1])
-        ax.plot(ra[:, 0], ra[:, 1], "-", c="0.35", lw=1.0)
-        ax.plot(rb[:, 0], rb[:, 1], "--", c="0.55", lw=1.0)
-        handles += [Line2D([], [], c="0.35", lw=1.0, label="robot A route"),
-                    Line2D([], [], c="0.55", ls="--", lw=1.0, label="robot B route")]
+        handles += _draw_routes(ax, routes, T_target_query)
     handles += class_legend_handles(np.concatenate([target.labels, query.labels]), class_names)
     ax.legend(handles=handles, fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0),
               borderaxespad=0.0, frameon=False)
@@ -135,6 +125,32 @@ def plot_aligned_maps(
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def _matches_panel(side, t: np.ndarray, target: SemanticGraph, query: SemanticGraph,
+                   m: np.ndarray):
+    """Draw the matches panel on `side`: both maps, B in its own frame set beside A (target
+    positions `t`), the (k,2) query-target matches `m` as lines; return their legend entry."""
+    from matplotlib.lines import Line2D
+
+    own = _beside(t, query.positions)
+    _draw_maps(side, t, own, target, query)
+    _draw_matches(side, own, t, m)
+    side.set_title(f"{len(m)} final matches (B in its own frame, beside A)", fontsize=9)
+    top_down(side)
+    return Line2D([], [], color=MATCH_COLOUR, lw=1.0, label=f"{len(m)} final matches")
+
+
+def _draw_routes(ax, routes: tuple[np.ndarray, np.ndarray], T_target_query: np.ndarray) -> list:
+    """Draw robot A's route (solid) and robot B's (dashed, moved into A's frame by
+    T_target_query), positions (n,3) in metres; return their legend entries."""
+    from matplotlib.lines import Line2D
+
+    ra, rb = routes[0], apply(T_target_query, routes[1])
+    ax.plot(ra[:, 0], ra[:, 1], "-", c="0.35", lw=1.0)
+    ax.plot(rb[:, 0], rb[:, 1], "--", c="0.55", lw=1.0)
+    return [Line2D([], [], c="0.35", lw=1.0, label="robot A route"),
+            Line2D([], [], c="0.55", ls="--", lw=1.0, label="robot B route")]
 
 
 def plot_fleet(result, graphs: Sequence, path) -> Path:

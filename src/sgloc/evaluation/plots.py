@@ -164,35 +164,10 @@ def overlap_boxplots(
     )
     width = 0.8 / max(len(rejections), 1)
     bars: list[float] = []
-    top = ax.get_xaxis_transform()  # x in data, y in axes fraction
     for k, rej in enumerate(rejections):
-        color = "tab:red" if rej == "none" else "tab:blue"
-        data, wrong, unloc, counts = [], [], [], []
-        for o in overlaps:
-            g = [r for r in rows if r["rejection"] == rej and float(r["overlap"]) == o]
-            te = column(g, "translation_error_m")
-            localized = np.array([bool(r["localized"]) for r in g], dtype=bool)
-            te = te[localized & np.isfinite(te)] if len(g) else te
-            data.append(te if len(te) else np.array([np.nan]))
-            n = max(len(g), 1)
-            counts.append((int(np.sum(~localized)), len(g)))
-            unloc.append(100 * counts[-1][0] / n)
-            wrong.append(100 * sum(bool(r["localized"] and r["failed"]) for r in g) / n)
+        data, wrong, unloc, counts = _overlap_statistics(rows, rej, overlaps)
         pos = np.arange(len(overlaps)) + (k - (len(rejections) - 1) / 2) * width
-        for x, (n_unloc, n) in zip(pos, counts, strict=True):
-            ax.text(x, 0.985, f"{n_unloc}/{n}", transform=top, ha="center", va="top", fontsize=6,
-                    color=color)  # fmt: skip
-        label = "baseline (RANSAC)" if rej == "none" else f"+{rej}"
-        bp = ax.boxplot(
-            data, positions=pos, widths=width * 0.9, patch_artist=True, showfliers=True,
-            flierprops={"markersize": 2, "markeredgecolor": color},
-            medianprops={"color": color, "lw": 2.0},
-        )  # fmt: skip
-        for b in bp["boxes"]:
-            b.set(facecolor=color, alpha=0.35)
-        ax.plot([], [], color=color, lw=6, alpha=0.35, label=f"{label} (line: median)")
-        ax2.bar(pos, wrong, width=width * 0.9, color=color, alpha=0.8)
-        ax2.bar(pos, unloc, bottom=wrong, width=width * 0.9, color=color, alpha=0.3, hatch="//")
+        _draw_overlap_boxes(ax, ax2, rej, pos, width, data, wrong, unloc, counts)
         bars += [w + u for w, u in zip(wrong, unloc, strict=True)]
     ax.axhline(failure_m, color="k", lw=0.8, ls=":", label=f"failure ({failure_m:g} m)")
     ax.set_yscale("log")
@@ -203,6 +178,62 @@ def overlap_boxplots(
     ax.set_title(title or "Translation error vs overlap")
     ax.legend(fontsize=7, title="k/n over a box: k of n not localized", title_fontsize=7)
     ax.grid(alpha=0.3, axis="y")
+    _overlap_failure_panel(ax2, overlaps, bars, failure_m)
+    return _save(fig, path)
+
+
+def _overlap_statistics(
+    rows: Sequence[dict[str, Any]], rejection: str, overlaps: list[float]
+) -> tuple[list[np.ndarray], list[float], list[float], list[tuple[int, int]]]:
+    """Per overlap rate, for one rejection: the localized trials' translation errors (m; [nan]
+    when none), the % localized but wrong, the % not localized and (not localized, trials)."""
+    data, wrong, unloc, counts = [], [], [], []
+    for o in overlaps:
+        g = [r for r in rows if r["rejection"] == rejection and float(r["overlap"]) == o]
+        te = column(g, "translation_error_m")
+        localized = np.array([bool(r["localized"]) for r in g], dtype=bool)
+        te = te[localized & np.isfinite(te)] if len(g) else te
+        data.append(te if len(te) else np.array([np.nan]))
+        n = max(len(g), 1)
+        counts.append((int(np.sum(~localized)), len(g)))
+        unloc.append(100 * counts[-1][0] / n)
+        wrong.append(100 * sum(bool(r["localized"] and r["failed"]) for r in g) / n)
+    return data, wrong, unloc, counts
+
+
+def _draw_overlap_boxes(
+    ax,
+    ax2,
+    rejection: str,
+    pos: np.ndarray,
+    width: float,
+    data: list[np.ndarray],
+    wrong: list[float],
+    unloc: list[float],
+    counts: list[tuple[int, int]],
+) -> None:
+    """One rejection's boxes at x = pos with their `k/n` counts on `ax`, and its failure bars
+    (solid wrong, hatched not localized) on `ax2`."""
+    color = "tab:red" if rejection == "none" else "tab:blue"
+    top = ax.get_xaxis_transform()  # x in data, y in axes fraction
+    for x, (n_unloc, n) in zip(pos, counts, strict=True):
+        ax.text(x, 0.985, f"{n_unloc}/{n}", transform=top, ha="center", va="top", fontsize=6,
+                color=color)  # fmt: skip
+    label = "baseline (RANSAC)" if rejection == "none" else f"+{rejection}"
+    bp = ax.boxplot(
+        data, positions=pos, widths=width * 0.9, patch_artist=True, showfliers=True,
+        flierprops={"markersize": 2, "markeredgecolor": color},
+        medianprops={"color": color, "lw": 2.0},
+    )  # fmt: skip
+    for b in bp["boxes"]:
+        b.set(facecolor=color, alpha=0.35)
+    ax.plot([], [], color=color, lw=6, alpha=0.35, label=f"{label} (line: median)")
+    ax2.bar(pos, wrong, width=width * 0.9, color=color, alpha=0.8)
+    ax2.bar(pos, unloc, bottom=wrong, width=width * 0.9, color=color, alpha=0.3, hatch="//")
+
+
+def _overlap_failure_panel(ax2, overlaps: list[float], bars: list[float], failure_m: float) -> None:
+    """Ticks, labels, limits and legend of the failure-rate panel (bars: stacked heights, %)."""
     ax2.set_xticks(range(len(overlaps)), [f"{o:g}" for o in overlaps])
     ax2.set(xlabel="overlap rate", ylabel="failures %")
     _failure_axis(ax2, bars)
@@ -214,7 +245,6 @@ def overlap_boxplots(
         fontsize=7,
     )
     ax2.grid(alpha=0.3, axis="y")
-    return _save(fig, path)
 
 
 def matches_picture(

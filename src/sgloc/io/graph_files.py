@@ -1,5 +1,6 @@
-"""Graph files by suffix: `.pcd`, `.json` ({"positions": [[x,y,z],...], "labels": [...]}),
-`.npz` (arrays `positions` (n,3) and `labels` (n,)).
+"""Graph files by suffix: `.pcd`, `.json` ({"positions": [[x,y,z],...], "labels": [...]}, or a
+spark-dsg scene graph), `.npz` (arrays `positions` (n,3) and `labels` (n,)), `.sparkdsg`
+(a binary spark-dsg scene graph: its objects layer, `sgloc.io.scene_graph`).
 
 Readers are strict: only regular files of bounded size are opened, labels must be integers,
 numbers finite, shapes exact; anything else is a GraphFileError naming the file and the fix.
@@ -73,6 +74,10 @@ def _reject_constant(token: str) -> float:
 
 def _read_json(path: Path) -> GraphArrays:
     raw = read_regular_file(path, "JSON graph file")
+    from sgloc.io.scene_graph import is_scene_graph_json, read_scene_graph
+
+    if is_scene_graph_json(raw):  # a Hydra / spark-dsg scene graph: its objects layer
+        return read_scene_graph(path)
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as e:
@@ -192,6 +197,12 @@ def _read_table(path: Path) -> GraphArrays:
     return read_table(path)
 
 
+def _read_scene_graph(path: Path) -> GraphArrays:
+    from sgloc.io.scene_graph import read_scene_graph
+
+    return read_scene_graph(path)
+
+
 #: Graph readers by lower-case suffix (with their default options; `sgloc.io.inputs` passes
 #: a class field or colour table).
 READERS: dict[str, Callable[[Path], GraphArrays]] = {
@@ -201,8 +212,10 @@ READERS: dict[str, Callable[[Path], GraphArrays]] = {
     ".ply": _read_ply,
     ".csv": _read_table,
     ".txt": _read_table,
+    ".sparkdsg": _read_scene_graph,
 }
-#: Suffixes `write_graph` writes (every suffix `read_graph` reads).
+#: Suffixes `write_graph` writes (every suffix `read_graph` reads but `.sparkdsg`: scene graphs
+#: are read only).
 SUFFIXES = (".pcd", ".json", ".npz", ".ply", ".csv", ".txt")
 
 

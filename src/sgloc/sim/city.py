@@ -180,12 +180,20 @@ def _street_side(b: _Builder, rng: np.random.Generator, cfg: CityConfig, to_worl
     """Furniture on one side (side = +1 left, -1 right) of one street segment, whose usable
     length runs over a in [0, L] (L = pitch - 2 * street_half_width)."""
     L = cfg.pitch - 2 * cfg.street_half_width
-    curb = cfg.road_half_width
-    prop = cfg.street_half_width
 
     def at(a, lat):
         return to_world(a, side * lat)
 
+    _curb_furniture(b, rng, cfg, at, yaw, L)
+    _property_furniture(b, rng, cfg, at, yaw, L)
+
+
+def _curb_furniture(
+    b: _Builder, rng: np.random.Generator, cfg: CityConfig, at, yaw: float, L: float
+) -> None:
+    """Along the curb: parked cars, street lamps, a row of trees, signs and a bin. `at(a, lat)`
+    maps street-side coordinates (metres along, metres out from the axis) to world (x, y)."""
+    curb = cfg.road_half_width
     # Parked cars along the curb.
     for a in np.arange(cfg.car_slot / 2, L - cfg.car_slot / 2, cfg.car_slot):
         if rng.random() < cfg.car_occupancy:
@@ -217,6 +225,14 @@ def _street_side(b: _Builder, rng: np.random.Generator, cfg: CityConfig, to_worl
         o = b.new_object()
         x, y = at(rng.uniform(3, L - 3), curb + 0.8)
         b.cylinder(o, CLASS_ID["bin"], x, y, 0.35, 0.0, 1.1)
+
+
+def _property_furniture(
+    b: _Builder, rng: np.random.Generator, cfg: CityConfig, at, yaw: float, L: float
+) -> None:
+    """Along the property side of the sidewalk: a bench, a bus stop, bushes and a fence
+    (`at` as in `_curb_furniture`)."""
+    prop = cfg.street_half_width
     # Benches along the property side of the sidewalk.
     if rng.random() < cfg.bench_probability:
         o = b.new_object()

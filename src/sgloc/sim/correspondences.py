@@ -84,17 +84,7 @@ def make_correspondences(
     start = n_in
     if outliers == "structured":
         size = max(int(round(group_ratio * n_in)), 3)
-        for k in range(1, n_groups + 1):
-            end = min(start + size, m)
-            if end - start < 3:
-                break
-            angle = rng.uniform(-np.pi, np.pi)
-            direction = rng.normal(size=2)
-            shift = direction / np.linalg.norm(direction) * rng.uniform(min_shift, 2 * min_shift)
-            S = make_transform(Rotation.from_euler("z", angle).as_matrix(), np.array([*shift, 0.0]))
-            dst[start:end] = apply(T @ S, src[start:end]) + rng.normal(0, noise, (end - start, 3))
-            group[start:end] = k
-            start = end
+        start = _structured_groups(src, dst, group, T, rng, start, size, n_groups, noise, min_shift)
     # Random outliers: an unrelated point of the target's area.
     dst[start:] = apply(T, rng.uniform(lo, hi, (m - start, 3)))
     order = rng.permutation(m)
@@ -107,3 +97,33 @@ def make_correspondences(
         noise=noise,
         meta={"m": m, "outlier_ratio": outlier_ratio, "outliers": outliers, "extent": extent},
     )
+
+
+def _structured_groups(
+    src: np.ndarray,
+    dst: np.ndarray,
+    group: np.ndarray,
+    T: np.ndarray,
+    rng: np.random.Generator,
+    start: int,
+    size: int,
+    n_groups: int,
+    noise: float,
+    min_shift: float,
+) -> int:
+    """Fill dst and group (in place) from row `start` with up to `n_groups` groups of `size`
+    outliers, group k following T @ S_k (S_k a random turn about z and a shift of
+    min_shift..2 min_shift metres) plus noise; return the first row left for random outliers."""
+    m = len(src)
+    for k in range(1, n_groups + 1):
+        end = min(start + size, m)
+        if end - start < 3:
+            break
+        angle = rng.uniform(-np.pi, np.pi)
+        direction = rng.normal(size=2)
+        shift = direction / np.linalg.norm(direction) * rng.uniform(min_shift, 2 * min_shift)
+        S = make_transform(Rotation.from_euler("z", angle).as_matrix(), np.array([*shift, 0.0]))
+        dst[start:end] = apply(T @ S, src[start:end]) + rng.normal(0, noise, (end - start, 3))
+        group[start:end] = k
+        start = end
+    return start

@@ -202,59 +202,93 @@ class Renderer:
     # -- one view -----------------------------------------------------------------------------
     def render(self, T_world_optical: np.ndarray) -> Rendering:
         """Render the view of a camera at pose T_world_optical (4x4, optical frame)."""
-        cam = self.camera
         T = np.asarray(T_world_optical, dtype=np.float64)
         R, o = T[:3, :3], T[:3, 3]
         # (H*W,3) world directions, optical z = 1: x R[:,0] + y R[:,1] + R[:,2] (a plain matmul
         # of an (N,3) array by 3x3 is much slower in numpy)
         Rf = R.astype(np.float32)
         dirs = self._ray_x[:, None] * Rf[:, 0] + self._ray_y[:, None] * Rf[:, 1] + Rf[:, 2]
-        depth = np.full(cam.n_pixels, np.inf, dtype=np.float32)
-        if o[2] > 0:
-            with np.errstate(divide="ignore"):
-                tg = np.where(dirs[:, 2] < 0, np.float32(-o[2]) / dirs[:, 2], np.inf)
-            depth = np.where(tg <= cam.max_range, tg, np.inf).astype(np.float32)
+        depth = self._ground_depth(o, dirs)
         idx, u0, u1, v0, v1, zmin = self._rectangles(R, o)
         # front to back: a pair is skipped when its pixel already holds something nearer than
         # the primitive's nearest possible point (occlusion culling across chunks)
         order = np.argsort(zmin, kind="stable")
         idx, u0, u1, v0, v1, zmin = (x[order] for x in (idx, u0, u1, v0, v1, zmin))
-        kind = self.prims.kind[idx]
         w = u1 - u0 + 1
         counts = w * (v1 - v0 + 1)
         chunk_id = (np.cumsum(counts) - 1) // max(self.chunk_pairs, 1)
         starts = np.concatenate([[0], np.flatnonzero(np.diff(chunk_id)) + 1, [len(idx)]])
-        hits_pix, hits_t, hits_prim = [], [], []
+        hits: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         for a, b in zip(starts[:-1], starts[1:], strict=True):
             if b <= a:
                 continue
-            cnt = counts[a:b]
-            local = np.repeat(np.arange(b - a), cnt)
-            first = np.cumsum(cnt) - cnt
-            k = np.arange(cnt.sum()) - first[local]
-            ww = w[a:b][local]
-            pix = (v0[a:b][local] + k // ww) * cam.width + u0[a:b][local] + k % ww
-            visible = depth[pix] > zmin[a:b][local]
-            for K, hit_fn in ((BOX, self._hit_boxes), (CYLINDER, self._hit_cylinders)):
-                m = visible & (kind[a:b][local] == K)
-                if not m.any():
-                    continue
-                n_k = np.bincount(local[m], minlength=b - a)
-                sel = np.flatnonzero(n_k)
-                p_k = pix[m]
-                t = hit_fn(idx[a:b][sel], n_k[sel], o, dirs[p_k])
-                hit = t < np.minimum(depth[p_k], np.float32(cam.max_range))
-                p_k, t = p_k[hit], t[hit]
-                np.minimum.at(depth, p_k, t)
-                hits_pix.append(p_k)
-                hits_t.append(t)
-                hits_prim.append(np.repeat(idx[a:b][sel], n_k[sel])[hit])
+            hits += self._cast_chunk(
+                idx[a:b], u0[a:b], v0[a:b], w[a:b], counts[a:b], zmin[a:b], o, dirs, depth
+            )
+        return self._labelled(depth, hits)
+
+    def _ground_depth(self, o: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+        """(H*W,) float32 planar depth of the ground plane z = 0 (inf beyond max_range or with
+        the camera at or below the ground); o the camera centre, dirs the world rays (z = 1)."""
+        cam = self.camera
+        depth = np.full(cam.n_pixels, np.inf, dtype=np.float32)
+        if o[2] > 0:
+            with np.errstate(divide="ignore"):
+                tg = np.where(dirs[:, 2] < 0, np.float32(-o[2]) / dirs[:, 2], np.inf)
+            depth = np.where(tg <= cam.max_range, tg, np.inf).astype(np.float32)
+        return depth
+
+    def _cast_chunk(
+        self,
+        idx: np.ndarray,
+        u0: np.ndarray,
+        v0: np.ndarray,
+        w: np.ndarray,
+        cnt: np.ndarray,
+        zmin: np.ndarray,
+        o: np.ndarray,
+        dirs: np.ndarray,
+        depth: np.ndarray,
+    ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Intersect every (pixel, primitive) pair of one chunk of primitives (idx, their pixel
+        rectangles' corners u0, v0, widths w, pixel counts cnt, nearest depths zmin); lower
+        `depth` in place and return the hits as (pixels, depths, primitives) per primitive kind.
+        """
+        cam = self.camera
+        kind = self.prims.kind[idx]
+        local = np.repeat(np.arange(len(idx)), cnt)
+        first = np.cumsum(cnt) - cnt
+        k = np.arange(cnt.sum()) - first[local]
+        ww = w[local]
+        pix = (v0[local] + k // ww) * cam.width + u0[local] + k % ww
+        visible = depth[pix] > zmin[local]
+        hits = []
+        for K, hit_fn in ((BOX, self._hit_boxes), (CYLINDER, self._hit_cylinders)):
+            m = visible & (kind[local] == K)
+            if not m.any():
+                continue
+            n_k = np.bincount(local[m], minlength=len(idx))
+            sel = np.flatnonzero(n_k)
+            p_k = pix[m]
+            t = hit_fn(idx[sel], n_k[sel], o, dirs[p_k])
+            hit = t < np.minimum(depth[p_k], np.float32(cam.max_range))
+            p_k, t = p_k[hit], t[hit]
+            np.minimum.at(depth, p_k, t)
+            hits.append((p_k, t, np.repeat(idx[sel], n_k[sel])[hit]))
+        return hits
+
+    def _labelled(
+        self, depth: np.ndarray, hits: list[tuple[np.ndarray, np.ndarray, np.ndarray]]
+    ) -> Rendering:
+        """The Rendering: final depth and, at each pixel, the class and instance of the hit
+        that set it (-1 where no primitive was hit)."""
+        cam = self.camera
         semantic = np.full(cam.n_pixels, -1, np.int64)
         instance = np.full(cam.n_pixels, -1, np.int64)
-        if hits_pix:
-            pix = np.concatenate(hits_pix)
-            t = np.concatenate(hits_t)
-            prim = np.concatenate(hits_prim)
+        if hits:
+            pix = np.concatenate([h[0] for h in hits])
+            t = np.concatenate([h[1] for h in hits])
+            prim = np.concatenate([h[2] for h in hits])
             win = t <= depth[pix]
             semantic[pix[win]] = self.prims.label[prim[win]]
             instance[pix[win]] = self.prims.instance[prim[win]]
