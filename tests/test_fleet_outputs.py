@@ -104,3 +104,27 @@ def test_cli_fleet_preset_and_set(tmp_path, capsys):
     cfg = yaml.safe_load((out / "config.yaml").read_text())
     assert cfg["class_weights"] == {0: 0.1} and cfg["matching"]["top_k"] == 2
     assert (out / "poses.tum").is_file() and (out / "poses.kitti").is_file()
+
+
+def test_a_failed_write_leaves_no_half_written_fleet_folder(tmp_path, monkeypatch):
+    """The outputs are written into a sibling folder renamed into place at the end: a write
+    that fails half-way leaves no results folder, and the error names the file."""
+    import sgloc.io.fleet_files as fleet_files
+    from sgloc.errors import SglocError
+
+    def full_disk(result, folder):
+        raise OSError(28, "No space left on device", str(folder / "links.g2o"))
+
+    monkeypatch.setattr(fleet_files, "write_fleet_g2o", lambda result, path: full_disk(
+        result, path.parent))
+    out = tmp_path / "out"
+    with pytest.raises(SglocError, match="links.g2o"):
+        localize_fleet(world_fleet(0).graphs[:2], workers=0, out=out)
+    assert not out.exists() and not list(tmp_path.iterdir())
+
+
+def test_negative_workers_are_refused(tmp_path, capsys):
+    paths = [str(g.save(tmp_path / f"robot{i}.json"))
+             for i, g in enumerate(world_fleet(0).graphs[:2])]
+    assert main(["fleet", *paths, "--workers", "-1"]) == 2
+    assert "--workers" in capsys.readouterr().err

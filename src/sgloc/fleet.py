@@ -310,9 +310,11 @@ def localize_fleet(
         stamps={k: 0.0 for k in poses}, session=s,
     )
     if out is not None:
+        from sgloc.io.files import staged_folder
         from sgloc.io.fleet_files import write_fleet_outputs
         from sgloc.viz import plot_fleet
 
-        write_fleet_outputs(result, cfg.localizer, out)
-        plot_fleet(result, graphs, Path(out) / "fleet.png")
+        with staged_folder(out) as stage:  # the folder appears complete or not at all
+            write_fleet_outputs(result, cfg.localizer, stage)
+            plot_fleet(result, graphs, stage / "fleet.png")
     return result

@@ -46,7 +46,9 @@ def fleet_cmd(
     min_confidence: float | None = typer.Option(
         None, help="Acceptance strictness for each pair, 0-1 (default: the library's 0.9999)."
     ),
-    workers: int | None = typer.Option(None, help="Local processes (default: CPU count)."),
+    workers: int | None = typer.Option(
+        None, min=0, help="Local processes (default: CPU count; 0: in this process)."
+    ),
     edge_radius: float = typer.Option(20.0, help="Graph edge radius (m)."),
     seed: int = typer.Option(0, min=0, help="Random seed."),
     preset: str | None = preset_option(),
