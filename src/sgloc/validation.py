@@ -236,6 +236,8 @@ SETTINGS: dict[str, dict[str, Any]] = {
         "strategy": _choice("top_k", "all", what="which candidates matching keeps"),
         "max_candidates": _int(1, MAX_ITERATIONS),
         "max_ratio": _real(0.0, 1.0, low_open=True, none_ok=True),
+        "search": _choice("auto", "exact", "index", what="how matching finds the most similar"),
+        "probes": _int(1, MAX_VERTICES),
     },
     "RansacConfig": {
         "threshold": _real(0.0, MAX_COORDINATE, low_open=True, unit="m"),
