@@ -235,7 +235,7 @@ def _compiled_top_k(desc_q, desc_t, labels_q, labels_t, k, min_sim, max_ratio, f
     for c in indexed:
         index = kept.get(int(c)) or build_class_index(desc_t, np.flatnonzero(labels_t == c))
         parts.append(search_class(index, query[0], np.flatnonzero(labels_q == c), probes, tests))
-    q, t, s, f = (np.concatenate(x) for x in zip(*parts))
+    q, t, s, f = (np.concatenate(x) for x in zip(*parts, strict=True))
     order = np.lexsort((t, -s, q))
     return q[order], t[order], s[order], f[order]
 
@@ -247,7 +247,7 @@ def _indexed_classes(labels_q: np.ndarray, labels_t: np.ndarray, search: str) ->
     cq, nq = np.unique(labels_q, return_counts=True)
     ct, nt = np.unique(labels_t, return_counts=True)
     both, iq, it = np.intersect1d(cq, ct, return_indices=True)
-    use = [uses_index(search, int(a), int(b)) for a, b in zip(nq[iq], nt[it])]
+    use = [uses_index(search, int(a), int(b)) for a, b in zip(nq[iq], nt[it], strict=True)]
     return both[np.asarray(use, dtype=bool)]
 
 

@@ -110,7 +110,7 @@ def build_index(desc: np.ndarray, labels: np.ndarray, min_class: int = INDEX_MIN
     classes, counts = np.unique(labels, return_counts=True)
     return {
         int(c): build_class_index(desc, np.flatnonzero(labels == c))
-        for c, n in zip(classes, counts)
+        for c, n in zip(classes, counts, strict=True)
         if n > min_class
     }
 
