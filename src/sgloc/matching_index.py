@@ -103,9 +103,11 @@ def build_class_index(desc: np.ndarray, rows: np.ndarray) -> ClassIndex:
     return out
 
 
-def build_index(desc: np.ndarray, labels: np.ndarray, min_class: int = INDEX_MIN_CLASS) -> dict:
-    """{class label: ClassIndex} for every class of more than `min_class` rows of a target's
-    dense descriptors (n, d) and labels (n,) (a prepared map keeps it)."""
+def build_index(desc: np.ndarray, labels: np.ndarray, min_class: int | None = None) -> dict:
+    """{class label: ClassIndex} for every class of more than `min_class` (default
+    INDEX_MIN_CLASS) rows of a target's dense descriptors (n, d) and labels (n,) (a prepared
+    map keeps it)."""
+    min_class = INDEX_MIN_CLASS if min_class is None else min_class
     labels = np.asarray(labels)
     classes, counts = np.unique(labels, return_counts=True)
     return {
