@@ -59,12 +59,21 @@ def test_index_is_deterministic():
 
 
 def test_auto_rule():
-    assert not mi.uses_index("exact", 10**6, 10**6)
-    assert mi.uses_index("index", 1, 1)
-    assert not mi.uses_index("auto", 10**6, mi.INDEX_MIN_CLASS)  # class too small
-    assert not mi.uses_index("auto", 100, mi.INDEX_MIN_CLASS + 1)  # too few pairs
-    assert mi.uses_index("auto", 10**4, 10**5)
-    assert mi.uses_index("auto", 20, 10**6)  # a scan against a city map
+    assert not mi.uses_index("exact", 10**6)
+    assert mi.uses_index("index", 1)
+    assert not mi.uses_index("auto", mi.INDEX_MIN_CLASS)  # class too small
+    assert mi.uses_index("auto", mi.INDEX_MIN_CLASS + 1)
+
+
+def test_index_is_kept_for_read_only_descriptors():
+    rng = np.random.default_rng(4)
+    D, lab = descriptors(rng, 2000)
+    D.flags.writeable = False
+    a = mi.class_index(D, lab, 1)
+    assert mi.class_index(D, lab, 1) is a  # built once for these descriptors
+    other = lab.copy()
+    other[np.flatnonzero(lab == 1)[:5]] = 0
+    assert mi.class_index(D, other, 1) is not a  # another class table: built anew
 
 
 def test_auto_is_exact_below_the_rule_and_the_index_above(monkeypatch):
@@ -75,7 +84,6 @@ def test_auto_is_exact_below_the_rule_and_the_index_above(monkeypatch):
     index = MatchingConfig(search="index")
     same(match_flagged(Dq, Dt, lq, lt, auto), match_flagged(Dq, Dt, lq, lt, exact))
     monkeypatch.setattr(mi, "INDEX_MIN_CLASS", 500)
-    monkeypatch.setattr(mi, "INDEX_MIN_PAIRS", 0)
     a = match_flagged(Dq, Dt, lq, lt, auto)
     same(a, match_flagged(Dq, Dt, lq, lt, index))
     assert not np.array_equal(a[0], match_flagged(Dq, Dt, lq, lt, exact)[0])
@@ -130,7 +138,6 @@ def test_index_localizes_a_city_map(city):
 def small_rule(monkeypatch):
     """The auto rule scaled down so a 4,000-object map's classes use the index."""
     monkeypatch.setattr(mi, "INDEX_MIN_CLASS", 200)
-    monkeypatch.setattr(mi, "INDEX_MIN_PAIRS", 0)
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,7 @@ import numpy as np
 from scipy import sparse
 
 from sgloc.kernels import one_blas_thread, use_compiled
-from sgloc.matching_index import build_class_index, build_index, search_class, uses_index
+from sgloc.matching_index import build_index, class_index, search_class, uses_index
 from sgloc.validation import validate_settings
 
 #: Similarities held at once per block (8 MB of float64).
@@ -40,9 +40,9 @@ class MatchingConfig:
     search: strategy "top_k", how a query object's most similar targets are found: "exact"
         (every same-class target), "index" (only the targets of the `probes` lists of an
         inverted file over the class, `sgloc.matching_index`: sub-quadratic, may miss a best
-        match), or "auto": the index for a class of more than 4,096 target objects and more
-        than 2**20 (query x target) pairs, exact otherwise (so every smaller problem keeps its
-        exact result). Dense descriptors and the compiled kernels only; otherwise exact.
+        match), or "auto": the index for a class of more than 4,096 target objects, exact
+        otherwise (so every problem whose classes are all smaller keeps its exact result).
+        Dense descriptors and the compiled kernels only; otherwise exact.
     probes: search "index": lists probed per query object (of about sqrt(class size)); more
         finds more of the exact best matches and costs proportionally more.
     """
@@ -233,7 +233,7 @@ def _compiled_top_k(desc_q, desc_t, labels_q, labels_t, k, min_sim, max_ratio, f
     parts = [out]
     kept = blocks.index if blocks is not None else {}
     for c in indexed:
-        index = kept.get(int(c)) or build_class_index(desc_t, np.flatnonzero(labels_t == c))
+        index = kept.get(int(c)) or class_index(desc_t, labels_t, int(c))
         parts.append(search_class(index, query[0], np.flatnonzero(labels_q == c), probes, tests))
     q, t, s, f = (np.concatenate(x) for x in zip(*parts, strict=True))
     order = np.lexsort((t, -s, q))
@@ -244,11 +244,9 @@ def _indexed_classes(labels_q: np.ndarray, labels_t: np.ndarray, search: str) ->
     """The classes (ascending) that `search` sends to an index for these labels."""
     if search == "exact":
         return np.zeros(0, np.int64)
-    cq, nq = np.unique(labels_q, return_counts=True)
     ct, nt = np.unique(labels_t, return_counts=True)
-    both, iq, it = np.intersect1d(cq, ct, return_indices=True)
-    use = [uses_index(search, int(a), int(b)) for a, b in zip(nq[iq], nt[it], strict=True)]
-    return both[np.asarray(use, dtype=bool)]
+    use = np.array([uses_index(search, int(n)) for n in nt], dtype=bool)
+    return np.intersect1d(np.unique(labels_q), ct[use])
 
 
 def _all_pairs(Q, T, labels_q, labels_t, cap: int, min_sim: float) -> tuple[np.ndarray, ...]:

@@ -14,16 +14,15 @@ Used by `sgloc.matching` (`MatchingConfig.search`) per class: see `uses_index` f
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
 
 from sgloc.kernels import one_blas_thread
 
-#: search "auto": a class is searched by its index when its target rows are more than
-#: INDEX_MIN_CLASS and (query rows x target rows) of the class more than INDEX_MIN_PAIRS.
+#: search "auto": a class is searched by its index when it has more target rows than this.
 INDEX_MIN_CLASS = 4096
-INDEX_MIN_PAIRS = 1 << 20
 #: k-means rounds on the sample, and sample rows per list.
 KMEANS_ROUNDS = 4
 SAMPLE_PER_LIST = 32
@@ -45,14 +44,14 @@ class ClassIndex:
         return len(self.centres)
 
 
-def uses_index(search: str, n_query: int, n_target: int) -> bool:
-    """Whether a class of `n_query` query and `n_target` target rows is searched by its
-    index under `search` ("exact", "index" or "auto": index when n_target > INDEX_MIN_CLASS
-    and n_query * n_target > INDEX_MIN_PAIRS; below that every class is searched exactly)."""
+def uses_index(search: str, n_target: int) -> bool:
+    """Whether a class of `n_target` target rows is searched by its index under `search`
+    ("exact", "index" or "auto": index when n_target > INDEX_MIN_CLASS; so every problem
+    whose classes all have at most that many target rows is searched exactly)."""
     if search == "index":
         return n_target > 0
     if search == "auto":
-        return n_target > INDEX_MIN_CLASS and n_query * n_target > INDEX_MIN_PAIRS
+        return n_target > INDEX_MIN_CLASS
     return False
 
 
@@ -115,6 +114,30 @@ def build_index(desc: np.ndarray, labels: np.ndarray, min_class: int | None = No
         for c, n in zip(classes, counts, strict=True)
         if n > min_class
     }
+
+
+#: Indexes built for read-only descriptor arrays, by the array's id: {id: (weak reference,
+#: {class: (rows, ClassIndex)})}; an entry leaves with its array.
+_BUILT: dict[int, tuple] = {}
+
+
+def class_index(desc: np.ndarray, labels: np.ndarray, c: int) -> ClassIndex:
+    """The index of class c of a target's descriptors (n, d) and labels (n,); kept while a
+    read-only `desc` lives (a map's cached or prepared descriptors), so repeated queries
+    against the same descriptors build it once."""
+    rows = np.flatnonzero(np.asarray(labels) == c)
+    if desc.flags.writeable:
+        return build_class_index(desc, rows)
+    key = id(desc)
+    entry = _BUILT.get(key)
+    if entry is None or entry[0]() is not desc:
+        entry = (weakref.ref(desc, lambda _, k=key: _BUILT.pop(k, None)), {})
+        _BUILT[key] = entry
+    kept = entry[1].get(int(c))
+    if kept is None or not np.array_equal(kept[0], rows):
+        kept = (rows, build_class_index(desc, rows))
+        entry[1][int(c)] = kept
+    return kept[1]
 
 
 def probe_lists(index: ClassIndex, Q: np.ndarray, rows: np.ndarray, probes: int) -> np.ndarray:
