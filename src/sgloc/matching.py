@@ -214,7 +214,7 @@ def _compiled_top_k(desc_q, desc_t, labels_q, labels_t, k, min_sim, max_ratio, f
     labels_t = np.asarray(labels_t, dtype=np.int64)
     tests = (int(k), float(min_sim), np.nan if max_ratio is None else float(max_ratio),
              np.nan if flag_ratio is None else float(flag_ratio))  # fmt: skip
-    indexed = _indexed_classes(labels_q, labels_t, search)
+    indexed = _indexed_classes(labels_q, labels_t, search, blocks)
     exact_q = labels_q
     if indexed.size:  # their query rows get a label no target has: the exact pass skips them
         exact_q = np.where(np.isin(labels_q, indexed), labels_t.min() - 1, labels_q)
@@ -240,11 +240,16 @@ def _compiled_top_k(desc_q, desc_t, labels_q, labels_t, k, min_sim, max_ratio, f
     return q[order], t[order], s[order], f[order]
 
 
-def _indexed_classes(labels_q: np.ndarray, labels_t: np.ndarray, search: str) -> np.ndarray:
-    """The classes (ascending) that `search` sends to an index for these labels."""
+def _indexed_classes(labels_q: np.ndarray, labels_t: np.ndarray, search: str,
+                     blocks: TargetBlocks | None = None) -> np.ndarray:  # fmt: skip
+    """The classes (ascending) that `search` sends to an index for these labels (the target's
+    class sizes read from its prepared `blocks` when given)."""
     if search == "exact":
         return np.zeros(0, np.int64)
-    ct, nt = np.unique(labels_t, return_counts=True)
+    if blocks is not None:
+        ct, nt = blocks.block_class, np.diff(blocks.block_start)
+    else:
+        ct, nt = np.unique(labels_t, return_counts=True)
     use = np.array([uses_index(search, int(n)) for n in nt], dtype=bool)
     return np.intersect1d(np.unique(labels_q), ct[use])
 
