@@ -241,7 +241,8 @@ def _report_scans(r: dict) -> list[str]:
              "detected, 0.5 m noise), in its own frame; the map is the city's objects along a "
              f"main street with cross streets every {BLOCK:g} m (objects every {SPACING:g} m on "
              "both sides of every street, 8 classes, 0.5 m noise). Preparing: `sgloc.prepare` "
-             "(canonical order, descriptors, matching blocks). Scans of the maps interleaved; "
+             "(canonical order, descriptors, matching blocks, the candidate-search index of "
+             "classes of more than 4,096 objects). Scans of the maps interleaved; "
              f"localized: the scan's centroid placed within {SUCCESS_M:g} m. The object limit "
              f"here is {r['max_vertices']:,} per map.", "",
              "| map objects | prepare s | scan objects | localized | ms per scan |",

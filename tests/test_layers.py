@@ -39,6 +39,7 @@ LAYERS: dict[str, int] = {
     # matching
     "sgloc.descriptors": 2,
     "sgloc.matching": 2,
+    "sgloc.matching_index": 2,
     "sgloc.consistency": 2,
     "sgloc.local_consistency": 2,
     "sgloc.sampled_consistency": 2,

@@ -8,12 +8,13 @@ the kept candidates leave a block.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import sparse
 
 from sgloc.kernels import one_blas_thread, use_compiled
+from sgloc.matching_index import build_index, class_index, search_class, uses_index
 from sgloc.validation import (
     MAX_ITERATIONS,
     MAX_VERTICES,
@@ -29,6 +30,7 @@ from sgloc.validation import (
 BLOCK_ENTRIES = 1 << 20
 
 STRATEGIES = ("top_k", "all")
+SEARCHES = ("auto", "exact", "index")
 
 
 @dataclass
@@ -44,6 +46,14 @@ class MatchingConfig:
     max_ratio: strategy "top_k": keep a query object's candidates only when its best match is
         distinctly better than its second best, (1 - s_1) / (1 - s_2) <= max_ratio (Lowe's
         ratio test on cosine distances; a repetitive place gives near ties). None: no test.
+    search: strategy "top_k", how a query object's most similar targets are found: "exact"
+        (every same-class target), "index" (only the targets of the `probes` lists of an
+        inverted file over the class, `sgloc.matching_index`: sub-quadratic, may miss a best
+        match), or "auto": the index for a class of more than 4,096 target objects, exact
+        otherwise (so every problem whose classes are all smaller keeps its exact result).
+        Dense descriptors and the compiled kernels only; otherwise exact.
+    probes: search "index": lists probed per query object (of about sqrt(class size)); more
+        finds more of the exact best matches and costs proportionally more.
     """
 
     min_similarity: float = setting(0.5, check=real(0.0, 1.0))
@@ -54,6 +64,10 @@ class MatchingConfig:
     )
     max_candidates: int = setting(3000, check=integer(1, MAX_ITERATIONS))
     max_ratio: float | None = setting(None, check=real(0.0, 1.0, low_open=True, none_ok=True))
+    search: str = setting(
+        "auto", check=choice("auto", "exact", "index", what="how matching finds the most similar")
+    )
+    probes: int = setting(8, check=integer(1, MAX_VERTICES))
 
     def __post_init__(self) -> None:
         validate_settings(self, "matching")  # the checks declared beside the fields
@@ -108,16 +122,18 @@ def _top_k(
     flag_ratio: float | None = None,
     compiled: bool = False,
     blocks: TargetBlocks | None = None,
+    search: tuple[str, int] = ("exact", 8),
 ) -> tuple[np.ndarray, ...]:
     """Per query row its k most similar same-class targets with similarity >= min_sim and > 0
     (and passing the ratio test when max_ratio is set): (query idx, target idx, score, flag),
     ordered by query, then score descending, then target; flag: the query passes the ratio
     test at `flag_ratio` (all True when it is None). Of equally similar targets the lower
     index ranks first. `compiled`: by the kernel (dense descriptors only, `_use_kernel`), on
-    the target's prepared `blocks` when given."""
+    the target's prepared `blocks` when given; search: (MatchingConfig.search, .probes), for
+    the compiled path."""
     if compiled:
         return _compiled_top_k(desc_q, desc_t, labels_q, labels_t, k, min_sim, max_ratio,
-                               flag_ratio, blocks)  # fmt: skip
+                               flag_ratio, blocks, *search)  # fmt: skip
     Q, T = unit_rows(desc_q), unit_rows(desc_t)
     out_q, out_t, out_s, out_f = [], [], [], []
     for rows, it, S in _blocks(Q, T, labels_q, labels_t):
@@ -171,16 +187,19 @@ class TargetBlocks:
     block_class: np.ndarray
     block_start: np.ndarray
     order: np.ndarray
+    index: dict = field(default_factory=dict)
 
 
 #: Targets of more objects than this keep their matching blocks when prepared (sgloc.prepared).
 BLOCKS_MIN_OBJECTS = 1500
 
 
-def target_blocks(desc_t, labels_t: np.ndarray) -> TargetBlocks | None:
+def target_blocks(desc_t, labels_t: np.ndarray, search: str = "auto") -> TargetBlocks | None:
     """The kernel's class blocks of a target's descriptors (n,d) and labels (n,), or None when
     they are not worth keeping: sparse descriptors, or at most BLOCKS_MIN_OBJECTS rows (blocks
-    that cheap are built per call). Memory: another n x d floats."""
+    that cheap are built per call). Memory: another n x d floats. With `search` other than
+    "exact", also the index (`sgloc.matching_index`) of every class of more than
+    INDEX_MIN_CLASS objects (the classes "auto" may search by it; another n x d floats)."""
     if sparse.issparse(desc_t) or len(labels_t) <= BLOCKS_MIN_OBJECTS:
         return None
     from sgloc.kernels.matching import class_blocks
@@ -191,28 +210,61 @@ def target_blocks(desc_t, labels_t: np.ndarray) -> TargetBlocks | None:
                          labels_t[order_t])  # fmt: skip
     for a in (*parts, order_t):
         a.flags.writeable = False
-    return TargetBlocks(len(labels_t), *parts, order_t)
+    index = {} if search == "exact" else build_index(desc_t, labels_t)
+    return TargetBlocks(len(labels_t), *parts, order_t, index)
 
 
 def _compiled_top_k(desc_q, desc_t, labels_q, labels_t, k, min_sim, max_ratio, flag_ratio,
-                    blocks: TargetBlocks | None = None):  # fmt: skip
+                    blocks: TargetBlocks | None = None, search: str = "exact",
+                    probes: int = 8):  # fmt: skip
     """`_top_k` by `sgloc.kernels.matching.top_k_same_class` (same candidates; similarities
-    equal to rounding), on the target's prepared `blocks` when given (the same bits)."""
+    equal to rounding), on the target's prepared `blocks` when given (the same bits); the
+    classes `search` sends to an index (`sgloc.matching_index.uses_index`) by their index
+    (the target's prepared one when `blocks` holds it)."""
     from sgloc.kernels.matching import top_k_in_blocks, top_k_same_class
 
     labels_q = np.asarray(labels_q, dtype=np.int64)
-    order_q = np.argsort(labels_q, kind="stable")
-    query = (np.ascontiguousarray(desc_q, dtype=np.float64), order_q, labels_q[order_q])
+    labels_t = np.asarray(labels_t, dtype=np.int64)
     tests = (int(k), float(min_sim), np.nan if max_ratio is None else float(max_ratio),
              np.nan if flag_ratio is None else float(flag_ratio))  # fmt: skip
+    indexed = _indexed_classes(labels_q, labels_t, search, blocks)
+    exact_q = labels_q
+    if indexed.size:  # their query rows get a label no target has: the exact pass skips them
+        exact_q = np.where(np.isin(labels_q, indexed), labels_t.min() - 1, labels_q)
+    order_q = np.argsort(exact_q, kind="stable")
+    query = (np.ascontiguousarray(desc_q, dtype=np.float64), order_q, exact_q[order_q])
     if blocks is not None:
         target = (blocks.blocks, blocks.block_class, blocks.block_start, blocks.order)
-        return top_k_in_blocks(*query, *target, *tests)
-    labels_t = np.asarray(labels_t, dtype=np.int64)
-    order_t = np.argsort(labels_t, kind="stable")
-    Q, order_q, sorted_q = query
-    T = np.ascontiguousarray(desc_t, dtype=np.float64)
-    return top_k_same_class(Q, T, order_q, sorted_q, order_t, labels_t[order_t], *tests)
+        out = top_k_in_blocks(*query, *target, *tests)
+    else:
+        order_t = np.argsort(labels_t, kind="stable")
+        Q, order_q, sorted_q = query
+        T = np.ascontiguousarray(desc_t, dtype=np.float64)
+        out = top_k_same_class(Q, T, order_q, sorted_q, order_t, labels_t[order_t], *tests)
+    if not indexed.size:
+        return out
+    parts = [out]
+    kept = blocks.index if blocks is not None else {}
+    for c in indexed:
+        index = kept.get(int(c)) or class_index(desc_t, labels_t, int(c))
+        parts.append(search_class(index, query[0], np.flatnonzero(labels_q == c), probes, tests))
+    q, t, s, f = (np.concatenate(x) for x in zip(*parts, strict=True))
+    order = np.lexsort((t, -s, q))
+    return q[order], t[order], s[order], f[order]
+
+
+def _indexed_classes(labels_q: np.ndarray, labels_t: np.ndarray, search: str,
+                     blocks: TargetBlocks | None = None) -> np.ndarray:  # fmt: skip
+    """The classes (ascending) that `search` sends to an index for these labels (the target's
+    class sizes read from its prepared `blocks` when given)."""
+    if search == "exact":
+        return np.zeros(0, np.int64)
+    if blocks is not None:
+        ct, nt = blocks.block_class, np.diff(blocks.block_start)
+    else:
+        ct, nt = np.unique(labels_t, return_counts=True)
+    use = np.array([uses_index(search, int(n)) for n in nt], dtype=bool)
+    return np.intersect1d(np.unique(labels_q), ct[use])
 
 
 def _all_pairs(Q, T, labels_q, labels_t, cap: int, min_sim: float) -> tuple[np.ndarray, ...]:
@@ -270,6 +322,8 @@ def match_flagged(
     cfg = config or MatchingConfig()
     if cfg.strategy not in STRATEGIES:
         raise ValueError(f"unknown matching strategy {cfg.strategy!r}; use one of {STRATEGIES}")
+    if cfg.search not in SEARCHES:
+        raise ValueError(f"unknown matching search {cfg.search!r}; use one of {SEARCHES}")
     if flag_ratio is not None and cfg.max_ratio is not None and flag_ratio > cfg.max_ratio:
         return (*match_descriptors(desc_q, desc_t, labels_q, labels_t, cfg), None)
     desc_q, desc_t = _as_matrix(desc_q), _as_matrix(desc_t)
@@ -298,11 +352,12 @@ def _match(
         f = np.ones(len(q), dtype=bool)
     else:
         k = max(int(cfg.top_k), 1)
+        search = (cfg.search, int(cfg.probes))
         args = (labels_q, labels_t, k, min_sim, cfg.max_ratio, flag_ratio, compiled, blocks)
-        q, t, s, f = _top_k(desc_q, desc_t, *args)
+        q, t, s, f = _top_k(desc_q, desc_t, *args, search)
         if cfg.mutual and q.size:
             # j's best k queries (any similarity), by the same blocks with the roles swapped.
-            back_args = (labels_t, labels_q, k, -np.inf, None, None, compiled)
+            back_args = (labels_t, labels_q, k, -np.inf, None, None, compiled, None, search)
             tq, qq, _, _ = _top_k(desc_t, desc_q, *back_args)
             n_q = desc_q.shape[0]
             back = np.isin(t * n_q + q, tq * n_q + qq)

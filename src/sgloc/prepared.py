@@ -11,7 +11,9 @@ map, a fleet localizing new keyframes against a growing one).
 A localization against a prepared map gives the same result, bit for bit, as against the graph
 it holds (`prepared.graph`). Preparing costs memory linear in the map: the descriptors
 (objects x classes x bins floats), and for maps larger than `sgloc.matching.BLOCKS_MIN_OBJECTS`
-objects a second, normalised copy grouped by class for the matching kernel.
+objects a second, normalised copy grouped by class for the matching kernel, and for classes of
+more than `sgloc.matching_index.INDEX_MIN_CLASS` objects a third, grouped by the lists of the
+candidate-search index (`MatchingConfig.search`; rebuilt by `add` and on `load`).
 """
 
 from __future__ import annotations
@@ -95,7 +97,7 @@ class PreparedMap:
         if isinstance(descriptors, np.ndarray):
             descriptors.flags.writeable = False
         self.descriptors = descriptors
-        self.blocks = _matching_blocks(descriptors, self.target.labels)
+        self.blocks = _matching_blocks(descriptors, self.target.labels, self.config)
 
     # -- use --------------------------------------------------------------------------------
     def __len__(self) -> int:
@@ -313,13 +315,14 @@ def _read(path: Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     return meta, arrays
 
 
-def _matching_blocks(descriptors, labels: np.ndarray):
-    """The matching kernel's class blocks of the map (`sgloc.matching.TargetBlocks`), or None
-    when matching runs without them (sparse descriptors, or a map small enough for the numpy
-    path)."""
+def _matching_blocks(descriptors, labels: np.ndarray, config: LocalizerConfig):
+    """The matching kernel's class blocks of the map (`sgloc.matching.TargetBlocks`), with the
+    candidate-search index of its large classes unless the config's matching search is
+    "exact", or None when matching runs without them (sparse descriptors, or a map small
+    enough to build them per call)."""
     from sgloc.matching import target_blocks
 
-    return target_blocks(descriptors, labels)
+    return target_blocks(descriptors, labels, config.matching.search)
 
 
 def prepare(target: SemanticGraph, config: LocalizerConfig | None = None) -> PreparedMap:

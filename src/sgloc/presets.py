@@ -6,7 +6,7 @@ LocalizerConfig, `sgloc.extraction.extraction_preset(name)` the ExtractionConfig
 Localizer presets (flat `LocalizerConfig.with_overrides` settings):
 - `default`: sgloc's own defaults (nothing changed).
 - `paper`: the paper's pipeline and nothing of sgloc's additions: the histogram descriptor,
-  the best match per query object (similarity >= 0.5), Alg. 1 as its pseudo-code reads
+  the best match per query object (exact search, >= 0.5), Alg. 1 as its pseudo-code reads
   (`bound="literal"`, tau 5 m, eta 0.5), Guo et al.'s RANSAC (samples of 4 matches drawn with
   replacement, a fixed 1000 draws, most inliers wins, >= 5 inliers and >= 1 % of the matches,
   T_error 5 m, the model refit once on its inliers), the plain weighted SVD of Eq. 4 (no robust
@@ -47,6 +47,7 @@ _GUO: dict[str, Any] = {
     "mutual": False,
     "strategy": "top_k",
     "max_ratio": None,
+    "search": "exact",
     "rejection": "none",
     "ransac_threshold": 5.0,
     "sampler": "guo",

@@ -59,6 +59,7 @@ def _localizations() -> None:
         localize(q, t, rejection=rejection)
     localize(q, t, scope="local")  # the local neighbour constraint of large problems
     localize(q, t, dof=6, max_tilt=None)
+    localize(q, t, search="index")  # the candidate-search index (large maps)
     localize(q, t, class_scale="height")
     small = SemanticGraph(q.positions[:20], q.labels[:20])
     localize(small, t)  # a small query: the whole-map verification

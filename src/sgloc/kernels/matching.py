@@ -234,4 +234,93 @@ def top_k_in_blocks(
     return q, t, s, flag
 
 
+@njit(cache=True, nogil=True)
+def top_k_in_lists(
+    Q: np.ndarray,
+    rows: np.ndarray,
+    probes: np.ndarray,
+    blocks: np.ndarray,
+    list_start: np.ndarray,
+    members: np.ndarray,
+    k: int,
+    min_sim: float,
+    max_ratio: float,
+    flag_ratio: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`top_k_in_blocks` for the query rows `rows` (r,) of Q (n_q,d) of one class, each
+    scored only against the targets of its probed lists `probes` (r, p) (ids into the lists
+    of a `class_blocks` buffer built on the class's rows sorted by list: `blocks`,
+    `list_start` (l+1,), `members` (n_c,) their target indices). A pair's similarity has the
+    same bits as in `top_k_in_blocks`; ranks and the ratio test run over the probed targets
+    (ties: the lower target index first). Probing every list gives `top_k_in_blocks`'s result.
+    Returns (query idx, target idx, score, flag) ordered by query, score descending, target.
+    """
+    n_r, n_p = probes.shape
+    d = Q.shape[1]
+    inv_q = inverse_norms(Q[rows])
+    out_j = np.full((n_r, k), -1, dtype=np.int64)
+    out_s = np.zeros((n_r, k))
+    out_n = np.zeros(n_r, dtype=np.int64)
+    out_f = np.ones(n_r, dtype=np.bool_)
+    test_ratio = not (np.isnan(max_ratio) and np.isnan(flag_ratio))
+    qn = np.empty(d)
+    nz = np.empty(d, dtype=np.int64)
+    best_s, best_j = np.empty(k), np.empty(k, dtype=np.int64)
+    longest = 0
+    for h in range(list_start.shape[0] - 1):
+        longest = max(longest, list_start[h + 1] - list_start[h])
+    sim_buf = np.empty(longest)
+    for r in range(n_r):
+        i = rows[r]
+        w = inv_q[r]
+        n_nz = 0
+        for f in range(d):
+            qn[f] = Q[i, f] * w
+            nz[n_nz] = f
+            n_nz += qn[f] != 0.0
+        s1, s2, j1 = -np.inf, -np.inf, np.int64(-1)
+        n = np.int64(0)
+        seen = 0
+        for p in range(n_p):
+            h = probes[r, p]
+            b, n_l = list_start[h], list_start[h + 1] - list_start[h]
+            sim = sim_buf[:n_l]
+            _similarities(sim, blocks, b * d, qn, nz[:n_nz])
+            for jj in range(n_l):
+                s, j = sim[jj], members[b + jj]
+                if s > s1 or (s == s1 and j < j1):
+                    s1, s2, j1 = s, s1, j
+                elif s > s2:
+                    s2 = s
+                if k > 1 and (n < k or s >= best_s[n - 1]):
+                    n = _insert(best_s, best_j, n, s, j)
+            seen += n_l
+        if seen == 0:
+            continue
+        if k == 1:
+            best_s[0], best_j[0], n = s1, j1, 1
+        if test_ratio and seen > 1:
+            if not np.isnan(max_ratio) and not (1.0 - s1) <= max_ratio * (1.0 - s2):
+                continue
+            if not np.isnan(flag_ratio):
+                out_f[r] = (1.0 - s1) <= flag_ratio * (1.0 - s2)
+        m = 0
+        for h in range(n):
+            if best_s[h] >= min_sim and best_s[h] > 0:
+                out_j[r, m], out_s[r, m] = best_j[h], best_s[h]
+                m += 1
+        out_n[r] = m
+    total = out_n.sum()
+    q = np.empty(total, dtype=np.int64)
+    t = np.empty(total, dtype=np.int64)
+    s = np.empty(total)
+    flag = np.empty(total, dtype=np.bool_)
+    p = 0
+    for r in range(n_r):
+        for h in range(out_n[r]):
+            q[p], t[p], s[p], flag[p] = rows[r], out_j[r, h], out_s[r, h], out_f[r]
+            p += 1
+    return q, t, s, flag
+
+
 watch_compiles()  # an install's first compile is said (sgloc.kernels)
