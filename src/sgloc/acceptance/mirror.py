@@ -52,6 +52,13 @@ def reflect_across_line(points: np.ndarray, on_line: np.ndarray) -> np.ndarray:
     return out
 
 
+def _near_box(points: np.ndarray, around: np.ndarray, radius: float) -> np.ndarray:
+    """(n,) bool: which `points` lie in the bounding box of `around` grown by `radius` (the
+    only target objects a moved query object can land on: a large map is not searched whole)."""
+    low, high = around.min(axis=0) - radius, around.max(axis=0) + radius
+    return np.all((points >= low) & (points <= high), axis=1)
+
+
 def looks_mirrored(
     query: SemanticGraph, target: SemanticGraph, T_target_query: np.ndarray,
     inlier_objects: np.ndarray, radius: float,
@@ -61,9 +68,12 @@ def looks_mirrored(
     object, the reflection tried in the query frame (module docstring)."""
     if len(inlier_objects) < 2:
         return False, 0, 0
-    tree = cKDTree(_with_class(target.positions, target.labels))
-    plain = landed(apply(T_target_query, query.positions), query.labels, tree, radius)
-    flipped = reflect_across_line(query.positions, query.positions[inlier_objects])
-    mirror = landed(apply(T_target_query, flipped), query.labels, tree, radius)
+    moved = apply(T_target_query, query.positions)
+    flipped = apply(T_target_query, reflect_across_line(query.positions,
+                                                        query.positions[inlier_objects]))
+    near = _near_box(target.positions, np.vstack([moved, flipped]), radius)
+    tree = cKDTree(_with_class(target.positions[near], target.labels[near]))
+    plain = landed(moved, query.labels, tree, radius)
+    mirror = landed(flipped, query.labels, tree, radius)
     mirrored = mirror - plain >= max(MIRROR_MARGIN, MIRROR_EXCESS * len(query))
     return bool(mirrored), plain, mirror
