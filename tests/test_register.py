@@ -147,3 +147,26 @@ def test_import_sgloc_stays_light():
             "'scipy.stats', 'matplotlib', 'dask') if m in sys.modules]; print(heavy)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_covariance_is_computed_when_asked_and_settings_are_reused():
+    """A registration loop pays neither for a covariance it never reads nor for re-checking
+    the same settings; the covariance is the one `transform_covariance` gives."""
+    from sgloc import register
+    from sgloc.covariance import transform_covariance
+    from sgloc.registration import settings_cache_info
+
+    rng = np.random.default_rng(3)
+    src = rng.uniform(-50, 50, (200, 3))
+    dst = src + [3.0, 1.0, 0.0]
+    before = settings_cache_info().hits
+    a = register(src, dst, noise_bound=1.0, seed=0, eta=0.5)
+    b = register(src, dst, noise_bound=1.0, seed=0, eta=0.5)
+    assert settings_cache_info().hits > before
+    assert "covariance" not in a.__dict__  # not computed yet
+    s, d, motion = a.fitted
+    expected = transform_covariance(s, d, a.transform, None, motion.dof, motion.max_tilt)
+    np.testing.assert_array_equal(a.covariance, expected)
+    np.testing.assert_array_equal(a.transform, b.transform)
+    with pytest.raises(Exception, match="eta"):
+        register(src, dst, noise_bound=1.0, eta=True)  # a bool is still refused

@@ -11,7 +11,9 @@ The drop-in for TEASER++ / KISS-Matcher's `solve` on given correspondences: outl
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -53,7 +55,17 @@ class RegistrationResult:
     survivors: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     timings: dict[str, float] = field(default_factory=dict)
     reason: str = ""
-    covariance: np.ndarray | None = None
+    #: (inlier src, inlier dst, MotionModel) the covariance is computed from, on first access.
+    fitted: tuple | None = field(default=None, repr=False)
+
+    @cached_property
+    def covariance(self) -> np.ndarray | None:
+        """(6,6) covariance of `transform` (see the class docstring), computed when first
+        asked for (a registration loop that never reads it does not pay for it)."""
+        if self.transform is None or self.fitted is None:
+            return None
+        src, dst, motion = self.fitted
+        return transform_covariance(src, dst, self.transform, None, motion.dof, motion.max_tilt)
 
 
 def _points(a: Any, name: str) -> np.ndarray:
@@ -67,6 +79,34 @@ def _points(a: Any, name: str) -> np.ndarray:
 
 def _rejector_fields(cls: type[Rejector]) -> set[str]:
     return {f.name for f in dataclasses.fields(cls)} if dataclasses.is_dataclass(cls) else set()
+
+
+def _settings_for_call(
+    rejection: str | Rejector, noise_bound: float, motion: MotionModel, settings: dict[str, Any]
+) -> tuple[Rejector, RansacConfig]:
+    """`_stage_settings`, built once per distinct (rejection name, noise bound, motion,
+    settings) and reused: a registration loop does not re-check its settings every call
+    (rejectors and RansacConfig hold no state a call changes)."""
+    if not isinstance(rejection, str):
+        return _stage_settings(rejection, noise_bound, motion, settings)
+    key = tuple(sorted((k, type(v).__name__, v) for k, v in settings.items()))
+    try:
+        hash(key)
+    except TypeError:  # a list or dict value: built for this call only
+        return _stage_settings(rejection, noise_bound, motion, settings)
+    return _cached_stage_settings(rejection, float(noise_bound), motion, key)
+
+
+@functools.lru_cache(maxsize=64)
+def _cached_stage_settings(
+    rejection: str, noise_bound: float, motion: MotionModel, key: tuple
+) -> tuple[Rejector, RansacConfig]:
+    return _stage_settings(rejection, noise_bound, motion, {k: v for k, _, v in key})
+
+
+def settings_cache_info() -> functools._CacheInfo:
+    """Hits and misses of the per-settings cache of `register` (lru_cache statistics)."""
+    return _cached_stage_settings.cache_info()
 
 
 def _stage_settings(
@@ -140,7 +180,7 @@ def register(
         raise SglocError(f"noise_bound must be > 0 metres, got {noise_bound}.")
     if refine not in REFINES:
         raise UnknownNameError(f"unknown refine {refine!r}; choose one of {', '.join(REFINES)}.")
-    rej, cfg = _stage_settings(rejection, noise_bound, motion, settings)
+    rej, cfg = _settings_for_call(rejection, noise_bound, motion, settings)
     timer = StageTimer(names={"estimation": "refine"})
     pose = estimate_pose(
         src, dst, rej, cfg, rng if rng is not None else random_generator(seed),
@@ -153,8 +193,5 @@ def register(
         survivors=pose.survivors,
         timings=timer.timings,
         reason=pose.reason,
-        covariance=None if pose.transform is None else transform_covariance(
-            src[pose.inliers], dst[pose.inliers], pose.transform, None, cfg.motion.dof,
-            cfg.motion.max_tilt,
-        ),
-    )  # fmt: skip
+        fitted=(src[pose.inliers], dst[pose.inliers], cfg.motion),
+    )
