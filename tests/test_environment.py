@@ -118,3 +118,20 @@ def test_same_bits_in_a_process_pool_and_serially(method):
     serial = [_fingerprint(s) for s in seeds]
     with ProcessPoolExecutor(2, mp_context=mp.get_context(method)) as pool:
         assert list(pool.map(_fingerprint, seeds)) == serial
+
+
+def test_same_bits_in_threads_and_on_dask():
+    """The same seeds give the same bits run serially, from several threads at once, and as
+    tasks on a Dask cluster (an in-process cluster here)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    distributed = pytest.importorskip("distributed")
+    from sgloc.tasks import run_all
+
+    seeds = [1, 2, 3, 4]
+    serial = [_fingerprint(s) for s in seeds]
+    with ThreadPoolExecutor(4) as pool:
+        assert list(pool.map(_fingerprint, seeds)) == serial
+    with distributed.Client(processes=False, n_workers=1, threads_per_worker=2,
+                            dashboard_address=None) as client:  # fmt: skip
+        assert run_all(seeds, _fingerprint, scheduler=client) == serial
