@@ -67,7 +67,7 @@ def test_register_takes_a_motion_model():
     cs = make_correspondences(120, 0.3, np.random.default_rng(2), noise=0.2, T_dst_src=yaw)
     flat = sgloc.register(cs.src, cs.dst, noise_bound=1.0, dof=4, max_tilt=None)
     typed = sgloc.register(cs.src, cs.dst, noise_bound=1.0, motion=MotionModel(4, None))
-    # (the first small problems of a process run the numpy references: equal to 1e-9)
+    # (flat and typed settings build the same configuration: equal to 1e-9)
     assert np.abs(flat.transform - typed.transform).max() < 1e-9
     R = typed.transform[:3, :3]
     assert R[2, 2] == 1.0 and np.all(R[2, :2] == 0.0) and np.all(R[:2, 2] == 0.0)

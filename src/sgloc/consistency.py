@@ -168,8 +168,8 @@ def consistency_bits(
 ) -> tuple[np.ndarray, np.ndarray]:
     """(bits, degree): bit-packed consistency rows (m, ceil(m/64)) uint64 (bit j % 64 of word
     j // 64 of row i: matches i != j consistent) and each match's count of consistent partners
-    (m,) int64. src, dst: (m,3) metres. Compiled, one pass over the pairs (small problems
-    early in a process: the numpy tiles, `sgloc.kernels.use_compiled`)."""
+    (m,) int64. src, dst: (m,3) metres. Compiled, one pass over the pairs (the numpy tiles
+    when `sgloc.kernels.use_compiled` says so: tests)."""
     check_form(form)
     check_match_count(len(src))
     if not use_compiled(len(src)):

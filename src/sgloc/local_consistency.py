@@ -104,7 +104,7 @@ def prune_local(
     remaining candidate with the least support fraction (V_i + s) / (r_i + s) (ties: the lowest
     index) has V_i + s < eta * (r_i + s), remove it (r_i, V_i: `local_counts` among the
     remaining candidates; s = self_vote, 1 for the literal bound). Compiled (the numpy
-    reference for a process's first small problems, `sgloc.kernels.use_compiled`)."""
+    reference when `sgloc.kernels.use_compiled` says so: tests)."""
     check_form(form)
     if len(src) == 0:
         return np.zeros(0, dtype=np.int64)

@@ -74,8 +74,8 @@ def prune_bits(
 
 
 def _prune_remaining(bits: np.ndarray, degree: np.ndarray, eta: float) -> np.ndarray:
-    """The "remaining" rule on packed rows: compiled, or the numpy reference for a process's
-    small problems (`sgloc.kernels.use_compiled`)."""
+    """The "remaining" rule on packed rows: compiled, or the numpy reference when
+    `sgloc.kernels.use_compiled` says so (tests)."""
     from sgloc.kernels import use_compiled
 
     if not use_compiled(len(bits)):
