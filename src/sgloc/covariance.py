@@ -32,10 +32,10 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from sgloc.errors import SglocError
+from sgloc.kernels.constants import MAD_SCALE, TUKEY_C
 from sgloc.validation import MAX_COORDINATE, real, setting, validate_settings
 
 #: Tukey biweight's support in robust scales (that of `sgloc.estimation.irls_refine`).
-TUKEY_C = 4.685
 #: Metres: the smallest residual spread assumed (exact matches would give a singular matrix).
 MIN_SIGMA = 1e-3
 #: Vague prior (rad, m) that keeps the information matrix invertible.
@@ -146,7 +146,7 @@ def robust_inliers(residuals: np.ndarray) -> np.ndarray:
     """Boolean mask of the matches a Tukey biweight keeps: |r_i| <= 4.685 * 1.4826 * median|r|
     (all when the residuals are (near) zero)."""
     r = np.sqrt(np.einsum("ij,ij->i", residuals, residuals))
-    s = 1.4826 * np.median(r)
+    s = MAD_SCALE * np.median(r)
     return r <= TUKEY_C * s if s > 1e-12 else np.ones(len(r), bool)
 
 

@@ -8,6 +8,7 @@ import numpy as np
 from sgloc.errors import DegenerateGeometryError
 from sgloc.estimation.fits import fit_rigid, tilt_deg, weighted_kabsch
 from sgloc.geometry import make_transform
+from sgloc.kernels.constants import MAD_SCALE, TUKEY_C
 from sgloc.spatial import ClassKDTree
 
 
@@ -71,14 +72,14 @@ def _irls_numpy(src, dst, T, prior, iterations, dof, max_tilt, classes, class_ax
     for _ in range(iterations):
         d = src @ T[:3, :3].T + T[:3, 3] - dst
         r = np.linalg.norm(d, axis=1)
-        sigma = 1.4826 * np.median(r)
+        sigma = MAD_SCALE * np.median(r)
         if sigma <= 1e-12:
             break
         if classes is not None:
             s_xy, s_z = class_scales(d, classes, sigma, class_axes)
-            u = np.sqrt((d[:, 0] ** 2 + d[:, 1] ** 2) / s_xy**2 + d[:, 2] ** 2 / s_z**2) / 4.685
+            u = np.sqrt((d[:, 0] ** 2 + d[:, 1] ** 2) / s_xy**2 + d[:, 2] ** 2 / s_z**2) / TUKEY_C
         else:
-            u = r / (4.685 * sigma)
+            u = r / (TUKEY_C * sigma)
         w = prior * np.where(u < 1.0, (1.0 - u**2) ** 2, 0.0)
         if np.count_nonzero(w) < 3:
             break
@@ -122,7 +123,7 @@ def class_scales(
     h = np.linalg.norm(d[:, :2], axis=1) / np.sqrt(2.0)
     v = np.abs(d[:, 2])
     floor = max(MIN_SCALE_RATIO * sigma, 1e-9)
-    all_xy, all_z = 1.4826 * np.median(h), 1.4826 * np.median(v)
+    all_xy, all_z = MAD_SCALE * np.median(h), MAD_SCALE * np.median(v)
     uniq, inv, cnt = np.unique(classes, return_inverse=True, return_counts=True)
     order = np.argsort(inv, kind="stable")
     bounds = np.concatenate([[0], np.cumsum(cnt)])
@@ -130,8 +131,8 @@ def class_scales(
     for c in range(len(uniq)):
         idx = order[bounds[c] : bounds[c + 1]]
         few = cnt[c] < MIN_CLASS_MATCHES
-        sxy[c] = all_xy if few or axes == "height" else 1.4826 * np.median(h[idx])
-        sz[c] = all_z if few else 1.4826 * np.median(v[idx])
+        sxy[c] = all_xy if few or axes == "height" else MAD_SCALE * np.median(h[idx])
+        sz[c] = all_z if few else MAD_SCALE * np.median(v[idx])
     return np.maximum(sxy, floor)[inv], np.maximum(sz, floor)[inv]
 
 

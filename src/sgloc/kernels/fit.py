@@ -13,7 +13,7 @@ import numpy as np
 from numba import njit
 
 from sgloc.kernels import watch_compiles
-from sgloc.kernels.constants import COLLINEAR_WIDTH
+from sgloc.kernels.constants import COLLINEAR_WIDTH, MAD_SCALE, TUKEY_C
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -293,10 +293,10 @@ def irls_model(
     have_prev = False
     for _ in range(iterations):
         r = residual_norms(src, dst, T)
-        sigma = 1.4826 * median(r)
+        sigma = MAD_SCALE * median(r)
         if sigma <= 1e-12:
             break
-        w, stop = _biweight_step(r / (4.685 * sigma), prior, w_prev, have_prev)
+        w, stop = _biweight_step(r / (TUKEY_C * sigma), prior, w_prev, have_prev)
         if stop:
             break
         w_prev, have_prev = w, True
@@ -333,7 +333,7 @@ def class_scales(
         h[i] = np.sqrt((d[i, 0] ** 2 + d[i, 1] ** 2) / 2.0)
         v[i] = abs(d[i, 2])
     floor = max(min_ratio * sigma, 1e-9)
-    all_xy, all_z = 1.4826 * median(h), 1.4826 * median(v)
+    all_xy, all_z = MAD_SCALE * median(h), MAD_SCALE * median(v)
     counts = np.zeros(n_cls, np.int64)
     for i in range(m):
         counts[cls[i]] += 1
@@ -348,8 +348,8 @@ def class_scales(
                     hc[k], vc[k] = h[i], v[i]
                     k += 1
             if not height_only:
-                sxy_c[c] = 1.4826 * median(hc)
-            sz_c[c] = 1.4826 * median(vc)
+                sxy_c[c] = MAD_SCALE * median(hc)
+            sz_c[c] = MAD_SCALE * median(vc)
     s_xy, s_z = np.empty(m), np.empty(m)
     for i in range(m):
         s_xy[i] = max(sxy_c[cls[i]], floor)
@@ -479,11 +479,11 @@ def irls_class_scaled(
                 d[i, a] = (T[a, 0] * src[i, 0] + T[a, 1] * src[i, 1] + T[a, 2] * src[i, 2]
                            + T[a, 3] - dst[i, a])  # fmt: skip
             r[i] = np.sqrt(d[i, 0] ** 2 + d[i, 1] ** 2 + d[i, 2] ** 2)
-        sigma = 1.4826 * median(r)
+        sigma = MAD_SCALE * median(r)
         if sigma <= 1e-12:
             break
         s_xy, s_z = class_scales(d, cls, n_cls, sigma, height_only, min_matches, min_ratio)
-        u = np.sqrt((d[:, 0] ** 2 + d[:, 1] ** 2) / s_xy**2 + d[:, 2] ** 2 / s_z**2) / 4.685
+        u = np.sqrt((d[:, 0] ** 2 + d[:, 1] ** 2) / s_xy**2 + d[:, 2] ** 2 / s_z**2) / TUKEY_C
         w, stop = _biweight_step(u, prior, w_prev, have_prev)
         if stop:
             break
