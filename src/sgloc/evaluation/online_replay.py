@@ -98,16 +98,34 @@ def robot_rows(
 
 
 def link_rows(scenario: Any, session: Any) -> list[dict]:
-    """Every accepted link: active or revoked, and its error against the ground truth (at
-    robot_b's objects)."""
-    out = []
+    """Every accepted link: active or revoked, its error against the ground truth at robot_b's
+    objects, that of the link refitted on the true correspondences (`oracle_error`), the
+    error its covariance predicts there (2 sigma, worst direction: `predicted_2sigma`), the
+    object pairs it co-locates and `lever_m`, the farthest of robot_b's objects from their
+    centroid (metres: how far a rotation error of the link is carried)."""
+    from sgloc.evaluation.online_oracle import oracle_refit
+    from sgloc.geometry import invert
+    from sgloc.online.precision import predicted_error
+    from sgloc.online.refine import co_located
+
+    cfg, out = session.config, []
     for lk in session.links:
         G_a, G_b = scenario.T_gt_odom[lk.robot_a], scenario.T_gt_odom[lk.robot_b]
-        objs = session.map(lk.robot_b).positions
-        dm, dd = robot_error(lk.T_a_b, G_a, G_b, objs)
+        a, b = session.map(lk.robot_a), session.map(lk.robot_b)
+        dm, dd = robot_error(lk.T_a_b, G_a, G_b, b.positions)
+        T_or = oracle_refit(b.positions, b.labels, a.positions, a.labels, invert(G_a) @ G_b,
+                            cfg.ransac.threshold, cfg.motion)
+        i, _ = co_located(b.positions, b.labels, a.positions, a.labels, lk.T_a_b,
+                          cfg.ransac.threshold)
+        lever = (float(np.linalg.norm(b.positions - b.positions[i].mean(axis=0), axis=1).max())
+                 if len(i) else None)
         out.append({"a": lk.robot_a, "b": lk.robot_b, "active": bool(lk.active),
                     "stamp": float(lk.stamp), "error_m": dm, "error_deg": dd,
-                    "wrong": bool(dm > MAX_M or dd > MAX_DEG)})
+                    "wrong": bool(dm > MAX_M or dd > MAX_DEG),
+                    "oracle_error": None if T_or is None
+                    else robot_error(T_or, G_a, G_b, b.positions),
+                    "predicted_2sigma": predicted_error(lk.covariance, b.positions, 2.0),
+                    "matches": int(lk.n_matches), "pairs": int(len(i)), "lever_m": lever})
     return out
 
 
