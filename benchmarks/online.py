@@ -72,6 +72,7 @@ def summarize(key: str, title: str, res: dict, secs: float) -> dict:
         "missed": [r["robot"] for r in overl if r["joined_s"] is None],
         "mean_delay": float(np.mean(delays)) if delays else None,
         "wrong_joins": [r["robot"] for r in rows if is_wrong(r["join_error"])],
+        "oracle_end": {r["robot"]: r["oracle_end_error"] for r in rows},
         "wrong_joins_final": [r["robot"] for r in rows if is_wrong(r["join_error_final"])],
         "wrong_links": sum(lk["wrong"] for lk in links),
         "wrong_active": sum(lk["wrong"] and lk["active"] for lk in links),
@@ -179,7 +180,7 @@ def goals(sums: list[dict]) -> list[str]:
         line(not late, "on average within 10 % of its run after the oracle overlap begins "
              f"(mean delay per scenario: {per})"),
         line(not wrong, "no wrong join, judged at the objects the robot had when it joined"
-             + _listed(wrong)),
+             + _listed(wrong) + _oracle_of(wrong, sums)),
         line(not wrong_final, "no wrong join, judged at the robot's final objects (the "
              "stricter, earlier definition)" + _listed(wrong_final)),
         line(not off, f"no robot more than {MAX_M:g} m (at its objects) / {MAX_DEG:g} deg off at "
@@ -196,6 +197,16 @@ def goals(sums: list[dict]) -> list[str]:
              + ", ".join(f"{k} {v['median_ms']:.2f} / {v['p99_ms']:.1f} ms"
                          for k, v in lat.items()) + ")"),
     ]
+
+
+def _oracle_of(per: dict[str, list[str]], sums: list[dict]) -> str:
+    """'; their frames at the end with the links refitted on the true pairs: ...' or ''."""
+    by_key = {s["key"]: s["oracle_end"] for s in sums}
+    parts = [f"{k}: {r} " + ("not placed" if by_key[k][r] is None
+                             else f"{by_key[k][r][0]:.2f} m / {by_key[k][r][1]:.2f} deg")
+             for k, robots in per.items() for r in robots]
+    return ("; their fleet frames at the end with the same links refitted on the true "
+            "correspondences: " + ", ".join(parts)) if parts else ""
 
 
 def _unreachable(sums: list[dict]) -> str:
