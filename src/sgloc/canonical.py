@@ -32,9 +32,19 @@ def canonical_order(graph: SemanticGraph) -> np.ndarray:
     return np.lexsort((p[:, 2], p[:, 1], p[:, 0], graph.labels))
 
 
+def _may_repeat(graph: SemanticGraph, order: np.ndarray) -> bool:
+    """Whether two objects of one class may lie within DUPLICATE_RADIUS, for `order` sorted by
+    (class, x, ...) (`canonical_order`): such a pair is at most that far apart in x, so some
+    two neighbours in the order between them are too (False: no duplicate, no search)."""
+    labels, x = graph.labels[order], graph.positions[order, 0]
+    return bool(np.any((labels[1:] == labels[:-1]) & (x[1:] - x[:-1] <= DUPLICATE_RADIUS)))
+
+
 def without_duplicates(graph: SemanticGraph, order: np.ndarray) -> np.ndarray:
-    """`order` without the vertices that repeat an earlier one of it (same class, closer than
-    DUPLICATE_RADIUS); an order of a graph without duplicates comes back unchanged."""
+    """`order` (`canonical_order(graph)`) without the vertices that repeat an earlier one of it
+    (same class, closer than DUPLICATE_RADIUS); without duplicates it comes back unchanged."""
+    if not _may_repeat(graph, order):
+        return order
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
@@ -122,7 +132,7 @@ class CanonicalPair:
 
     def restore(self, result: Any) -> Any:
         """The result with every (query index, target index) array in the caller's indices,
-        rows sorted by them (candidates keep their scores), and the caller's config."""
+        rows sorted by them (candidates keep their scores)."""
         qo, to = self.query_order, self.target_order
 
         def back(pairs: np.ndarray) -> np.ndarray:
@@ -135,5 +145,4 @@ class CanonicalPair:
         for name in ("survivors", "matches"):
             pairs = back(getattr(result, name))
             setattr(result, name, pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))])
-        result.config = self.original_config.to_dict()
         return result
