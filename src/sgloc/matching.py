@@ -257,8 +257,8 @@ def _indexed_classes(labels_q: np.ndarray, labels_t: np.ndarray, search: str,
                      blocks: TargetBlocks | None = None) -> np.ndarray:  # fmt: skip
     """The classes (ascending) that `search` sends to an index for these labels (the target's
     class sizes read from its prepared `blocks` when given)."""
-    if search == "exact":
-        return np.zeros(0, np.int64)
+    if search == "exact" or not uses_index(search, len(labels_t)):
+        return np.zeros(0, np.int64)  # not even a class of every target would be indexed
     if blocks is not None:
         ct, nt = blocks.block_class, np.diff(blocks.block_start)
     else:
