@@ -3,8 +3,10 @@
     python benchmarks/online.py [--out docs] [--keep DIR] [--every 1] [--no-batch]
 
 Scenarios: KITTI 00 scans 0-2999 cut into 4 and into 6 consecutive robots (the tuning range),
-KITTI 00 scans 1500-4540 cut into 4 robots (held out: never tuned on), the synthetic city's two
-routes cut into 8 robots (objects only). Every scenario is streamed through one OnlineSession
+KITTI 00 scans 1500-4540 cut into 4 robots (held out: never tuned on), each KITTI cut twice:
+with KITTI's raw poses and with the refined poses (`sgloc.evaluation.kitti_refined`, needs
+gtsam) as the robots' odometry and the truth; the synthetic city's two routes cut into 8
+robots (objects only). Every scenario is streamed through one OnlineSession
 (`sgloc replay`'s code path); the replay folder is scored against the ground truth: per robot
 the stamp it joined against the oracle's (>= 15 same-class objects within 3 m shared with a
 robot that can already be placed), wrong joins and links (> 3 m at the robot's objects or
@@ -456,19 +458,24 @@ def ground_truth_text(f: dict | None) -> str:
         "error; the city's ground truth is exact.")
     if f is None:
         return text + "\n\n"
+    from sgloc.evaluation import kitti_refined as kr
+
     return text + (
         " The refined poses (`sgloc.evaluation.kitti_refined`) are a pose graph over all "
         "4,541 scans' LiDAR poses, solved with gtsam: a between factor per consecutive scan "
-        "pair equal to the raw relative motion (sigma 1 cm / 0.01 deg: the raw poses are "
-        f"locally accurate), one per refined revisit transform ({f['revisits']} pairs of "
-        "kitti_lc_test_*.txt, sigma 0.1 m / 0.2 deg, Huber kernel), scan 0 fixed; about a "
-        "second to compute, never stored. At the revisits, the true same-class object pairs "
+        f"pair equal to the raw relative motion (sigma {100 * kr.ODOM_SIGMA_M:g} cm / "
+        f"{kr.ODOM_SIGMA_DEG:g} deg: the raw poses are locally accurate), one per refined "
+        f"revisit transform ({f['revisits']} pairs of kitti_lc_test_*.txt, sigma "
+        f"{kr.REVISIT_SIGMA_M:g} m / {kr.REVISIT_SIGMA_DEG:g} deg, Huber kernel), scan 0 "
+        "fixed; about a second to compute, never stored. At the revisits, the true "
+        "same-class object pairs "
         "(mutual nearest neighbours within 2 m under the refined transforms; "
         f"{f['object_pairs']} pairs) lie a median {f['raw_median_m']:.2f} m apart with the raw "
         f"poses (90th percentile {f['raw_p90_m']:.2f} m) and {f['refined_median_m']:.2f} m "
         f"with the refined ones ({f['refined_p90_m']:.2f} m; the refined transforms themselves: "
         f"{f['M_median_m']:.2f} m). On every 5th revisit ({f['held_out_revisits']} pairs) "
-        f"left out of the fit: {f['held_out_raw_median_m']:.2f} m raw, "
+        "left out of the fit (nearby revisits stay in it): "
+        f"{f['held_out_raw_median_m']:.2f} m raw, "
         f"{f['held_out_refined_median_m']:.2f} m refined. The consecutive relative motions "
         f"change by a median {1000 * f['step_median_m']:.1f} mm / {f['step_median_deg']:.4f} "
         f"deg (at most {1000 * f['step_max_m']:.1f} mm / {f['step_max_deg']:.3f} deg).\n\n")

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sgloc.evaluation.pairs_kitti import kitti_sequence
 from sgloc.geometry import invert
 from sgloc.optional import require
 
@@ -95,8 +96,6 @@ def invert_all(T: np.ndarray) -> np.ndarray:
 def kitti_refined_poses(root: str) -> np.ndarray:
     """(N,4,4) refined T_seq_lidar of every KITTI 00 scan under `root` (computed once per
     process; the sequence frame of the raw poses, scan 0 unchanged)."""
-    from sgloc.evaluation.pairs_kitti import kitti_sequence
-
     L, ij, M = kitti_sequence(root)
     return refine_trajectory(L, ij, M)
 
@@ -150,16 +149,9 @@ def kitti_scan_objects(root: str) -> list[tuple[np.ndarray, np.ndarray]]:
     """(positions (n,3) LiDAR frame, labels (n,)) of every KITTI 00 scan under `root`."""
     from sgloc.datasets import make_dataset
 
-    n = len(kitti_sequence_poses(root))
+    n = len(kitti_sequence(root)[0])
     ds = make_dataset("kitti_objects", root, scans=(0, n - 1))
     return [ds[i].detections for i in range(n)]
-
-
-def kitti_sequence_poses(root: str) -> np.ndarray:
-    """(N,4,4) raw T_seq_lidar of KITTI 00 under `root`."""
-    from sgloc.evaluation.pairs_kitti import kitti_sequence
-
-    return kitti_sequence(root)[0]
 
 
 def refinement_figures(root: str, held_out_every: int = 5) -> dict[str, float]:
@@ -168,8 +160,6 @@ def refinement_figures(root: str, held_out_every: int = 5) -> dict[str, float]:
     refined, and under the refined transforms M themselves), the same on every
     `held_out_every`-th revisit with a trajectory refined WITHOUT those revisits, and the
     change of the consecutive relative motions (metres, degrees: median and max)."""
-    from sgloc.evaluation.pairs_kitti import kitti_sequence
-
     L, ij, M = kitti_sequence(root)
     R = kitti_refined_poses(root)
     scans = kitti_scan_objects(root)
