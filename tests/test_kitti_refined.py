@@ -78,3 +78,17 @@ def test_refined_kitti_trajectory_reduces_revisit_disagreement(kitti_dir) -> Non
     assert f["held_out_refined_median_m"] < 0.6 * f["held_out_raw_median_m"]
     # Consecutive relative motions barely change: at most 3 cm / 0.03 deg per scan.
     assert f["step_max_m"] < 0.03 and f["step_max_deg"] < 0.03
+
+
+def test_kitti_scenario_with_refined_poses_uses_them_as_odometry_and_truth(kitti_dir) -> None:
+    from sgloc.evaluation.kitti_refined import kitti_refined_poses
+    from sgloc.evaluation.pairs_kitti import kitti_sequence
+
+    raw, ref = kitti_sequence(str(kitti_dir))[0], kitti_refined_poses(str(kitti_dir))
+    sc = kitti_scenario(2, 1000, 1099, poses="refined")
+    np.testing.assert_allclose(sc.T_gt_odom["kitti1"], ref[1050])
+    assert np.abs(ref[1050][:3, 3] - raw[1050][:3, 3]).max() > 0.05  # not the raw pose
+    log = sc.logs[1]  # odometry: the refined poses relative to the robot's first scan
+    np.testing.assert_allclose(log.poses[-1], invert_all(ref[1050:1051])[0] @ ref[1099],
+                               atol=1e-6)
+    assert "refined poses" in sc.note
