@@ -11,9 +11,12 @@ map, a fleet localizing new keyframes against a growing one).
 A localization against a prepared map gives the same result, bit for bit, as against the graph
 it holds (`prepared.graph`). Preparing costs memory linear in the map: the descriptors
 (objects x classes x bins floats), and for maps larger than `sgloc.matching.BLOCKS_MIN_OBJECTS`
-objects a second, normalised copy grouped by class for the matching kernel, and for classes of
-more than `sgloc.matching_index.INDEX_MIN_CLASS` objects a third, grouped by the lists of the
-candidate-search index (`MatchingConfig.search`; rebuilt by `add` and on `load`).
+objects a second, normalised copy for the matching kernel: grouped by class for the classes
+searched exhaustively, by the lists of the candidate-search index for the classes of more than
+`sgloc.matching_index.INDEX_MIN_CLASS` objects (`MatchingConfig.search`; rebuilt by `add` and
+on `load`). The acceptance test's neighbour grid of the map (`sgloc.kernels.neighbors.cell_grid`,
+at most 64 bytes per object) is built by the first query and kept while the map lives, so a
+query's chance model costs its own neighbourhood, not the map.
 """
 
 from __future__ import annotations
