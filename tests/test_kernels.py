@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import gc
+import weakref
+
 import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
@@ -297,6 +300,15 @@ def test_grid_kept_for_a_kept_map():
     for a, b in zip(near_class_counts(moved, g.positions, g.labels, 4, 3.0, w),
                     near_class_counts(moved, pos, lab, 4, 3.0, w), strict=True):  # fmt: skip
         np.testing.assert_array_equal(a, b)
+    # Several kept maps keep their grids; a grid leaves with its map.
+    maps = [SemanticGraph(rng.uniform(-50, 50, (500, 3)), rng.integers(0, 4, 500))
+            for _ in range(6)]  # fmt: skip
+    grids = [cell_grid(m.positions, m.labels, 3.0) for m in maps]
+    assert all(cell_grid(m.positions, m.labels, 3.0) is x for m, x in zip(maps, grids, strict=True))
+    gone = weakref.ref(grids[0])
+    del maps[0], grids[0]
+    gc.collect()
+    assert gone() is None
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])

@@ -125,9 +125,9 @@ class ChanceModel:
         return float(np.sum(counts[qi, tlab] / self.class_count[tlab]))
 
 
-#: Class counts of read-only label arrays met recently: id -> (weak reference, counts).
-_COUNTS: dict[int, tuple] = {}  # an entry leaves with its array
-_COUNTS_KEPT = 4
+#: Class counts of read-only label arrays: id -> (weak reference, counts); an entry leaves
+#: with its array.
+_COUNTS: dict[int, tuple] = {}
 
 
 def class_counts(labels: np.ndarray, n_classes: int) -> np.ndarray:
@@ -140,8 +140,6 @@ def class_counts(labels: np.ndarray, n_classes: int) -> np.ndarray:
         if labels.flags.writeable or labels.base is not None:
             kept = (None, counts)
         else:
-            if len(_COUNTS) >= _COUNTS_KEPT:
-                _COUNTS.pop(next(iter(_COUNTS)))
             key = id(labels)
             kept = (weakref.ref(labels, lambda _, k=key: _COUNTS.pop(k, None)), counts)
             _COUNTS[key] = kept

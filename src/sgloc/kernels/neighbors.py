@@ -73,11 +73,11 @@ class CellGrid:
     n_y: int
 
 
-#: Grids of read-only point arrays met recently (a prepared map's objects, searched by every
-#: query): id -> (weak references to the points and labels, radius, CellGrid); an entry
-#: leaves with its points.
+#: Grids of read-only point arrays (a prepared map's objects, searched by every query):
+#: id(points) -> (weak reference to the points, {radius: (weak reference to the labels,
+#: CellGrid)}); an entry leaves with its points, and keeps its _RADII_KEPT latest radii.
 _GRIDS: dict[int, tuple] = {}
-_GRIDS_KEPT = 4
+_RADII_KEPT = 4
 
 
 def _frozen(a: np.ndarray) -> bool:
@@ -88,9 +88,24 @@ def _frozen(a: np.ndarray) -> bool:
 def cell_grid(points: np.ndarray, labels: np.ndarray, radius: float) -> CellGrid:
     """The `CellGrid` of points (n,3) with labels (n,) int64 for `radius` metres; kept while
     both arrays live when both are read-only (the same grid for every query of a map)."""
-    kept = _GRIDS.get(id(points))
-    if kept is not None and kept[0]() is points and kept[1]() is labels and kept[2] == radius:
-        return kept[3]
+    entry = _GRIDS.get(id(points))
+    kept = entry[1].get(radius) if entry is not None and entry[0]() is points else None
+    if kept is not None and kept[0]() is labels:
+        return kept[1]
+    grid = _build_grid(points, labels, radius)
+    if _frozen(points) and _frozen(labels):
+        if entry is None or entry[0]() is not points:
+            key = id(points)
+            entry = (weakref.ref(points, lambda _, k=key: _GRIDS.pop(k, None)), {})
+            _GRIDS[key] = entry
+        if len(entry[1]) >= _RADII_KEPT and radius not in entry[1]:
+            entry[1].pop(next(iter(entry[1])))
+        entry[1][radius] = (weakref.ref(labels), grid)
+    return grid
+
+
+def _build_grid(points: np.ndarray, labels: np.ndarray, radius: float) -> CellGrid:
+    """The `CellGrid` of `cell_grid`, built."""
     keys, x0, y0, cell, n_y = _cell_keys(points, radius)
     # numpy's sort: numba's sort and search helpers are better kept out of cached kernels
     # (their generated symbols can clash with another cached kernel's in one process).
@@ -100,16 +115,9 @@ def cell_grid(points: np.ndarray, labels: np.ndarray, radius: float) -> CellGrid
     # A table of runs when it costs at most a few entries per point, else binary searches.
     dense = n_cells <= 2 * len(keys) + 4096
     start = _cell_starts(sorted_keys, n_cells) if dense else np.zeros(1, np.int64)
-    grid = CellGrid(order, sorted_keys, np.ascontiguousarray(points[order].T),
+    return CellGrid(order, sorted_keys, np.ascontiguousarray(points[order].T),
                     np.ascontiguousarray(labels[order], dtype=np.int64), start, x0, y0, cell,
                     n_y)  # fmt: skip
-    if _frozen(points) and _frozen(labels):
-        if len(_GRIDS) >= _GRIDS_KEPT:
-            _GRIDS.pop(next(iter(_GRIDS)))
-        key = id(points)
-        gone = weakref.ref(points, lambda _, k=key: _GRIDS.pop(k, None))
-        _GRIDS[key] = (gone, weakref.ref(labels), radius, grid)
-    return grid
 
 
 @njit(cache=True, nogil=True)
