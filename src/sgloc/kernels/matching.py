@@ -284,57 +284,66 @@ def top_k_in_lists(
     """
     n_r, n_p = probes.shape
     d = Q.shape[1]
-    inv_q = inverse_norms(Q[rows])
+    X, nz, n_nz = _unit_rows(Q, rows, inverse_norms(Q))
     out_j = np.full((n_r, k), -1, dtype=np.int64)
     out_s = np.zeros((n_r, k))
     out_n = np.zeros(n_r, dtype=np.int64)
     out_f = np.ones(n_r, dtype=np.bool_)
     test_ratio = not (np.isnan(max_ratio) and np.isnan(flag_ratio))
-    qn = np.empty(d)
-    nz = np.empty(d, dtype=np.int64)
-    best_s, best_j = np.empty(k), np.empty(k, dtype=np.int64)
-    longest = 0
-    for h in range(list_start.shape[0] - 1):
-        longest = max(longest, list_start[h + 1] - list_start[h])
-    sim_buf = np.empty(longest)
+    # Per query row: best, second best and its index, the k best, targets seen. Every row is
+    # scored list by list (each probed list read once for all the rows probing it); ranks
+    # do not depend on the order targets are met in (ties: the lower target index).
+    s1, s2 = np.full(n_r, -np.inf), np.full(n_r, -np.inf)
+    j1 = np.full(n_r, -1, dtype=np.int64)
+    best_s, best_j = np.empty((n_r, k)), np.empty((n_r, k), dtype=np.int64)
+    n_best, seen = np.zeros(n_r, dtype=np.int64), np.zeros(n_r, dtype=np.int64)
+    n_lists = list_start.shape[0] - 1
+    first = np.zeros(n_lists + 1, dtype=np.int64)  # the rows probing each list, by list
     for r in range(n_r):
-        i = rows[r]
-        w = inv_q[r]
-        n_nz = 0
-        for f in range(d):
-            qn[f] = Q[i, f] * w
-            nz[n_nz] = f
-            n_nz += qn[f] != 0.0
-        s1, s2, j1 = -np.inf, -np.inf, np.int64(-1)
-        n = np.int64(0)
-        seen = 0
         for p in range(n_p):
-            h = probes[r, p]
-            b, n_l = list_start[h], list_start[h + 1] - list_start[h]
-            sim = sim_buf[:n_l]
-            _similarities(sim, blocks, b * d, n_l, qn, nz[:n_nz])
+            first[probes[r, p] + 1] += 1
+    longest = 0
+    for h in range(n_lists):
+        first[h + 1] += first[h]
+        longest = max(longest, list_start[h + 1] - list_start[h])
+    fill = first[:-1].copy()
+    prober = np.empty(n_r * n_p, dtype=np.int64)
+    for r in range(n_r):
+        for p in range(n_p):
+            prober[fill[probes[r, p]]] = r
+            fill[probes[r, p]] += 1
+    sim_buf = np.empty(longest)
+    for h in range(n_lists):
+        b, n_l = list_start[h], list_start[h + 1] - list_start[h]
+        sim = sim_buf[:n_l]
+        for u in range(first[h], first[h + 1]):
+            r = prober[u]
+            _similarities(sim, blocks, b * d, n_l, X[r], nz[r, : n_nz[r]])
+            n = n_best[r]
             for jj in range(n_l):
                 s, j = sim[jj], members[b + jj]
-                if s > s1 or (s == s1 and j < j1):
-                    s1, s2, j1 = s, s1, j
-                elif s > s2:
-                    s2 = s
-                if k > 1 and (n < k or s >= best_s[n - 1]):
-                    n = _insert(best_s, best_j, n, s, j)
-            seen += n_l
-        if seen == 0:
+                if s > s1[r] or (s == s1[r] and j < j1[r]):
+                    s1[r], s2[r], j1[r] = s, s1[r], j
+                elif s > s2[r]:
+                    s2[r] = s
+                if k > 1 and (n < k or s >= best_s[r, n - 1]):
+                    n = _insert(best_s[r], best_j[r], n, s, j)
+            n_best[r] = n
+            seen[r] += n_l
+    for r in range(n_r):
+        if seen[r] == 0:
             continue
         if k == 1:
-            best_s[0], best_j[0], n = s1, j1, 1
-        if test_ratio and seen > 1:
-            if not np.isnan(max_ratio) and not (1.0 - s1) <= max_ratio * (1.0 - s2):
+            best_s[r, 0], best_j[r, 0], n_best[r] = s1[r], j1[r], 1
+        if test_ratio and seen[r] > 1:
+            if not np.isnan(max_ratio) and not (1.0 - s1[r]) <= max_ratio * (1.0 - s2[r]):
                 continue
             if not np.isnan(flag_ratio):
-                out_f[r] = (1.0 - s1) <= flag_ratio * (1.0 - s2)
+                out_f[r] = (1.0 - s1[r]) <= flag_ratio * (1.0 - s2[r])
         m = 0
-        for h in range(n):
-            if best_s[h] >= min_sim and best_s[h] > 0:
-                out_j[r, m], out_s[r, m] = best_j[h], best_s[h]
+        for h in range(n_best[r]):
+            if best_s[r, h] >= min_sim and best_s[r, h] > 0:
+                out_j[r, m], out_s[r, m] = best_j[r, h], best_s[r, h]
                 m += 1
         out_n[r] = m
     total = out_n.sum()
