@@ -99,7 +99,7 @@ def cell_grid(points: np.ndarray, labels: np.ndarray, radius: float) -> CellGrid
             entry = (weakref.ref(points, lambda _, k=key: _GRIDS.pop(k, None)), {})
             _GRIDS[key] = entry
         if len(entry[1]) >= _RADII_KEPT and radius not in entry[1]:
-            entry[1].pop(next(iter(entry[1])))
+            entry[1].pop(next(iter(entry[1]), None), None)
         entry[1][radius] = (weakref.ref(labels), grid)
     return grid
 
