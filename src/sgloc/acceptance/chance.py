@@ -56,7 +56,7 @@ class ChanceModel:
 
     @cached_property
     def class_count(self) -> np.ndarray:
-        """(n_classes,) float64: the target objects of each class."""
+        """(at least n_classes,) float64: the target objects of each class."""
         return class_counts(self.labels, self.n_classes)
 
     def near_counts(
