@@ -17,7 +17,9 @@ mkdir -p "$F"
 
 run() {  # run NAME OUTDIR ARGS...: one experiment, then copy its table and figures
   local name=$1 out=$2; shift 2
-  sgloc experiment "$name" --out "$R/$out" --workers "$W" "$@"
+  local workers=(--workers "$W")
+  case " $* " in *" --from-csv "*) workers=();; esac  # a run from a CSV runs no trials
+  sgloc experiment "$name" --out "$R/$out" "${workers[@]}" "$@"
   cp "$R/$out/table.md" "$F/$out.md"
   for png in "$R/$out"/*.png; do cp "$png" "$F/$out-$(basename "$png")"; done
 }
