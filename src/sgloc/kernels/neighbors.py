@@ -21,6 +21,7 @@ import numpy as np
 from numba import njit
 
 from sgloc.kernels import watch_compiles
+from sgloc.kernels.dispatch import kernel
 
 #: Cells are this much wider than the radius, so that rounding in the cell index never puts
 #: two points within the radius more than one cell apart.
@@ -71,7 +72,7 @@ def _grid(points: np.ndarray, radius: float) -> tuple:
     return grid
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _cell_keys(points: np.ndarray, radius: float) -> tuple[np.ndarray, float, float, float, int]:
     """(keys, x0, y0, cell, n_y): each point's xy cell as cx * n_y + cy (cells `cell` >= radius
     wide from (x0, y0), one spare row and column on each side)."""
@@ -88,7 +89,7 @@ def _cell_keys(points: np.ndarray, radius: float) -> tuple[np.ndarray, float, fl
     return keys, x0, y0, cell, n_y
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _first_at_least(sorted_keys: np.ndarray, key: int) -> int:
     """The first position of sorted_keys holding a value >= key (binary search)."""
     lo, hi = 0, sorted_keys.shape[0]
@@ -101,7 +102,7 @@ def _first_at_least(sorted_keys: np.ndarray, key: int) -> int:
     return lo
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _counts_in_cells(
     query: np.ndarray,
     points: np.ndarray,
@@ -193,7 +194,7 @@ def distance_histograms(
     return out
 
 
-@njit(cache=True, nogil=True)
+@kernel(writes=("out",))
 def _pair_histograms(
     out: np.ndarray,
     points: np.ndarray,
@@ -273,7 +274,7 @@ def _pair_run(out, a, lo, hi, order, px, py, pz, lab, radius, n_bins, per_bin, s
         out[j, col + b_hi] += w_hi
 
 
-@njit(cache=True, nogil=True)
+@kernel(writes=("out",))
 def _histograms_in_cells(
     out: np.ndarray,
     centres: np.ndarray,
