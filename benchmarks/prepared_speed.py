@@ -9,6 +9,8 @@
    time from the process start to the answer.
 4. A fresh install's first use: `sgloc warmup`, and the localization of 3. with an empty numba
    cache (NUMBA_CACHE_DIR) each, the compile notice they print and its total.
+
+`python -m benchmarks.speed --only prepared --prepared-parts cold` runs 3. and 4. alone.
 """
 
 from __future__ import annotations
@@ -197,22 +199,36 @@ def first_use(files: list[str]) -> list[dict]:
     return rows
 
 
+#: The parts of this section (`--prepared-parts`): Airsim maps, scans, fresh process/first use.
+PARTS = ("airsim", "scans", "cold")
+
+
 def run(args) -> dict:
-    """Every part of this section (sizes capped by the object limit)."""
+    """The parts of this section `args.prepared_parts` names (all by default; sizes capped by
+    the object limit)."""
     from sgloc.validation import MAX_VERTICES
 
+    parts = set(getattr(args, "prepared_parts", None) or PARTS)
     sizes = [15_000, min(1_000_000, MAX_VERTICES)]
-    return {
-        "airsim": run_airsim(args.reps * 10),
-        "scans": run_scans(sizes, n_scans=10, rounds=max(args.reps, 2), prepares=2),
-        "cold": run_cold(20_000, args.startup_runs),
-        "max_vertices": MAX_VERTICES,
-    }
+    out = {"max_vertices": MAX_VERTICES}
+    if "airsim" in parts:
+        out["airsim"] = run_airsim(args.reps * 10)
+    if "scans" in parts:
+        out["scans"] = run_scans(sizes, n_scans=10, rounds=max(args.reps, 2), prepares=2)
+    if "cold" in parts:
+        out["cold"] = run_cold(20_000, args.startup_runs)
+    return out
 
 
 def report(r: dict) -> list[str]:
-    """The markdown section of these rows, with the verdicts."""
-    return _report_airsim(r["airsim"]) + _report_scans(r) + _report_cold(r)
+    """The markdown section of the parts run, with the verdicts."""
+    head = ["## Prepared maps and the cold call", ""]
+    lines = _report_airsim(r["airsim"]) if "airsim" in r else head
+    if "scans" in r:
+        lines += _report_scans(r)
+    if "cold" in r:
+        lines += _report_cold(r)
+    return lines
 
 
 def _report_airsim(rows: list[dict]) -> list[str]:

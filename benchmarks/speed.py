@@ -2,6 +2,7 @@
 
     python -m benchmarks.speed [--seeds 4] [--reps 3] [--no-maps] [--update-docs]
     python -m benchmarks.speed --only threads --reps 2   # just the localize / BLAS-thread part
+    python -m benchmarks.speed --only prepared --prepared-parts cold   # fresh process, first use
 
 1. register (neighbor + RANSAC + IRLS) vs KISS-Matcher (`prune_and_solve`) vs sgloc's plain
    numpy pipeline (the reference of the compiled kernels), on synthetic correspondence sets
@@ -629,6 +630,10 @@ def main() -> None:
     ap.add_argument("--update-docs", action="store_true", help="write docs/speed_benchmark.md")
     ap.add_argument("--only", nargs="+", choices=PARTS, default=list(PARTS),
                     help="run only these parts (never written to docs/)")  # fmt: skip
+    ap.add_argument("--prepared-parts", nargs="+", choices=prepared_speed.PARTS,
+                    default=list(prepared_speed.PARTS),
+                    help="of part `prepared`, only these (e.g. `cold`: the fresh process and "
+                         "first use; never written to docs/)")  # fmt: skip
     args = ap.parse_args()
     from sgloc import kernels
 
@@ -652,7 +657,7 @@ def main() -> None:
     args.loads.append(os.getloadavg()[0])
     text = "\n".join(report(reg, threads, startup, cli, maps, args))
     print(text)
-    partial = parts != set(PARTS)
+    partial = parts != set(PARTS) or set(args.prepared_parts) != set(prepared_speed.PARTS)
     out = Path("docs" if args.update_docs and not partial else "results") / "speed_benchmark.md"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)
