@@ -3,6 +3,7 @@
     python -m benchmarks.speed [--seeds 4] [--reps 3] [--no-maps] [--update-docs]
     python -m benchmarks.speed --only threads --reps 2   # just the localize / BLAS-thread part
     python -m benchmarks.speed --only prepared --prepared-parts cold   # fresh process, first use
+    python -m benchmarks.speed --only prepared --scans-only --scan-sizes 15000  # scans only
 
 1. register (neighbor + RANSAC + IRLS) vs KISS-Matcher (`prune_and_solve`) vs sgloc's plain
    numpy pipeline (the reference of the compiled kernels), on synthetic correspondence sets
@@ -628,6 +629,10 @@ def main() -> None:
     ap.add_argument("--scale-large", type=int, default=500_000, help="0: skip")
     ap.add_argument("--load", action="store_true", help="a busy process during the BLAS test")
     ap.add_argument("--update-docs", action="store_true", help="write docs/speed_benchmark.md")
+    ap.add_argument("--scan-sizes", type=int, nargs="+", default=[15_000, 1_000_000],
+                    help="map sizes of the prepared-map scans (part prepared)")  # fmt: skip
+    ap.add_argument("--scans-only", action="store_true",
+                    help="part prepared: only the scans against prepared maps")  # fmt: skip
     ap.add_argument("--only", nargs="+", choices=PARTS, default=list(PARTS),
                     help="run only these parts (never written to docs/)")  # fmt: skip
     ap.add_argument("--prepared-parts", nargs="+", choices=prepared_speed.PARTS,
@@ -657,7 +662,11 @@ def main() -> None:
     args.loads.append(os.getloadavg()[0])
     text = "\n".join(report(reg, threads, startup, cli, maps, args))
     print(text)
-    partial = parts != set(PARTS) or set(args.prepared_parts) != set(prepared_speed.PARTS)
+    partial = (
+        parts != set(PARTS)
+        or args.scans_only
+        or set(args.prepared_parts) != set(prepared_speed.PARTS)
+    )
     out = Path("docs" if args.update_docs and not partial else "results") / "speed_benchmark.md"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)

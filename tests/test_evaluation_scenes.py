@@ -16,7 +16,7 @@ from sgloc.evaluation.scenes import move_target, pair_rng, route_overlap
 
 #: The evaluation modules from the lowest up: each imports only modules before it.
 ORDER = (
-    "metrics", "scenes", "pairs_kitti", "pairs_sim", "pairs",
+    "metrics", "scenes", "pairs_kitti", "kitti_refined", "pairs_sim", "pairs",
     "acceptance_pairs", "fleet_scenes", "replay_scenarios", "online_oracle", "fleet_trajectory",
     "online_replay", "trials", "report", "plots", "experiments",
 )  # fmt: skip

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import gc
+import weakref
+
 import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
@@ -259,6 +262,53 @@ def test_near_counts_equal_kd_tree_reference(seed, radius):
     np.testing.assert_array_equal(alone, ref[0])
     empty = model.near_counts(np.zeros((0, 3)), (None, usage))
     assert [x.shape for x in empty] == [(0, 6), (0, 6)]
+
+
+@pytest.mark.parametrize("path", ["compiled", "reference"])
+def test_near_targets_equal_usage_weighted_counts(monkeypatch, path):
+    """`ChanceModel.near_targets` (a search among the candidates' targets only) gives the
+    usage-weighted counts of the whole map's search, for repeated targets too; the class
+    counts are the map's."""
+    monkeypatch.setattr(kernels, "FORCE", path)
+    rng = np.random.default_rng(7)
+    pts = rng.uniform(-100, 100, (3000, 3)) * [1, 1, 0.05]
+    labels = rng.integers(0, 6, len(pts))
+    targets = rng.integers(0, len(pts), 400)  # repeats included
+    moved = pts[rng.integers(0, len(pts), 200)] + rng.normal(0, 2.0, (200, 3))
+    model = ChanceModel(SemanticGraph(pts, labels), 4.0, 7)
+    usage = np.bincount(targets, minlength=len(pts)).astype(np.float64)
+    got = model.near_targets(moved, targets)
+    want = model.near_counts_reference(moved, (usage,))[0]
+    assert got.shape == (200, 7) and got.sum() > 50
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(model.class_count, np.bincount(labels, minlength=7))
+
+
+def test_grid_kept_for_a_kept_map():
+    """The neighbour grid of a graph's frozen arrays is built once and reused (a query then
+    costs its neighbourhood, not the map); writeable arrays get a new one; both count alike."""
+    from sgloc.kernels.neighbors import cell_grid, near_class_counts
+
+    rng = np.random.default_rng(3)
+    g = SemanticGraph(rng.uniform(-50, 50, (2000, 3)), rng.integers(0, 4, 2000))
+    assert cell_grid(g.positions, g.labels, 3.0) is cell_grid(g.positions, g.labels, 3.0)
+    assert cell_grid(g.positions, g.labels, 3.0) is not cell_grid(g.positions, g.labels, 5.0)
+    pos, lab = g.positions.copy(), g.labels.copy()
+    assert cell_grid(pos, lab, 3.0) is not cell_grid(pos, lab, 3.0)
+    moved = rng.uniform(-60, 60, (300, 3))
+    w = rng.uniform(0, 1, 2000)
+    for a, b in zip(near_class_counts(moved, g.positions, g.labels, 4, 3.0, w),
+                    near_class_counts(moved, pos, lab, 4, 3.0, w), strict=True):  # fmt: skip
+        np.testing.assert_array_equal(a, b)
+    # Several kept maps keep their grids; a grid leaves with its map.
+    maps = [SemanticGraph(rng.uniform(-50, 50, (500, 3)), rng.integers(0, 4, 500))
+            for _ in range(6)]  # fmt: skip
+    grids = [cell_grid(m.positions, m.labels, 3.0) for m in maps]
+    assert all(cell_grid(m.positions, m.labels, 3.0) is x for m, x in zip(maps, grids, strict=True))
+    gone = weakref.ref(grids[0])
+    del maps[0], grids[0]
+    gc.collect()
+    assert gone() is None
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])

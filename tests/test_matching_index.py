@@ -176,3 +176,24 @@ def test_prepared_map_keeps_the_index(small_rule, street, tmp_path):
     same_index(grown.blocks.index, prepared.blocks.index)
     loaded = PreparedMap.load(prepared.save(tmp_path / "map.npz"))
     same_index(loaded.blocks.index, prepared.blocks.index)
+
+
+def test_prepared_blocks_leave_out_indexed_classes(small_rule, street):
+    """The exhaustive blocks of a prepared map hold only the classes not searched by the index
+    (one copy of the descriptors less); a localizer searching exactly against that map still
+    gets the exact search's candidates, bit for bit."""
+    prepared = sgloc.prepare(street)
+    blocks = prepared.blocks
+    indexed = np.array(sorted(blocks.index))
+    assert indexed.size and len(blocks.order) < len(street)
+    assert not np.isin(blocks.block_class, indexed).any()
+    assert len(blocks.order) == np.count_nonzero(~np.isin(prepared.target.labels, indexed))
+    exact = LocalizerConfig(matching=MatchingConfig(search="exact"))
+    fresh = SemanticGraph(street.positions, street.labels, street.edge_radius, street.name)
+    prepared_exact = sgloc.prepare(fresh, exact)
+    assert not prepared_exact.blocks.index and len(prepared_exact.blocks.order) == len(street)
+    for seed, query in enumerate(scans(street, np.random.default_rng(2), 3)):
+        a = localize(query, prepared_exact, config=exact, seed=seed)
+        b = localize(query, prepared, config=exact, seed=seed)
+        assert np.array_equal(a.candidates, b.candidates) and a.success == b.success
+        assert np.array_equal(a.scores, b.scores)

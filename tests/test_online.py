@@ -281,3 +281,31 @@ def test_loading_something_else_is_a_clear_error(tmp_path):
         OnlineSession.load(bad)
     with pytest.raises(SglocError, match="not a saved online session"):
         OnlineSession.load(tmp_path / "missing.npz")
+
+
+def test_finish_tries_once_more_every_pair_whose_maps_changed(stream):
+    # Growth thresholds never reached again: after the first attempts (small maps, rejected)
+    # no pair is retried while keyframes come in; finish() tries the pairs of the finished
+    # robot whose maps changed since, once, and the robots join.
+    _, frames = stream
+    cfg = OnlineConfig(min_observations=1, max_attempts=None, min_objects=10,
+                       growth_ratio=100.0, growth_objects=100_000)
+    s = OnlineSession(online=cfg)
+    for stamp, r, p, lab in frames:
+        s.add_keyframe(r, stamp, np.eye(4), p, lab)
+    assert len(s.attempts) == 3 and not any(a.accepted for a in s.attempts)
+    assert [s.T_fleet_robot(r) is not None for r in s.robots] == [True, False, False]
+    events = s.finish("world1", stamp=9.0)
+    new = s.attempts[3:]
+    assert sorted((a.query, a.target) for a in new) == [("world1", "world0"),
+                                                         ("world2", "world1")]
+    assert all(a.stamp == 9.0 for a in new)
+    joined = [e.robots[0] for e in events if e.kind == "robot_joined"]
+    assert joined == ["world1", "world2"] and all(e.stamp == 9.0 for e in events)
+    # Nothing changed since: a second finish tries nothing; another robot's finish only
+    # what changed for it (world0-world2, untried since the first attempt).
+    assert s.finish("world1") == [] and len(s.attempts) == 5
+    s.finish("world0")
+    assert [(a.query, a.target) for a in s.attempts[5:]] == [("world2", "world0")]
+    with pytest.raises(SglocError, match="unknown robot"):
+        s.finish("nobody")

@@ -124,6 +124,26 @@ def test_add_on_a_large_map(street):
     assert np.array_equal(prepared.blocks.blocks, scratch.blocks.blocks)
 
 
+def test_prepared_map_keeps_the_chance_grid(street, tmp_path):
+    """Preparing builds the acceptance test's neighbour grid at the config's radius; queries
+    use that one (nothing over the whole map per query); add and load build the grown or
+    loaded map's."""
+    from sgloc.kernels.neighbors import cell_grid
+
+    prepared = sgloc.prepare(SemanticGraph(street.positions[:-30], street.labels[:-30]))
+    cfg = prepared.config
+    radius = float(cfg.acceptance.radius or cfg.ransac.threshold)
+    grid = prepared.chance_grid
+    assert grid is not None and len(grid.order) == len(street) - 30
+    for seed, query in enumerate(scans(street, np.random.default_rng(4), 2, 60.0)):
+        localize(query, prepared, seed=seed)
+        assert cell_grid(prepared.target.positions, prepared.target.labels, radius) is grid
+    prepared.add(street.positions[-30:], street.labels[-30:])
+    assert prepared.chance_grid is not grid and len(prepared.chance_grid.order) == len(street)
+    loaded = PreparedMap.load(prepared.save(tmp_path / "map.npz"))
+    assert loaded.chance_grid is not None and len(loaded.chance_grid.order) == len(street)
+
+
 def test_save_load_round_trip(path, airsim, tmp_path):
     q, t = airsim
     prepared = sgloc.prepare(t, LocalizerConfig().with_overrides(descriptor_radius=35.0))

@@ -164,8 +164,8 @@ def test_covariance_is_computed_when_asked_and_settings_are_reused():
     b = register(src, dst, noise_bound=1.0, seed=0, eta=0.5)
     assert settings_cache_info().hits > before
     assert "covariance" not in a.__dict__  # not computed yet
-    s, d, motion = a.fitted
-    expected = transform_covariance(s, d, a.transform, None, motion.dof, motion.max_tilt)
+    f = a.fitted
+    expected = transform_covariance(f.src, f.dst, a.transform, None, f.dof, f.max_tilt)
     np.testing.assert_array_equal(a.covariance, expected)
     np.testing.assert_array_equal(a.transform, b.transform)
     with pytest.raises(Exception, match="eta"):

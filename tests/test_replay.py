@@ -164,3 +164,42 @@ def test_a_join_is_judged_at_the_objects_the_robot_had_when_it_joined(world, tmp
         if row["join_error"] is not None and not row["root"]:
             assert row["join_error_final"] is not None
             assert row["join_error"] != row["join_error_final"]
+
+
+def test_oracle_refit_recovers_the_transform_the_maps_agree_on():
+    # Robot a's objects are robot b's moved by the ground truth AND a 0.5 deg yaw (the maps
+    # disagree with the ground truth): the fit on the true pairs finds the maps' transform.
+    from scipy.spatial.transform import Rotation
+
+    from sgloc.estimation import MotionModel
+    from sgloc.evaluation.online_oracle import oracle_refit
+    from sgloc.geometry import apply, make_transform
+
+    rng = np.random.default_rng(3)
+    pos_b = rng.uniform(-80, 80, (60, 3)) * [1, 1, 0.05]
+    lab = rng.integers(0, 4, 60)
+    T_gt = make_transform(Rotation.from_euler("z", 30, degrees=True).as_matrix(), [5, -2, 0])
+    T_maps = T_gt @ make_transform(Rotation.from_euler("z", 0.5, degrees=True).as_matrix(),
+                                   [0.3, 0, 0])
+    T = oracle_refit(pos_b, lab, apply(T_maps, pos_b), lab, T_gt, 2.0, MotionModel())
+    np.testing.assert_allclose(T, T_maps, atol=1e-6)
+    assert oracle_refit(pos_b[:2], lab[:2], apply(T_maps, pos_b[:2]), lab[:2], T_gt, 2.0,
+                        MotionModel()) is None
+
+
+def test_replay_finishes_each_robot_after_its_last_keyframe(world):
+    # With finish (the default) every robot's last update tried each of its pairs whose maps
+    # changed since their last attempt: a further finish of the robot that ended last tries
+    # nothing. Without it, some pair of that robot is still untried on its final map.
+    from sgloc.online import OnlineConfig, OnlineSession
+    from sgloc.replay import replay_logs
+
+    last = world.logs[int(keyframe_order(world.logs)[-1, 0])].name
+    runs = {}
+    for finish in (True, False):
+        s = OnlineSession(online=OnlineConfig(growth_ratio=100.0, growth_objects=100_000))
+        replay_logs(world.logs, s, finish=finish)
+        n = len(s.attempts)
+        s.finish(last)
+        runs[finish] = len(s.attempts) - n
+    assert runs[True] == 0 and runs[False] > 0

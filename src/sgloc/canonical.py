@@ -32,17 +32,41 @@ def canonical_order(graph: SemanticGraph) -> np.ndarray:
     return np.lexsort((p[:, 2], p[:, 1], p[:, 0], graph.labels))
 
 
-def without_duplicates(graph: SemanticGraph, order: np.ndarray) -> np.ndarray:
-    """`order` without the vertices that repeat an earlier one of it (same class, closer than
-    DUPLICATE_RADIUS); an order of a graph without duplicates comes back unchanged."""
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
+#: Objects of one class each within DUPLICATE_RADIUS of the next in x, in canonical order,
+#: are compared pairwise up to runs this long (longer runs: a KD-tree search).
+_RUN_SEARCH = 8
 
-    pairs = cKDTree(graph.positions[order]).query_pairs(DUPLICATE_RADIUS, output_type="ndarray")
-    lab = graph.labels[order]
-    pairs = pairs[lab[pairs[:, 0]] == lab[pairs[:, 1]]]
+
+def _close_pairs(graph: SemanticGraph, order: np.ndarray) -> np.ndarray:
+    """(k,2) positions i < j in `order` (`canonical_order`) of same-class objects within
+    DUPLICATE_RADIUS. Such a pair is at most that far apart in x, so in the order (class, then
+    x) every step between them is too: only runs of such steps hold candidates."""
+    lab, p = graph.labels[order], graph.positions[order]
+    step = (lab[1:] == lab[:-1]) & (p[1:, 0] - p[:-1, 0] <= DUPLICATE_RADIUS)
+    if not step.any():
+        return np.zeros((0, 2), np.int64)
+    steps = np.concatenate([[0], np.cumsum(step)])
+    found = []
+    for s in range(1, _RUN_SEARCH + 1):  # candidates s places apart
+        i = np.flatnonzero(steps[s:] - steps[:-s] == s)
+        if i.size == 0:
+            return np.concatenate(found) if found else np.zeros((0, 2), np.int64)
+        close = np.sum((p[i + s] - p[i]) ** 2, axis=1) <= DUPLICATE_RADIUS**2
+        found.append(np.stack([i[close], i[close] + s], axis=1))
+    from scipy.spatial import cKDTree  # long runs (objects on a line of one x)
+
+    pairs = cKDTree(p).query_pairs(DUPLICATE_RADIUS, output_type="ndarray")
+    return pairs[lab[pairs[:, 0]] == lab[pairs[:, 1]]]
+
+
+def without_duplicates(graph: SemanticGraph, order: np.ndarray) -> np.ndarray:
+    """`order` (`canonical_order(graph)`) without the vertices that repeat an earlier one of it
+    (same class, closer than DUPLICATE_RADIUS); without duplicates it comes back unchanged."""
+    pairs = _close_pairs(graph, order)
     if len(pairs) == 0:
         return order
+    from scipy.sparse.csgraph import connected_components
+
     n = len(order)
     links = sparse.coo_array((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
     _, group = connected_components(links, directed=False)
@@ -122,7 +146,7 @@ class CanonicalPair:
 
     def restore(self, result: Any) -> Any:
         """The result with every (query index, target index) array in the caller's indices,
-        rows sorted by them (candidates keep their scores), and the caller's config."""
+        rows sorted by them (candidates keep their scores)."""
         qo, to = self.query_order, self.target_order
 
         def back(pairs: np.ndarray) -> np.ndarray:
@@ -135,5 +159,4 @@ class CanonicalPair:
         for name in ("survivors", "matches"):
             pairs = back(getattr(result, name))
             setattr(result, name, pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))])
-        result.config = self.original_config.to_dict()
         return result

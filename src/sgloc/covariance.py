@@ -253,6 +253,29 @@ def transform_covariance(
     return assemble(info, np.array(var), np.array(nu), c, inflation, tilt_prior(dof, max_tilt))
 
 
+@dataclass(frozen=True)
+class FittedPoints:
+    """The matched points a transform was fitted on, kept by a result (`LocalizationResult`,
+    `RegistrationResult`) so that its covariance is computed when first read, not per call:
+    src, dst (k,3) metres, `weights` (k,) the fit's prior weights or None, and the motion
+    model's dof and max_tilt (degrees)."""
+
+    src: np.ndarray
+    dst: np.ndarray
+    weights: np.ndarray | None
+    dof: int
+    max_tilt: float | None
+
+    def covariance(self, transform: np.ndarray | None) -> np.ndarray | None:
+        """`transform_covariance` of `transform` (T_dst_src) on these points; None without a
+        transform."""
+        if transform is None:
+            return None
+        return transform_covariance(
+            self.src, self.dst, transform, self.weights, self.dof, self.max_tilt
+        )
+
+
 def _yaw_only(info: np.ndarray) -> np.ndarray:
     """The information of a fit that held roll and pitch: yaw and translation as estimated
     with roll and pitch fixed (their block alone), and roll and pitch decoupled from them with

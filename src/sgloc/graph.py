@@ -59,9 +59,10 @@ class SemanticGraph:
     def n_vertices(self) -> int:
         return len(self)
 
-    @property
+    @cached_property
     def n_classes(self) -> int:
-        """One more than the largest class id (0 for an empty graph)."""
+        """One more than the largest class id (0 for an empty graph); computed once (a pass
+        over the labels: a large map's is asked on every query)."""
         return int(self.labels.max()) + 1 if len(self) else 0
 
     def __repr__(self) -> str:

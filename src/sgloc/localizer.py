@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -12,7 +13,7 @@ import numpy as np
 from sgloc.acceptance import Verdict, accept
 from sgloc.canonical import CanonicalPair
 from sgloc.config import LocalizerConfig
-from sgloc.covariance import transform_covariance
+from sgloc.covariance import FittedPoints
 from sgloc.descriptors import make_descriptor
 from sgloc.errors import InvalidGraphError, SglocError
 from sgloc.estimation import FinalFit, PoseEstimate, estimate_pose, final_fit, icp_refine
@@ -44,7 +45,10 @@ class LocalizationResult:
     confidence: in [0, 1], how far the result is to be trusted (None when not assessed).
     covariance: (6,6) covariance of `transform` (None when not localized): tangent order
         [rx, ry, rz, tx, ty, tz] (rad, m), T_true = transform @ Exp(xi), xi in the QUERY frame
-        (gtsam.Pose3's convention); measured on real data (`sgloc.covariance`).
+        (gtsam.Pose3's convention); measured on real data (`sgloc.covariance`). Computed when
+        first read, from `fitted`.
+    config: the call's settings as a nested dict (`LocalizerConfig.to_dict` of `settings`),
+        built when first read.
     """
 
     success: bool
@@ -56,8 +60,21 @@ class LocalizationResult:
     timings: dict[str, float]
     reason: str = ""
     confidence: float | None = None
-    config: dict[str, Any] = field(default_factory=dict)
-    covariance: np.ndarray | None = None
+    #: The settings of the call (`config` is their dict).
+    settings: LocalizerConfig | None = field(default=None, repr=False)
+    #: The matched points the transform was fitted on (`covariance` is computed from them).
+    fitted: FittedPoints | None = field(default=None, repr=False)
+
+    @cached_property
+    def config(self) -> dict[str, Any]:
+        """The call's settings as a nested dict of plain values (`LocalizerConfig.to_dict`)."""
+        return {} if self.settings is None else self.settings.to_dict()
+
+    @cached_property
+    def covariance(self) -> np.ndarray | None:
+        """(6,6) covariance of `transform` (see the class docstring), computed when first read
+        (None when not localized)."""
+        return None if self.fitted is None else self.fitted.covariance(self.transform)
 
     def raise_if_failed(self) -> LocalizationResult:
         if not self.success:
@@ -177,7 +194,8 @@ class Localizer:
             timings=timer.timings,
             reason=verdict.reason,
             confidence=verdict.confidence,
-            covariance=_covariance(query, target, verdict, pose, weights, cfg),
+            settings=self.config,
+            fitted=_fitted(query, target, verdict, pose, weights, cfg),
         )
         return canonical.restore(result)  # the caller's vertex indices and config
 
@@ -226,24 +244,22 @@ def _match(
     return _Matched(candidates, scores, distinct, flag_ratio)
 
 
-def _covariance(
+def _fitted(
     query: SemanticGraph,
     target: SemanticGraph,
     verdict: Verdict,
     pose: PoseEstimate,
     weights: np.ndarray | None,
     cfg: LocalizerConfig,
-) -> np.ndarray | None:
-    """The covariance of an accepted transform (sgloc.covariance), from the matches it was
-    fitted on (RANSAC's inliers with their class weights, or the verification's, unweighted)."""
+) -> FittedPoints | None:
+    """The points an accepted transform was fitted on, for its covariance (sgloc.covariance):
+    RANSAC's inliers with their class weights, or the verification's matches, unweighted."""
     if not verdict.accepted:
         return None
     m = verdict.matches
     w = None if weights is None or verdict.verified else weights[pose.inliers]
-    return transform_covariance(
-        query.positions[m[:, 0]], target.positions[m[:, 1]], verdict.transform, w,
-        cfg.motion.dof, cfg.motion.max_tilt,
-    )  # fmt: skip
+    return FittedPoints(query.positions[m[:, 0]], target.positions[m[:, 1]], w,
+                        cfg.motion.dof, cfg.motion.max_tilt)  # fmt: skip
 
 
 def _match_weights(

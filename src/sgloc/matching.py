@@ -180,7 +180,10 @@ def _use_kernel(desc_q, desc_t) -> bool:
 @dataclass(frozen=True)
 class TargetBlocks:
     """A target's descriptors as the matching kernel reads them, built once for many queries
-    (`target_blocks`): per class, its unit rows transposed (`sgloc.kernels.matching`)."""
+    (`target_blocks`): per class searched exhaustively, its unit rows transposed
+    (`sgloc.kernels.matching`: blocks, block_class, block_start, order: those classes' target
+    indices sorted by class); `index`: the candidate-search index of the other classes;
+    classes, counts: every class of the target and its number of rows."""
 
     n_rows: int
     blocks: np.ndarray
@@ -188,6 +191,14 @@ class TargetBlocks:
     block_start: np.ndarray
     order: np.ndarray
     index: dict = field(default_factory=dict)
+    classes: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    counts: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+
+    def covers(self, classes: np.ndarray) -> bool:
+        """Whether every one of `classes` the target holds has a block (is searched
+        exhaustively on these blocks)."""
+        held = np.intersect1d(classes, self.classes)
+        return bool(np.all(np.isin(held, self.block_class)))
 
 
 #: Targets of more objects than this keep their matching blocks when prepared (sgloc.prepared).
@@ -197,21 +208,23 @@ BLOCKS_MIN_OBJECTS = 1500
 def target_blocks(desc_t, labels_t: np.ndarray, search: str = "auto") -> TargetBlocks | None:
     """The kernel's class blocks of a target's descriptors (n,d) and labels (n,), or None when
     they are not worth keeping: sparse descriptors, or at most BLOCKS_MIN_OBJECTS rows (blocks
-    that cheap are built per call). Memory: another n x d floats. With `search` other than
-    "exact", also the index (`sgloc.matching_index`) of every class of more than
-    INDEX_MIN_CLASS objects (the classes "auto" may search by it; another n x d floats)."""
+    that cheap are built per call). With `search` other than "exact", the classes it sends to
+    the index (`sgloc.matching_index`: more than INDEX_MIN_CLASS objects under "auto") get
+    their index and no block. Memory: another n x d floats (blocks and index together)."""
     if sparse.issparse(desc_t) or len(labels_t) <= BLOCKS_MIN_OBJECTS:
         return None
     from sgloc.kernels.matching import class_blocks
 
     labels_t = np.asarray(labels_t, dtype=np.int64)
-    order_t = np.argsort(labels_t, kind="stable")
+    classes, counts = np.unique(labels_t, return_counts=True)
+    index = {} if search == "exact" else build_index(desc_t, labels_t)
+    exact = np.flatnonzero(~np.isin(labels_t, np.fromiter(index, np.int64, len(index))))
+    order_t = exact[np.argsort(labels_t[exact], kind="stable")]
     parts = class_blocks(np.ascontiguousarray(desc_t, dtype=np.float64), order_t,
                          labels_t[order_t])  # fmt: skip
-    for a in (*parts, order_t):
+    for a in (*parts, order_t, classes, counts):
         a.flags.writeable = False
-    index = {} if search == "exact" else build_index(desc_t, labels_t)
-    return TargetBlocks(len(labels_t), *parts, order_t, index)
+    return TargetBlocks(len(labels_t), *parts, order_t, index, classes, counts)
 
 
 def _compiled_top_k(desc_q, desc_t, labels_q, labels_t, k, min_sim, max_ratio, flag_ratio,
@@ -233,7 +246,7 @@ def _compiled_top_k(desc_q, desc_t, labels_q, labels_t, k, min_sim, max_ratio, f
         exact_q = np.where(np.isin(labels_q, indexed), labels_t.min() - 1, labels_q)
     order_q = np.argsort(exact_q, kind="stable")
     query = (np.ascontiguousarray(desc_q, dtype=np.float64), order_q, exact_q[order_q])
-    if blocks is not None:
+    if blocks is not None and blocks.covers(np.unique(exact_q)):
         target = (blocks.blocks, blocks.block_class, blocks.block_start, blocks.order)
         out = top_k_in_blocks(*query, *target, *tests)
     else:
@@ -257,10 +270,10 @@ def _indexed_classes(labels_q: np.ndarray, labels_t: np.ndarray, search: str,
                      blocks: TargetBlocks | None = None) -> np.ndarray:  # fmt: skip
     """The classes (ascending) that `search` sends to an index for these labels (the target's
     class sizes read from its prepared `blocks` when given)."""
-    if search == "exact":
-        return np.zeros(0, np.int64)
+    if search == "exact" or not uses_index(search, len(labels_t)):
+        return np.zeros(0, np.int64)  # not even a class of every target would be indexed
     if blocks is not None:
-        ct, nt = blocks.block_class, np.diff(blocks.block_start)
+        ct, nt = blocks.classes, blocks.counts
     else:
         ct, nt = np.unique(labels_t, return_counts=True)
     use = np.array([uses_index(search, int(n)) for n in nt], dtype=bool)

@@ -11,9 +11,12 @@ map, a fleet localizing new keyframes against a growing one).
 A localization against a prepared map gives the same result, bit for bit, as against the graph
 it holds (`prepared.graph`). Preparing costs memory linear in the map: the descriptors
 (objects x classes x bins floats), and for maps larger than `sgloc.matching.BLOCKS_MIN_OBJECTS`
-objects a second, normalised copy grouped by class for the matching kernel, and for classes of
-more than `sgloc.matching_index.INDEX_MIN_CLASS` objects a third, grouped by the lists of the
-candidate-search index (`MatchingConfig.search`; rebuilt by `add` and on `load`).
+objects a second, normalised copy for the matching kernel: grouped by class for the classes
+searched exhaustively, by the lists of the candidate-search index for the classes of more than
+`sgloc.matching_index.INDEX_MIN_CLASS` objects (`MatchingConfig.search`; rebuilt by `add` and
+on `load`). The acceptance test's neighbour grid of the map (`chance_grid`, at most 64 bytes
+per object) is built with it and kept while the map lives, so a query's chance model costs its
+own neighbourhood, not the map.
 """
 
 from __future__ import annotations
@@ -54,7 +57,9 @@ class PreparedMap:
         with another descriptor or descriptor parameters refuses the map.
     classes: (L,) the map's class ids, sorted; order: (n,) its canonical vertex order
         (`sgloc.canonical`); target: the canonical graph (classes renumbered 0..L-1);
-        descriptors: (n, d) the canonical graph's descriptor rows (read-only).
+        descriptors: (n, d) the canonical graph's descriptor rows (read-only);
+        chance_grid: the acceptance test's neighbour grid of `target` at the config's
+        acceptance radius (None without compiled kernels), kept while the map lives.
     """
 
     def __init__(self, graph: SemanticGraph, config: LocalizerConfig | None = None) -> None:
@@ -85,6 +90,21 @@ class PreparedMap:
         self.target = SemanticGraph(
             graph.positions[self.order], labels, graph.edge_radius, graph.name
         )
+        self.chance_grid = self._chance_grid()
+
+    def _chance_grid(self):
+        """The acceptance test's neighbour grid of the map at the config's acceptance radius
+        (`sgloc.kernels.neighbors.cell_grid`), built now rather than by the first query, and
+        the class counts; None when the chance model searches by KD-trees."""
+        if not use_compiled(len(self.target)):
+            return None
+        from sgloc.acceptance.chance import class_counts
+        from sgloc.kernels.neighbors import cell_grid
+
+        radius = float(self.config.acceptance.radius or self.config.ransac.threshold)
+        class_counts(self.target.labels, len(self.classes))
+        positions = np.ascontiguousarray(self.target.positions, dtype=np.float64)
+        return cell_grid(positions, np.asarray(self.target.labels, dtype=np.int64), radius)
 
     def _describe(self) -> np.ndarray:
         """The canonical graph's descriptors, computed whole."""

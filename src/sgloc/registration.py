@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from sgloc.covariance import transform_covariance
+from sgloc.covariance import FittedPoints
 from sgloc.errors import SglocError, UnknownNameError
 from sgloc.estimation import (
     ANY_RIGID,
@@ -55,17 +55,14 @@ class RegistrationResult:
     survivors: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     timings: dict[str, float] = field(default_factory=dict)
     reason: str = ""
-    #: (inlier src, inlier dst, MotionModel) the covariance is computed from, on first access.
-    fitted: tuple | None = field(default=None, repr=False)
+    #: The inlier points the covariance is computed from, on first access.
+    fitted: FittedPoints | None = field(default=None, repr=False)
 
     @cached_property
     def covariance(self) -> np.ndarray | None:
         """(6,6) covariance of `transform` (see the class docstring), computed when first
         asked for (a registration loop that never reads it does not pay for it)."""
-        if self.transform is None or self.fitted is None:
-            return None
-        src, dst, motion = self.fitted
-        return transform_covariance(src, dst, self.transform, None, motion.dof, motion.max_tilt)
+        return None if self.fitted is None else self.fitted.covariance(self.transform)
 
 
 def _points(a: Any, name: str) -> np.ndarray:
@@ -193,5 +190,6 @@ def register(
         survivors=pose.survivors,
         timings=timer.timings,
         reason=pose.reason,
-        fitted=(src[pose.inliers], dst[pose.inliers], cfg.motion),
+        fitted=FittedPoints(src[pose.inliers], dst[pose.inliers], None, cfg.motion.dof,
+                            cfg.motion.max_tilt),  # fmt: skip
     )

@@ -153,6 +153,14 @@ def check_graph_arrays(
             "map into submaps or merge nearby objects."
         )
     pos = pos.astype(np.float64)
+    # One pass when all is well: the largest |coordinate| is within range (NaN compares False).
+    if pos.size and not np.abs(pos).max() <= MAX_COORDINATE:
+        _refuse_positions(name, pos)
+    return pos, _check_labels(name, lab)
+
+
+def _refuse_positions(name: str, pos: np.ndarray) -> None:
+    """The InvalidGraphError of positions (n,3) holding NaN, infinite or too large values."""
     finite = np.isfinite(pos).all(axis=1)
     if not finite.all():
         bad = np.flatnonzero(~finite)
@@ -160,13 +168,11 @@ def check_graph_arrays(
             f"{name}: {bad.size} position(s) are NaN or infinite (first at row {bad[0]}); "
             "drop those objects before building the graph."
         )
-    if pos.size and np.abs(pos).max() > MAX_COORDINATE:
-        row = int(np.argmax(np.abs(pos).max(axis=1)))
-        raise InvalidGraphError(
-            f"{name}: position {pos[row].tolist()} at row {row} is beyond +-{MAX_COORDINATE:g} "
-            "m; positions must be metres in a local map frame."
-        )
-    return pos, _check_labels(name, lab)
+    row = int(np.argmax(np.abs(pos).max(axis=1)))
+    raise InvalidGraphError(
+        f"{name}: position {pos[row].tolist()} at row {row} is beyond +-{MAX_COORDINATE:g} "
+        "m; positions must be metres in a local map frame."
+    )
 
 
 def _check_labels(name: str, lab: np.ndarray) -> np.ndarray:
@@ -179,7 +185,8 @@ def _check_labels(name: str, lab: np.ndarray) -> np.ndarray:
             f"{lab.max()}); unknown classes must be removed or mapped to an id."
         )
     lab = lab.astype(np.int64)
-    n_classes = len(np.unique(lab))
+    # Ids below MAX_CLASSES cannot name more classes than that: no count needed.
+    n_classes = len(np.unique(lab)) if lab.size and lab.max() >= MAX_CLASSES else 0
     if n_classes > MAX_CLASSES:
         raise InvalidGraphError(
             f"{name}: {n_classes} distinct classes, more than the limit of {MAX_CLASSES}; "

@@ -192,8 +192,9 @@ def _best_evidence(
     m = len(cand)
     k = int(np.count_nonzero(np.bincount(cand[c.inlier, 0])))  # distinct query objects
     # Permutation null: target j drawn with the frequency the candidates of its class chose it.
-    usage = np.bincount(cand[:, 1], minlength=len(target)).astype(np.float64)
-    counts, used = chance.near_counts(apply(transform, query.positions), (None, usage))
+    moved = apply(transform, query.positions)
+    (counts,) = chance.near_counts(moved)
+    used = chance.near_targets(moved, cand[:, 1])
     lam = chance.expected_inliers(counts, qi, tlab)
     obj2 = per_object_min(c.res2, qi)
     lg_uniform, k_fit, r_fit = nfa_over_radii(obj2, r, lam, m, tests.n_tests, tests.sample)

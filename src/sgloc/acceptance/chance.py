@@ -9,6 +9,9 @@ one formula that weighs the best hypothesis against its rival and chance. Used b
 
 from __future__ import annotations
 
+import weakref
+from functools import cached_property
+
 import numpy as np
 
 from sgloc.consistency import ConsistentPairs, common_partner_count, consistency_bits
@@ -34,17 +37,27 @@ def _log_comb3(m: int) -> float:
 
 class ChanceModel:
     """Chance agreement of a transform under the nulls, from one neighbour search: the
-    same-class target objects within the radius of each moved query object."""
+    same-class target objects within the radius of each moved query object.
+
+    Against a map searched again and again (a prepared map, or the same graph object) the
+    search's grid and the class counts are built once (`sgloc.kernels.neighbors.cell_grid`,
+    `class_counts`): a query then costs O(its objects x the map objects around them), not
+    O(map)."""
 
     def __init__(self, target: SemanticGraph, radius: float, n_classes: int) -> None:
         self.positions = np.ascontiguousarray(target.positions, dtype=np.float64)
         self.labels = target.labels
         self.n_classes = n_classes
-        self.class_count = np.bincount(target.labels, minlength=n_classes).astype(np.float64)
         self.radius = radius
-        # The neighbour search: compiled (a grid per call) or by KD-trees (the reference).
+        # The neighbour search: compiled (a grid, kept for a kept map) or by KD-trees (the
+        # reference).
         self.compiled = use_compiled(len(target))
         self.tree = None
+
+    @cached_property
+    def class_count(self) -> np.ndarray:
+        """(at least n_classes,) float64: the target objects of each class."""
+        return class_counts(self.labels, self.n_classes)
 
     def near_counts(
         self, moved: np.ndarray, weights: tuple[np.ndarray | None, ...] = (None,)
@@ -66,6 +79,26 @@ class ChanceModel:
             )
             return [counts, summed][: len(weights)]
         return self.near_counts_reference(moved, weights)
+
+    def near_targets(self, moved: np.ndarray, targets: np.ndarray) -> np.ndarray:
+        """(n, n_classes): per point of `moved` (n,3) and class c, how many entries of
+        `targets` (target indices, repeats counted) are class-c objects within the radius:
+        `near_counts` weighted by each object's count in `targets`, searched among those
+        objects only (the same integers, without a pass over the whole map)."""
+        targets = np.asarray(targets, dtype=np.int64)
+        if not self.compiled:
+            usage = np.bincount(targets, minlength=len(self.labels)).astype(np.float64)
+            return self.near_counts_reference(moved, (usage,))[0]
+        from sgloc.kernels.neighbors import near_class_counts
+
+        return near_class_counts(
+            np.ascontiguousarray(moved, dtype=np.float64),
+            np.ascontiguousarray(self.positions[targets]),
+            np.asarray(self.labels[targets], dtype=np.int64),
+            self.n_classes,
+            float(self.radius),
+            np.zeros(0),
+        )[0]
 
     def near_counts_reference(
         self, moved: np.ndarray, weights: tuple[np.ndarray | None, ...] = (None,)
@@ -90,6 +123,30 @@ class ChanceModel:
         """lambda = sum over candidates (query qi, target class tlab) of N_c / n_c, with
         `counts` = near_counts of the moved query objects."""
         return float(np.sum(counts[qi, tlab] / self.class_count[tlab]))
+
+
+#: Class counts of read-only label arrays: id -> (weak reference, counts); an entry leaves
+#: with its array.
+_COUNTS: dict[int, tuple] = {}
+
+
+def class_counts(labels: np.ndarray, n_classes: int) -> np.ndarray:
+    """(max(n_classes, labels.max() + 1),) float64: the number of `labels` (n,) of each class;
+    kept while a read-only `labels` array lives."""
+    kept = _COUNTS.get(id(labels))
+    if kept is None or kept[0]() is not labels:
+        counts = np.bincount(labels).astype(np.float64)
+        counts.flags.writeable = False
+        if labels.flags.writeable or labels.base is not None:
+            kept = (None, counts)
+        else:
+            key = id(labels)
+            kept = (weakref.ref(labels, lambda _, k=key: _COUNTS.pop(k, None)), counts)
+            _COUNTS[key] = kept
+    counts = kept[1]
+    if len(counts) >= n_classes:
+        return counts
+    return np.concatenate([counts, np.zeros(n_classes - len(counts))])
 
 
 def _log10_poisson_tail(k: int, lam: float) -> float:

@@ -10,8 +10,8 @@ query is mirrored and the alignment is a coincidence of that line."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from sgloc.acceptance.chance import ChanceModel
 from sgloc.geometry import apply
 from sgloc.graph import SemanticGraph
 
@@ -23,21 +23,12 @@ MIRROR_EXCESS = 0.15
 MIRROR_MARGIN = 3
 
 
-#: Class ids as a 4th coordinate this far apart: objects of two classes are never near
-#: (coordinates are within +-MAX_COORDINATE = 1e7 m).
-_CLASS_GAP = 1e8
-
-
-def _with_class(points: np.ndarray, labels: np.ndarray) -> np.ndarray:
-    return np.column_stack([points, labels.astype(np.float64) * _CLASS_GAP])
-
-
-def landed(query_points: np.ndarray, query_labels: np.ndarray, tree: cKDTree,
-           radius: float) -> int:  # fmt: skip
-    """How many query objects (already in the target frame, metres) lie within `radius` of a
-    target object of their class (`tree`: the target's positions with `_with_class`)."""
-    d, _ = tree.query(_with_class(query_points, query_labels), distance_upper_bound=radius)
-    return int(np.count_nonzero(np.isfinite(d)))
+def landed(moved: np.ndarray, labels: np.ndarray, chance: ChanceModel) -> np.ndarray:
+    """(n,) bool: which query objects, already moved into the target frame (`moved` (n,3),
+    metres, classes `labels`), lie within the chance model's radius (distance <= radius) of a
+    target object of their class (one neighbour search of `ChanceModel.near_counts`)."""
+    (counts,) = chance.near_counts(moved)
+    return counts[np.arange(len(moved)), labels] > 0
 
 
 def reflect_across_line(points: np.ndarray, on_line: np.ndarray) -> np.ndarray:
@@ -52,13 +43,6 @@ def reflect_across_line(points: np.ndarray, on_line: np.ndarray) -> np.ndarray:
     return out
 
 
-def _near_box(points: np.ndarray, around: np.ndarray, radius: float) -> np.ndarray:
-    """(n,) bool: which `points` lie in the bounding box of `around` grown by `radius` (the
-    only target objects a moved query object can land on: a large map is not searched whole)."""
-    low, high = around.min(axis=0) - radius, around.max(axis=0) + radius
-    return np.all((points >= low) & (points <= high), axis=1)
-
-
 def looks_mirrored(
     query: SemanticGraph, target: SemanticGraph, T_target_query: np.ndarray,
     inlier_objects: np.ndarray, radius: float,
@@ -71,9 +55,9 @@ def looks_mirrored(
     moved = apply(T_target_query, query.positions)
     flipped = apply(T_target_query, reflect_across_line(query.positions,
                                                         query.positions[inlier_objects]))
-    near = _near_box(target.positions, np.vstack([moved, flipped]), radius)
-    tree = cKDTree(_with_class(target.positions[near], target.labels[near]))
-    plain = landed(moved, query.labels, tree, radius)
-    mirror = landed(flipped, query.labels, tree, radius)
+    chance = ChanceModel(target, radius, max(query.n_classes, target.n_classes))
+    both = landed(np.vstack([moved, flipped]), np.tile(query.labels, 2), chance)
+    plain = int(np.count_nonzero(both[: len(query)]))
+    mirror = int(np.count_nonzero(both[len(query) :]))
     mirrored = mirror - plain >= max(MIRROR_MARGIN, MIRROR_EXCESS * len(query))
     return bool(mirrored), plain, mirror

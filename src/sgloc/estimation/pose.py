@@ -112,7 +112,8 @@ def final_fit(
         except DegenerateGeometryError as e:
             return None, str(e)
     transform = fit_rigid(src, dst, weights, dof, max_tilt)
-    if dof == 4 and max_tilt is not None:
+    # A tilted fit is the free fit itself (fit_rigid): only one held to yaw may be refused.
+    if dof == 4 and max_tilt is not None and transform[2, 2] == 1.0:
         tilt = demanded_tilt(src, dst, weights, transform, threshold)
         if tilt > max_tilt:
             return None, tilt_reason(tilt, max_tilt)

@@ -99,3 +99,52 @@ def robot_error(
     E = invert(T_gt_odom) @ T_gt_fleet @ T_fleet_robot
     c = objects.mean(axis=0) if len(objects) else np.zeros(3)
     return float(np.linalg.norm(apply(E, c[None])[0] - c)), rotation_angle_deg(E[:3, :3])
+
+
+def oracle_refit(
+    pos_b: np.ndarray, lab_b: np.ndarray, pos_a: np.ndarray, lab_a: np.ndarray,
+    T_gt_a_b: np.ndarray, radius: float, motion,
+) -> np.ndarray | None:
+    """T_a_b fitted on the TRUE correspondences: the objects of robot b (pos_b (n,3), b's
+    odometry frame) and of robot a that are mutual nearest same-class neighbours within
+    `radius` metres once b's are moved by the ground truth T_gt_a_b, refitted by the motion
+    model's robust fit. None with fewer than 3 such pairs. What the two maps themselves say
+    about the link: its error against the ground truth is the part of a link's error that
+    no estimator could remove (poses' own errors, object centres seen from other sides)."""
+    from sgloc.errors import SglocError
+    from sgloc.estimation import irls_refine
+    from sgloc.online.refine import co_located
+
+    i, j = co_located(pos_b, lab_b, pos_a, lab_a, T_gt_a_b, radius)
+    if len(i) < 3:
+        return None
+    try:
+        return irls_refine(pos_b[i], pos_a[j], T_gt_a_b, None, 15, motion.dof, motion.max_tilt)
+    except SglocError:  # degenerate geometry (collinear pairs)
+        return None
+
+
+def oracle_link_frames(session, T_gt_odom: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """{robot: T_fleet_robot} of the session's fleet frame re-solved with every active link's
+    transform replaced by its `oracle_refit` (same links, covariances, root and solver; a link
+    without 3 true pairs is left out): the best the same links could give."""
+    from sgloc.online.consistency import Edge
+    from sgloc.online.posegraph import fleet_frame
+
+    names, o, cfg = session.robots, session.online, session.config
+    edges, covs = [], []
+    for lk in session.links:
+        if not lk.active:
+            continue
+        a, b = session.map(lk.robot_a), session.map(lk.robot_b)
+        T_gt = invert(T_gt_odom[lk.robot_a]) @ T_gt_odom[lk.robot_b]
+        T = oracle_refit(b.positions, b.labels, a.positions, a.labels, T_gt,
+                         cfg.ransac.threshold, cfg.motion)
+        if T is not None:
+            edges.append(Edge(names.index(lk.robot_a), names.index(lk.robot_b), T,
+                              lk.confidence, lk.stamp))
+            covs.append(lk.covariance)
+    frame = fleet_frame(len(names), edges, covs, names.index(session.root),
+                        lambda r: session.map(names[r]).positions, o.loop_translation,
+                        o.loop_rotation, o.solver)
+    return {names[r]: T for r, T in frame.T_fleet_robot.items()}

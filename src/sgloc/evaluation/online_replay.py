@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from sgloc.evaluation.online_oracle import oracle_join_stamps, robot_error
+from sgloc.evaluation.online_oracle import oracle_join_stamps, oracle_link_frames, robot_error
 
 #: A placement or link is wrong beyond these (metres at the robot's objects, degrees).
 MAX_M, MAX_DEG = 3.0, 3.0
@@ -28,18 +28,24 @@ def run_scenario(scenario: Any, out: Path, config: Any = None, online: Any = Non
     record = replay_logs(scenario.logs, session)
     summary = write_replay(out, scenario.logs, session, record)
     stems = robot_file_stems([g.name for g in scenario.logs])
-    pairs = []
+    T_oracle = oracle_link_frames(session, scenario.T_gt_odom)
+    pairs, oracle_pairs = [], []
     for g in scenario.logs:
         gt = out / "gt" / f"{stems[g.name]}.tum"
         write_tum_exact(gt, g.stamps_ns, *fleet_poses(g, scenario.T_gt_odom[g.name]))
         if summary["robots"][g.name]["placed"]:
             pairs.append((out / summary["robots"][g.name]["file"], gt))
-    rows = robot_rows(scenario, session, record)
+        if g.name in T_oracle:
+            est = out / "oracle" / f"{stems[g.name]}.tum"
+            write_tum_exact(est, g.stamps_ns, *fleet_poses(g, T_oracle[g.name]))
+            oracle_pairs.append((est, gt))
+    rows = robot_rows(scenario, session, record, T_oracle)
     result = {
         "note": scenario.note,
         "robots": rows,
         "links": link_rows(scenario, session),
         "ape": fleet_ape(pairs),
+        "ape_oracle": fleet_ape(oracle_pairs),
         "latency": summary["latency"],
         "keyframes": summary["keyframes"],
     }
@@ -47,11 +53,14 @@ def run_scenario(scenario: Any, out: Path, config: Any = None, online: Any = Non
     return result
 
 
-def robot_rows(scenario: Any, session: Any, record: Any) -> list[dict]:
+def robot_rows(
+    scenario: Any, session: Any, record: Any, T_oracle: dict[str, np.ndarray]
+) -> list[dict]:
     """Per robot: joined vs oracle stamp, delay (fraction of its run), latency, the error of the
     first fleet frame it got at the objects it had then (`join_error`: what the join was decided
     on) and at its final objects (`join_error_final`), and of its final fleet frame at its final
-    objects (`end_error`)."""
+    objects (`end_error`), and that of the frame its links refitted on the true
+    correspondences would give (`oracle_end_error`; T_oracle: `oracle_link_frames`)."""
     from sgloc.replay.outputs import latency_stats
 
     root = session.root
@@ -81,22 +90,42 @@ def robot_rows(scenario: Any, session: Any, record: Any) -> list[dict]:
             "join_error_final": None if g.name not in first_T
             else robot_error(first_T[g.name], G_fleet, G, objs),
             "end_error": None if T_end is None else robot_error(T_end, G_fleet, G, objs),
+            "oracle_end_error": None if g.name not in T_oracle
+            else robot_error(T_oracle[g.name], G_fleet, G, objs),
             "latency": latency_stats(record.latency_ms[g.name]),
         })
     return rows
 
 
 def link_rows(scenario: Any, session: Any) -> list[dict]:
-    """Every accepted link: active or revoked, and its error against the ground truth (at
-    robot_b's objects)."""
-    out = []
+    """Every accepted link: active or revoked, its error against the ground truth at robot_b's
+    objects, that of the link refitted on the true correspondences (`oracle_error`), the
+    error its covariance predicts there (2 sigma, worst direction: `predicted_2sigma`), the
+    object pairs it co-locates and `lever_m`, the farthest of robot_b's objects from their
+    centroid (metres: how far a rotation error of the link is carried)."""
+    from sgloc.evaluation.online_oracle import oracle_refit
+    from sgloc.geometry import invert
+    from sgloc.online.precision import predicted_error
+    from sgloc.online.refine import co_located
+
+    cfg, out = session.config, []
     for lk in session.links:
         G_a, G_b = scenario.T_gt_odom[lk.robot_a], scenario.T_gt_odom[lk.robot_b]
-        objs = session.map(lk.robot_b).positions
-        dm, dd = robot_error(lk.T_a_b, G_a, G_b, objs)
+        a, b = session.map(lk.robot_a), session.map(lk.robot_b)
+        dm, dd = robot_error(lk.T_a_b, G_a, G_b, b.positions)
+        T_or = oracle_refit(b.positions, b.labels, a.positions, a.labels, invert(G_a) @ G_b,
+                            cfg.ransac.threshold, cfg.motion)
+        i, _ = co_located(b.positions, b.labels, a.positions, a.labels, lk.T_a_b,
+                          cfg.ransac.threshold)
+        lever = (float(np.linalg.norm(b.positions - b.positions[i].mean(axis=0), axis=1).max())
+                 if len(i) else None)
         out.append({"a": lk.robot_a, "b": lk.robot_b, "active": bool(lk.active),
                     "stamp": float(lk.stamp), "error_m": dm, "error_deg": dd,
-                    "wrong": bool(dm > MAX_M or dd > MAX_DEG)})
+                    "wrong": bool(dm > MAX_M or dd > MAX_DEG),
+                    "oracle_error": None if T_or is None
+                    else robot_error(T_or, G_a, G_b, b.positions),
+                    "predicted_2sigma": predicted_error(lk.covariance, b.positions, 2.0),
+                    "matches": int(lk.n_matches), "pairs": int(len(i)), "lever_m": lever})
     return out
 
 

@@ -57,17 +57,27 @@ def log_from_frames(
     return make_robot_log(name, ns, T[:, :3, 3], q, kf, pos, lab)
 
 
-def kitti_scenario(n_robots: int, first: int = 0, last: int = 2999, every: int = 1) -> Scenario:
+def kitti_scenario(
+    n_robots: int, first: int = 0, last: int = 2999, every: int = 1, poses: str = "raw"
+) -> Scenario:
     """KITTI 00 scans first..last cut into `n_robots` consecutive segments (robot k = `kitti<k>`),
-    every `every`-th scan a keyframe; detections of the GOSMatch objects, odometry = the KITTI
-    poses; ground-truth frame = the sequence frame."""
+    every `every`-th scan a keyframe; detections of the GOSMatch objects; odometry AND ground
+    truth = the KITTI poses: `poses` "raw" (poses_00.txt) or "refined" (made consistent with
+    the refined revisit transforms, `kitti_refined.kitti_refined_poses`; needs gtsam);
+    ground-truth frame = the sequence frame."""
     from sgloc.datasets import make_dataset
     from sgloc.datasets.kitti_objects import CLASS_NAMES
     from sgloc.evaluation.pairs_kitti import kitti_root, kitti_sequence
     from sgloc.io.text import read_numbers
 
+    if poses not in ("raw", "refined"):
+        raise SglocError(f"poses={poses!r}: choose 'raw' or 'refined'.")
     root = kitti_root()
     L = kitti_sequence(root)[0]
+    if poses == "refined":
+        from sgloc.evaluation.kitti_refined import kitti_refined_poses
+
+        L = kitti_refined_poses(root)
     times = read_numbers(Path(root) / "times_00.txt", "KITTI times")[:, 0]
     logs, gt = [], {}
     for k, (a, b) in enumerate(segments(first, last, n_robots)):
@@ -79,7 +89,8 @@ def kitti_scenario(n_robots: int, first: int = 0, last: int = 2999, every: int =
         name = f"kitti{k}"
         logs.append(log_from_frames(name, times[scans], L[scans], det, L[a]))
         gt[name] = L[a]
-    note = f"KITTI 00 scans {first}-{last} in {n_robots} robots, every {every} scan(s)"
+    note = (f"KITTI 00 scans {first}-{last} in {n_robots} robots, every {every} scan(s), "
+            f"{poses} poses")
     return Scenario(logs, gt, tuple(CLASS_NAMES), note)
 
 

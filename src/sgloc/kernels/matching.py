@@ -40,13 +40,14 @@ def inverse_norms(D: np.ndarray) -> np.ndarray:
 
 @kernel(writes=("sim",))
 def _similarities(
-    sim: np.ndarray, blocks: np.ndarray, base: int, x: np.ndarray, nz: np.ndarray
+    sim: np.ndarray, blocks: np.ndarray, base: int, stride: int, x: np.ndarray, nz: np.ndarray
 ) -> None:
-    """sim[j] = sum over the features f in nz (ascending) of x[f] * Tt[f, j], added in that
-    order, Tt (d, n) = the C-ordered buffer at blocks[base:] (n = len(sim)); four features per
-    pass over sim (one load and store of sim[j] per four terms)."""
+    """sim[j] = sum over the features f in nz (ascending) of x[f] * blocks[base + f * stride
+    + j], added in that order (the rows of a C-ordered (d, stride) buffer, or a run of
+    len(sim) columns of it); four features per pass over sim (one load and store of sim[j]
+    per four terms)."""
     sim[:] = 0.0
-    n = sim.shape[0]
+    n = stride
     p = 0
     while p + 4 <= nz.shape[0]:
         f0, f1, f2, f3 = nz[p], nz[p + 1], nz[p + 2], nz[p + 3]
@@ -67,6 +68,32 @@ def _similarities(
         for j in range(sim.shape[0]):
             sim[j] += x0 * r0[j]
         p += 1
+
+
+@kernel
+def _unit_rows(Q: np.ndarray, rows: np.ndarray, inv_q: np.ndarray):
+    """(X, nz, n_nz): the rows `rows` of Q (n_q,d) times their inverse norms `inv_q` (n_q,),
+    and per row its non-zero features ascending (nz[r, :n_nz[r]])."""
+    d = Q.shape[1]
+    X = np.empty((rows.shape[0], d))
+    nz = np.empty((rows.shape[0], d), dtype=np.int64)
+    n_nz = np.zeros(rows.shape[0], dtype=np.int64)
+    for r in range(rows.shape[0]):
+        i, m = rows[r], 0
+        for f in range(d):
+            X[r, f] = Q[i, f] * inv_q[i]
+            nz[r, m] = f
+            m += X[r, f] != 0.0
+        n_nz[r] = m
+    return X, nz, n_nz
+
+
+#: The exhaustive search scores the query rows of a class against its targets in tiles of
+#: this many targets (a tile's descriptor rows, d x _TILE floats, stay in cache while every
+#: query row of the class is scored on them), ...
+_TILE = 256
+#: ... holding at most this many similarities (query rows x class targets) at once.
+_HELD = 1 << 18
 
 
 @kernel(writes=("best_s", "best_j"))
@@ -90,10 +117,11 @@ def class_blocks(
     T: np.ndarray, order_t: np.ndarray, sorted_t: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The target side of `top_k_in_blocks`, built once per target: (blocks, block_class,
-    block_start). Per class (ascending), its rows of T (n,d) normalised and transposed into
+    block_start). Per class (ascending), its rows of T (n_t,d) normalised and transposed into
     one C-ordered (d, n_c) buffer, stored flat one after the other in `blocks`;
-    block_class (b,) its label, block_start (b+1,) its first position in sorted_t."""
-    n, d = T.shape
+    block_class (b,) its label, block_start (b+1,) its first position in sorted_t. order_t
+    (n,): the rows of T to take (all of them, or some classes' only), sorted by class."""
+    n, d = order_t.shape[0], T.shape[1]
     inv_t = inverse_norms(T)
     blocks = np.empty(n * d)
     n_blocks = 0
@@ -168,8 +196,6 @@ def top_k_in_blocks(
     out_n = np.zeros(n_q, dtype=np.int64)
     out_f = np.ones(n_q, dtype=np.bool_)
     test_ratio = not (np.isnan(max_ratio) and np.isnan(flag_ratio))
-    qn = np.empty(d)
-    nz = np.empty(d, dtype=np.int64)
     best_s, best_j = np.empty(k), np.empty(k, dtype=np.int64)
     a, c = 0, 0
     while a < order_q.shape[0] and c < block_class.shape[0]:
@@ -185,41 +211,42 @@ def top_k_in_blocks(
         b, b_end = block_start[c], block_start[c + 1]
         n_t = b_end - b
         it = order_t[b:b_end]
-        sim = np.empty(n_t)
         kk = min(k, n_t)
-        for r in range(a, a_end):
-            i = order_q[r]
-            w = inv_q[i]
-            n_nz = 0
-            for f in range(d):
-                qn[f] = Q[i, f] * w
-                nz[n_nz] = f
-                n_nz += qn[f] != 0.0
-            _similarities(sim, blocks, b * d, qn, nz[:n_nz])
-            s1, s2, j1 = -np.inf, -np.inf, 0
-            for j in range(n_t):
-                s = sim[j]
-                if s > s1:
-                    s1, s2, j1 = s, s1, j
-                elif s > s2:
-                    s2 = s
-            if kk == 1:
-                best_s[0], best_j[0] = s1, j1
-            else:
-                n = np.int64(0)  # one specialisation of _insert, not two
+        chunk = max(1, _HELD // max(n_t, 1))
+        for a0 in range(a, a_end, chunk):
+            rows = order_q[a0 : min(a_end, a0 + chunk)]
+            X, nz, n_nz = _unit_rows(Q, rows, inv_q)
+            S = np.empty((rows.shape[0], n_t))
+            for j0 in range(0, n_t, _TILE):  # the same sums, pair by pair, as row by row
+                j1 = min(n_t, j0 + _TILE)
+                for r in range(rows.shape[0]):
+                    _similarities(S[r, j0:j1], blocks, b * d + j0, n_t, X[r], nz[r, : n_nz[r]])
+            for r in range(rows.shape[0]):
+                i, sim = rows[r], S[r]
+                s1, s2, j1 = -np.inf, -np.inf, 0
                 for j in range(n_t):
-                    n = _insert(best_s[:kk], best_j[:kk], n, sim[j], j)
-            if test_ratio and n_t > 1:
-                if not np.isnan(max_ratio) and not (1.0 - s1) <= max_ratio * (1.0 - s2):
-                    continue
-                if not np.isnan(flag_ratio):
-                    out_f[i] = (1.0 - s1) <= flag_ratio * (1.0 - s2)
-            m = 0
-            for h in range(kk):
-                if best_s[h] >= min_sim and best_s[h] > 0:
-                    out_j[i, m], out_s[i, m] = it[best_j[h]], best_s[h]
-                    m += 1
-            out_n[i] = m
+                    s = sim[j]
+                    if s > s1:
+                        s1, s2, j1 = s, s1, j
+                    elif s > s2:
+                        s2 = s
+                if kk == 1:
+                    best_s[0], best_j[0] = s1, j1
+                else:
+                    n = np.int64(0)  # one specialisation of _insert, not two
+                    for j in range(n_t):
+                        n = _insert(best_s[:kk], best_j[:kk], n, sim[j], j)
+                if test_ratio and n_t > 1:
+                    if not np.isnan(max_ratio) and not (1.0 - s1) <= max_ratio * (1.0 - s2):
+                        continue
+                    if not np.isnan(flag_ratio):
+                        out_f[i] = (1.0 - s1) <= flag_ratio * (1.0 - s2)
+                m = 0
+                for h in range(kk):
+                    if best_s[h] >= min_sim and best_s[h] > 0:
+                        out_j[i, m], out_s[i, m] = it[best_j[h]], best_s[h]
+                        m += 1
+                out_n[i] = m
         a, c = a_end, c + 1
     total = out_n.sum()
     q = np.empty(total, dtype=np.int64)
@@ -257,57 +284,66 @@ def top_k_in_lists(
     """
     n_r, n_p = probes.shape
     d = Q.shape[1]
-    inv_q = inverse_norms(Q[rows])
+    X, nz, n_nz = _unit_rows(Q, rows, inverse_norms(Q))
     out_j = np.full((n_r, k), -1, dtype=np.int64)
     out_s = np.zeros((n_r, k))
     out_n = np.zeros(n_r, dtype=np.int64)
     out_f = np.ones(n_r, dtype=np.bool_)
     test_ratio = not (np.isnan(max_ratio) and np.isnan(flag_ratio))
-    qn = np.empty(d)
-    nz = np.empty(d, dtype=np.int64)
-    best_s, best_j = np.empty(k), np.empty(k, dtype=np.int64)
-    longest = 0
-    for h in range(list_start.shape[0] - 1):
-        longest = max(longest, list_start[h + 1] - list_start[h])
-    sim_buf = np.empty(longest)
+    # Per query row: best, second best and its index, the k best, targets seen. Every row is
+    # scored list by list (each probed list read once for all the rows probing it); ranks
+    # do not depend on the order targets are met in (ties: the lower target index).
+    s1, s2 = np.full(n_r, -np.inf), np.full(n_r, -np.inf)
+    j1 = np.full(n_r, -1, dtype=np.int64)
+    best_s, best_j = np.empty((n_r, k)), np.empty((n_r, k), dtype=np.int64)
+    n_best, seen = np.zeros(n_r, dtype=np.int64), np.zeros(n_r, dtype=np.int64)
+    n_lists = list_start.shape[0] - 1
+    first = np.zeros(n_lists + 1, dtype=np.int64)  # the rows probing each list, by list
     for r in range(n_r):
-        i = rows[r]
-        w = inv_q[r]
-        n_nz = 0
-        for f in range(d):
-            qn[f] = Q[i, f] * w
-            nz[n_nz] = f
-            n_nz += qn[f] != 0.0
-        s1, s2, j1 = -np.inf, -np.inf, np.int64(-1)
-        n = np.int64(0)
-        seen = 0
         for p in range(n_p):
-            h = probes[r, p]
-            b, n_l = list_start[h], list_start[h + 1] - list_start[h]
-            sim = sim_buf[:n_l]
-            _similarities(sim, blocks, b * d, qn, nz[:n_nz])
+            first[probes[r, p] + 1] += 1
+    longest = 0
+    for h in range(n_lists):
+        first[h + 1] += first[h]
+        longest = max(longest, list_start[h + 1] - list_start[h])
+    fill = first[:-1].copy()
+    prober = np.empty(n_r * n_p, dtype=np.int64)
+    for r in range(n_r):
+        for p in range(n_p):
+            prober[fill[probes[r, p]]] = r
+            fill[probes[r, p]] += 1
+    sim_buf = np.empty(longest)
+    for h in range(n_lists):
+        b, n_l = list_start[h], list_start[h + 1] - list_start[h]
+        sim = sim_buf[:n_l]
+        for u in range(first[h], first[h + 1]):
+            r = prober[u]
+            _similarities(sim, blocks, b * d, n_l, X[r], nz[r, : n_nz[r]])
+            n = n_best[r]
             for jj in range(n_l):
                 s, j = sim[jj], members[b + jj]
-                if s > s1 or (s == s1 and j < j1):
-                    s1, s2, j1 = s, s1, j
-                elif s > s2:
-                    s2 = s
-                if k > 1 and (n < k or s >= best_s[n - 1]):
-                    n = _insert(best_s, best_j, n, s, j)
-            seen += n_l
-        if seen == 0:
+                if s > s1[r] or (s == s1[r] and j < j1[r]):
+                    s1[r], s2[r], j1[r] = s, s1[r], j
+                elif s > s2[r]:
+                    s2[r] = s
+                if k > 1 and (n < k or s >= best_s[r, n - 1]):
+                    n = _insert(best_s[r], best_j[r], n, s, j)
+            n_best[r] = n
+            seen[r] += n_l
+    for r in range(n_r):
+        if seen[r] == 0:
             continue
         if k == 1:
-            best_s[0], best_j[0], n = s1, j1, 1
-        if test_ratio and seen > 1:
-            if not np.isnan(max_ratio) and not (1.0 - s1) <= max_ratio * (1.0 - s2):
+            best_s[r, 0], best_j[r, 0], n_best[r] = s1[r], j1[r], 1
+        if test_ratio and seen[r] > 1:
+            if not np.isnan(max_ratio) and not (1.0 - s1[r]) <= max_ratio * (1.0 - s2[r]):
                 continue
             if not np.isnan(flag_ratio):
-                out_f[r] = (1.0 - s1) <= flag_ratio * (1.0 - s2)
+                out_f[r] = (1.0 - s1[r]) <= flag_ratio * (1.0 - s2[r])
         m = 0
-        for h in range(n):
-            if best_s[h] >= min_sim and best_s[h] > 0:
-                out_j[r, m], out_s[r, m] = best_j[h], best_s[h]
+        for h in range(n_best[r]):
+            if best_s[r, h] >= min_sim and best_s[r, h] > 0:
+                out_j[r, m], out_s[r, m] = best_j[r, h], best_s[r, h]
                 m += 1
         out_n[r] = m
     total = out_n.sum()

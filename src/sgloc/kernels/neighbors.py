@@ -16,6 +16,7 @@ reference and an incremental update of a few rows give the same bits.
 from __future__ import annotations
 
 import weakref
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -42,34 +43,82 @@ def near_class_counts(
 ) -> tuple[np.ndarray, np.ndarray]:
     """(counts, weighted), each (n_query, n_classes) float64: per query point (n_query,3) and
     class c, the number of `points` (n,3) of label c within `radius` (distance <= radius), and
-    the sum of their `weights` (n,) (an empty `weights`: the second array stays zero)."""
+    the sum of their `weights` (n,) (an empty `weights`: the second array stays zero).
+
+    The points' grid is kept for read-only arrays (a prepared map's objects, searched by every
+    query), so a search then costs O(n_query x the points around them), not O(n)."""
     if len(points) == 0 or len(query) == 0:
         return np.zeros((len(query), n_classes)), np.zeros((len(query), n_classes))
-    grid = _grid(points, radius)
-    return _counts_in_cells(query, points, labels, n_classes, radius, weights, *grid)
+    g = cell_grid(points, labels, radius)
+    w = weights[g.order] if len(weights) == len(points) else np.zeros(0)
+    return _counts_in_cells(np.ascontiguousarray(query, dtype=np.float64), g.xyz, g.labels,
+                            n_classes, radius, w, g.sorted_keys, g.start, g.x0, g.y0, g.cell,
+                            g.n_y)  # fmt: skip
 
 
-#: Grids of read-only point arrays met recently (a prepared map's objects, searched by every
-#: query): id -> (weak reference to the array, radius, grid).
+@dataclass(frozen=True)
+class CellGrid:
+    """Points bucketed on an xy grid of cells at least the radius wide (`_cell_keys`): `order`
+    (n,) sorts them by cell; `sorted_keys` (n,) their cell keys, `xyz` (3, n) their
+    coordinates and `labels` (n,) their labels in that order; `start` (n_cells + 1,) the
+    first position of each cell's run when the grid is small (else (1,): binary search)."""
+
+    order: np.ndarray
+    sorted_keys: np.ndarray
+    xyz: np.ndarray
+    labels: np.ndarray
+    start: np.ndarray
+    x0: float
+    y0: float
+    cell: float
+    n_y: int
+
+
+#: Grids of read-only point arrays (a prepared map's objects, searched by every query):
+#: id(points) -> (weak reference to the points, {radius: (weak reference to the labels,
+#: CellGrid)}); an entry leaves with its points, and keeps its _RADII_KEPT latest radii.
 _GRIDS: dict[int, tuple] = {}
-_GRIDS_KEPT = 4
+_RADII_KEPT = 4
 
 
-def _grid(points: np.ndarray, radius: float) -> tuple:
-    """(order, sorted keys, x0, y0, cell, n_y) of `_cell_keys`; kept for read-only arrays."""
-    kept = _GRIDS.get(id(points))
-    if kept is not None and kept[0]() is points and kept[1] == radius:
-        return kept[2]
+def _frozen(a: np.ndarray) -> bool:
+    """A graph's own, frozen array (not a view whose base could still change)."""
+    return not a.flags.writeable and a.base is None
+
+
+def cell_grid(points: np.ndarray, labels: np.ndarray, radius: float) -> CellGrid:
+    """The `CellGrid` of points (n,3) with labels (n,) int64 for `radius` metres; kept while
+    both arrays live when both are read-only (the same grid for every query of a map)."""
+    entry = _GRIDS.get(id(points))
+    kept = entry[1].get(radius) if entry is not None and entry[0]() is points else None
+    if kept is not None and kept[0]() is labels:
+        return kept[1]
+    grid = _build_grid(points, labels, radius)
+    if _frozen(points) and _frozen(labels):
+        if entry is None or entry[0]() is not points:
+            key = id(points)
+            entry = (weakref.ref(points, lambda _, k=key: _GRIDS.pop(k, None)), {})
+            _GRIDS[key] = entry
+        if len(entry[1]) >= _RADII_KEPT and radius not in entry[1]:
+            entry[1].pop(next(iter(entry[1]), None), None)
+        entry[1][radius] = (weakref.ref(labels), grid)
+    return grid
+
+
+def _build_grid(points: np.ndarray, labels: np.ndarray, radius: float) -> CellGrid:
+    """The `CellGrid` of `cell_grid`, built."""
     keys, x0, y0, cell, n_y = _cell_keys(points, radius)
     # numpy's sort: numba's sort and search helpers are better kept out of cached kernels
     # (their generated symbols can clash with another cached kernel's in one process).
     order = np.argsort(keys, kind="stable")
-    grid = (order, keys[order], x0, y0, cell, n_y)
-    if not points.flags.writeable and points.base is None:  # a graph's own, frozen array
-        if len(_GRIDS) >= _GRIDS_KEPT:
-            _GRIDS.pop(next(iter(_GRIDS)))
-        _GRIDS[id(points)] = (weakref.ref(points), radius, grid)
-    return grid
+    sorted_keys = keys[order]
+    n_cells = (sorted_keys[-1] // n_y + 3) * n_y
+    # A table of runs when it costs at most a few entries per point, else binary searches.
+    dense = n_cells <= 2 * len(keys) + 4096
+    start = _cell_starts(sorted_keys, n_cells) if dense else np.zeros(1, np.int64)
+    return CellGrid(order, sorted_keys, np.ascontiguousarray(points[order].T),
+                    np.ascontiguousarray(labels[order], dtype=np.int64), start, x0, y0, cell,
+                    n_y)  # fmt: skip
 
 
 @kernel
@@ -90,6 +139,17 @@ def _cell_keys(points: np.ndarray, radius: float) -> tuple[np.ndarray, float, fl
 
 
 @kernel
+def _cell_starts(sorted_keys: np.ndarray, n_cells: int) -> np.ndarray:
+    """(n_cells + 1,) the first position in sorted_keys of each cell key's run."""
+    start = np.zeros(n_cells + 1, dtype=np.int64)
+    for s in range(sorted_keys.shape[0]):
+        start[sorted_keys[s] + 1] += 1
+    for c in range(n_cells):
+        start[c + 1] += start[c]
+    return start
+
+
+@kernel
 def _first_at_least(sorted_keys: np.ndarray, key: int) -> int:
     """The first position of sorted_keys holding a value >= key (binary search)."""
     lo, hi = 0, sorted_keys.shape[0]
@@ -105,37 +165,27 @@ def _first_at_least(sorted_keys: np.ndarray, key: int) -> int:
 @kernel
 def _counts_in_cells(
     query: np.ndarray,
-    points: np.ndarray,
-    labels: np.ndarray,
+    xyz: np.ndarray,
+    lab: np.ndarray,
     n_classes: int,
     radius: float,
-    weights: np.ndarray,
-    order: np.ndarray,
+    w: np.ndarray,
     sorted_keys: np.ndarray,
+    start: np.ndarray,
     x0: float,
     y0: float,
     cell: float,
     n_y: int,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """`near_class_counts` on the grid of `_cell_keys` (`order` sorts the keys)."""
-    n_q, n = query.shape[0], points.shape[0]
+    """`near_class_counts` on a `CellGrid` (points, labels and weights `w` in cell order; `w`
+    empty: no weights)."""
+    n_q, n = query.shape[0], sorted_keys.shape[0]
     counts = np.zeros((n_q, n_classes))
     weighted = np.zeros((n_q, n_classes))
     n_x = sorted_keys[-1] // n_y + 2
-    # Points in cell order (contiguous scans), and, when the grid is small, the start of each
-    # cell's run in a table instead of a binary search per query point and column.
-    px, py, pz = points[order, 0], points[order, 1], points[order, 2]
-    lab = labels[order]
-    use_weights = weights.shape[0] == n
-    w = weights[order] if use_weights else weights
-    n_cells = (n_x + 1) * n_y
-    dense = n_cells <= 8 * n + 4096
-    start = np.zeros(n_cells + 1 if dense else 1, dtype=np.int64)
-    if dense:
-        for s in range(n):
-            start[sorted_keys[s] + 1] += 1
-        for c in range(n_cells):
-            start[c + 1] += start[c]
+    px, py, pz = xyz[0], xyz[1], xyz[2]
+    use_weights = w.shape[0] == n
+    dense = start.shape[0] > 1
     r2 = radius * radius
     for i in range(n_q):
         qx, qy, qz = query[i, 0], query[i, 1], query[i, 2]

@@ -161,12 +161,37 @@ class OnlineSession:
         """Attempt the due robot pairs (at most `max_attempts`; None: all), pairs that would
         join two separate groups first; on `workers` local processes or a Dask `scheduler`.
         stamp: the events' stamp (default: the newest keyframe's)."""
+        o = self.online
+        return self._run(stamp, max_attempts, o.growth_ratio, o.growth_objects, None,
+                         scheduler, workers)
+
+    def finish(
+        self,
+        robot: str,
+        stamp: float | None = None,
+        *,
+        scheduler: str | None = None,
+        workers: int | None = 0,
+    ) -> list[Event]:
+        """`robot` has sent its last keyframe: attempt once more every pair with it whose maps
+        changed at all since the pair's last attempt, and refit its links likewise (no budget,
+        no growth threshold), so that what it saw last is not left untried. More keyframes of
+        the robot may still follow. stamp: the events' stamp (default: the newest keyframe's).
+        Returns the events."""
+        r = self._index(robot)
+        return self._run(stamp, None, math.inf, 1, r, scheduler, workers)
+
+    def _run(self, stamp, max_attempts, growth_ratio, growth_objects, robot, scheduler,
+             workers) -> list[Event]:
+        """Attempt the pairs due under the growth rule (growth_ratio, growth_objects), only
+        those with robot index `robot` when given, then refit the links due under the same
+        rule (at most `max_attempts` of each; None: all)."""
         stamp = float(stamp) if stamp is not None else self._now()
         n_events = len(self.events)
-        names = self.robots
-        sizes = [self._maps[r].n_confirmed for r in names]
+        sizes = [self._maps[r].n_confirmed for r in self.robots]
         o = self.online
-        due = due_pairs(sizes, self._last, o.min_objects, o.growth_ratio, o.growth_objects)
+        due = [p for p in due_pairs(sizes, self._last, o.min_objects, growth_ratio,
+                                    growth_objects) if robot is None or robot in p]
         changed = False
         if due:
             group = self._groups()
@@ -178,7 +203,7 @@ class OnlineSession:
             results = run_tasks([self._task(i, j) for i, j in due], scheduler, workers)
             for (i, j), r in zip(due, results, strict=True):
                 changed |= self._record(i, j, sizes, r, stamp)
-        changed |= self._refine_due(sizes, max_attempts)
+        changed |= self._refine_due(sizes, max_attempts, growth_ratio, growth_objects, robot)
         if changed:
             self._refresh(stamp)
         return self.events[n_events:]
@@ -242,14 +267,17 @@ class OnlineSession:
                        f"a later attempt of this pair disagrees with it by {dt:.2f} m / "
                        f"{dr:.2f} deg")
 
-    def _refine_due(self, sizes: list[int], budget: int | None) -> bool:
-        """Refit the links whose maps have grown (growth rule of the attempts; never-refitted
-        links first), at most `budget` (None: all). True when a link changed."""
+    def _refine_due(self, sizes: list[int], budget: int | None, growth_ratio: float,
+                    growth_objects: int, robot: int | None = None) -> bool:
+        """Refit the links whose maps have grown (the attempts' growth rule; never-refitted
+        links first), only those of robot index `robot` when given, at most `budget` (None:
+        all). True when a link changed."""
         o = self.online
         if not o.refine_links or not self._links:
             return False
-        due = [p for p in due_pairs(sizes, self._refined, o.min_objects, o.growth_ratio,
-                                    o.growth_objects) if p in self._links]
+        due = [p for p in due_pairs(sizes, self._refined, o.min_objects, growth_ratio,
+                                    growth_objects)
+               if p in self._links and (robot is None or robot in p)]
         changed = False
         for i, j in due if budget is None else due[:budget]:
             self._refined[(i, j)] = (sizes[i], sizes[j])

@@ -50,11 +50,15 @@ def check_names(logs: Sequence[RobotLog]) -> None:
 
 
 def replay_logs(
-    logs: Sequence[RobotLog], session: Any, progress: Callable[[int], None] | None = None
+    logs: Sequence[RobotLog],
+    session: Any,
+    progress: Callable[[int], None] | None = None,
+    finish: bool = True,
 ) -> ReplayRecord:
     """Feed every keyframe of `logs` to `session.add_keyframe` in stamp order (as if the
     robots ran at once); time each call and track when each robot's fleet frame changes.
-    `progress(1)` after each keyframe."""
+    With `finish`, a robot's last keyframe is followed by `session.finish(robot)` (its final
+    attempts, timed as part of that keyframe's update). `progress(1)` after each keyframe."""
     check_names(logs)
     obs = [list(g.observations()) for g in logs]
     poses = [g.poses for g in logs]
@@ -66,6 +70,8 @@ def replay_logs(
         g, (_, pos, lab) = logs[r], obs[r][k]
         t0 = time.perf_counter_ns()
         session.add_keyframe(g.name, float(g.stamps[k]), poses[r][k], pos, lab)
+        if finish and k == len(g) - 1:
+            session.finish(g.name, float(g.stamps[k]))
         lat[g.name][k] = (time.perf_counter_ns() - t0) * 1e-6
         _track(session, int(g.stamps_ns[k]), last, rec)
         if progress is not None:

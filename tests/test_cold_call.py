@@ -1,0 +1,146 @@
+"""A call on new graph objects: the same bits as on kept ones (and a prepared target), the
+covariance and the settings dict computed only when read, and the shortcuts of the per-call
+set-up (graph checks, duplicate search, mirror check) equal to their plain forms."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sgloc import SemanticGraph, localize, prepare
+from sgloc.acceptance.mirror import looks_mirrored
+from sgloc.canonical import DUPLICATE_RADIUS, canonical_order, without_duplicates
+from sgloc.config import LocalizerConfig
+from sgloc.covariance import transform_covariance
+from sgloc.errors import InvalidGraphError
+from sgloc.geometry import apply, random_rigid_transform
+
+
+def _new(g: SemanticGraph) -> SemanticGraph:
+    return SemanticGraph(g.positions.copy(), g.labels.copy(), g.edge_radius, g.name)
+
+
+def _same_bits(a, b) -> None:
+    assert a.success == b.success and a.reason == b.reason
+    assert a.confidence == b.confidence
+    for name in ("matches", "candidates", "survivors", "scores"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    if a.success:
+        assert a.transform.tobytes() == b.transform.tobytes()
+        assert a.covariance.tobytes() == b.covariance.tobytes()
+    else:
+        assert a.transform is None and b.transform is None and b.covariance is None
+
+
+def _synthetic(seed: int, n: int) -> tuple[SemanticGraph, SemanticGraph]:
+    rng = np.random.default_rng(seed)
+    pos = rng.uniform(0, 150, (n, 3)) * [1.0, 1.0, 0.05]
+    lab = rng.integers(0, 6, n)
+    keep = rng.random(n) < 0.7
+    T = random_rigid_transform(rng, 50.0, 2.0)
+    noisy = apply(T, pos[keep]) + rng.normal(0, 0.2, (int(keep.sum()), 3))
+    return SemanticGraph(noisy, lab[keep]), SemanticGraph(pos, lab)
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_new_graph_objects_give_the_bits_of_kept_ones(airsim_graphs, seed):
+    q, t = airsim_graphs
+    kept = localize(q, t, seed=seed)
+    assert kept.success
+    _same_bits(kept, localize(_new(q), _new(t), seed=seed))
+    _same_bits(kept, localize(_new(q), prepare(_new(t)), seed=seed))
+    _same_bits(kept, localize(_new(q), _new(t), seed=seed))  # again: nothing carried over
+
+
+@pytest.mark.parametrize("seed, n", [(0, 40), (1, 150), (2, 300), (4, 12)])
+def test_new_graph_objects_give_the_bits_of_kept_ones_synthetic(seed, n):
+    q, t = _synthetic(seed, n)
+    kept = localize(q, t, seed=seed)
+    _same_bits(kept, localize(_new(q), _new(t), seed=seed))
+    plain = localize(q, t, seed=seed, acceptance=False)
+    _same_bits(plain, localize(_new(q), _new(t), seed=seed, acceptance=False))
+
+
+def test_covariance_and_settings_are_computed_when_first_read(airsim_graphs):
+    q, t = airsim_graphs
+    r = localize(_new(q), _new(t), seed=0, class_weights={3: 5.0})
+    assert r.success
+    assert "covariance" not in r.__dict__ and "config" not in r.__dict__
+    f = r.fitted
+    expected = transform_covariance(f.src, f.dst, r.transform, f.weights, f.dof, f.max_tilt)
+    assert f.weights is not None and len(f.src) == len(r.matches)
+    assert r.covariance.tobytes() == expected.tobytes()
+    assert r.covariance is r.covariance  # computed once
+    config = LocalizerConfig().with_overrides(class_weights={3: 5.0})
+    assert r.config == config.to_dict() and r.config["class_weights"] == {3: 5.0}
+    assert r.to_dict()["config"] == r.config
+    refused = localize(_new(q), SemanticGraph(t.positions[:40], t.labels[:40]), seed=0)
+    assert not refused.success and refused.covariance is None and refused.fitted is None
+    assert refused.config == LocalizerConfig().to_dict()
+
+
+def _landed_brute_force(moved, labels, target, radius) -> int:
+    d2 = ((moved[:, None, :] - target.positions[None, :, :]) ** 2).sum(axis=2)
+    same = labels[:, None] == target.labels[None, :]
+    return int(np.count_nonzero(((d2 <= radius**2) & same).any(axis=1)))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_mirror_counts_equal_a_brute_force_count(seed):
+    rng = np.random.default_rng(seed)
+    target = SemanticGraph(rng.uniform(0, 80, (120, 3)) * [1, 1, 0.1], rng.integers(0, 4, 120))
+    idx = rng.choice(120, 60, replace=False)
+    T = random_rigid_transform(rng, 20.0, 2.0)
+    query = SemanticGraph(apply(T, target.positions[idx]) + rng.normal(0, 1.0, (60, 3)),
+                          target.labels[idx])  # fmt: skip
+    if seed % 2:
+        query = SemanticGraph(query.positions * [-1, 1, 1], query.labels)
+    T_tq = np.linalg.inv(T)
+    inliers = np.arange(0, 60, 3)
+    _, plain, mirror = looks_mirrored(query, target, T_tq, inliers, 5.0)
+    from sgloc.acceptance.mirror import reflect_across_line
+
+    moved = apply(T_tq, query.positions)
+    flipped = apply(T_tq, reflect_across_line(query.positions, query.positions[inliers]))
+    assert plain == _landed_brute_force(moved, query.labels, target, 5.0)
+    assert mirror == _landed_brute_force(flipped, query.labels, target, 5.0)
+
+
+def _first_of_each_duplicate_group(g: SemanticGraph) -> np.ndarray:
+    """The plain form: every pair compared, groups joined, the first of each in canonical order."""
+    order = canonical_order(g)
+    p, lab = g.positions[order], g.labels[order]
+    d2 = ((p[:, None, :] - p[None, :, :]) ** 2).sum(axis=2)
+    linked = (d2 <= DUPLICATE_RADIUS**2) & (lab[:, None] == lab[None, :])
+    group = np.arange(len(p))
+    for _ in range(len(p)):  # propagate the smallest member (test reference, small n)
+        group = np.where(linked, group[None, :], len(p)).min(axis=1)
+    return order[np.unique(group)]
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_duplicate_search_equals_every_pair_compared(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(2, 50))
+    pos = rng.uniform(0, 3, (n, 3)).round(int(rng.integers(0, 3)))  # shared coordinates
+    if seed % 3 == 0:
+        pos[:, 0] = rng.integers(0, 2, n)  # long runs of one x
+    pos += rng.normal(0, 4e-4, pos.shape) * (rng.random((n, 1)) < 0.5)
+    g = SemanticGraph(pos, rng.integers(0, 3, n))
+    got = without_duplicates(g, canonical_order(g))
+    assert np.array_equal(got, _first_of_each_duplicate_group(g))
+
+
+@pytest.mark.parametrize(
+    "value, message",
+    [(np.nan, "NaN or infinite"), (np.inf, "NaN or infinite"), (-np.inf, "NaN or infinite"),
+     (2e7, "beyond"), (-2e7, "beyond")],
+)  # fmt: skip
+def test_graph_checks_still_refuse_bad_positions(value, message):
+    pos = np.zeros((4, 3))
+    pos[2, 1] = value
+    with pytest.raises(InvalidGraphError, match=message):
+        SemanticGraph(pos, [0, 1, 2, 3])
+    too_many = np.arange(70) * 1000  # ids past MAX_CLASSES: the classes are counted
+    with pytest.raises(InvalidGraphError, match="distinct classes"):
+        SemanticGraph(np.random.default_rng(0).uniform(0, 9, (70, 3)), too_many)
