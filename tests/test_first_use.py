@@ -85,11 +85,13 @@ def test_kernels_hold_one_specialisation_and_return_writable_arrays():
 
 def test_import_sgloc_leaves_the_fleet_layer_and_settings_files_alone():
     """`import sgloc` (a fresh process's first cost) loads neither the fleet layer (online
-    session, pose graph: `sgloc.localize_fleet` imports it on first use) nor the YAML reader;
+    session, pose graph: `sgloc.localize_fleet` imports it on first use), the YAML reader,
+    scipy.stats or scipy.spatial (a localization needs neither);
     `sgloc.localize_fleet` is still the fleet's function."""
     code = (
         "import sys, sgloc; heavy = [m for m in ('sgloc.fleet', 'sgloc.online', 'yaml', "
-        "'scipy.stats') if m in sys.modules]; from sgloc.fleet import localize_fleet; "
+        "'scipy.stats', 'scipy.spatial') if m in sys.modules]; "
+        "from sgloc.fleet import localize_fleet; "
         "print(heavy, sgloc.localize_fleet is localize_fleet)"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
