@@ -12,6 +12,7 @@
 
 `python -m benchmarks.speed --only prepared --scans-only [--scan-sizes 15000 1000000]` runs 2.
 alone (map sizes of your choice; the goals are judged at 15,000 and 1,000,000 objects).
+`python -m benchmarks.speed --only prepared --prepared-parts cold` runs 3. and 4. alone.
 """
 
 from __future__ import annotations
@@ -150,8 +151,14 @@ print(time.perf_counter() - t0, res.success)
 def run_cold(n: int, runs: int) -> tuple[dict, list[dict]]:
     """Two maps of n objects (50 % overlap) written to .npz files, then: whole processes
     (interpreter start to the answer) localizing them with the kernels cached (one untimed run
-    first), and a fresh install's first use (`first_use`)."""
+    first) and sgloc's sources byte-compiled, as an install has them (pip writes the bytecode
+    when it installs; a PYTHONDONTWRITEBYTECODE environment would otherwise compile every
+    module from source in every process), and a fresh install's first use (`first_use`)."""
+    import compileall
+
     from sgloc.sim.object_world import make_two_robot_scene
+
+    compileall.compile_dir(_SRC, quiet=1)
 
     scene = make_two_robot_scene(seed=0, overlap=0.5, stretch=n / 0.47, view_radius=130.0)
     out = {"n": (len(scene.query), len(scene.target)), "wall": [], "inside": [], "ok": []}
@@ -200,26 +207,39 @@ def first_use(files: list[str]) -> list[dict]:
     return rows
 
 
+#: The parts of this section (`--prepared-parts`): Airsim maps, scans, fresh process/first use.
+PARTS = ("airsim", "scans", "cold")
+
+
 def run(args) -> dict:
-    """Every part of this section (sizes capped by the object limit)."""
+    """The parts of this section `args.prepared_parts` names (all by default; `args.scans_only`:
+    the scans alone, at `args.scan_sizes`, capped by the object limit)."""
     from sgloc.validation import MAX_VERTICES
 
+    parts = set(getattr(args, "prepared_parts", None) or PARTS)
+    if getattr(args, "scans_only", False):
+        parts = {"scans"}
     asked = list(getattr(args, "scan_sizes", [15_000, 1_000_000]))
     sizes = [min(n, MAX_VERTICES) for n in asked]
-    only_scans = getattr(args, "scans_only", False)
-    return {
-        "airsim": [] if only_scans else run_airsim(args.reps * 10),
-        "scans": run_scans(sizes, n_scans=10, rounds=max(args.reps, 2), prepares=2),
-        "cold": None if only_scans else run_cold(20_000, args.startup_runs),
-        "max_vertices": MAX_VERTICES,
-        "asked": asked,
-    }
+    out = {"max_vertices": MAX_VERTICES, "asked": asked}
+    if "airsim" in parts:
+        out["airsim"] = run_airsim(args.reps * 10)
+    if "scans" in parts:
+        out["scans"] = run_scans(sizes, n_scans=10, rounds=max(args.reps, 2), prepares=2)
+    if "cold" in parts:
+        out["cold"] = run_cold(20_000, args.startup_runs)
+    return out
 
 
 def report(r: dict) -> list[str]:
-    """The markdown section of these rows, with the verdicts (the parts that ran)."""
-    lines = _report_airsim(r["airsim"]) if r["airsim"] else ["## Prepared maps", ""]
-    return lines + _report_scans(r) + (_report_cold(r) if r["cold"] is not None else [])
+    """The markdown section of the parts that ran, with the verdicts."""
+    head = ["## Prepared maps and the cold call", ""]
+    lines = _report_airsim(r["airsim"]) if "airsim" in r else head
+    if "scans" in r:
+        lines += _report_scans(r)
+    if "cold" in r:
+        lines += _report_cold(r)
+    return lines
 
 
 def _report_airsim(rows: list[dict]) -> list[str]:
@@ -275,7 +295,8 @@ def _report_cold(r: dict) -> list[str]:
     f, first = r["cold"]
     wall, inside = float(np.median(f["wall"])), float(np.median(f["inside"]))
     lines = [f"A fresh process localizing two maps of {f['n'][0]:,} and {f['n'][1]:,} objects "
-             "(50 % overlap) read from .npz files, the kernels already in the cache: wall "
+             "(50 % overlap) read from .npz files, the kernels already in the cache and the "
+             "sources byte-compiled (as installed): wall "
              f"seconds from starting the interpreter to the answer {_mmm(f['wall'])}; from the "
              f"script's first line (`import sgloc` on) {_mmm(f['inside'])}; localized "
              f"{np.mean(f['ok']):.0%}.", "",

@@ -2,6 +2,7 @@
 
     python -m benchmarks.speed [--seeds 4] [--reps 3] [--no-maps] [--update-docs]
     python -m benchmarks.speed --only threads --reps 2   # just the localize / BLAS-thread part
+    python -m benchmarks.speed --only prepared --prepared-parts cold   # fresh process, first use
     python -m benchmarks.speed --only prepared --scans-only --scan-sizes 15000  # scans only
 
 1. register (neighbor + RANSAC + IRLS) vs KISS-Matcher (`prune_and_solve`) vs sgloc's plain
@@ -634,6 +635,10 @@ def main() -> None:
                     help="part prepared: only the scans against prepared maps")  # fmt: skip
     ap.add_argument("--only", nargs="+", choices=PARTS, default=list(PARTS),
                     help="run only these parts (never written to docs/)")  # fmt: skip
+    ap.add_argument("--prepared-parts", nargs="+", choices=prepared_speed.PARTS,
+                    default=list(prepared_speed.PARTS),
+                    help="of part `prepared`, only these (e.g. `cold`: the fresh process and "
+                         "first use; never written to docs/)")  # fmt: skip
     args = ap.parse_args()
     from sgloc import kernels
 
@@ -657,7 +662,11 @@ def main() -> None:
     args.loads.append(os.getloadavg()[0])
     text = "\n".join(report(reg, threads, startup, cli, maps, args))
     print(text)
-    partial = parts != set(PARTS)
+    partial = (
+        parts != set(PARTS)
+        or args.scans_only
+        or set(args.prepared_parts) != set(prepared_speed.PARTS)
+    )
     out = Path("docs" if args.update_docs and not partial else "results") / "speed_benchmark.md"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)

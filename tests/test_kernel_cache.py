@@ -4,6 +4,7 @@ its numpy reference (`benchmarks/kernel_cache.py`; about 30-60 s, mostly compili
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -32,7 +33,8 @@ def test_every_cached_kernel_module_is_checked(kernel_cache):
     import sgloc.kernels
 
     folder = Path(sgloc.kernels.__file__).parent
-    cached = {p.stem for p in folder.glob("*.py") if "njit(cache=True" in p.read_text()}
+    compiled = re.compile(r"^@(kernel\b|njit\(cache=True)", re.MULTILINE)
+    cached = {p.stem for p in folder.glob("*.py") if compiled.search(p.read_text())}
     assert cached == set(kernel_cache.MODULES)
 
 

@@ -11,13 +11,13 @@ reg.transform  # T_dst_src (4x4) or None when reg.success is False
 
 from sgloc.config import LocalizerConfig
 from sgloc.errors import SglocError
-from sgloc.fleet import localize_fleet as localize_fleet  # re-exported beside localize
 from sgloc.graph import SemanticGraph
 from sgloc.localizer import LocalizationResult, Localizer, NotLocalizedError, localize
 from sgloc.prepared import PreparedMap, prepare
 from sgloc.registration import RegistrationResult, register
 
 __version__ = "0.1.0"
+
 
 __all__ = [
     "LocalizationResult",
@@ -33,3 +33,13 @@ __all__ = [
     "prepare",
     "register",
 ]
+
+
+def __getattr__(name: str):
+    """`sgloc.localize_fleet`, re-exported beside localize: the fleet layer (online session,
+    pose graph) is imported on first use, not by `import sgloc`."""
+    if name == "localize_fleet":
+        from sgloc.fleet import localize_fleet
+
+        return localize_fleet
+    raise AttributeError(f"module 'sgloc' has no attribute {name!r}")

@@ -29,7 +29,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from sgloc.errors import SglocError
 from sgloc.kernels.constants import MAD_SCALE, TUKEY_C
@@ -95,6 +94,8 @@ def _left_jacobian(omega: np.ndarray) -> np.ndarray:
 
 def se3_exp(xi: np.ndarray) -> np.ndarray:
     """(4,4) Exp of xi = [rx, ry, rz, tx, ty, tz] (rad, m), as gtsam.Pose3.Expmap."""
+    from scipy.spatial.transform import Rotation  # deferred: a localization never needs it
+
     xi = np.asarray(xi, dtype=np.float64)
     T = np.eye(4)
     T[:3, :3] = Rotation.from_rotvec(xi[:3]).as_matrix()
@@ -104,6 +105,8 @@ def se3_exp(xi: np.ndarray) -> np.ndarray:
 
 def se3_log(T: np.ndarray) -> np.ndarray:
     """xi (6,) = Log of a (4,4) rigid transform, as gtsam.Pose3.Logmap ([rotation, translation])."""
+    from scipy.spatial.transform import Rotation
+
     T = np.asarray(T, dtype=np.float64)
     omega = Rotation.from_matrix(T[:3, :3]).as_rotvec()
     return np.concatenate([omega, np.linalg.solve(_left_jacobian(omega), T[:3, 3])])

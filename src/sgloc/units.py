@@ -4,7 +4,6 @@ semantic map lie metres apart, so a median spacing of hundreds of "metres" is a 
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from sgloc.graph import SemanticGraph
 
@@ -17,6 +16,8 @@ def median_spacing(graph: SemanticGraph) -> float:
     """Median distance (m) from each object to its nearest other object (inf below 2)."""
     if len(graph) < 2:
         return float("inf")
+    from scipy.spatial import cKDTree  # deferred: asked only of maps not localized
+
     d, _ = cKDTree(graph.positions).query(graph.positions, k=2)
     return float(np.median(d[:, 1]))
 

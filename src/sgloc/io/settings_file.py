@@ -7,8 +7,6 @@ import json
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from sgloc.errors import SglocError
 from sgloc.io.files import MAX_TEXT_FILE_BYTES, read_regular_file
 
@@ -22,6 +20,8 @@ def read_settings_data(path: str | Path, kind: str | None = None) -> Any:
     """The parsed contents of the settings file `path`: `kind` "JSON" or "YAML" (default: JSON
     for `.json`, YAML otherwise; an empty YAML file reads as {}); SglocError when it is missing,
     too large or not parseable."""
+    import yaml  # deferred: `import sgloc` reads no settings file
+
     kind = kind or ("JSON" if is_json(path) else "YAML")
     raw = read_regular_file(path, f"{kind} config file", MAX_TEXT_FILE_BYTES, SglocError)
     try:
@@ -37,6 +37,8 @@ def write_settings_data(path: str | Path, data: Any, kind: str | None = None) ->
     if (kind or ("JSON" if is_json(path) else "YAML")) == "JSON":
         Path(path).write_text(json.dumps(_json_ready(data), indent=2) + "\n")
     else:
+        import yaml
+
         Path(path).write_text(yaml.safe_dump(data, sort_keys=False))
 
 

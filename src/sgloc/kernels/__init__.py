@@ -10,7 +10,9 @@ failing that, compiled in every process without a cache; either is said once on 
 Every problem runs the compiled kernels (`use_compiled`; the numpy references are kept for the
 tests, `FORCE = "reference"`), so the same inputs give the same bits in every process whatever
 it ran before (the references and the kernels agree to rounding, not bit for bit). Loading
-numba and the cached kernels costs a process about 0.3 s once.
+numba and the cached kernels costs a process about 0.3 s once. Every kernel is declared with
+`sgloc.kernels.dispatch.kernel`: one compiled specialisation, whatever flags (read-only or
+writable) its array arguments carry.
 
 Rule for every kernel here: no numba sort or search (np.sort, np.argsort, ndarray.sort,
 np.searchsorted, ...) inside a cached kernel: sort in numpy before the call, or write the loop

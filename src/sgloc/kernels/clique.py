@@ -4,13 +4,13 @@ greedy clique growth."""
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from sgloc.kernels import watch_compiles
 from sgloc.kernels.bits import WORD, cttz, popcount
+from sgloc.kernels.dispatch import kernel
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def core_numbers(bits: np.ndarray, degree: np.ndarray) -> np.ndarray:
     """k-core number of every vertex (Batagelj and Zaversnik's O(edges) bucket peeling)."""
     m = degree.shape[0]
@@ -49,7 +49,7 @@ def core_numbers(bits: np.ndarray, degree: np.ndarray) -> np.ndarray:
     return deg
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def greedy_clique(bits: np.ndarray, rank: np.ndarray, seeds: np.ndarray) -> np.ndarray:
     """`sgloc.rejection.clique.greedy_clique` on packed rows: the largest clique grown from
     each seed by adding the candidate of highest rank (first on ties). Sorted indices."""
@@ -84,7 +84,7 @@ def greedy_clique(bits: np.ndarray, rank: np.ndarray, seeds: np.ndarray) -> np.n
     return best
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _sorted_members(members: np.ndarray, m: int) -> np.ndarray:
     """The distinct vertices `members` (< m) in ascending order, by marking them (no sort:
     see the `sgloc.kernels` rule on numba's sort helpers)."""

@@ -12,6 +12,7 @@ from numba import njit
 
 from sgloc.kernels import watch_compiles
 from sgloc.kernels.bits import WORD
+from sgloc.kernels.dispatch import kernel
 
 #: Bound, relative to (R_src + R_dst + tau) with R the largest norm of a centred point set, on
 #: the float32 error of a distance difference: each coordinate, difference, square, sum and
@@ -26,7 +27,7 @@ def _exact(p: np.ndarray, i: int, j: int) -> float:
     return np.sqrt(dx * dx + dy * dy + dz * dz)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _columns32(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Centred float32 x, y, z columns and the largest centred norm (float64)."""
     m = p.shape[0]
@@ -43,7 +44,7 @@ def _columns32(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float
     return x, y, z, R
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def consistency_bits(
     src: np.ndarray, dst: np.ndarray, tau: float, neighbor: bool
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -107,7 +108,7 @@ def consistency_bits(
     return bits, degree
 
 
-@njit(cache=True, nogil=True)
+@kernel(writes=("bits",))
 def _mirror(bits: np.ndarray, m: int) -> None:
     """Complete the strictly upper triangle of packed rows into the symmetric matrix, one 64 x 64
     block at a time (bit transposes): no second m^2 / 8 buffer. A diagonal block holds only

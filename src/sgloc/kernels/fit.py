@@ -14,6 +14,7 @@ from numba import njit
 
 from sgloc.kernels import watch_compiles
 from sgloc.kernels.constants import COLLINEAR_WIDTH, MAD_SCALE, TUKEY_C
+from sgloc.kernels.dispatch import kernel
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -22,7 +23,7 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
                      a[0] * b[1] - a[1] * b[0]])  # fmt: skip
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def median(x: np.ndarray) -> float:
     """np.median of a 1-d float64 array (Hoare quickselect on a copy)."""
     a = x.copy()
@@ -37,7 +38,7 @@ def median(x: np.ndarray) -> float:
     return (lo + a[hi_k]) / 2.0
 
 
-@njit(cache=True, nogil=True)
+@kernel(writes=("a",))
 def _select(a: np.ndarray, k: int) -> None:
     """Reorder a so that a[k] is its k-th smallest, smaller ones before, larger after."""
     lo, hi = 0, a.shape[0] - 1
@@ -61,7 +62,7 @@ def _select(a: np.ndarray, k: int) -> None:
             return
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _symmetric_eigen(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Eigenvalues (descending) and eigenvectors (columns) of a symmetric 3x3 A (cyclic
     Jacobi rotations until the off-diagonal vanishes to rounding)."""
@@ -97,7 +98,7 @@ def _symmetric_eigen(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return w[order], V[:, order]
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def rotation_from_covariance(H: np.ndarray) -> np.ndarray:
     """The rotation R maximising trace(R H) (Kabsch: H = sum w (s - cs)(d - cd)^T), as
     V diag(1, 1, det) U^T from H = U S V^T. It is unique when H has rank >= 2 (non-collinear
@@ -137,7 +138,7 @@ def rotation_from_covariance(H: np.ndarray) -> np.ndarray:
     return R
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _centroids(
     src: np.ndarray, dst: np.ndarray, weights: np.ndarray, total: float
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -152,7 +153,7 @@ def _centroids(
     return cs, cd
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def kabsch(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """T_dst_src (4x4) minimising sum_i w_i ||R src_i + t - dst_i||^2 (reflection guarded);
     src, dst (m,3) float64, weights (m,) with a positive sum."""
@@ -178,7 +179,7 @@ def kabsch(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> np.ndarray:
     return T
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def residual_norms(src: np.ndarray, dst: np.ndarray, T: np.ndarray) -> np.ndarray:
     """(m,) ||R src_i + t - dst_i|| in metres."""
     m = src.shape[0]
@@ -193,7 +194,7 @@ def residual_norms(src: np.ndarray, dst: np.ndarray, T: np.ndarray) -> np.ndarra
     return r
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def collinear(points: np.ndarray, ratio: float) -> bool:
     """`sgloc.estimation._collinear`: fewer than 3 points, or the second principal extent
     under `ratio` times the first and its standard deviation under COLLINEAR_WIDTH metres."""
@@ -216,7 +217,7 @@ def collinear(points: np.ndarray, ratio: float) -> bool:
     return ev[0] <= 0.0 or (np.sqrt(second / ev[0]) < ratio and thin)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def yaw_fit(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """`sgloc.estimation.yaw_fit`: the weighted least-squares rotation about z and shift."""
     m = src.shape[0]
@@ -239,7 +240,7 @@ def yaw_fit(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> np.ndarray
     return T
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def fit_model(
     src: np.ndarray, dst: np.ndarray, weights: np.ndarray, dof: int, max_tilt: float
 ) -> np.ndarray:
@@ -254,7 +255,7 @@ def fit_model(
     return yaw_fit(src, dst, weights)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _biweight_step(
     u: np.ndarray, prior: np.ndarray, w_prev: np.ndarray, have_prev: bool
 ) -> tuple[np.ndarray, bool]:
@@ -276,7 +277,7 @@ def _biweight_step(
     return w, True
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def irls_model(
     src: np.ndarray,
     dst: np.ndarray,
@@ -288,6 +289,7 @@ def irls_model(
 ) -> np.ndarray:
     """`irls` under the motion model of `fit_model` (`sgloc.estimation.irls_refine` with
     dof and max_tilt, without per-class scales)."""
+    T = T.copy()  # the loop's estimate (the argument may be read-only)
     m = src.shape[0]
     w_prev = np.zeros(m)
     have_prev = False
@@ -311,7 +313,7 @@ def irls_model(
     return T
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def irls(
     src: np.ndarray, dst: np.ndarray, T: np.ndarray, prior: np.ndarray, iterations: int
 ) -> np.ndarray:
@@ -321,7 +323,7 @@ def irls(
     return irls_model(src, dst, T, prior, iterations, 6, 0.0)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def class_scales(
     d: np.ndarray, cls: np.ndarray, n_cls: int, sigma: float, height_only: bool,
     min_matches: int, min_ratio: float,
@@ -357,7 +359,7 @@ def class_scales(
     return s_xy, s_z
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _solve(H: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, bool]:
     """x with H x = g (k x k, Gaussian elimination with partial pivoting); ok False when H is
     singular to working precision."""
@@ -393,7 +395,7 @@ def _solve(H: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, bool]:
     return x, True
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _rotvec_matrix(v: np.ndarray) -> np.ndarray:
     """Rodrigues: the rotation (3,3) by angle |v| about v / |v|."""
     a = np.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
@@ -405,7 +407,7 @@ def _rotvec_matrix(v: np.ndarray) -> np.ndarray:
     return R + np.sin(a) * K + (1.0 - np.cos(a)) * (K @ K)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def anisotropic_fit(
     src: np.ndarray, dst: np.ndarray, T: np.ndarray, w_xy: np.ndarray, w_z: np.ndarray,
     dof: int, max_tilt: float, steps: int,
@@ -460,7 +462,7 @@ def anisotropic_fit(
     return T
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def irls_class_scaled(
     src: np.ndarray, dst: np.ndarray, T: np.ndarray, prior: np.ndarray, cls: np.ndarray,
     n_cls: int, height_only: bool, iterations: int, dof: int, max_tilt: float,
@@ -468,6 +470,7 @@ def irls_class_scaled(
 ) -> np.ndarray:  # fmt: skip
     """`sgloc.estimation.irls_refine` with per-class residual scales (`classes` as 0..n_cls-1
     in `cls`; max_tilt <= 0 stands for None)."""
+    T = T.copy()  # the loop's estimate (the argument may be read-only)
     m = src.shape[0]
     w_prev = np.zeros(m)
     have_prev = False

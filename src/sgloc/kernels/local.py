@@ -14,6 +14,7 @@ import numpy as np
 from numba import njit
 
 from sgloc.kernels import watch_compiles
+from sgloc.kernels.dispatch import kernel
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -30,7 +31,7 @@ def _consistent(src: np.ndarray, dst: np.ndarray, i: int, j: int, tau: float, nb
     return ((ds < tau) == (dt < tau)) if nb else (abs(ds - dt) < tau)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def local_counts(
     src: np.ndarray,
     dst: np.ndarray,
@@ -71,7 +72,7 @@ def _less(key: np.ndarray, a: int, b: int) -> bool:
     return key[a] < key[b] or (key[a] == key[b] and a < b)
 
 
-@njit(cache=True, nogil=True)
+@kernel(writes=("heap", "pos"))
 def _sift_up(heap: np.ndarray, pos: np.ndarray, key: np.ndarray, k: int) -> None:
     x = heap[k]
     while k > 0:
@@ -84,7 +85,7 @@ def _sift_up(heap: np.ndarray, pos: np.ndarray, key: np.ndarray, k: int) -> None
     heap[k], pos[x] = x, k
 
 
-@njit(cache=True, nogil=True)
+@kernel(writes=("heap", "pos"))
 def _sift_down(heap: np.ndarray, pos: np.ndarray, key: np.ndarray, k: int, n: int) -> None:
     x = heap[k]
     while True:
@@ -107,7 +108,7 @@ def _ratio(V: int, r: int, s: int) -> float:
     return (V + s) / (r + s) if r + s > 0 else np.inf
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def local_prune(
     src: np.ndarray,
     dst: np.ndarray,

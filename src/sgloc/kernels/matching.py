@@ -11,12 +11,12 @@ to rounding (the sum over features runs in order, as BLAS's does, without fused 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from sgloc.kernels import watch_compiles
+from sgloc.kernels.dispatch import kernel
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def inverse_norms(D: np.ndarray) -> np.ndarray:
     """1 / the Euclidean norm of each row of D (n,d), 0 for an all-zero row; the squares summed
     in order, four rows at a time (independent sums: no wait on one long chain)."""
@@ -38,7 +38,7 @@ def inverse_norms(D: np.ndarray) -> np.ndarray:
     return out
 
 
-@njit(cache=True, nogil=True)
+@kernel(writes=("sim",))
 def _similarities(
     sim: np.ndarray, blocks: np.ndarray, base: int, stride: int, x: np.ndarray, nz: np.ndarray
 ) -> None:
@@ -70,7 +70,7 @@ def _similarities(
         p += 1
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _unit_rows(Q: np.ndarray, rows: np.ndarray, inv_q: np.ndarray):
     """(X, nz, n_nz): the rows `rows` of Q (n_q,d) times their inverse norms `inv_q` (n_q,),
     and per row its non-zero features ascending (nz[r, :n_nz[r]])."""
@@ -96,7 +96,7 @@ _TILE = 256
 _HELD = 1 << 18
 
 
-@njit(cache=True, nogil=True)
+@kernel(writes=("best_s", "best_j"))
 def _insert(best_s: np.ndarray, best_j: np.ndarray, n: int, s: float, j: int) -> int:
     """Insert (s, j) into the n entries of best_* kept sorted by score descending, then target
     ascending, at most len(best_s) entries; returns the new count."""
@@ -112,7 +112,7 @@ def _insert(best_s: np.ndarray, best_j: np.ndarray, n: int, s: float, j: int) ->
     return min(n + 1, kk)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def class_blocks(
     T: np.ndarray, order_t: np.ndarray, sorted_t: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -145,7 +145,7 @@ def class_blocks(
     return blocks, block_class, block_start
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def top_k_same_class(
     Q: np.ndarray,
     T: np.ndarray,
@@ -174,7 +174,7 @@ def top_k_same_class(
                            k, min_sim, max_ratio, flag_ratio)  # fmt: skip
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def top_k_in_blocks(
     Q: np.ndarray,
     order_q: np.ndarray,
@@ -261,7 +261,7 @@ def top_k_in_blocks(
     return q, t, s, flag
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def top_k_in_lists(
     Q: np.ndarray,
     rows: np.ndarray,

@@ -22,6 +22,7 @@ import numpy as np
 from numba import njit
 
 from sgloc.kernels import watch_compiles
+from sgloc.kernels.dispatch import kernel
 
 #: Cells are this much wider than the radius, so that rounding in the cell index never puts
 #: two points within the radius more than one cell apart.
@@ -120,7 +121,7 @@ def _build_grid(points: np.ndarray, labels: np.ndarray, radius: float) -> CellGr
                     n_y)  # fmt: skip
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _cell_keys(points: np.ndarray, radius: float) -> tuple[np.ndarray, float, float, float, int]:
     """(keys, x0, y0, cell, n_y): each point's xy cell as cx * n_y + cy (cells `cell` >= radius
     wide from (x0, y0), one spare row and column on each side)."""
@@ -137,7 +138,7 @@ def _cell_keys(points: np.ndarray, radius: float) -> tuple[np.ndarray, float, fl
     return keys, x0, y0, cell, n_y
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _cell_starts(sorted_keys: np.ndarray, n_cells: int) -> np.ndarray:
     """(n_cells + 1,) the first position in sorted_keys of each cell key's run."""
     start = np.zeros(n_cells + 1, dtype=np.int64)
@@ -148,7 +149,7 @@ def _cell_starts(sorted_keys: np.ndarray, n_cells: int) -> np.ndarray:
     return start
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _first_at_least(sorted_keys: np.ndarray, key: int) -> int:
     """The first position of sorted_keys holding a value >= key (binary search)."""
     lo, hi = 0, sorted_keys.shape[0]
@@ -161,7 +162,7 @@ def _first_at_least(sorted_keys: np.ndarray, key: int) -> int:
     return lo
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _counts_in_cells(
     query: np.ndarray,
     xyz: np.ndarray,
@@ -243,7 +244,7 @@ def distance_histograms(
     return out
 
 
-@njit(cache=True, nogil=True)
+@kernel(writes=("out",))
 def _pair_histograms(
     out: np.ndarray,
     points: np.ndarray,
@@ -323,7 +324,7 @@ def _pair_run(out, a, lo, hi, order, px, py, pz, lab, radius, n_bins, per_bin, s
         out[j, col + b_hi] += w_hi
 
 
-@njit(cache=True, nogil=True)
+@kernel(writes=("out",))
 def _histograms_in_cells(
     out: np.ndarray,
     centres: np.ndarray,

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from sgloc.kernels import watch_compiles
 from sgloc.kernels.bits import WORD, cttz
+from sgloc.kernels.dispatch import kernel
 
 #: Keys are support << 32 | index: the least key is the least support and, among equal
 #: supports, the lowest index (Alg. 1's tie rule).
@@ -16,7 +16,7 @@ _ONE = np.int64(1) << _SHIFT
 _GONE = np.int64(1) << np.int64(62)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def prune_bits(bits: np.ndarray, degree: np.ndarray, eta: float) -> np.ndarray:
     """Survivors (sorted int64 indices) of Alg. 1 step 2 on packed rows `bits` (m, ceil(m/64))
     with row counts `degree` (m,): while the least supported remaining match (ties: lowest

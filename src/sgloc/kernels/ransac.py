@@ -13,6 +13,7 @@ import numpy as np
 from numba import njit
 
 from sgloc.kernels import watch_compiles
+from sgloc.kernels.dispatch import kernel
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -78,7 +79,7 @@ def _set_pose(T: np.ndarray, R: np.ndarray, t: np.ndarray) -> None:
         T[a, 3] = t[a]
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def score_block(
     src: np.ndarray, dst: np.ndarray, samples: np.ndarray, thr2: float, msac: bool, ratio: float
 ) -> tuple[bool, float, float, np.ndarray, int]:
@@ -115,7 +116,7 @@ def score_block(
     return found, best_p, best_s, best_T, max_count
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def score_pair_block(
     src: np.ndarray, dst: np.ndarray, pairs: np.ndarray, thr2: float, msac: bool, max_gap: float
 ) -> tuple[bool, float, float, np.ndarray, int]:
@@ -150,7 +151,7 @@ def score_pair_block(
     return found, best_p, best_s, best_T, max_count
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def inliers(T: np.ndarray, src: np.ndarray, dst: np.ndarray, thr2: float) -> np.ndarray:
     """Sorted indices i with ||R src_i + t - dst_i||^2 < thr2."""
     keep = np.zeros(src.shape[0], dtype=np.bool_)

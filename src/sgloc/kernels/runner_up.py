@@ -10,12 +10,12 @@ among the free candidates, and the first best one is kept. Residuals are compute
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from sgloc.kernels import watch_compiles
+from sgloc.kernels.dispatch import kernel
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def best_yaw_alternative(
     src: np.ndarray,
     dst: np.ndarray,

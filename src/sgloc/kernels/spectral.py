@@ -4,13 +4,13 @@ iteration, greedy selection."""
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from sgloc.kernels import watch_compiles
 from sgloc.kernels.bits import WORD, cttz
+from sgloc.kernels.dispatch import kernel
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def affinity_csr(
     src: np.ndarray, dst: np.ndarray, bits: np.ndarray, degree: np.ndarray, sigma: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -45,7 +45,7 @@ def affinity_csr(
     return indptr, indices, data
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def leading_eigenvector(
     indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, iterations: int, tol: float
 ) -> np.ndarray:
@@ -75,7 +75,7 @@ def leading_eigenvector(
     return x
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def greedy_select(
     x: np.ndarray, order: np.ndarray, bits: np.ndarray, min_ratio: float, min_agreement: float
 ) -> np.ndarray:

@@ -8,13 +8,13 @@ For the acceptance test, which needs the consistent pairs (i < j) and the number
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from sgloc.kernels import watch_compiles
 from sgloc.kernels.bits import WORD, cttz, popcount
+from sgloc.kernels.dispatch import kernel
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def upper_edges(bits: np.ndarray, degree: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(ii, jj): every consistent pair with ii < jj, in row-major order (as
     np.nonzero(np.triu(M)))."""
@@ -37,7 +37,7 @@ def upper_edges(bits: np.ndarray, degree: np.ndarray) -> tuple[np.ndarray, np.nd
     return ii, jj
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def common_counts(bits: np.ndarray, ii: np.ndarray, jj: np.ndarray) -> int:
     """Sum over the pairs (ii[k], jj[k]) of the number of matches consistent with both (the
     popcount of row ii[k] AND row jj[k]); over all edges i < j it is 3 x the triangles."""
@@ -49,7 +49,7 @@ def common_counts(bits: np.ndarray, ii: np.ndarray, jj: np.ndarray) -> int:
     return total
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def upper_counts(bits: np.ndarray, keep_words: np.ndarray, keep_rows: np.ndarray) -> np.ndarray:
     """(m,) per row i, its consistent partners j > i among the kept ones (`keep_words`: the
     kept columns as one packed row; rows outside `keep_rows` count 0)."""
@@ -70,7 +70,7 @@ def upper_counts(bits: np.ndarray, keep_words: np.ndarray, keep_rows: np.ndarray
     return counts
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _last_at_most(sorted_values: np.ndarray, value: int) -> int:
     """The last position of sorted_values holding a value <= `value` (-1 if none): numpy's
     searchsorted(side="right") - 1, as a plain binary search (see the `sgloc.kernels` rule on
@@ -85,7 +85,7 @@ def _last_at_most(sorted_values: np.ndarray, value: int) -> int:
     return lo - 1
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def edges_at(
     bits: np.ndarray, keep_words: np.ndarray, row_start: np.ndarray, ks: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
