@@ -47,11 +47,13 @@ def kernel(func: Callable | None = None, *, writes: tuple[str, ...] = ()):
             args, _ = sigutils.normalize_signature(sig)
             plain = tuple(_plain(a, w) for a, w in zip(args, written, strict=True))
             entry = compile_exact(plain)
-            if plain != tuple(args):
+            if plain != tuple(args) and hasattr(dispatcher, "_insert"):
                 # Calls from Python with these types run the same machine code (an array's
                 # flags only matter to typing): entered in numba's dispatch table, they are
                 # matched at once, never compiled. Calls from other kernels are typed against
-                # `plain` by numba's own conversions.
+                # `plain` by numba's own conversions. Without that (private) table entry, a
+                # numba that lacks it sends such calls through this function each time: the
+                # same code and bits, only slower.
                 dispatcher._insert([a._code for a in args], entry, False)
             return entry
 
