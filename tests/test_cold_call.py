@@ -144,3 +144,29 @@ def test_graph_checks_still_refuse_bad_positions(value, message):
     too_many = np.arange(70) * 1000  # ids past MAX_CLASSES: the classes are counted
     with pytest.raises(InvalidGraphError, match="distinct classes"):
         SemanticGraph(np.random.default_rng(0).uniform(0, 9, (70, 3)), too_many)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_mirror_check_on_the_tests_landed_objects_equals_its_own_search(seed):
+    """The acceptance test's aligned query objects on the target (`Assessment.landed`) are the
+    mirror check's own count, and handing them over changes nothing."""
+    from sgloc.acceptance.assessment import assess
+    from sgloc.acceptance.chance import ChanceModel
+    from sgloc.acceptance.mirror import landed
+
+    rng = np.random.default_rng(seed)
+    target = SemanticGraph(rng.uniform(0, 80, (120, 3)) * [1, 1, 0.1], rng.integers(0, 4, 120))
+    idx = rng.choice(120, 60, replace=False)
+    T = random_rigid_transform(rng, 20.0, 2.0)
+    query = SemanticGraph(apply(T, target.positions[idx]) + rng.normal(0, 1.0, (60, 3)),
+                          target.labels[idx])  # fmt: skip
+    T_tq = np.linalg.inv(T)
+    candidates = np.stack([np.arange(60), idx], axis=1)
+    a = assess(query, target, candidates, T_tq, 5.0)
+    chance = ChanceModel(target, 5.0, max(query.n_classes, target.n_classes))
+    own = landed(apply(T_tq, query.positions), query.labels, chance)
+    assert a.radius_m == 5.0 and np.array_equal(a.landed, own) and own.any()
+    inliers = np.arange(0, 60, 3)
+    assert looks_mirrored(query, target, T_tq, inliers, 5.0, a.landed) == looks_mirrored(
+        query, target, T_tq, inliers, 5.0
+    )

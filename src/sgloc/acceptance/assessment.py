@@ -87,12 +87,16 @@ DOF4_SPREAD_FACTOR = 2.0
 @dataclass
 class Assessment:
     """Outcome of `assess`: `accepted`, `confidence` in [0, 1], `reason` (empty if accepted),
-    and `details` (inliers, lambda, log10 NFA of best and runner-up, spread in metres)."""
+    and `details` (inliers, lambda, log10 NFA of best and runner-up, spread in metres).
+    `landed`: (n,) bool, the query objects within `radius_m` (distance <= radius) of a
+    same-class target object under the estimate (None when no estimate was tested)."""
 
     accepted: bool
     confidence: float
     reason: str = ""
     details: dict = field(default_factory=dict)
+    landed: np.ndarray | None = field(default=None, repr=False)
+    radius_m: float | None = None
 
 
 def per_object_min(res2: np.ndarray, query_index: np.ndarray) -> np.ndarray:
@@ -185,9 +189,10 @@ def _best_evidence(
     transform: np.ndarray,
     chance: ChanceModel,
     tests: _Tests,
-) -> dict:
+) -> tuple[dict, np.ndarray]:
     """The evidence for the estimate under both nulls (module docstring): the details of
-    `Assessment` up to the runner-up."""
+    `Assessment` up to the runner-up, and (n, n_classes) bool: which classes have a target
+    object within the radius of each moved query object."""
     r, cand, qi, tlab = chance.radius, c.cand, c.cand[:, 0], c.tlab
     m = len(cand)
     k = int(np.count_nonzero(np.bincount(cand[c.inlier, 0])))  # distinct query objects
@@ -199,7 +204,8 @@ def _best_evidence(
     obj2 = per_object_min(c.res2, qi)
     lg_uniform, k_fit, r_fit = nfa_over_radii(obj2, r, lam, m, tests.n_tests, tests.sample)
     lam_perm = permutation_lambda(used[qi, tlab], c.inlier, tlab, counts[qi, tlab], chance)
-    lg_geo, colocated, mu_geo = log10_colocation_p(query, counts > 0, cand[c.inlier, 0])
+    presence = counts > 0
+    lg_geo, colocated, mu_geo = log10_colocation_p(query, presence, cand[c.inlier, 0])
     lg_perm = nfa_over_radii(obj2, r, lam_perm, m, tests.n_tests, tests.sample)[0]
     lg_perm += min(lg_geo, 0.0)
     return {
@@ -216,7 +222,7 @@ def _best_evidence(
         "expected_colocated": mu_geo,
         "log10_p_colocation": lg_geo,
         "log10_nfa_permutation_colocation": lg_perm,
-    }
+    }, presence
 
 
 def _rival_nfa(
@@ -267,7 +273,8 @@ def assess(
     c = _Candidates.of(query, target, candidates, transform, r)
     chance = ChanceModel(target, r, max(query.n_classes, target.n_classes))
     tests = _Tests.of(c, r, dof, rng)
-    details = _best_evidence(query, target, c, transform, chance, tests)
+    details, presence = _best_evidence(query, target, c, transform, chance, tests)
+    seen = {"landed": presence[np.arange(len(query)), query.labels], "radius_m": r}
     lg_best = details["log10_nfa"]
     spread = inlier_spread(c.dst[c.inlier], dof)
     explained = c.res2 < (2 * r) ** 2
@@ -283,12 +290,12 @@ def assess(
                 "spread_m": spread}  # fmt: skip
     conf = confidence(lg_best, lg_second)
     if details["candidates"] == 0 or details["inliers"] < 3:
-        return Assessment(False, 0.0, _few_reason(details, r), details)
+        return Assessment(False, 0.0, _few_reason(details, r), details, **seen)
     if spread < min_spread:
-        return Assessment(False, 0.0, _spread_reason(details, min_spread, dof), details)
+        return Assessment(False, 0.0, _spread_reason(details, min_spread, dof), details, **seen)
     if conf < cfg.min_confidence:
-        return Assessment(False, conf, _chance_reason(details, conf, cfg), details)
-    return Assessment(True, conf, "", details)
+        return Assessment(False, conf, _chance_reason(details, conf, cfg), details, **seen)
+    return Assessment(True, conf, "", details, **seen)
 
 
 def _few_reason(details: dict, radius: float) -> str:

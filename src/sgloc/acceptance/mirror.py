@@ -45,19 +45,25 @@ def reflect_across_line(points: np.ndarray, on_line: np.ndarray) -> np.ndarray:
 
 def looks_mirrored(
     query: SemanticGraph, target: SemanticGraph, T_target_query: np.ndarray,
-    inlier_objects: np.ndarray, radius: float,
+    inlier_objects: np.ndarray, radius: float, plain_landed: np.ndarray | None = None,
 ) -> tuple[bool, int, int]:  # fmt: skip
     """(mirrored, objects the alignment lands on the target, objects the query reflected across
     its inliers' line lands): query objects within `radius` metres of a same-class target
-    object, the reflection tried in the query frame (module docstring)."""
+    object, the reflection tried in the query frame (module docstring). `plain_landed`: the
+    (n,) bool `landed` of the query under T_target_query at this radius when already known
+    (the acceptance test's neighbour search): only the reflected query is searched then."""
     if len(inlier_objects) < 2:
         return False, 0, 0
-    moved = apply(T_target_query, query.positions)
     flipped = apply(T_target_query, reflect_across_line(query.positions,
                                                         query.positions[inlier_objects]))
     chance = ChanceModel(target, radius, max(query.n_classes, target.n_classes))
-    both = landed(np.vstack([moved, flipped]), np.tile(query.labels, 2), chance)
-    plain = int(np.count_nonzero(both[: len(query)]))
-    mirror = int(np.count_nonzero(both[len(query) :]))
+    if plain_landed is None:
+        moved = apply(T_target_query, query.positions)
+        both = landed(np.vstack([moved, flipped]), np.tile(query.labels, 2), chance)
+        plain_landed, flipped_landed = both[: len(query)], both[len(query) :]
+    else:
+        flipped_landed = landed(flipped, query.labels, chance)
+    plain = int(np.count_nonzero(plain_landed))
+    mirror = int(np.count_nonzero(flipped_landed))
     mirrored = mirror - plain >= max(MIRROR_MARGIN, MIRROR_EXCESS * len(query))
     return bool(mirrored), plain, mirror

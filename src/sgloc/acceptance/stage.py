@@ -115,7 +115,8 @@ def accept(
         verdict = Verdict(a.accepted, transform if a.accepted else None, matches, a.confidence,
                           a.reason, assessment=a)  # fmt: skip
         if verdict.accepted:  # a self-similar strip of a mirrored map (acceptance.mirror)
-            _refuse_mirrored(verdict, query, target, radius)
+            known = a.landed if a.radius_m == radius else None
+            _refuse_mirrored(verdict, query, target, radius, known)
         verdict.timings["acceptance"] = clock() - t0
     if not verdict.accepted and verifies(cfg, motion, len(query)):
         t0 = clock()
@@ -125,12 +126,19 @@ def accept(
 
 
 def _refuse_mirrored(
-    verdict: Verdict, query: SemanticGraph, target: SemanticGraph, radius: float
+    verdict: Verdict,
+    query: SemanticGraph,
+    target: SemanticGraph,
+    radius: float,
+    plain_landed: np.ndarray | None = None,
 ) -> None:
     """Refuse `verdict`'s alignment when the query, reflected across its inliers' line, lands
-    clearly more objects on the target (`looks_mirrored`); updates `verdict`."""
+    clearly more objects on the target (`looks_mirrored`; `plain_landed`: the test's own
+    count of the aligned query, when at this radius); updates `verdict`."""
     inliers = np.unique(verdict.matches[:, 0])
-    mirrored, plain, flipped = looks_mirrored(query, target, verdict.transform, inliers, radius)
+    mirrored, plain, flipped = looks_mirrored(
+        query, target, verdict.transform, inliers, radius, plain_landed
+    )
     if mirrored:
         verdict.accepted, verdict.transform, verdict.confidence = False, None, 0.0
         verdict.reason = (
