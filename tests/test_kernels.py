@@ -345,3 +345,24 @@ def test_yaw_runner_up_equals_reference(monkeypatch, seed):
         np.testing.assert_allclose(Ta, Tb, rtol=0, atol=1e-9)
     if seed < 3:
         assert ka >= 40  # the second alignment is found
+
+
+@pytest.mark.parametrize("n_q, n_t", [(90, 120), (150, 900)])
+def test_compiled_top_k_one_tile_and_tiled_classes_equal_reference(monkeypatch, n_q, n_t):
+    """Classes of at most one tile of targets (scored row by row) and of several tiles (scored
+    tile by tile) keep the reference's candidates, flags and similarities."""
+    from sgloc.kernels.matching import _TILE
+
+    dq, dt, lq, lt = _descriptor_pair(5, n_q, n_t)
+    sizes = np.unique(lt, return_counts=True)[1]
+    assert (sizes.max() > _TILE) == (n_t > 3 * _TILE)
+    cfg = MatchingConfig(min_similarity=0.1, top_k=2)
+    out = {}
+    for path in ("reference", "compiled"):
+        monkeypatch.setattr(kernels, "FORCE", path)
+        out[path] = match_flagged(dq, dt, lq, lt, cfg, 0.8)
+    (ma, sa, fa), (mb, sb, fb) = out["reference"], out["compiled"]
+    assert len(ma) > 20
+    np.testing.assert_array_equal(ma, mb)
+    np.testing.assert_allclose(sa, sb, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(fa, fb)

@@ -88,6 +88,50 @@ def _unit_rows(Q: np.ndarray, rows: np.ndarray, inv_q: np.ndarray):
     return X, nz, n_nz
 
 
+@njit(cache=True, nogil=True)
+def _unit_row(Q: np.ndarray, i: int, w: float, x: np.ndarray, nz: np.ndarray) -> int:
+    """One row of `_unit_rows` into reused buffers: x = Q[i] * w, nz[:n] its non-zero
+    features ascending; returns n."""
+    m = 0
+    for f in range(Q.shape[1]):
+        x[f] = Q[i, f] * w
+        nz[m] = f
+        m += x[f] != 0.0
+    return m
+
+
+@njit(cache=True, nogil=True)
+def _rank(i, sim, it, kk, best_s, best_j, test_ratio, min_sim, max_ratio, flag_ratio,
+          out_j, out_s, out_n, out_f) -> None:  # fmt: skip
+    """Query row i's kept candidates among the similarities `sim` (n_t,) to the class's
+    targets `it` (`top_k_same_class`: top kk, the ratio tests, min_sim), into out_*."""
+    n_t = sim.shape[0]
+    s1, s2, j1 = -np.inf, -np.inf, 0
+    for j in range(n_t):
+        s = sim[j]
+        if s > s1:
+            s1, s2, j1 = s, s1, j
+        elif s > s2:
+            s2 = s
+    if kk == 1:
+        best_s[0], best_j[0] = s1, j1
+    else:
+        n = np.int64(0)  # one specialisation of _insert, not two
+        for j in range(n_t):
+            n = _insert(best_s[:kk], best_j[:kk], n, sim[j], j)
+    if test_ratio and n_t > 1:
+        if not np.isnan(max_ratio) and not (1.0 - s1) <= max_ratio * (1.0 - s2):
+            return
+        if not np.isnan(flag_ratio):
+            out_f[i] = (1.0 - s1) <= flag_ratio * (1.0 - s2)
+    m = 0
+    for h in range(kk):
+        if best_s[h] >= min_sim and best_s[h] > 0:
+            out_j[i, m], out_s[i, m] = it[best_j[h]], best_s[h]
+            m += 1
+    out_n[i] = m
+
+
 #: The exhaustive search scores the query rows of a class against its targets in tiles of
 #: this many targets (a tile's descriptor rows, d x _TILE floats, stay in cache while every
 #: query row of the class is scored on them), ...
@@ -212,6 +256,17 @@ def top_k_in_blocks(
         n_t = b_end - b
         it = order_t[b:b_end]
         kk = min(k, n_t)
+        ranks = (kk, best_s, best_j, test_ratio, min_sim, max_ratio, flag_ratio)
+        outs = (out_j, out_s, out_n, out_f)
+        if n_t <= _TILE:  # one tile: row by row on reused buffers, no per-class copies
+            sim, x, row_nz = np.empty(n_t), np.empty(d), np.empty(d, dtype=np.int64)
+            for r in range(a, a_end):
+                i = order_q[r]
+                m = _unit_row(Q, i, inv_q[i], x, row_nz)
+                _similarities(sim, blocks, b * d, n_t, x, row_nz[:m])
+                _rank(i, sim, it, *ranks, *outs)
+            a, c = a_end, c + 1
+            continue
         chunk = max(1, _HELD // max(n_t, 1))
         for a0 in range(a, a_end, chunk):
             rows = order_q[a0 : min(a_end, a0 + chunk)]
@@ -222,31 +277,7 @@ def top_k_in_blocks(
                 for r in range(rows.shape[0]):
                     _similarities(S[r, j0:j1], blocks, b * d + j0, n_t, X[r], nz[r, : n_nz[r]])
             for r in range(rows.shape[0]):
-                i, sim = rows[r], S[r]
-                s1, s2, j1 = -np.inf, -np.inf, 0
-                for j in range(n_t):
-                    s = sim[j]
-                    if s > s1:
-                        s1, s2, j1 = s, s1, j
-                    elif s > s2:
-                        s2 = s
-                if kk == 1:
-                    best_s[0], best_j[0] = s1, j1
-                else:
-                    n = np.int64(0)  # one specialisation of _insert, not two
-                    for j in range(n_t):
-                        n = _insert(best_s[:kk], best_j[:kk], n, sim[j], j)
-                if test_ratio and n_t > 1:
-                    if not np.isnan(max_ratio) and not (1.0 - s1) <= max_ratio * (1.0 - s2):
-                        continue
-                    if not np.isnan(flag_ratio):
-                        out_f[i] = (1.0 - s1) <= flag_ratio * (1.0 - s2)
-                m = 0
-                for h in range(kk):
-                    if best_s[h] >= min_sim and best_s[h] > 0:
-                        out_j[i, m], out_s[i, m] = it[best_j[h]], best_s[h]
-                        m += 1
-                out_n[i] = m
+                _rank(rows[r], S[r], it, *ranks, *outs)
         a, c = a_end, c + 1
     total = out_n.sum()
     q = np.empty(total, dtype=np.int64)
