@@ -88,7 +88,7 @@ def _unit_rows(Q: np.ndarray, rows: np.ndarray, inv_q: np.ndarray):
     return X, nz, n_nz
 
 
-@njit(cache=True, nogil=True)
+@kernel(writes=("x", "nz"))
 def _unit_row(Q: np.ndarray, i: int, w: float, x: np.ndarray, nz: np.ndarray) -> int:
     """One row of `_unit_rows` into reused buffers: x = Q[i] * w, nz[:n] its non-zero
     features ascending; returns n."""
@@ -100,7 +100,7 @@ def _unit_row(Q: np.ndarray, i: int, w: float, x: np.ndarray, nz: np.ndarray) ->
     return m
 
 
-@njit(cache=True, nogil=True)
+@kernel(writes=("best_s", "best_j", "out_j", "out_s", "out_n", "out_f"))
 def _rank(i, sim, it, kk, best_s, best_j, test_ratio, min_sim, max_ratio, flag_ratio,
           out_j, out_s, out_n, out_f) -> None:  # fmt: skip
     """Query row i's kept candidates among the similarities `sim` (n_t,) to the class's
