@@ -275,6 +275,22 @@ def check_triangles() -> None:
         assert np.array_equal(ki, ref_i[ks]) and np.array_equal(kj, ref_j[ks]), "edges at"
 
 
+def check_walks() -> None:
+    from sgloc.descriptors import RandomWalkDescriptor
+    from sgloc.graph import SemanticGraph
+    from sgloc.kernels import walks  # noqa: F401 (loaded first, then called as the descriptor does)
+
+    rng = np.random.default_rng(10)
+    g = SemanticGraph(rng.uniform(0, 60, (40, 3)), rng.integers(0, 5, 40))
+    for length, n_classes in [(3, 5), (4, 50)]:  # dense and sorted counting
+        rw = RandomWalkDescriptor(n_walks=200, walk_length=length)
+        with _forced("compiled"):
+            got = rw(g, n_classes, np.random.default_rng(11))
+        ref = rw.reference(g, n_classes, np.random.default_rng(11))
+        for field in ("indptr", "indices", "data"):
+            assert np.array_equal(getattr(got, field), getattr(ref, field)), f"walks {field}"
+
+
 CHECKS: dict[str, Callable[[], None]] = {name: globals()[f"check_{name}"] for name in MODULES}
 
 #: numba's generated sort and search helpers: their symbol names hold the element types and a

@@ -364,3 +364,45 @@ def test_compiled_top_k_one_tile_and_tiled_classes_equal_reference(monkeypatch, 
     np.testing.assert_array_equal(ma, mb)
     np.testing.assert_allclose(sa, sb, rtol=0, atol=1e-12)
     np.testing.assert_array_equal(fa, fb)
+
+
+def _walk_graph(kind: str) -> tuple[SemanticGraph, int]:
+    """(graph, n_classes) for the random-walk kernel tests."""
+    rng = np.random.default_rng(len(kind))
+    if kind == "airsim":
+        from sgloc.downloads import airsim_guo
+
+        return airsim_guo()[0], 11
+    if kind == "isolated":  # a cluster plus far-apart vertices without neighbours
+        pos = np.concatenate([rng.uniform(0, 50, (30, 3)), 1000.0 * np.arange(1, 6)[:, None]
+                              * np.ones(3)])  # fmt: skip
+        return SemanticGraph(pos, rng.integers(0, 4, 35)), 4
+    if kind == "one_class":
+        return SemanticGraph(rng.uniform(0, 60, (25, 3)), np.zeros(25, dtype=int)), 1
+    if kind == "many_classes":  # 50**4 sequences: the kernel's sorted (not dense) counting
+        return SemanticGraph(rng.uniform(0, 80, (40, 3)), rng.integers(0, 50, 40)), 50
+    if kind == "all_isolated":
+        return SemanticGraph(1000.0 * np.arange(4)[:, None] * np.ones(3), [0, 1, 0, 1]), 2
+    raise ValueError(kind)
+
+
+@pytest.mark.parametrize("kind", ["airsim", "isolated", "one_class", "many_classes",
+                                  "all_isolated"])  # fmt: skip
+@pytest.mark.parametrize("walk_length", [1, 3, 4])
+@pytest.mark.parametrize("bit_generator", [np.random.PCG64, np.random.MT19937])
+def test_random_walk_kernel_equals_reference_bit_for_bit(kind, walk_length, bit_generator):
+    from sgloc.descriptors import RandomWalkDescriptor
+
+    g, n_classes = _walk_graph(kind)
+    rw = RandomWalkDescriptor(n_walks=300 if kind != "airsim" else 1000, walk_length=walk_length)
+    rng_a, rng_b = np.random.Generator(bit_generator(5)), np.random.Generator(bit_generator(5))
+    got, ref = rw(g, n_classes, rng_a), rw.reference(g, n_classes, rng_b)
+    assert got.shape == ref.shape == (len(g), n_classes**walk_length)
+    for field in ("indptr", "indices", "data"):
+        a, b = getattr(got, field), getattr(ref, field)
+        assert a.dtype == b.dtype and np.array_equal(a, b), field
+    # The same draws consumed: the generators go on alike.
+    assert np.array_equal(rng_a.integers(0, 2**62, 16), rng_b.integers(0, 2**62, 16))
+    empty = np.diff(got.indptr) == 0
+    assert np.array_equal(empty, g.degrees == 0)  # rows of vertices without neighbours only
+    assert np.all(got.sum(axis=1)[~empty] == rw.n_walks)

@@ -61,6 +61,7 @@ def _localizations() -> None:
     localize(q, t, dof=6, max_tilt=None)
     localize(q, t, search="index")  # the candidate-search index (large maps)
     localize(q, t, class_scale="height")
+    localize(q, t, descriptor="random_walk")
     small = SemanticGraph(q.positions[:20], q.labels[:20])
     localize(small, t)  # a small query: the whole-map verification
     big = make_two_robot_scene(seed=1, stretch=1800.0, view_radius=130.0).target

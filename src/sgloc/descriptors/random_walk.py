@@ -9,6 +9,7 @@ from scipy import sparse
 
 from sgloc.descriptors.base import Descriptor
 from sgloc.graph import SemanticGraph
+from sgloc.kernels import use_compiled
 from sgloc.validation import MAX_WALK_LENGTH, integer, setting
 
 
@@ -19,8 +20,8 @@ class RandomWalkDescriptor(Descriptor):
 
     X-View keeps the multiset of label sequences; we embed it as a histogram over the
     L**walk_length possible sequences (the start vertex's own label is implied, as only
-    same-class vertices are compared), so the paper's cosine similarity applies. All walks of
-    all vertices advance together, one vectorised step at a time. Returns a CSR matrix.
+    same-class vertices are compared), so the paper's cosine similarity applies. A compiled
+    kernel walks and counts (`sgloc.kernels.walks`); `reference` is its numpy twin.
     """
 
     #: 1000: a walk of 3 steps over L = 11 classes falls in one of 1331 sequences; 200 walks
@@ -31,9 +32,34 @@ class RandomWalkDescriptor(Descriptor):
     name = "random_walk"
 
     def __call__(self, graph: SemanticGraph, n_classes: int, rng: np.random.Generator):
-        n, L = len(graph), n_classes
+        """(n, n_classes**walk_length) float64 CSR of walk counts per label sequence (codes
+        descending within a row); draws walk_length * n * n_walks uniforms from `rng`. The
+        compiled kernel when `sgloc.kernels.use_compiled` says so, else `reference` (the same
+        bits, and the same state of `rng` afterwards)."""
         if self.n_walks < 1 or self.walk_length < 1:
             raise ValueError("random_walk needs n_walks >= 1 and walk_length >= 1")
+        n = len(graph)
+        if not use_compiled(n):
+            return self.reference(graph, n_classes, rng)
+        from sgloc.kernels.walks import walk_histograms
+
+        A = graph.adjacency
+        # One draw of all the uniforms consumes the stream as the reference's one per step.
+        u = rng.random(self.walk_length * n * self.n_walks)
+        indptr, indices, data = walk_histograms(
+            A.indptr.astype(np.int64), A.indices.astype(np.int64),
+            np.ascontiguousarray(graph.labels, dtype=np.int64), u, self.n_walks,
+            self.walk_length, n_classes,
+        )  # fmt: skip
+        shape = (n, n_classes**self.walk_length)
+        if not data.size:  # no vertex with a neighbour: scipy's empty CSR, as the reference's
+            return sparse.csr_array(shape)
+        return sparse.csr_array((data, indices, indptr), shape=shape)
+
+    def reference(self, graph: SemanticGraph, n_classes: int, rng: np.random.Generator):
+        """The numpy reference of `__call__`: all walks of all vertices advance together, one
+        vectorised step at a time."""
+        n, L = len(graph), n_classes
         A = graph.adjacency
         indptr, indices = A.indptr, A.indices
         deg = np.diff(indptr)

@@ -55,7 +55,7 @@ _BLAS_CONTROLLER = None
 #: The kernel modules (each compiled on first use, `cache=True`).
 MODULES = (
     "clique", "consistency", "fit", "matching", "neighbors",
-    "local", "prune", "ransac", "runner_up", "spectral", "triangles",
+    "local", "prune", "ransac", "runner_up", "spectral", "triangles", "walks",
 )  # fmt: skip
 
 
