@@ -98,6 +98,12 @@ def _mean_std(x: np.ndarray) -> tuple[float, float]:
     return float(x.mean()), float(x.std())
 
 
+def _median(x: np.ndarray) -> float:
+    """Median of the finite values; NaN (without a warning) when there are none."""
+    x = x[np.isfinite(x)]
+    return float(np.median(x)) if x.size else math.nan
+
+
 def summarize(rows: Sequence[dict[str, Any]], by: Sequence[str]) -> list[dict[str, Any]]:
     """One summary per group of `by` values: counts, means, stds and median times."""
     out = []
@@ -115,11 +121,11 @@ def summarize(rows: Sequence[dict[str, Any]], by: Sequence[str]) -> list[dict[st
             "wrong": int(sum(bool(r["failed"]) for r in loc)),
             "recall": _mean_std(column(g, "recall"))[0],
             "precision": _mean_std(column(loc, "precision"))[0],
-            "rejection_ms": float(np.nanmedian(rej)),
-            "ransac_ms": float(np.nanmedian(rs)),
-            "total_ms": float(np.nanmedian(rej + rs)),
-            "pipeline_ms": float(np.nanmedian(column(g, "t_total_ms"))),
-            "te_median": float(np.nanmedian(te_all)) if np.isfinite(te_all).any() else math.nan,
+            "rejection_ms": _median(rej),
+            "ransac_ms": _median(rs),
+            "total_ms": _median(rej + rs),
+            "pipeline_ms": _median(column(g, "t_total_ms")),
+            "te_median": _median(te_all),
         }
         for name, sel, col in (
             ("final", g, "n_final"),
