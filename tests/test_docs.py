@@ -174,3 +174,15 @@ def test_snippet_runs(snippet: Snippet, doc_dirs):
         f"{snippet.id} failed (exit {proc.returncode}):\n{code}\n--- stdout\n"
         f"{proc.stdout[-3000:]}\n--- stderr\n{proc.stderr[-3000:]}"
     )
+
+
+def test_no_merge_conflict_markers_left():
+    """No text file of the repository holds a line a conflicted merge leaves behind."""
+    root = ROOT
+    files = [root / "README.md", root / "pyproject.toml"]
+    for folder, patterns in (("docs", ("*.md",)), ("src", ("*.py", "*.json", "*.yaml")),
+                             ("tests", ("*.py",)), ("benchmarks", ("*.py", "*.sh"))):  # fmt: skip
+        files += [p for pattern in patterns for p in (root / folder).rglob(pattern)]
+    marker = re.compile(r"^(<{7}|>{7}) |^={7}$", re.M)
+    left = [str(p.relative_to(root)) for p in files if marker.search(p.read_text("utf-8"))]
+    assert not left, f"merge conflict markers in {left}"
