@@ -121,6 +121,11 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: ") and "odometry.tum" in err[0]
     assert main(["replay", "--kitti00", "--city"]) == 2
+    capsys.readouterr()
+    assert main(["replay", "--kitti00", "--poses", "truth"]) == 2
+    assert main(["replay", "--city", "--poses", "refined"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and all(e.startswith("error: --poses") for e in err)
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine" / "notes.txt").write_text("x")
     write_plain_layout(tmp_path / "ok", world_scenario().logs)

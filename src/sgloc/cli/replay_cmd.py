@@ -26,6 +26,9 @@ def replay_cmd(
     robots: int = typer.Option(4, min=1, help="Robots to cut --kitti00 / --city into."),
     scans: str = typer.Option("0-2999", help="KITTI 00 scans to cut (--kitti00), first-last."),
     every: int = typer.Option(1, min=1, help="Use every n-th scan as a keyframe (--kitti00)."),
+    poses: str = typer.Option("raw", help="KITTI 00 poses used as the robots' odometry and as "
+                              "the truth (--kitti00): raw (poses_00.txt) or refined (made "
+                              "consistent with the refined revisit transforms; needs gtsam)."),
     seed: int = typer.Option(0, min=0, help="City (--city) and session seed."),
     out: Path = typer.Option(Path("replay_out"), help="Output folder (replaced if it holds an "
                              "earlier replay)."),
@@ -49,7 +52,8 @@ def replay_cmd(
     fleet.png.
 
     Examples: sgloc replay runs/campus --out replay_out --out-bag replay_bag
-    |   sgloc replay --kitti00 --robots 4 --every 2   |   sgloc replay --city --robots 8
+    |   sgloc replay --kitti00 --robots 4 --every 2 --poses refined
+    |   sgloc replay --city --robots 8
     """
     from sgloc.online import OnlineConfig, OnlineSession
     from sgloc.replay import replay_logs
@@ -58,7 +62,7 @@ def replay_cmd(
     if out_bag is not None and out_bag.exists():
         raise fail(f"{out_bag}: exists already; give a new path for --out-bag.")
     logs, default_preset = _inputs(source, kitti00, city, robots, scans, every, seed, classes,
-                                   odom_topic, objects_topic)
+                                   odom_topic, objects_topic, poses)
     if root is not None and root not in {g.name for g in logs}:
         raise fail(f"--root {root!r} is not a robot of the input; robots: "
                    f"{', '.join(g.name for g in logs)}.")
@@ -80,19 +84,23 @@ def replay_cmd(
 
 
 def _inputs(source, kitti00, city, robots, scans, every, seed, classes, odom_topic,
-            objects_topic):
+            objects_topic, poses="raw"):
     """(robot logs, default localizer preset) of the chosen input."""
     from sgloc.evaluation import replay_scenarios as scenarios
     from sgloc.replay.inputs import read_logs
 
     if (source is not None) + kitti00 + city != 1:
         raise fail("give exactly one input: a layout folder or bag, --kitti00, or --city.")
+    if poses not in ("raw", "refined"):
+        raise fail(f"--poses {poses!r}: choose raw or refined.")
+    if poses != "raw" and not kitti00:
+        raise fail(f"--poses {poses}: only for --kitti00 (other inputs bring their own poses).")
     if kitti00:
         try:
             first, last = (int(v) for v in scans.split("-"))
         except ValueError:
             raise fail(f"--scans {scans!r}: give first-last, e.g. 0-2999.") from None
-        return scenarios.kitti_scenario(robots, first, last, every).logs, "kitti-objects"
+        return scenarios.kitti_scenario(robots, first, last, every, poses).logs, "kitti-objects"
     if city:
         return scenarios.city_scenario(robots, seed).logs, "city"
     return read_logs(source, classes, odom_topic, objects_topic), None
