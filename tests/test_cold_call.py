@@ -79,6 +79,18 @@ def test_covariance_and_settings_are_computed_when_first_read(airsim_graphs):
     assert refused.config == LocalizerConfig().to_dict()
 
 
+def _strip_pair(seed: int):
+    """(target, query, query's target indices, T_query_target): 60 of 120 objects moved, 1 m
+    noise."""
+    rng = np.random.default_rng(seed)
+    target = SemanticGraph(rng.uniform(0, 80, (120, 3)) * [1, 1, 0.1], rng.integers(0, 4, 120))
+    idx = rng.choice(120, 60, replace=False)
+    T = random_rigid_transform(rng, 20.0, 2.0)
+    query = SemanticGraph(apply(T, target.positions[idx]) + rng.normal(0, 1.0, (60, 3)),
+                          target.labels[idx])  # fmt: skip
+    return target, query, idx, T
+
+
 def _landed_brute_force(moved, labels, target, radius) -> int:
     d2 = ((moved[:, None, :] - target.positions[None, :, :]) ** 2).sum(axis=2)
     same = labels[:, None] == target.labels[None, :]
@@ -87,12 +99,7 @@ def _landed_brute_force(moved, labels, target, radius) -> int:
 
 @pytest.mark.parametrize("seed", range(6))
 def test_mirror_counts_equal_a_brute_force_count(seed):
-    rng = np.random.default_rng(seed)
-    target = SemanticGraph(rng.uniform(0, 80, (120, 3)) * [1, 1, 0.1], rng.integers(0, 4, 120))
-    idx = rng.choice(120, 60, replace=False)
-    T = random_rigid_transform(rng, 20.0, 2.0)
-    query = SemanticGraph(apply(T, target.positions[idx]) + rng.normal(0, 1.0, (60, 3)),
-                          target.labels[idx])  # fmt: skip
+    target, query, idx, T = _strip_pair(seed)
     if seed % 2:
         query = SemanticGraph(query.positions * [-1, 1, 1], query.labels)
     T_tq = np.linalg.inv(T)
@@ -154,12 +161,7 @@ def test_mirror_check_on_the_tests_landed_objects_equals_its_own_search(seed):
     from sgloc.acceptance.chance import ChanceModel
     from sgloc.acceptance.mirror import landed
 
-    rng = np.random.default_rng(seed)
-    target = SemanticGraph(rng.uniform(0, 80, (120, 3)) * [1, 1, 0.1], rng.integers(0, 4, 120))
-    idx = rng.choice(120, 60, replace=False)
-    T = random_rigid_transform(rng, 20.0, 2.0)
-    query = SemanticGraph(apply(T, target.positions[idx]) + rng.normal(0, 1.0, (60, 3)),
-                          target.labels[idx])  # fmt: skip
+    target, query, idx, T = _strip_pair(seed)
     T_tq = np.linalg.inv(T)
     candidates = np.stack([np.arange(60), idx], axis=1)
     a = assess(query, target, candidates, T_tq, 5.0)
