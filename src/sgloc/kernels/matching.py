@@ -157,6 +157,26 @@ def _insert(best_s: np.ndarray, best_j: np.ndarray, n: int, s: float, j: int) ->
 
 
 @kernel
+def _flatten(
+    row_ids: np.ndarray, out_n: np.ndarray, out_j: np.ndarray, out_s: np.ndarray,
+    out_f: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(query, target, similarity, flag) flat arrays of the per-row results: row r's first
+    out_n[r] entries of out_j / out_s, its query index row_ids[r] and flag out_f[r]."""
+    total = out_n.sum()
+    q = np.empty(total, dtype=np.int64)
+    t = np.empty(total, dtype=np.int64)
+    s = np.empty(total)
+    flag = np.empty(total, dtype=np.bool_)
+    p = 0
+    for r in range(row_ids.shape[0]):
+        for h in range(out_n[r]):
+            q[p], t[p], s[p], flag[p] = row_ids[r], out_j[r, h], out_s[r, h], out_f[r]
+            p += 1
+    return q, t, s, flag
+
+
+@kernel
 def class_blocks(
     T: np.ndarray, order_t: np.ndarray, sorted_t: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -279,17 +299,7 @@ def top_k_in_blocks(
             for r in range(rows.shape[0]):
                 _rank(rows[r], S[r], it, *ranks, *outs)
         a, c = a_end, c + 1
-    total = out_n.sum()
-    q = np.empty(total, dtype=np.int64)
-    t = np.empty(total, dtype=np.int64)
-    s = np.empty(total)
-    flag = np.empty(total, dtype=np.bool_)
-    p = 0
-    for i in range(n_q):
-        for h in range(out_n[i]):
-            q[p], t[p], s[p], flag[p] = i, out_j[i, h], out_s[i, h], out_f[i]
-            p += 1
-    return q, t, s, flag
+    return _flatten(np.arange(n_q), out_n, out_j, out_s, out_f)
 
 
 @kernel
@@ -377,17 +387,7 @@ def top_k_in_lists(
                 out_j[r, m], out_s[r, m] = best_j[r, h], best_s[r, h]
                 m += 1
         out_n[r] = m
-    total = out_n.sum()
-    q = np.empty(total, dtype=np.int64)
-    t = np.empty(total, dtype=np.int64)
-    s = np.empty(total)
-    flag = np.empty(total, dtype=np.bool_)
-    p = 0
-    for r in range(n_r):
-        for h in range(out_n[r]):
-            q[p], t[p], s[p], flag[p] = rows[r], out_j[r, h], out_s[r, h], out_f[r]
-            p += 1
-    return q, t, s, flag
+    return _flatten(rows, out_n, out_j, out_s, out_f)
 
 
 watch_compiles()  # an install's first compile is said (sgloc.kernels)
