@@ -128,8 +128,10 @@ def main(argv: list[str] | None = None) -> int:
             "(`sgloc.online`) on whole maps: each map is one keyframe, every pair is localized "
             "once (default acceptance), links that disagree around loops (3 m / 3 deg) are "
             "dropped, the robots linked to the root are placed by a pose graph over the kept "
-            "links weighted by their covariances, each robot is refined by ICP against the "
-            "others, and robots it cannot place are reported. The root is the best-connected "
+            "links weighted by their covariances, the placed robots are refined together on "
+            "every same-class object pair their maps put within 3 m of each other "
+            "(`sgloc.online.joint`), and robots it cannot place are reported. The root is the "
+            "best-connected "
             "robot of the largest placed group.",
             "",
             f"Goal: every placed robot within {MAX_M:g} m (at its objects' centroid) and "

@@ -340,6 +340,7 @@ def batch_kitti(out: Path) -> dict:
 #: Settings compared on every scenario besides the default (`--no-variants` skips them).
 VARIANTS = [
     ("links not refitted", {"refine_links": False}),
+    ("no joint refinement", {"refine_fleet": False}),
     ("joins held back (1 sigma)", {"join_sigmas": 1.0}),
     ("joins held back (2 sigma)", {"join_sigmas": 2.0}),
 ]
@@ -433,7 +434,10 @@ def variant_text(variants: list[tuple[str, dict]], sums: list[dict]) -> str:
         "every object pair it puts on top of each other in the two current maps (mutual nearest "
         "same-class neighbours within the RANSAC threshold) when it is accepted and whenever "
         "one of its maps has grown by 10 % or 10 objects since; its covariance is then that of "
-        "the fit over all those pairs. *Joins held back* (`OnlineConfig.join_sigmas=k`): a "
+        "the fit over all those pairs. *No joint refinement* (`OnlineConfig.refine_fleet=False`): "
+        "the fleet frame is the pose graph's over the links alone, not refined together on "
+        "every object pair the placed robots' maps co-locate. *Joins held back* "
+        "(`OnlineConfig.join_sigmas=k`): a "
         "robot joins only once k standard deviations of its predicted error (its links' "
         "covariances composed along its path from the root, at the centroid of its objects, "
         "worst direction) are within 3 m and 3 deg. Every link's covariance includes the "
@@ -520,9 +524,14 @@ def page(
         "transform. *Links refitted on true pairs*: every active link refitted on the object "
         "pairs the ground truth puts on top of each other (mutual nearest same-class "
         "neighbours within the RANSAC threshold under the true transform), and the fleet frame "
-        "re-solved with them (same links, covariances and root): what the two maps themselves "
-        "allow. An error that remains there is the data's (poses that disagree with each other "
-        "at a revisit, object centres seen from other sides), not the estimator's. *Latency*: "
+        "re-solved with them (same links, covariances and root), without the joint refinement: "
+        "what those links themselves allow. An error that remains there is the data's (poses "
+        "that disagree with each other at a revisit, object centres seen from other sides), "
+        "not the links' estimator's. *Joint refinement* (`OnlineConfig.refine_fleet`, on by "
+        "default): after the pose graph, the placed robots' frames are refined together on "
+        "every object pair their maps co-locate in the fleet frame, linked robots or not; "
+        "where a robot also passed objects of a robot it has no link to, this can beat the "
+        "refitted links. *Latency*: "
         "wall time of each `add_keyframe` call; a robot's last one includes its final attempts "
         "(`OnlineSession.finish`).\n\n"
         + ground_truth_text(refined)

@@ -13,8 +13,9 @@ processes, or an existing Dask cluster).
    maximum-confidence spanning tree, then by a pose graph over every kept link weighted by its
    covariance (`sgloc.online.posegraph`). The root (the fleet frame) is `root` when given, else
    the best-connected robot of the largest placed group.
-4. Optionally each placed robot is refined by ICP against the others; the placed robots'
-   objects are merged into one graph, fusing same-class objects closer than `fuse_radius` m.
+4. Optionally the placed robots are refined together on every object pair their maps
+   co-locate (`sgloc.online.joint`); the placed robots' objects are merged into one graph,
+   fusing same-class objects closer than `fuse_radius` m.
 """
 
 from __future__ import annotations
@@ -30,8 +31,6 @@ from scipy.sparse.csgraph import connected_components
 
 from sgloc.config import LocalizerConfig
 from sgloc.errors import SglocError
-from sgloc.estimation import icp_refine
-from sgloc.geometry import apply
 from sgloc.graph import SemanticGraph
 from sgloc.io.names import unique_names
 from sgloc.merge import merge_graphs
@@ -48,8 +47,9 @@ class FleetConfig:
     localizer: the pairwise pipeline (its `acceptance` decides which pairs are kept).
     cycle_translation, cycle_rotation: metres / degrees a loop may disagree by.
     fuse_radius: metres; same-class objects of the merged map closer than this are fused.
-    refine, refine_distance: after placement, refine each robot's pose by ICP against the
-        other placed robots' objects (same-class pairs within refine_distance metres).
+    refine, refine_distance: after the pose graph, refine the placed robots' frames together on
+        every object pair their maps co-locate (mutual nearest same-class neighbours within
+        refine_distance metres): the session's joint refinement (`OnlineConfig.refine_fleet`).
     seed: pair (i, j), i < j, is localized with the seed [seed, i, j].
     solver: the pose graph's ("auto": gtsam when installed, else scipy; "gtsam"; "scipy").
     """
@@ -160,10 +160,11 @@ def fleet_session(
         loop_translation=config.cycle_translation, loop_rotation=config.cycle_rotation,
         solver=config.solver, seed=config.seed,
         # Whole maps: every link is localized on the complete maps already and the fleet has
-        # its own ICP refinement (`FleetConfig.refine`). Link refits on top left the default
+        # the joint refinement (`FleetConfig.refine`). Link refits on top left the default
         # fleets of docs/fleet.md all placed and none wrong (KITTI a little more precise) but
         # placed more robots wrongly in its Guo's-rule-only comparison (city: 5 instead of 1).
         refine_links=False,
+        refine_fleet=config.refine, refine_radius=config.refine_distance,
     )
     s = OnlineSession(config.localizer, online, root=root)
     for g, nm in zip(graphs, names, strict=True):
@@ -233,24 +234,6 @@ def _unplaced_reasons(n: int, placed: set[int], links: list[PairLink]) -> dict[i
     return reasons
 
 
-def refine_poses(
-    graphs: Sequence[SemanticGraph],
-    T_world_robot: dict[int, np.ndarray],
-    root: int | None,
-    max_distance: float,
-) -> dict[int, np.ndarray]:
-    """One ICP pass per placed robot (root fixed) against all other placed robots' objects."""
-    out = dict(T_world_robot)
-    for i in sorted(out):
-        others = [j for j in out if j != i]
-        if i == root or not others:
-            continue
-        dst = np.concatenate([apply(out[j], graphs[j].positions) for j in others])
-        dlab = np.concatenate([graphs[j].labels for j in others])
-        out[i] = icp_refine(graphs[i].positions, graphs[i].labels, dst, dlab, out[i], max_distance)
-    return out
-
-
 def _check_inputs(graphs: list, names: Sequence[str] | None, root: str | None) -> list[str]:
     if len(graphs) < 2:
         raise SglocError(f"a fleet needs at least 2 robot graphs, got {len(graphs)}.")
@@ -299,8 +282,6 @@ def localize_fleet(
     links = _pair_links(s)
     root_i = names.index(s.root)
     poses = {k: T for k, r in enumerate(names) if (T := s.T_fleet_robot(r)) is not None}
-    if cfg.refine:
-        poses = refine_poses(graphs, poses, root_i, cfg.refine_distance)
     merged, merged_robot, _, _ = merge_graphs(graphs, poses, cfg.fuse_radius)
     reasons = _unplaced_reasons(len(graphs), set(poses), links)
     result = FleetResult(

@@ -44,6 +44,15 @@ class OnlineConfig:
         since; the refit replaces the link when it rests on more pairs than the link's matches
         and agrees with it within the loop tolerance (a loop of 2). At most max_attempts
         refits per update (None: all; 0: in `run_pending` only).
+    refine_fleet: after the pose graph, refine the placed robots' frames together on every
+        object pair their maps co-locate in the fleet frame (mutual nearest same-class
+        neighbours within refine_radius), linked robots or not: where a
+        robot also passed objects of a robot it has no link to, those pairs fix its rotation
+        far better than a link fitted at one meeting point (`sgloc.online.joint`). Robust
+        (Huber) and in the localizer's dof (4: yaw and translation); skipped when it would move
+        a robot by more than loop_translation / loop_rotation.
+    refine_radius: metres, the pairing radius of refine_fleet (None: the localizer's RANSAC
+        threshold).
     join_sigmas: None (off) or k: a robot not yet placed joins only once k standard deviations
         of its predicted error (its links' covariances composed along its path from the root,
         at the centroid of its objects, worst direction) are within loop_translation metres
@@ -67,6 +76,10 @@ class OnlineConfig:
     loop_rotation: float = setting(3.0, check=real(0.0, 180.0, unit="degrees"))
     confirmations: int = setting(1, check=integer(1, MAX_ITERATIONS))
     refine_links: bool = setting(True, check=flag())
+    refine_fleet: bool = setting(True, check=flag())
+    refine_radius: float | None = setting(
+        None, check=real(0.0, MAX_COORDINATE, low_open=True, none_ok=True, unit="m")
+    )
     join_sigmas: float | None = setting(None, check=real(0.0, low_open=True, none_ok=True))
     solver: str = setting("auto", check=choice("auto", "gtsam", "scipy", what="the solver"))
     seed: int = setting(0, check=integer(0))

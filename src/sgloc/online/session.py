@@ -20,6 +20,7 @@ from sgloc.online.consistency import (
     loop_error,
     loop_tolerance,
 )
+from sgloc.online.joint import largest_shift, refine_fleet
 from sgloc.online.posegraph import fleet_frame
 from sgloc.online.precision import chain_covariance, predicted_error
 from sgloc.online.records import (
@@ -368,6 +369,7 @@ class OnlineSession:
         T_new = {names[r]: T for r, T in frame.T_fleet_robot.items()}
         for r in self._held(frame, edges, [lk.covariance for lk in links]):
             T_new.pop(r, None)
+        T_new = self._joint(T_new)
         lost = [r for r in names if r in self._T and r not in T_new]
         for k, lk in enumerate(links):
             was, now = lk.active, k in active
@@ -404,6 +406,24 @@ class OnlineSession:
             if m > o.loop_translation or deg > o.loop_rotation:
                 held.append(names[r])
         return held
+
+    def _joint(self, T: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """The placed robots' frames refined together on every object pair their maps
+        co-locate (`OnlineConfig.refine_fleet`); T unchanged when that is off, when it would
+        move a robot by more than the loop tolerance, or with fewer than two robots."""
+        o, names = self.online, self.robots
+        if not o.refine_fleet or len(T) < 2:
+            return T
+        frames = {names.index(r): M for r, M in T.items()}
+        graphs = {k: self._maps[names[k]].graph() for k in frames}
+        objects = {k: (g.positions, g.labels) for k, g in graphs.items()}
+        radius = o.refine_radius or self.config.ransac.threshold
+        out, _ = refine_fleet(frames, objects, names.index(self.root), radius,
+                              self.config.motion.dof)
+        m, deg = largest_shift(frames, out, {k: g.positions for k, g in graphs.items()})
+        if m > o.loop_translation or deg > o.loop_rotation:
+            return T
+        return {names[k]: M for k, M in out.items()}
 
     def _emit(self, emit: bool, stamp: float, kind: str, robots: tuple, detail: str) -> None:
         if emit:

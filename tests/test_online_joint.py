@@ -1,0 +1,106 @@
+"""The fleet frame refined together on every object pair the placed robots' maps co-locate
+(sgloc.online.joint)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sgloc.geometry import apply, invert, make_transform, rotation_angle_deg
+from sgloc.online.joint import largest_shift, overlaps, refine_fleet
+
+
+def _pose(deg: float, t, roll: float = 0.0) -> np.ndarray:
+    a, r = np.radians(deg), np.radians(roll)
+    Rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    Rx = np.array([[1, 0, 0], [0, np.cos(r), -np.sin(r)], [0, np.sin(r), np.cos(r)]])
+    return make_transform(Rz @ Rx, np.asarray(t, float))
+
+
+def _street(rng, x0, x1, n):
+    pos = np.column_stack([rng.uniform(x0, x1, n), rng.uniform(-12, 12, n), rng.uniform(0, 3, n)])
+    return pos, rng.integers(0, 4, n)
+
+
+def _chain(rng, noise=0.0):
+    """Three robots along a 400 m street (fleet frame = robot 0's): robot 1 meets robot 0 only
+    at x 0-40 and drives to x 400; robot 2 starts at x 360 (where robot 1 ends) and drives back
+    to x 0, where robot 0 also was. World objects: (positions, labels); each robot's objects in
+    its own frame; the true frames."""
+    world, lab = _street(rng, 0, 400, 800)
+    true = {0: np.eye(4), 1: _pose(30.0, [5, 2, 0.3]), 2: _pose(-70.0, [-20, 8, -0.2])}
+    seen = {0: (world[:, 0] < 40) | (world[:, 0] > 370), 1: world[:, 0] >= 0,
+            2: (world[:, 0] > 360) | (world[:, 0] < 40)}
+    objects = {}
+    for r, mask in seen.items():
+        p = world[mask] + rng.normal(0, noise, (int(mask.sum()), 3))
+        objects[r] = (apply(invert(true[r]), p), lab[mask])
+    return objects, true
+
+
+def _start(true):
+    """The true frames rotated about the first robot's origin and shifted a little."""
+    return {0: true[0], 1: _pose(0.2, [0.3, -0.2, 0]) @ true[1],
+            2: _pose(0.25, [0.4, 0.3, 0]) @ true[2]}
+
+
+def _off(T, T_true, pts):
+    """(metres at the centroid of the robot's objects pts (its frame), degrees)."""
+    c = pts.mean(axis=0, keepdims=True)
+    return float(np.linalg.norm(apply(T, c) - apply(T_true, c))), rotation_angle_deg(
+        T[:3, :3] @ T_true[:3, :3].T)
+
+
+def test_exact_maps_give_the_true_frames_back_from_a_rotated_chain(rng):
+    objects, true = _chain(rng)
+    # As a chain of links would place them: robot 1 off by 0.2 deg (~1.4 m at its far end),
+    # robot 2 (placed through robot 1) by 0.25 deg.
+    start = _start(true)
+    assert _off(start[1], true[1], objects[1][0])[0] > 0.5
+    out, n_pairs = refine_fleet(start, objects, 0, 2.0, dof=6)
+    assert n_pairs > 200
+    np.testing.assert_array_equal(out[0], true[0])  # the root stays where it is
+    for r in (1, 2):
+        m, deg = _off(out[r], true[r], objects[r][0])
+        assert m < 1e-6 and deg < 1e-6
+    again, _ = refine_fleet(start, objects, 0, 2.0, dof=6)
+    for r in out:
+        np.testing.assert_array_equal(out[r], again[r])
+
+
+def test_noisy_maps_beat_the_chain_and_dof_4_keeps_roll_and_pitch(rng):
+    objects, true = _chain(rng, noise=0.25)
+    tilt = {1: _pose(0, [0, 0, 0], roll=0.4), 2: _pose(0, [0, 0, 0], roll=-0.3)}
+    true = {0: true[0], 1: true[1] @ tilt[1], 2: true[2] @ tilt[2]}
+    objects = {r: (apply(invert(tilt[r]), p) if r in tilt else p, lab)
+               for r, (p, lab) in objects.items()}
+    start = _start(true)
+    out, _ = refine_fleet(start, objects, 0, 2.0, dof=4)
+    for r in (1, 2):
+        before, after = _off(start[r], true[r], objects[r][0]), _off(out[r], true[r],
+                                                                      objects[r][0])
+        assert after[0] < 0.3 * before[0] and after[1] < 0.3 * before[1]
+        # Only yaw (about the fleet frame's z) and translation moved: the robot's axes keep
+        # their heights, so its roll and pitch are the start's.
+        np.testing.assert_allclose(out[r][2, :3], start[r][2, :3], atol=1e-12)
+
+
+def test_robots_apart_from_the_root_keep_their_frames_and_pairs_need_three(rng):
+    objects, true = _chain(rng)
+    far = {**objects, 3: (objects[1][0][:2] + 1000.0, objects[1][1][:2])}
+    start = {**true, 3: np.eye(4)}
+    out, _ = refine_fleet(start, far, 0, 2.0)
+    np.testing.assert_array_equal(out[3], start[3])
+    # Two co-located objects are not an overlap (three fix a rigid motion).
+    two = {0: (objects[0][0][:2], objects[0][1][:2]), 1: (objects[0][0][:2], objects[0][1][:2])}
+    assert overlaps({0: np.eye(4), 1: np.eye(4)}, two, 2.0) == []
+    three = {0: (objects[0][0][:3], objects[0][1][:3]), 1: (objects[0][0][:3], objects[0][1][:3])}
+    (o,) = overlaps({0: np.eye(4), 1: np.eye(4)}, three, 2.0)
+    assert (o.a, o.b, len(o.ia)) == (0, 1, 3)
+
+
+def test_largest_shift_is_measured_at_each_robots_objects():
+    pts = {0: np.array([[100.0, 0, 0], [102.0, 0, 0]])}
+    before = {0: np.eye(4)}
+    after = {0: _pose(1.0, [0, 0, 0])}  # 1 deg about the origin: ~1.78 m at x = 101
+    m, deg = largest_shift(before, after, pts)
+    assert abs(deg - 1.0) < 1e-9 and abs(m - 2 * 101 * np.sin(np.radians(0.5))) < 1e-9
