@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from sgloc.geometry import apply, invert, make_transform, rotation_angle_deg
-from sgloc.online.joint import largest_shift, overlaps, refine_fleet
+from sgloc.online.joint import co_located_pairs, largest_shift, refine_fleet
 
 
 def _pose(deg: float, t, roll: float = 0.0) -> np.ndarray:
@@ -91,11 +91,29 @@ def test_robots_apart_from_the_root_keep_their_frames_and_pairs_need_three(rng):
     out, _ = refine_fleet(start, far, 0, 2.0)
     np.testing.assert_array_equal(out[3], start[3])
     # Two co-located objects are not an overlap (three fix a rigid motion).
-    two = {0: (objects[0][0][:2], objects[0][1][:2]), 1: (objects[0][0][:2], objects[0][1][:2])}
-    assert overlaps({0: np.eye(4), 1: np.eye(4)}, two, 2.0) == []
-    three = {0: (objects[0][0][:3], objects[0][1][:3]), 1: (objects[0][0][:3], objects[0][1][:3])}
-    (o,) = overlaps({0: np.eye(4), 1: np.eye(4)}, three, 2.0)
-    assert (o.a, o.b, len(o.ia)) == (0, 1, 3)
+    pos, lab = objects[0][0][:3], objects[0][1][:3]
+    for n, expected in ((2, 0), (3, 3)):
+        moved = np.concatenate([pos[:n], pos[:n] + 0.1])
+        i, j = co_located_pairs(moved, np.concatenate([lab[:n], lab[:n]]),
+                                np.repeat([0, 1], n), 2.0)
+        assert len(i) == expected
+    np.testing.assert_array_equal(i, [0, 1, 2])
+    np.testing.assert_array_equal(j, [3, 4, 5])
+
+
+def test_co_located_pairs_are_mutual_nearest_between_each_robot_pair():
+    # Robot 0: two objects 1 m apart; robot 1: one object between them, nearer the first;
+    # robot 2: a copy of robot 0's objects. Only mutual nearest pairs of each robot pair count.
+    moved = np.array([[0.0, 0, 0], [1.0, 0, 0], [4.0, 0, 0],
+                      [0.3, 0, 0], [4.2, 0, 0], [9.0, 0, 0],
+                      [0.05, 0, 0], [1.05, 0, 0], [4.1, 0, 0], [9.1, 0, 0]])
+    labels = np.zeros(10, int)
+    robot_of = np.array([0, 0, 0, 1, 1, 1, 2, 2, 2, 2])
+    i, j = co_located_pairs(moved, labels, robot_of, 0.5)
+    got = sorted(zip(i.tolist(), j.tolist()))
+    # Robots 0-1: (0,3) and (2,4) are mutual (object 1 is within reach of 3, but 0 is nearer), 2 pairs: dropped.
+    # Robots 0-2: (0,6), (1,7), (2,8). Robots 1-2: (3,6), (4,8), (5,9).
+    assert got == [(0, 6), (1, 7), (2, 8), (3, 6), (4, 8), (5, 9)]
 
 
 def test_largest_shift_is_measured_at_each_robots_objects():

@@ -12,69 +12,67 @@ until the pairing stops changing.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from sgloc.geometry import apply
 from sgloc.online.consistency import loop_error
-from sgloc.online.refine import co_located
+from sgloc.spatial import ClassKDTree
 
 #: A robot pair takes part from this many co-located object pairs (3 fix a rigid motion).
 MIN_PAIRS = 3
+#: Gauss-Newton stops once no update exceeds this (radians, metres).
+CONVERGED = 1e-6
 
 
-@dataclass(frozen=True)
-class Overlap:
-    """Objects ia of robot a lie on top of objects ib of robot b (indices into their maps)."""
-
-    a: int
-    b: int
-    ia: np.ndarray
-    ib: np.ndarray
-
-
-def overlaps(
-    frames: dict[int, np.ndarray], objects: dict[int, tuple[np.ndarray, np.ndarray]],
-    radius: float,
-) -> list[Overlap]:
-    """Every pair of robots in `frames` (T_fleet_robot, (4,4)) whose maps (objects[r]:
-    positions (n,3) in r's odometry frame, metres; labels (n,)) co-locate at least MIN_PAIRS
-    objects in the fleet frame; robots in ascending order."""
-    robots = sorted(frames)
-    moved = {r: apply(frames[r], objects[r][0]) for r in robots}
-    boxes = {r: (p.min(axis=0) - radius, p.max(axis=0) + radius) if len(p) else None
-             for r, p in moved.items()}
-    out = []
-    for k, a in enumerate(robots):
-        for b in robots[k + 1:]:
-            if boxes[a] is None or boxes[b] is None or np.any(boxes[a][0] > boxes[b][1]) \
-                    or np.any(boxes[b][0] > boxes[a][1]):
-                continue
-            ib, ia = co_located(moved[b], objects[b][1], moved[a], objects[a][1], np.eye(4),
-                                radius)
-            if len(ia) >= MIN_PAIRS:
-                out.append(Overlap(a, b, ia, ib))
-    return out
+def _firsts(key: np.ndarray, group: np.ndarray, d: np.ndarray, other: np.ndarray) -> np.ndarray:
+    """Mask of the entries that are the nearest (d; ties: lower `other`) within their
+    (key, group)."""
+    order = np.lexsort((other, d, group, key))
+    first = np.ones(len(order), bool)
+    first[1:] = (key[order][1:] != key[order][:-1]) | (group[order][1:] != group[order][:-1])
+    mask = np.zeros(len(order), bool)
+    mask[order[first]] = True
+    return mask
 
 
-def _reached(root: int, pairs: list[Overlap]) -> list[int]:
-    """The robots the co-location graph connects to `root` (root excluded), ascending."""
-    seen, todo = {root}, [root]
-    while todo:
-        r = todo.pop()
-        for o in pairs:
-            for x, y in ((o.a, o.b), (o.b, o.a)):
-                if x == r and y not in seen:
-                    seen.add(y)
-                    todo.append(y)
-    return sorted(seen - {root})
+def co_located_pairs(
+    moved: np.ndarray, labels: np.ndarray, robot_of: np.ndarray, radius: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(i, j): objects i and j (rows of the stacked `moved` (n,3), fleet frame, metres) of two
+    robots robot_of[i] < robot_of[j] that are mutual nearest same-class neighbours between
+    those two robots, closer than `radius`; robot pairs with fewer than MIN_PAIRS dropped."""
+    p = ClassKDTree(moved, labels, radius).pairs(radius)
+    p = p[robot_of[p[:, 0]] != robot_of[p[:, 1]]]
+    i, j = p[:, 0].copy(), p[:, 1].copy()
+    swap = robot_of[i] > robot_of[j]
+    i[swap], j[swap] = j[swap], i[swap]
+    d = np.linalg.norm(moved[i] - moved[j], axis=1)
+    ok = _firsts(i, robot_of[j], d, j) & _firsts(j, robot_of[i], d, i)
+    i, j = i[ok], j[ok]
+    pair = robot_of[i] * (robot_of.max(initial=0) + 1) + robot_of[j]
+    _, inverse, counts = np.unique(pair, return_inverse=True, return_counts=True)
+    keep = counts[inverse] >= MIN_PAIRS
+    order = np.lexsort((j[keep], i[keep]))
+    return i[keep][order], j[keep][order]
 
 
-def _jacobian(points: np.ndarray, centre: np.ndarray, cols: list[int]) -> np.ndarray:
-    """(n,3,len(cols)): d(point)/d[rx ry rz tx ty tz] for a rotation about `centre` followed
-    by a translation, both in the fleet frame."""
-    d = points - centre
+def _reached(n: int, root: int, ra: np.ndarray, rb: np.ndarray) -> np.ndarray:
+    """Mask (n,) of the robots the co-location graph (edges ra-rb) connects to `root`,
+    root excluded."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    adj = coo_matrix((np.ones(len(ra)), (ra, rb)), shape=(n, n))
+    _, comp = connected_components(adj, directed=False)
+    mask = comp == comp[root]
+    mask[root] = False
+    return mask
+
+
+def _jacobian(points: np.ndarray, centres: np.ndarray, cols: list[int]) -> np.ndarray:
+    """(n,3,len(cols)): d(point)/d[rx ry rz tx ty tz] for a rotation about its robot's centre
+    (centres (n,3)) followed by a translation, both in the fleet frame."""
+    d = points - centres
     J = np.zeros((len(points), 3, 6))
     J[:, 0, 1], J[:, 0, 2] = d[:, 2], -d[:, 1]
     J[:, 1, 0], J[:, 1, 2] = -d[:, 2], d[:, 0]
@@ -83,29 +81,41 @@ def _jacobian(points: np.ndarray, centre: np.ndarray, cols: list[int]) -> np.nda
     return J[:, :, cols]
 
 
+def _add_by(out: np.ndarray, rows: np.ndarray, values: np.ndarray) -> None:
+    """out[rows[k]] += values[k] for every k, summed per row in a fixed order."""
+    if len(rows) == 0:
+        return
+    order = np.argsort(rows, kind="stable")
+    rows = rows[order]
+    starts = np.flatnonzero(np.r_[True, rows[1:] != rows[:-1]])
+    out[rows[starts]] += np.add.reduceat(values[order], starts, axis=0)
+
+
 def _step(
-    frames: dict[int, np.ndarray], objects: dict, pairs: list[Overlap], free: list[int],
-    centres: dict[int, np.ndarray], cols: list[int], huber: float,
+    moved: np.ndarray, robot_of: np.ndarray, i: np.ndarray, j: np.ndarray, slot: np.ndarray,
+    centres: np.ndarray, cols: list[int], huber: float,
 ) -> np.ndarray:
-    """One robust Gauss-Newton step: the stacked [r t] updates of the free robots."""
-    m = len(cols)
-    slot = {r: k for k, r in enumerate(free)}
-    H = np.zeros((m * len(free), m * len(free)))
-    g = np.zeros(m * len(free))
-    for o in pairs:
-        pa = apply(frames[o.a], objects[o.a][0][o.ia])
-        pb = apply(frames[o.b], objects[o.b][0][o.ib])
-        res = pa - pb
-        w = np.minimum(1.0, huber / np.maximum(np.linalg.norm(res, axis=1), 1e-12))
-        blocks = [(slot[r], sign * _jacobian(p, centres[r], cols))
-                  for r, p, sign in ((o.a, pa, 1.0), (o.b, pb, -1.0)) if r in slot]
-        for s, J in blocks:
-            g[s * m:(s + 1) * m] += np.einsum("n,nij,ni->j", w, J, res)
-            for t, K in blocks:
-                H[s * m:(s + 1) * m, t * m:(t + 1) * m] += np.einsum("n,nij,nik->jk", w, J, K)
+    """One robust Gauss-Newton step: (free robots, len(cols)) updates [r t] (slot[r]: the row
+    of robot r, -1 for a fixed robot)."""
+    m, n_free = len(cols), int(slot.max()) + 1
+    res = moved[i] - moved[j]
+    w = np.minimum(1.0, huber / np.maximum(np.linalg.norm(res, axis=1), 1e-12))
+    sides = [(slot[robot_of[k]], sign * _jacobian(moved[k], centres[robot_of[k]], cols))
+             for k, sign in ((i, 1.0), (j, -1.0))]
+    H = np.zeros((n_free * n_free, m, m))
+    g = np.zeros((n_free, m))
+    for sx, Jx in sides:
+        fx = sx >= 0
+        WJ = (Jx[fx] * w[fx, None, None]).transpose(0, 2, 1)
+        _add_by(g, sx[fx], np.matmul(WJ, res[fx, :, None])[:, :, 0])
+        for sy, Jy in sides:
+            f = sy[fx] >= 0
+            _add_by(H, sx[fx][f] * n_free + sy[fx][f], np.matmul(WJ[f], Jy[fx][f]))
+    H = H.reshape(n_free, n_free, m, m)
+    H = H.transpose(0, 2, 1, 3).reshape(n_free * m, n_free * m)
     # A little damping keeps a robot with nearly collinear pairs where it is about that axis.
     H[np.diag_indices_from(H)] += 1e-9 * (np.trace(H) / len(H)) + 1e-12
-    return -np.linalg.solve(H, g)
+    return -np.linalg.solve(H, g.ravel()).reshape(n_free, m)
 
 
 def _moved(T: np.ndarray, xi: np.ndarray, centre: np.ndarray) -> np.ndarray:
@@ -119,33 +129,51 @@ def _moved(T: np.ndarray, xi: np.ndarray, centre: np.ndarray) -> np.ndarray:
     return M @ T
 
 
+def _in_fleet(T: np.ndarray, points: np.ndarray, robot_of: np.ndarray) -> np.ndarray:
+    """points (n,3) of robots robot_of (n,) moved by their frames T (R,4,4)."""
+    return np.einsum("nij,nj->ni", T[robot_of, :3, :3], points) + T[robot_of, :3, 3]
+
+
 def refine_fleet(
     frames: dict[int, np.ndarray], objects: dict[int, tuple[np.ndarray, np.ndarray]],
     root: int, radius: float, dof: int = 6, rounds: int = 5, steps: int = 5,
 ) -> tuple[dict[int, np.ndarray], int]:
-    """(refined T_fleet_robot of every robot in `frames`, object pairs used). dof 4: yaw about
-    the fleet frame's z and translation (roll and pitch kept), 6: any motion. Residuals are
-    weighted by Huber's function with k = radius / 2. Robots the co-location graph does not
-    connect to the root keep their frames. Deterministic."""
+    """(refined T_fleet_robot of every robot in `frames`, object pairs used). objects[r]:
+    positions (n,3) in r's odometry frame (metres) and labels (n,). dof 4: yaw about the fleet
+    frame's z and translation (roll and pitch kept), 6: any motion. Residuals are weighted by
+    Huber's function with k = radius / 2. Robots the co-location graph does not connect to
+    the root keep their frames. Deterministic."""
     cols = [2, 3, 4, 5] if dof == 4 else [0, 1, 2, 3, 4, 5]
-    frames = {r: np.array(T, np.float64) for r, T in frames.items()}
-    previous, n_pairs = None, 0
+    robots = sorted(frames)
+    T = np.stack([np.asarray(frames[r], np.float64) for r in robots])
+    points = np.concatenate([np.asarray(objects[r][0], np.float64).reshape(-1, 3)
+                             for r in robots])
+    labels = np.concatenate([np.asarray(objects[r][1]).reshape(-1) for r in robots])
+    robot_of = np.repeat(np.arange(len(robots)), [len(objects[r][1]) for r in robots])
+    previous, n_pairs, r0 = None, 0, robots.index(root)
     for _ in range(rounds):
-        pairs = overlaps(frames, objects, radius)
-        key = [(o.a, o.b, o.ia.tobytes(), o.ib.tobytes()) for o in pairs]
-        free = _reached(root, pairs)
-        n_pairs = sum(len(o.ia) for o in pairs if o.a in free or o.b in free)
-        if key == previous or not free:
+        moved = _in_fleet(T, points, robot_of)
+        i, j = co_located_pairs(moved, labels, robot_of, radius)
+        free = _reached(len(robots), r0, robot_of[i], robot_of[j])
+        n_pairs = int(np.sum(free[robot_of[i]] | free[robot_of[j]]))
+        if previous is not None and np.array_equal(i, previous[0]) \
+                and np.array_equal(j, previous[1]) or not free.any():
             break
-        previous = key
-        centres = {r: apply(frames[r], objects[r][0]).mean(axis=0) for r in free}
+        previous = i, j
+        slot = np.where(free, np.cumsum(free) - 1, -1)
+        centres = np.zeros((len(robots), 3))
+        for r in np.flatnonzero(free):
+            centres[r] = moved[robot_of == r].mean(axis=0)
         for _ in range(steps):
-            dx = _step(frames, objects, pairs, free, centres, cols, radius / 2.0)
-            for k, r in enumerate(free):
+            dx = _step(moved, robot_of, i, j, slot, centres, cols, radius / 2.0)
+            for r in np.flatnonzero(free):
                 xi = np.zeros(6)
-                xi[cols] = dx[k * len(cols):(k + 1) * len(cols)]
-                frames[r] = _moved(frames[r], xi, centres[r])
-    return frames, n_pairs
+                xi[cols] = dx[slot[r]]
+                T[r] = _moved(T[r], xi, centres[r])
+            moved = _in_fleet(T, points, robot_of)
+            if np.abs(dx).max() < CONVERGED:
+                break
+    return {r: T[k] for k, r in enumerate(robots)}, n_pairs
 
 
 def largest_shift(
