@@ -110,8 +110,9 @@ def test_co_located_pairs_are_mutual_nearest_between_each_robot_pair():
     labels = np.zeros(10, int)
     robot_of = np.array([0, 0, 0, 1, 1, 1, 2, 2, 2, 2])
     i, j = co_located_pairs(moved, labels, robot_of, 0.5)
-    got = sorted(zip(i.tolist(), j.tolist()))
-    # Robots 0-1: (0,3) and (2,4) are mutual (object 1 is within reach of 3, but 0 is nearer), 2 pairs: dropped.
+    got = sorted(zip(i.tolist(), j.tolist(), strict=True))
+    # Robots 0-1: (0,3) and (2,4) are mutual (object 1 is within reach of 3, but 0 is
+    # nearer): 2 pairs, dropped.
     # Robots 0-2: (0,6), (1,7), (2,8). Robots 1-2: (3,6), (4,8), (5,9).
     assert got == [(0, 6), (1, 7), (2, 8), (3, 6), (4, 8), (5, 9)]
 

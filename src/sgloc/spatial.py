@@ -60,3 +60,35 @@ class ClassKDTree:
     def pairs(self, radius: float) -> np.ndarray:
         """(k,2) index pairs i < j of same-class points closer than `radius` (scaled metres)."""
         return self.tree.query_pairs(radius, output_type="ndarray")
+
+
+def _nearest_in_group(key: np.ndarray, group: np.ndarray, d: np.ndarray,
+                      other: np.ndarray) -> np.ndarray:
+    """Mask of the entries nearest (d; ties: lower `other`) within their (key, group)."""
+    order = np.lexsort((other, d, group, key))
+    first = np.ones(len(order), bool)
+    first[1:] = (key[order][1:] != key[order][:-1]) | (group[order][1:] != group[order][:-1])
+    mask = np.zeros(len(order), bool)
+    mask[order[first]] = True
+    return mask
+
+
+def mutual_nearest_pairs(
+    points: np.ndarray, labels: np.ndarray, groups: np.ndarray, radius: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(i, j), sorted: points i and j ((n,3), metres, one frame) of two groups
+    groups[i] < groups[j] (e.g. robots) and one class, each the other's nearest point of that
+    class in the other's group (ties: the lower index), closer than `radius`."""
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    groups = np.asarray(groups)
+    if len(points) < 2:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    p = ClassKDTree(points, labels, radius).pairs(radius)
+    p = p[groups[p[:, 0]] != groups[p[:, 1]]]
+    i, j = p[:, 0].copy(), p[:, 1].copy()
+    swap = groups[i] > groups[j]
+    i[swap], j[swap] = j[swap], i[swap]
+    d = np.linalg.norm(points[i] - points[j], axis=1)
+    ok = _nearest_in_group(i, groups[j], d, j) & _nearest_in_group(j, groups[i], d, i)
+    order = np.lexsort((j[ok], i[ok]))
+    return i[ok][order].astype(np.int64), j[ok][order].astype(np.int64)

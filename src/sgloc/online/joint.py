@@ -16,23 +16,12 @@ import numpy as np
 
 from sgloc.geometry import apply
 from sgloc.online.consistency import loop_error
-from sgloc.spatial import ClassKDTree
+from sgloc.spatial import mutual_nearest_pairs
 
 #: A robot pair takes part from this many co-located object pairs (3 fix a rigid motion).
 MIN_PAIRS = 3
 #: Gauss-Newton stops once no update exceeds this (radians, metres).
 CONVERGED = 1e-6
-
-
-def _firsts(key: np.ndarray, group: np.ndarray, d: np.ndarray, other: np.ndarray) -> np.ndarray:
-    """Mask of the entries that are the nearest (d; ties: lower `other`) within their
-    (key, group)."""
-    order = np.lexsort((other, d, group, key))
-    first = np.ones(len(order), bool)
-    first[1:] = (key[order][1:] != key[order][:-1]) | (group[order][1:] != group[order][:-1])
-    mask = np.zeros(len(order), bool)
-    mask[order[first]] = True
-    return mask
 
 
 def co_located_pairs(
@@ -41,19 +30,11 @@ def co_located_pairs(
     """(i, j): objects i and j (rows of the stacked `moved` (n,3), fleet frame, metres) of two
     robots robot_of[i] < robot_of[j] that are mutual nearest same-class neighbours between
     those two robots, closer than `radius`; robot pairs with fewer than MIN_PAIRS dropped."""
-    p = ClassKDTree(moved, labels, radius).pairs(radius)
-    p = p[robot_of[p[:, 0]] != robot_of[p[:, 1]]]
-    i, j = p[:, 0].copy(), p[:, 1].copy()
-    swap = robot_of[i] > robot_of[j]
-    i[swap], j[swap] = j[swap], i[swap]
-    d = np.linalg.norm(moved[i] - moved[j], axis=1)
-    ok = _firsts(i, robot_of[j], d, j) & _firsts(j, robot_of[i], d, i)
-    i, j = i[ok], j[ok]
+    i, j = mutual_nearest_pairs(moved, labels, robot_of, radius)
     pair = robot_of[i] * (robot_of.max(initial=0) + 1) + robot_of[j]
     _, inverse, counts = np.unique(pair, return_inverse=True, return_counts=True)
     keep = counts[inverse] >= MIN_PAIRS
-    order = np.lexsort((j[keep], i[keep]))
-    return i[keep][order], j[keep][order]
+    return i[keep], j[keep]
 
 
 def _reached(n: int, root: int, ra: np.ndarray, rb: np.ndarray) -> np.ndarray:

@@ -12,6 +12,7 @@ import numpy as np
 from sgloc.covariance import transform_covariance
 from sgloc.errors import SglocError
 from sgloc.estimation import MotionModel, irls_refine
+from sgloc.spatial import mutual_nearest_pairs
 
 
 @dataclass(frozen=True)
@@ -29,21 +30,15 @@ def co_located(
     T_dst_src: np.ndarray, radius: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(i, j): src[i] and dst[j] are mutual nearest same-class neighbours closer than `radius`
-    metres once src is moved by T_dst_src (one-to-one)."""
-    from scipy.spatial import cKDTree
-
-    if len(src) == 0 or len(dst) == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    metres once src is moved by T_dst_src (one-to-one; sorted by i)."""
+    src, dst = np.asarray(src, np.float64), np.asarray(dst, np.float64)
     moved = src @ T_dst_src[:3, :3].T + T_dst_src[:3, 3]
-    # Classes apart by a 4th coordinate: one tree per side serves every class.
-    offset = 4.0 * (np.abs(np.concatenate([moved, dst])).max() + radius) + 1.0
-    s4 = np.column_stack([moved, np.asarray(src_labels, np.float64) * offset])
-    d4 = np.column_stack([dst, np.asarray(dst_labels, np.float64) * offset])
-    d, j = cKDTree(d4).query(s4, distance_upper_bound=radius)
-    _, back = cKDTree(s4).query(d4)
-    ok = np.isfinite(d)
-    ok[ok] &= back[j[ok]] == np.flatnonzero(ok)
-    return np.flatnonzero(ok), j[ok]
+    i, j = mutual_nearest_pairs(
+        np.concatenate([moved.reshape(-1, 3), dst.reshape(-1, 3)]),
+        np.concatenate([np.asarray(src_labels).reshape(-1), np.asarray(dst_labels).reshape(-1)]),
+        np.repeat([0, 1], [len(moved), len(dst)]), radius,
+    )
+    return i, j - len(moved)
 
 
 def refine_link(
