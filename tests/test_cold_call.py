@@ -172,3 +172,14 @@ def test_mirror_check_on_the_tests_landed_objects_equals_its_own_search(seed):
     assert looks_mirrored(query, target, T_tq, inliers, 5.0, a.landed) == looks_mirrored(
         query, target, T_tq, inliers, 5.0
     )
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_compiled_canonical_order_equals_lexsort(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 300))
+    pos = rng.uniform(-3, 3, (n, 3)).round(int(rng.integers(0, 2)))  # many ties
+    pos[rng.random(n) < 0.2, 0] = -0.0  # -0.0 ties with 0.0, as in lexsort
+    g = SemanticGraph(pos, rng.integers(0, 4, n))
+    p = g.positions
+    assert np.array_equal(canonical_order(g), np.lexsort((p[:, 2], p[:, 1], p[:, 0], g.labels)))

@@ -14,6 +14,7 @@ import numpy as np
 from scipy import sparse
 
 from sgloc.graph import SemanticGraph
+from sgloc.kernels import use_compiled
 
 #: Canonical forms already built, per caller's graph (graphs are immutable; entries go with the
 #: graph): {class table bytes: (order, canonical graph)}. Reusing the canonical graph lets its
@@ -29,7 +30,17 @@ _FORMS_PER_GRAPH = 4
 def canonical_order(graph: SemanticGraph) -> np.ndarray:
     """Vertex indices sorted by (label, x, y, z); ties (duplicate objects) keep input order."""
     p = graph.positions
+    if use_compiled(len(p)):
+        from sgloc.kernels.canonical import canonical_order_kernel
+
+        return canonical_order_kernel(*_kernel_arrays(graph))
     return np.lexsort((p[:, 2], p[:, 1], p[:, 0], graph.labels))
+
+
+def _kernel_arrays(graph: SemanticGraph) -> tuple[np.ndarray, np.ndarray]:
+    """The graph's positions and labels as the kernels take them (C-ordered float64, int64)."""
+    return (np.ascontiguousarray(graph.positions, dtype=np.float64),
+            np.ascontiguousarray(graph.labels, dtype=np.int64))  # fmt: skip
 
 
 #: Objects of one class each within DUPLICATE_RADIUS of the next in x, in canonical order,
@@ -61,7 +72,15 @@ def _close_pairs(graph: SemanticGraph, order: np.ndarray) -> np.ndarray:
 
 def without_duplicates(graph: SemanticGraph, order: np.ndarray) -> np.ndarray:
     """`order` (`canonical_order(graph)`) without the vertices that repeat an earlier one of it
-    (same class, closer than DUPLICATE_RADIUS); without duplicates it comes back unchanged."""
+    (same class, closer than DUPLICATE_RADIUS); without duplicates it comes back unchanged
+    (or equal)."""
+    if use_compiled(len(order)):
+        from sgloc.kernels.canonical import first_of_duplicates
+
+        kept, long = first_of_duplicates(order, *_kernel_arrays(graph), DUPLICATE_RADIUS,
+                                         _RUN_SEARCH)  # fmt: skip
+        if not long:
+            return kept
     pairs = _close_pairs(graph, order)
     if len(pairs) == 0:
         return order

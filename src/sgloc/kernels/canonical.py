@@ -1,0 +1,117 @@
+"""The canonical vertex order of a graph and its duplicate search in one compiled pass
+(`sgloc.canonical`): the same order as numpy's `lexsort` of (class, x, y, z) (stable: ties
+keep input order) and the same duplicate groups as its numpy form, without a dozen small
+numpy calls per graph.
+
+The sort is a merge sort written out (the package's rule: no numba sort in a cached kernel).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from sgloc.kernels import watch_compiles
+from sgloc.kernels.dispatch import kernel
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _before(a, b, labels, positions) -> bool:
+    """Whether vertex a sorts strictly before vertex b by (class, x, y, z)."""
+    if labels[a] != labels[b]:
+        return labels[a] < labels[b]
+    for k in range(3):
+        if positions[a, k] != positions[b, k]:
+            return positions[a, k] < positions[b, k]
+    return False
+
+
+@kernel
+def canonical_order_kernel(positions: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """(n,) vertex indices sorted by (label, x, y, z), ties in input order: np.lexsort((z, y,
+    x, labels)) (a stable bottom-up merge sort with the same comparisons)."""
+    n = labels.shape[0]
+    order = np.arange(n)
+    spare = np.empty(n, dtype=np.int64)
+    width = 1
+    while width < n:
+        for lo in range(0, n, 2 * width):
+            mid, hi = min(lo + width, n), min(lo + 2 * width, n)
+            a, b = lo, mid
+            for out in range(lo, hi):
+                # From the right run only when strictly before the left one: stable.
+                if b < hi and (a >= mid or _before(order[b], order[a], labels, positions)):
+                    spare[out] = order[b]
+                    b += 1
+                else:
+                    spare[out] = order[a]
+                    a += 1
+        order, spare = spare, order
+        width *= 2
+    return order
+
+
+@kernel
+def first_of_duplicates(
+    order: np.ndarray, positions: np.ndarray, labels: np.ndarray, radius: float, run: int
+) -> tuple[np.ndarray, bool]:
+    """(kept, long): `order` (canonical) without the vertices that repeat an earlier one of
+    it (same class, squared distance <= radius**2, groups joined through any chain of such
+    pairs, the first of each kept), searched as `sgloc.canonical`'s numpy form does: pairs
+    only along runs of consecutive same-class steps of at most `radius` in x, compared up to
+    `run` places apart. `long`: a run of `run` steps was met; then `kept` is not computed
+    (the caller searches that map by a KD-tree, as the numpy form)."""
+    n = order.shape[0]
+    r2 = radius * radius
+    step = np.zeros(n, dtype=np.bool_)  # step[i]: positions i - 1 and i may be duplicates
+    length = 0
+    for i in range(1, n):
+        a, b = order[i - 1], order[i]
+        step[i] = labels[a] == labels[b] and positions[b, 0] - positions[a, 0] <= radius
+        length = length + 1 if step[i] else 0
+        if length >= run:
+            return order, True
+    root = np.arange(n)
+    for i in range(n):
+        a = order[i]
+        for j in range(i + 1, n):
+            if not step[j]:
+                break
+            b = order[j]
+            dx = positions[b, 0] - positions[a, 0]
+            dy = positions[b, 1] - positions[a, 1]
+            dz = positions[b, 2] - positions[a, 2]
+            if dx * dx + dy * dy + dz * dz <= r2:
+                _join(root, i, j)
+    n_kept = 0
+    for i in range(n):
+        n_kept += _find(root, i) == i
+    kept = np.empty(n_kept, dtype=np.int64)
+    n_kept = 0
+    for i in range(n):
+        if _find(root, i) == i:
+            kept[n_kept] = order[i]
+            n_kept += 1
+    return kept, False
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _find(root, i) -> int:
+    """The smallest position of i's group (path halving)."""
+    while root[i] != i:
+        root[i] = root[root[i]]
+        i = root[i]
+    return i
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _join(root, i, j) -> None:
+    """Joins the groups of positions i and j under the smaller root."""
+    a, b = _find(root, i), _find(root, j)
+    if a < b:
+        root[b] = a
+    elif b < a:
+        root[a] = b
+
+
+watch_compiles()  # an install's first compile is said (sgloc.kernels)
