@@ -183,3 +183,36 @@ def test_compiled_canonical_order_equals_lexsort(seed):
     g = SemanticGraph(pos, rng.integers(0, 4, n))
     p = g.positions
     assert np.array_equal(canonical_order(g), np.lexsort((p[:, 2], p[:, 1], p[:, 0], g.labels)))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_compiled_restore_equals_its_numpy_form(seed, monkeypatch):
+    import types
+
+    import sgloc.kernels
+    from sgloc.canonical import CanonicalPair
+
+    q, t = _synthetic(seed, 60)
+    pair = CanonicalPair(q, t, LocalizerConfig())
+    rng = np.random.default_rng(seed)
+
+    def result():
+        k = int(rng.integers(0, 80))
+        cand = np.stack([rng.integers(0, len(pair.query), k),
+                         rng.integers(0, len(pair.target), k)], axis=1)  # fmt: skip
+        return types.SimpleNamespace(
+            candidates=cand,
+            scores=rng.integers(0, 4, k) / 4.0,  # tied scores
+            survivors=cand[: k // 2],
+            matches=cand[: k // 3],
+        )
+
+    for _ in range(5):
+        r = result()
+        plain = types.SimpleNamespace(**{k: np.copy(v) for k, v in vars(r).items()})
+        pair.restore(r)
+        monkeypatch.setattr(sgloc.kernels, "FORCE", "reference")
+        pair.restore(plain)
+        monkeypatch.setattr(sgloc.kernels, "FORCE", None)
+        for name in ("candidates", "scores", "survivors", "matches"):
+            assert np.array_equal(getattr(r, name), getattr(plain, name)), name

@@ -167,15 +167,31 @@ class CanonicalPair:
         """The result with every (query index, target index) array in the caller's indices,
         rows sorted by them (candidates keep their scores)."""
         qo, to = self.query_order, self.target_order
+        scores = np.asarray(result.scores)
+        if use_compiled(len(scores)):
+            from sgloc.kernels.canonical import restored_pairs
 
-        def back(pairs: np.ndarray) -> np.ndarray:
-            pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-            return np.stack([qo[pairs[:, 0]], to[pairs[:, 1]]], axis=1)
-
-        candidates, scores = back(result.candidates), np.asarray(result.scores)
-        order = np.lexsort((candidates[:, 1], -scores, candidates[:, 0]))
-        result.candidates, result.scores = candidates[order], scores[order]
+            def back(pairs: np.ndarray, scores: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                pairs = np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2)
+                return restored_pairs(pairs, scores, qo, to)
+        else:
+            back = _restored_pairs(qo, to)
+        result.candidates, order = back(result.candidates, np.asarray(scores, np.float64))
+        result.scores = scores[order]
         for name in ("survivors", "matches"):
-            pairs = back(getattr(result, name))
-            setattr(result, name, pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))])
+            setattr(result, name, back(getattr(result, name), np.zeros(0))[0])
         return result
+
+
+def _restored_pairs(qo: np.ndarray, to: np.ndarray):
+    """`sgloc.kernels.canonical.restored_pairs` in numpy (the kernel's reference), for the
+    orders qo, to."""
+
+    def back(pairs: np.ndarray, scores: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        pairs = np.stack([qo[pairs[:, 0]], to[pairs[:, 1]]], axis=1)
+        keys = (pairs[:, 1], -scores, pairs[:, 0]) if len(scores) else (pairs[:, 1], pairs[:, 0])
+        order = np.lexsort(keys)
+        return pairs[order], order
+
+    return back

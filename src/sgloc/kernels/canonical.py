@@ -17,7 +17,7 @@ from sgloc.kernels.dispatch import kernel
 
 @njit(cache=True, nogil=True, inline="always")
 def _before(a, b, labels, positions) -> bool:
-    """Whether vertex a sorts strictly before vertex b by (class, x, y, z)."""
+    """Whether row a sorts strictly before row b by (label, x, y, z)."""
     if labels[a] != labels[b]:
         return labels[a] < labels[b]
     for k in range(3):
@@ -26,10 +26,10 @@ def _before(a, b, labels, positions) -> bool:
     return False
 
 
-@kernel
-def canonical_order_kernel(positions: np.ndarray, labels: np.ndarray) -> np.ndarray:
-    """(n,) vertex indices sorted by (label, x, y, z), ties in input order: np.lexsort((z, y,
-    x, labels)) (a stable bottom-up merge sort with the same comparisons)."""
+@njit(cache=True, nogil=True)
+def _stable_order(labels, positions):
+    """(n,) the rows 0..n-1 sorted by (labels (n,), then the columns of positions (n,3)),
+    ties in row order: np.lexsort((z, y, x, labels)) (a bottom-up merge sort)."""
     n = labels.shape[0]
     order = np.arange(n)
     spare = np.empty(n, dtype=np.int64)
@@ -49,6 +49,34 @@ def canonical_order_kernel(positions: np.ndarray, labels: np.ndarray) -> np.ndar
         order, spare = spare, order
         width *= 2
     return order
+
+
+@kernel
+def canonical_order_kernel(positions: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """(n,) vertex indices sorted by (label, x, y, z), ties in input order: np.lexsort((z, y,
+    x, labels)) (the same comparisons)."""
+    return _stable_order(labels, positions)
+
+
+@kernel
+def restored_pairs(
+    pairs: np.ndarray, scores: np.ndarray, query_order: np.ndarray, target_order: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(pairs (k,2), rows (k,)): `pairs` (k,2) of canonical (query, target) indices mapped
+    through query_order / target_order to the caller's indices, sorted by (query, score
+    descending, target) (`scores` (k,); empty: by (query, target)), stable; rows: which
+    input row each output row is (np.lexsort of those keys)."""
+    k = pairs.shape[0]
+    out = np.empty((k, 2), dtype=np.int64)
+    keys = np.zeros((k, 3))  # (-score, target, 0): the sort of `_stable_order`
+    for r in range(k):
+        out[r, 0] = query_order[pairs[r, 0]]
+        out[r, 1] = target_order[pairs[r, 1]]
+        if scores.shape[0] > 0:
+            keys[r, 0] = -scores[r]
+        keys[r, 1] = out[r, 1]  # exact: indices < 2**53
+    rows = _stable_order(out[:, 0].copy(), keys)
+    return out[rows], rows
 
 
 @kernel
