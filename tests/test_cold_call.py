@@ -216,3 +216,16 @@ def test_compiled_restore_equals_its_numpy_form(seed, monkeypatch):
         monkeypatch.setattr(sgloc.kernels, "FORCE", None)
         for name in ("candidates", "scores", "survivors", "matches"):
             assert np.array_equal(getattr(r, name), getattr(plain, name)), name
+
+
+def test_reordered_graph_owns_its_arrays():
+    g = SemanticGraph(np.arange(12.0).reshape(4, 3), [3, 1, 2, 1])
+    labels = np.array([2, 0, 1], dtype=np.int64)
+    r = g.reordered(np.array([2, 1, 3]), labels)
+    assert np.array_equal(r.positions, g.positions[[2, 1, 3]])
+    assert np.array_equal(r.labels, labels) and r.edge_radius == g.edge_radius
+    assert labels.flags.writeable and not r.labels.flags.writeable  # the caller's stays theirs
+    labels[0] = 9
+    assert r.labels[0] == 2
+    with pytest.raises(InvalidGraphError):
+        g.reordered(np.array([0, 1]), labels)

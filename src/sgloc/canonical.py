@@ -143,14 +143,29 @@ class CanonicalPair:
         if key not in forms:
             if len(forms) >= _FORMS_PER_GRAPH:
                 forms.pop(next(iter(forms)))
-            order = without_duplicates(graph, canonical_order(graph))
+            order, labels = self._form(graph)
             order.flags.writeable = False
-            forms[key] = (order, self._rebuilt(graph, order))
+            forms[key] = (order, self._rebuilt(graph, order, labels))
         return forms[key]
 
-    def _rebuilt(self, graph: SemanticGraph, order: np.ndarray) -> SemanticGraph:
-        labels = np.searchsorted(self.classes, graph.labels[order])
-        out = SemanticGraph(graph.positions[order], labels, graph.edge_radius, graph.name)
+    def _form(self, graph: SemanticGraph) -> tuple[np.ndarray, np.ndarray]:
+        """(order, labels): `without_duplicates(graph, canonical_order(graph))` and the class
+        ids of those vertices renumbered by this pair's class table (one compiled pass)."""
+        if use_compiled(len(graph)):
+            from sgloc.kernels.canonical import canonical_form
+
+            classes = np.ascontiguousarray(self.classes, dtype=np.int64)
+            order, labels, long = canonical_form(*_kernel_arrays(graph), classes,
+                                                 DUPLICATE_RADIUS, _RUN_SEARCH)  # fmt: skip
+            if not long:
+                return order, labels
+        order = without_duplicates(graph, canonical_order(graph))
+        return order, np.searchsorted(self.classes, graph.labels[order])
+
+    def _rebuilt(
+        self, graph: SemanticGraph, order: np.ndarray, labels: np.ndarray
+    ) -> SemanticGraph:
+        out = graph.reordered(order, labels)
         # Carry over what the caller's graph has already computed, permuted (cheaper than anew).
         cache = graph.__dict__
         if "adjacency" in cache:

@@ -89,6 +89,38 @@ def first_of_duplicates(
     only along runs of consecutive same-class steps of at most `radius` in x, compared up to
     `run` places apart. `long`: a run of `run` steps was met; then `kept` is not computed
     (the caller searches that map by a KD-tree, as the numpy form)."""
+    return _first_of_groups(order, positions, labels, radius, run)
+
+
+@kernel
+def canonical_form(
+    positions: np.ndarray, labels: np.ndarray, classes: np.ndarray, radius: float, run: int
+) -> tuple[np.ndarray, np.ndarray, bool]:
+    """(order, labels, long): `canonical_order_kernel` then `first_of_duplicates` (`long`:
+    that search needs the caller's KD-tree; `order` is then the whole canonical order and
+    `labels` empty), and the kept vertices' class ids renumbered to their index in `classes`
+    (sorted, holding every label: np.searchsorted's index)."""
+    order = _stable_order(labels, positions)
+    kept, long = _first_of_groups(order, positions, labels, radius, run)
+    if long:
+        return order, np.zeros(0, dtype=np.int64), True
+    out = np.empty(kept.shape[0], dtype=np.int64)
+    for i in range(kept.shape[0]):
+        label = labels[kept[i]]
+        lo, hi = 0, classes.shape[0]  # the first class >= the label (binary search)
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if classes[mid] < label:
+                lo = mid + 1
+            else:
+                hi = mid
+        out[i] = lo
+    return kept, out, False
+
+
+@njit(cache=True, nogil=True)
+def _first_of_groups(order, positions, labels, radius, run):
+    """`first_of_duplicates`."""
     n = order.shape[0]
     r2 = radius * radius
     step = np.zeros(n, dtype=np.bool_)  # step[i]: positions i - 1 and i may be duplicates
