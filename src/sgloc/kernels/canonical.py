@@ -87,8 +87,8 @@ def first_of_duplicates(
     it (same class, squared distance <= radius**2, groups joined through any chain of such
     pairs, the first of each kept), searched as `sgloc.canonical`'s numpy form does: pairs
     only along runs of consecutive same-class steps of at most `radius` in x, compared up to
-    `run` places apart. `long`: a run of `run` steps was met; then `kept` is not computed
-    (the caller searches that map by a KD-tree, as the numpy form)."""
+    `run` places apart. `long`: a run of `run` steps was met; then `kept` is empty, not
+    computed (the caller searches that map by a KD-tree, as the numpy form)."""
     return _first_of_groups(order, positions, labels, radius, run)
 
 
@@ -130,7 +130,7 @@ def _first_of_groups(order, positions, labels, radius, run):
         step[i] = labels[a] == labels[b] and positions[b, 0] - positions[a, 0] <= radius
         length = length + 1 if step[i] else 0
         if length >= run:
-            return order, True
+            return np.zeros(0, dtype=np.int64), True
     root = np.arange(n)
     for i in range(n):
         a = order[i]
