@@ -71,6 +71,34 @@ def _matches(m: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     return np.ascontiguousarray(cs.src), np.ascontiguousarray(cs.dst)
 
 
+def check_canonical() -> None:
+    import types
+
+    from sgloc.canonical import CanonicalPair, canonical_order, without_duplicates
+    from sgloc.config import LocalizerConfig
+    from sgloc.graph import SemanticGraph
+
+    rng = np.random.default_rng(2)
+    pos = rng.uniform(-3, 3, (300, 3)).round(1)  # ties
+    pos[::5] = pos[1::5] + 1e-4  # duplicates
+    g = SemanticGraph(pos, np.repeat(np.arange(2), 150))
+    out = {}
+    for path in ("compiled", "reference"):
+        with _forced(path):
+            order = canonical_order(g)
+            pair = CanonicalPair(g, g, LocalizerConfig())
+            cand = rng.integers(0, len(pair.query), (200, 2))
+            r = types.SimpleNamespace(candidates=cand, scores=rng.integers(0, 3, 200) / 3.0,
+                                      survivors=cand[:50], matches=cand[:20])  # fmt: skip
+            pair.restore(r)
+            out[path] = (order, without_duplicates(g, order), *vars(r).values())
+            rng = np.random.default_rng(2)
+            rng.uniform(-3, 3, (300, 3))  # the same draws again
+    assert len(out["compiled"][1]) < 300, "duplicates"
+    for a, b in zip(out["compiled"], out["reference"], strict=True):
+        assert np.array_equal(a, b), "canonical form"
+
+
 def check_clique() -> None:
     from sgloc.consistency import pack_rows
     from sgloc.kernels import clique

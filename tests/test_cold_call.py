@@ -172,3 +172,108 @@ def test_mirror_check_on_the_tests_landed_objects_equals_its_own_search(seed):
     assert looks_mirrored(query, target, T_tq, inliers, 5.0, a.landed) == looks_mirrored(
         query, target, T_tq, inliers, 5.0
     )
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_compiled_canonical_order_equals_lexsort(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 300))
+    pos = rng.uniform(-3, 3, (n, 3)).round(int(rng.integers(0, 2)))  # many ties
+    pos[rng.random(n) < 0.2, 0] = -0.0  # -0.0 ties with 0.0, as in lexsort
+    g = SemanticGraph(pos, rng.integers(0, 4, n))
+    p = g.positions
+    assert np.array_equal(canonical_order(g), np.lexsort((p[:, 2], p[:, 1], p[:, 0], g.labels)))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_compiled_restore_equals_its_numpy_form(seed, monkeypatch):
+    import types
+
+    import sgloc.kernels
+    from sgloc.canonical import CanonicalPair
+
+    q, t = _synthetic(seed, 60)
+    pair = CanonicalPair(q, t, LocalizerConfig())
+    rng = np.random.default_rng(seed)
+
+    def result():
+        k = int(rng.integers(0, 80))
+        cand = np.stack([rng.integers(0, len(pair.query), k),
+                         rng.integers(0, len(pair.target), k)], axis=1)  # fmt: skip
+        return types.SimpleNamespace(
+            candidates=cand,
+            scores=rng.integers(0, 4, k) / 4.0,  # tied scores
+            survivors=cand[: k // 2],
+            matches=cand[: k // 3],
+        )
+
+    for _ in range(5):
+        r = result()
+        plain = types.SimpleNamespace(**{k: np.copy(v) for k, v in vars(r).items()})
+        pair.restore(r)
+        monkeypatch.setattr(sgloc.kernels, "FORCE", "reference")
+        pair.restore(plain)
+        monkeypatch.setattr(sgloc.kernels, "FORCE", None)
+        for name in ("candidates", "scores", "survivors", "matches"):
+            assert np.array_equal(getattr(r, name), getattr(plain, name)), name
+
+
+def test_reordered_graph_owns_its_arrays():
+    g = SemanticGraph(np.arange(12.0).reshape(4, 3), [3, 1, 2, 1])
+    labels = np.array([2, 0, 1], dtype=np.int64)
+    r = g.reordered(np.array([2, 1, 3]), labels)
+    assert np.array_equal(r.positions, g.positions[[2, 1, 3]])
+    assert np.array_equal(r.labels, labels) and r.edge_radius == g.edge_radius
+    assert labels.flags.writeable and not r.labels.flags.writeable  # the caller's stays theirs
+    labels[0] = 9
+    assert r.labels[0] == 2
+    with pytest.raises(InvalidGraphError):
+        g.reordered(np.array([0, 1]), labels)
+
+
+def _nfa_over_radii_plain(res2, radius, lam, m, n_tests, sample):
+    """The NFA over the radii as first written: a mask, a max and log10_nfa per radius."""
+    from sgloc.acceptance.chance import MIN_RADIUS_FRACTION, RADIUS_FRACTIONS, log10_nfa
+
+    best = (np.inf, 0, radius)
+    for f in RADIUS_FRACTIONS:
+        within = res2[res2 < (f * radius) ** 2]
+        k = int(within.size)
+        r_fit = float(np.sqrt(within.max())) if k else f * radius
+        r_fit = max(r_fit, MIN_RADIUS_FRACTION * radius)
+        shrink = min(r_fit / radius, 1.0) ** 2
+        lg = log10_nfa(k, m, lam * shrink, n_tests, sample) + np.log10(len(RADIUS_FRACTIONS))
+        if lg < best[0]:
+            best = (lg, k, r_fit)
+    return best
+
+
+@pytest.mark.parametrize("seed", range(30))
+def test_nfa_over_radii_of_several_chance_levels_equals_the_plain_form(seed):
+    from sgloc.acceptance.chance import nfa_over_radii_each
+
+    rng = np.random.default_rng(seed)
+    radius = float(rng.choice([1.0, 5.0, 7.5]))
+    res2 = (rng.random(int(rng.integers(0, 60))) * 1.3 * radius) ** 2
+    if res2.size and seed % 3 == 0:  # residuals exactly at the radii
+        res2[: min(3, res2.size)] = [(f * radius) ** 2 for f in (0.25, 0.5, 1.0)][: res2.size]
+    lams = tuple(rng.random(3) * 5)
+    m, n_tests, sample = res2.size + 5, float(rng.integers(1, 10**6)), int(rng.choice([2, 3]))
+    got = nfa_over_radii_each(res2, radius, lams, m, n_tests, sample)
+    for lam, g in zip(lams, got, strict=True):
+        assert g == _nfa_over_radii_plain(res2, radius, lam, m, n_tests, sample)
+
+
+@pytest.mark.parametrize("n_target", [30, 3000])
+def test_one_search_chance_counts_equal_two_searches(n_target):
+    from sgloc.acceptance import ChanceModel
+
+    rng = np.random.default_rng(n_target)
+    pos = rng.uniform(0, 100, (n_target, 3)) * [1, 1, 0.05]
+    target = SemanticGraph(pos, rng.integers(0, 4, n_target))
+    moved = pos[rng.integers(0, n_target, 40)] + rng.normal(0, 3, (40, 3))
+    targets = rng.integers(0, n_target, 25)
+    chance = ChanceModel(target, 6.0, 4)
+    counts, used = chance.near_counts_and_targets(moved, targets)
+    assert np.array_equal(counts, chance.near_counts(moved)[0])
+    assert np.array_equal(used, chance.near_targets(moved, targets)) and used.sum() > 0

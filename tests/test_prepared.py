@@ -210,3 +210,17 @@ def test_distance_histogram_kernel_equals_reference(monkeypatch, n):
     assert ref.sum() > 0 and np.array_equal(got, ref)
     rows = rng.choice(n, min(n, 5), replace=False)
     assert np.array_equal(d.rows(pos, labels, 6, rows), ref[rows])
+
+
+@pytest.mark.parametrize("n", [30, 400])
+def test_distance_histogram_kernel_equals_reference_on_a_sparse_grid(monkeypatch, n):
+    """Clusters far apart (more grid cells than the table of runs holds: binary searches)
+    give the reference's bits too."""
+    rng = np.random.default_rng(n)
+    pos = rng.uniform(-20, 20, (n, 3)) * [1, 1, 0.05]
+    pos[::2] += [3e5, 2e5, 0.0]
+    labels = rng.integers(0, 4, n)
+    d = DistanceHistogramDescriptor(radius=15.0, n_bins=8, taper=0.8)
+    ref = d.histogram_reference(pos, labels, 4)
+    monkeypatch.setattr(kernels, "FORCE", "compiled")
+    assert ref.sum() > 0 and np.array_equal(d.rows(pos, labels, 4), ref)

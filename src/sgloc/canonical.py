@@ -14,6 +14,7 @@ import numpy as np
 from scipy import sparse
 
 from sgloc.graph import SemanticGraph
+from sgloc.kernels import use_compiled
 
 #: Canonical forms already built, per caller's graph (graphs are immutable; entries go with the
 #: graph): {class table bytes: (order, canonical graph)}. Reusing the canonical graph lets its
@@ -29,7 +30,17 @@ _FORMS_PER_GRAPH = 4
 def canonical_order(graph: SemanticGraph) -> np.ndarray:
     """Vertex indices sorted by (label, x, y, z); ties (duplicate objects) keep input order."""
     p = graph.positions
+    if use_compiled(len(p)):
+        from sgloc.kernels.canonical import canonical_order_kernel
+
+        return canonical_order_kernel(*_kernel_arrays(graph))
     return np.lexsort((p[:, 2], p[:, 1], p[:, 0], graph.labels))
+
+
+def _kernel_arrays(graph: SemanticGraph) -> tuple[np.ndarray, np.ndarray]:
+    """The graph's positions and labels as the kernels take them (C-ordered float64, int64)."""
+    return (np.ascontiguousarray(graph.positions, dtype=np.float64),
+            np.ascontiguousarray(graph.labels, dtype=np.int64))  # fmt: skip
 
 
 #: Objects of one class each within DUPLICATE_RADIUS of the next in x, in canonical order,
@@ -61,7 +72,15 @@ def _close_pairs(graph: SemanticGraph, order: np.ndarray) -> np.ndarray:
 
 def without_duplicates(graph: SemanticGraph, order: np.ndarray) -> np.ndarray:
     """`order` (`canonical_order(graph)`) without the vertices that repeat an earlier one of it
-    (same class, closer than DUPLICATE_RADIUS); without duplicates it comes back unchanged."""
+    (same class, closer than DUPLICATE_RADIUS); without duplicates it comes back unchanged
+    (or equal)."""
+    if use_compiled(len(order)):
+        from sgloc.kernels.canonical import first_of_duplicates
+
+        kept, long = first_of_duplicates(order, *_kernel_arrays(graph), DUPLICATE_RADIUS,
+                                         _RUN_SEARCH)  # fmt: skip
+        if not long:
+            return kept
     pairs = _close_pairs(graph, order)
     if len(pairs) == 0:
         return order
@@ -124,14 +143,29 @@ class CanonicalPair:
         if key not in forms:
             if len(forms) >= _FORMS_PER_GRAPH:
                 forms.pop(next(iter(forms)))
-            order = without_duplicates(graph, canonical_order(graph))
+            order, labels = self._form(graph)
             order.flags.writeable = False
-            forms[key] = (order, self._rebuilt(graph, order))
+            forms[key] = (order, self._rebuilt(graph, order, labels))
         return forms[key]
 
-    def _rebuilt(self, graph: SemanticGraph, order: np.ndarray) -> SemanticGraph:
-        labels = np.searchsorted(self.classes, graph.labels[order])
-        out = SemanticGraph(graph.positions[order], labels, graph.edge_radius, graph.name)
+    def _form(self, graph: SemanticGraph) -> tuple[np.ndarray, np.ndarray]:
+        """(order, labels): `without_duplicates(graph, canonical_order(graph))` and the class
+        ids of those vertices renumbered by this pair's class table (one compiled pass)."""
+        if use_compiled(len(graph)):
+            from sgloc.kernels.canonical import canonical_form
+
+            classes = np.ascontiguousarray(self.classes, dtype=np.int64)
+            order, labels, long = canonical_form(*_kernel_arrays(graph), classes,
+                                                 DUPLICATE_RADIUS, _RUN_SEARCH)  # fmt: skip
+            if not long:
+                return order, labels
+        order = without_duplicates(graph, canonical_order(graph))
+        return order, np.searchsorted(self.classes, graph.labels[order])
+
+    def _rebuilt(
+        self, graph: SemanticGraph, order: np.ndarray, labels: np.ndarray
+    ) -> SemanticGraph:
+        out = graph.reordered(order, labels)
         # Carry over what the caller's graph has already computed, permuted (cheaper than anew).
         cache = graph.__dict__
         if "adjacency" in cache:
@@ -148,15 +182,31 @@ class CanonicalPair:
         """The result with every (query index, target index) array in the caller's indices,
         rows sorted by them (candidates keep their scores)."""
         qo, to = self.query_order, self.target_order
+        scores = np.asarray(result.scores)
+        if use_compiled(len(scores)):
+            from sgloc.kernels.canonical import restored_pairs
 
-        def back(pairs: np.ndarray) -> np.ndarray:
-            pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-            return np.stack([qo[pairs[:, 0]], to[pairs[:, 1]]], axis=1)
-
-        candidates, scores = back(result.candidates), np.asarray(result.scores)
-        order = np.lexsort((candidates[:, 1], -scores, candidates[:, 0]))
-        result.candidates, result.scores = candidates[order], scores[order]
+            def back(pairs: np.ndarray, scores: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                pairs = np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2)
+                return restored_pairs(pairs, scores, qo, to)
+        else:
+            back = _restored_pairs(qo, to)
+        result.candidates, order = back(result.candidates, np.asarray(scores, np.float64))
+        result.scores = scores[order]
         for name in ("survivors", "matches"):
-            pairs = back(getattr(result, name))
-            setattr(result, name, pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))])
+            setattr(result, name, back(getattr(result, name), np.zeros(0))[0])
         return result
+
+
+def _restored_pairs(qo: np.ndarray, to: np.ndarray):
+    """`sgloc.kernels.canonical.restored_pairs` in numpy (the kernel's reference), for the
+    orders qo, to."""
+
+    def back(pairs: np.ndarray, scores: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        pairs = np.stack([qo[pairs[:, 0]], to[pairs[:, 1]]], axis=1)
+        keys = (pairs[:, 1], -scores, pairs[:, 0]) if len(scores) else (pairs[:, 1], pairs[:, 0])
+        order = np.lexsort(keys)
+        return pairs[order], order
+
+    return back

@@ -128,6 +128,26 @@ class SemanticGraph:
             self.positions[idx], self.labels[idx], self.edge_radius, name or self.name
         )
 
+    def reordered(self, order: np.ndarray, labels: np.ndarray) -> SemanticGraph:
+        """The graph on the vertices `order` (integer indices, in that order; a permutation or
+        a subset) with the class ids `labels` (len(order),) in place of theirs: a renumbering
+        of this graph's classes (non-negative integers; not checked again, nor the positions,
+        checked when this graph was built)."""
+        out = SemanticGraph.__new__(SemanticGraph)
+        pos, lab = self.positions[order], np.asarray(labels, dtype=np.int64)
+        if lab.shape != (len(pos),):
+            raise InvalidGraphError(f"{self.name}: {lab.shape} labels for {len(pos)} vertices.")
+        pos.flags.writeable = False
+        lab = lab if lab.base is None and lab is not labels else lab.copy()
+        lab.flags.writeable = False
+        out.name, out.positions, out.labels, out.edge_radius = (
+            self.name,
+            pos,
+            lab,
+            self.edge_radius,
+        )
+        return out
+
     def with_edge_radius(self, edge_radius: float) -> SemanticGraph:
         """A copy with another edge radius (metres)."""
         return SemanticGraph(self.positions, self.labels, edge_radius, self.name)

@@ -66,6 +66,7 @@ from sgloc.acceptance.chance import (
     confidence_terms,
     log10_colocation_p,
     nfa_over_radii,
+    nfa_over_radii_each,
     pair_consistency,
     permutation_lambda,
     triangle_count,
@@ -198,15 +199,15 @@ def _best_evidence(
     k = int(np.count_nonzero(np.bincount(cand[c.inlier, 0])))  # distinct query objects
     # Permutation null: target j drawn with the frequency the candidates of its class chose it.
     moved = apply(transform, query.positions)
-    (counts,) = chance.near_counts(moved)
-    used = chance.near_targets(moved, cand[:, 1])
+    counts, used = chance.near_counts_and_targets(moved, cand[:, 1])
     lam = chance.expected_inliers(counts, qi, tlab)
     obj2 = per_object_min(c.res2, qi)
-    lg_uniform, k_fit, r_fit = nfa_over_radii(obj2, r, lam, m, tests.n_tests, tests.sample)
     lam_perm = permutation_lambda(used[qi, tlab], c.inlier, tlab, counts[qi, tlab], chance)
+    (lg_uniform, k_fit, r_fit), (lg_perm, _, _) = nfa_over_radii_each(
+        obj2, r, (lam, lam_perm), m, tests.n_tests, tests.sample
+    )
     presence = counts > 0
     lg_geo, colocated, mu_geo = log10_colocation_p(query, presence, cand[c.inlier, 0])
-    lg_perm = nfa_over_radii(obj2, r, lam_perm, m, tests.n_tests, tests.sample)[0]
     lg_perm += min(lg_geo, 0.0)
     return {
         "inliers": k,

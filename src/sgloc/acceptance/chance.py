@@ -22,6 +22,9 @@ _LN10 = np.log(10.0)
 _TRIANGLE_EDGES = 2048
 #: The precision-adapted inlier radius is at least this fraction of the radius.
 MIN_RADIUS_FRACTION = 0.1
+#: `ChanceModel.near_counts_and_targets` searches once when the map has at most this many
+#: objects per query object or target.
+_ONE_SEARCH = 8
 #: NFAs are capped at 10^300 (10.0 ** x overflows beyond about 308).
 _MAX_LOG10 = 300.0
 
@@ -99,6 +102,19 @@ class ChanceModel:
             float(self.radius),
             np.zeros(0),
         )[0]
+
+    def near_counts_and_targets(
+        self, moved: np.ndarray, targets: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(`near_counts(moved)`, `near_targets(moved, targets)`): from one search weighted by
+        each object's count in `targets` when the map is small next to them (the same
+        integers), else from two searches (no pass over a large map per query)."""
+        targets = np.asarray(targets, dtype=np.int64)
+        if not self.compiled or len(self.labels) > _ONE_SEARCH * max(len(targets), len(moved)):
+            return self.near_counts(moved)[0], self.near_targets(moved, targets)
+        usage = np.bincount(targets, minlength=len(self.labels)).astype(np.float64)
+        counts, used = self.near_counts(moved, (None, usage))
+        return counts, used
 
     def near_counts_reference(
         self, moved: np.ndarray, weights: tuple[np.ndarray | None, ...] = (None,)
@@ -187,7 +203,16 @@ def log10_nfa(k: int, m: int, lam: float, n_tests: float | None = None, sample: 
     """log10 of the number of false alarms n_tests * P(Poisson(lam) >= k - sample); n_tests
     defaults to C(m, 3), every triple of the m candidates; `sample` matches fix a hypothesis
     (3 for 6 dof, 2 for 4 dof) and are not evidence for it."""
-    log_tests = _log_comb3(m) if n_tests is None else float(np.log(max(n_tests, 1.0)))
+    return _log10_nfa_of(_log_tests(m, n_tests), k, lam, sample)
+
+
+def _log_tests(m: int, n_tests: float | None) -> float:
+    """ln of the number of tests of `log10_nfa`."""
+    return _log_comb3(m) if n_tests is None else float(np.log(max(n_tests, 1.0)))
+
+
+def _log10_nfa_of(log_tests: float, k: int, lam: float, sample: int) -> float:
+    """`log10_nfa` given ln of its number of tests."""
     excess = k - sample
     if excess <= 0:
         return log_tests / _LN10
@@ -197,6 +222,7 @@ def log10_nfa(k: int, m: int, lam: float, n_tests: float | None = None, sample: 
 #: Inlier radii, as fractions of the acceptance radius, at which the NFA is evaluated (the
 #: smallest NFA counts, times their number: the tests multiply).
 RADIUS_FRACTIONS = (0.25, 0.5, 1.0)
+_LOG10_RADII = np.log10(len(RADIUS_FRACTIONS))
 
 
 def nfa_over_radii(
@@ -210,18 +236,33 @@ def nfa_over_radii(
     (maps are nearly planar): lam * (r_fit / radius)^2, as AC-RANSAC adapts its radius to the
     precision of the fit. The number of tests is multiplied by the number of radii tried.
     Returns (log10 NFA, k_f, r_fit) of the best radius."""
-    best = (np.inf, 0, radius)
-    extra = np.log10(len(RADIUS_FRACTIONS))
-    for f in RADIUS_FRACTIONS:
-        within = res2[res2 < (f * radius) ** 2]
-        k = int(within.size)
-        r_fit = float(np.sqrt(within.max())) if k else f * radius
+    return nfa_over_radii_each(res2, radius, (lam,), m, n_tests, sample)[0]
+
+
+def nfa_over_radii_each(
+    res2: np.ndarray, radius: float, lams: tuple[float, ...], m: int, n_tests: float,
+    sample: int = 3,
+) -> list[tuple[float, int, float]]:  # fmt: skip
+    """`nfa_over_radii` of the same residuals for each chance level of `lams` (the fits at
+    the radii found once)."""
+    ordered = np.sort(res2)
+    limits = [(f * radius) ** 2 for f in RADIUS_FRACTIONS]
+    within = np.searchsorted(ordered, limits, side="left")  # how many res2 < each limit
+    fits = []
+    for f, k in zip(RADIUS_FRACTIONS, within.tolist(), strict=True):
+        r_fit = float(np.sqrt(ordered[k - 1])) if k else f * radius
         r_fit = max(r_fit, MIN_RADIUS_FRACTION * radius)
-        shrink = min(r_fit / radius, 1.0) ** 2
-        lg = log10_nfa(k, m, lam * shrink, n_tests, sample) + extra
-        if lg < best[0]:
-            best = (lg, k, r_fit)
-    return best
+        fits.append((k, r_fit, min(r_fit / radius, 1.0) ** 2))
+    log_tests = _log_tests(m, n_tests)
+    out = []
+    for lam in lams:
+        best = (np.inf, 0, radius)
+        for k, r_fit, shrink in fits:
+            lg = _log10_nfa_of(log_tests, k, lam * shrink, sample) + _LOG10_RADII
+            if lg < best[0]:
+                best = (lg, k, r_fit)
+        out.append(best)
+    return out
 
 
 def pair_consistency(src: np.ndarray, dst: np.ndarray, radius: float) -> tuple[np.ndarray, ...]:

@@ -91,14 +91,16 @@ class DistanceHistogramDescriptor(Descriptor):
         """The descriptors of the objects `rows` (default all) of the map (positions (n,3) m,
         labels (n,) class ids < n_classes): (len(rows), n_classes * n_bins). The same bits by
         the compiled kernel and the numpy reference (`histogram_reference`)."""
-        rows = np.arange(len(positions)) if rows is None else np.asarray(rows, dtype=np.int64)
+        every = rows is None
+        rows = np.arange(len(positions)) if every else np.asarray(rows, dtype=np.int64)
         if use_compiled(len(positions)):
             from sgloc.kernels.neighbors import distance_histograms
 
             positions = np.ascontiguousarray(positions, dtype=np.float64)
             return distance_histograms(
-                positions[rows], rows, positions, np.asarray(labels, dtype=np.int64),
-                n_classes, float(self.radius), int(self.n_bins), float(self.taper),
+                positions if every else positions[rows], rows, positions,
+                np.asarray(labels, dtype=np.int64), n_classes, float(self.radius),
+                int(self.n_bins), float(self.taper),
             )  # fmt: skip
         return self.histogram_reference(positions, labels, n_classes)[rows]
 

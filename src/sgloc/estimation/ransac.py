@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -88,7 +89,14 @@ class RansacConfig:
     @property
     def motion(self) -> MotionModel:
         """The motion model of these settings (`dof`, `max_tilt`)."""
-        return MotionModel(self.dof, self.max_tilt)
+        return _motion_model(self.dof, self.max_tilt)
+
+
+@functools.lru_cache(maxsize=16, typed=True)
+def _motion_model(dof: int, max_tilt: float | None) -> MotionModel:
+    """MotionModel(dof, max_tilt), built (and checked) once per pair of values: the settings
+    hand it on several times per call (it is frozen)."""
+    return MotionModel(dof, max_tilt)
 
 
 @dataclass

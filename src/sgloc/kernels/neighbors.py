@@ -230,18 +230,56 @@ def distance_histograms(
     out = np.zeros((len(centres), n_classes * n_bins))
     if len(points) == 0 or len(centres) == 0:
         return out
-    keys, x0, y0, cell, n_y = _cell_keys(points, radius)
-    order = np.argsort(keys, kind="stable")  # numpy's sort (module docstring of the package)
-    grid = (order, keys[order], x0, y0, cell, n_y)
     # Multiplications, not divisions, per pair (the reference's arithmetic is the same).
     r = float(radius)
     weights = (r, int(n_bins), int(n_bins) / r, float(taper) / r)
-    if len(centres) == len(points) and np.array_equal(self_index, np.arange(len(points))):
-        # Each pair once, for both ends (the sums are exact: the same bits as twice).
+    # Each pair once, for both ends (the sums are exact: the same bits as twice).
+    pairs = len(centres) == len(points) and np.array_equal(self_index, np.arange(len(points)))
+    if pairs and _all_pair_histograms(out, points, labels, *weights):
+        return out  # the grid built in the kernel
+    keys, x0, y0, cell, n_y = _cell_keys(points, radius)
+    order = np.argsort(keys, kind="stable")  # numpy's sort (module docstring of the package)
+    grid = (order, keys[order], x0, y0, cell, n_y)
+    if pairs:
         _pair_histograms(out, points, labels, *weights, *grid)
     else:
         _histograms_in_cells(out, centres, self_index, points, labels, *weights, *grid)
     return out
+
+
+@kernel(writes=("out",))
+def _all_pair_histograms(
+    out: np.ndarray,
+    points: np.ndarray,
+    labels: np.ndarray,
+    radius: float,
+    n_bins: int,
+    per_bin: float,
+    slope: float,
+) -> bool:
+    """`_pair_histograms` with its grid built here (the cells sorted by a stable counting
+    sort: numpy's stable argsort of the keys) when the grid is small (a table of runs of at
+    most 8 entries per point); False, nothing done, when it is not."""
+    keys, _, _, _, n_y = _cell_keys(points, radius)
+    n = keys.shape[0]
+    n_cells = (keys.max() // n_y + 3) * n_y
+    if n_cells > 8 * n + 4096:
+        return False
+    start = np.zeros(n_cells + 1, dtype=np.int64)
+    for s in range(n):
+        start[keys[s] + 1] += 1
+    for c in range(n_cells):
+        start[c + 1] += start[c]
+    order = np.empty(n, dtype=np.int64)
+    sorted_keys = np.empty(n, dtype=np.int64)
+    fill = start[:-1].copy()
+    for s in range(n):
+        order[fill[keys[s]]] = s
+        sorted_keys[fill[keys[s]]] = keys[s]
+        fill[keys[s]] += 1
+    _pairs_on_grid(out, points, labels, radius, n_bins, per_bin, slope, order, sorted_keys,
+                   start, n_y)  # fmt: skip
+    return True
 
 
 @kernel(writes=("out",))
@@ -260,15 +298,10 @@ def _pair_histograms(
     cell: float,
     n_y: int,
 ) -> None:
-    """`distance_histograms` of every point over the others, each pair measured once: from
-    each point (in cell order) only the points after it in its own and the next cell of its
-    column, and the three cells of the next column (the other half of the 3 x 3 block sees it
-    from there)."""
+    """`distance_histograms` of every point over the others, each pair measured once
+    (`_pairs_on_grid`), on the grid of `_cell_keys` (`order` sorts the keys)."""
     n = points.shape[0]
-    n_x = sorted_keys[-1] // n_y + 2
-    px, py, pz = points[order, 0], points[order, 1], points[order, 2]
-    lab = labels[order]
-    n_cells = (n_x + 1) * n_y
+    n_cells = (sorted_keys[-1] // n_y + 3) * n_y
     dense = n_cells <= 8 * n + 4096
     start = np.zeros(n_cells + 1 if dense else 1, dtype=np.int64)
     if dense:
@@ -276,6 +309,21 @@ def _pair_histograms(
             start[sorted_keys[s] + 1] += 1
         for c in range(n_cells):
             start[c + 1] += start[c]
+    _pairs_on_grid(out, points, labels, radius, n_bins, per_bin, slope, order, sorted_keys,
+                   start, n_y)  # fmt: skip
+
+
+@njit(cache=True, nogil=True)
+def _pairs_on_grid(out, points, labels, radius, n_bins, per_bin, slope, order, sorted_keys,
+                   start, n_y) -> None:  # fmt: skip
+    """The pairs of `_pair_histograms`: from each point (in cell order) only the points after
+    it in its own and the next cell of its column, and the three cells of the next column
+    (the other half of the 3 x 3 block sees it from there); `start`: the table of cell runs,
+    or (1,) for binary searches of sorted_keys."""
+    n = points.shape[0]
+    px, py, pz = points[order, 0], points[order, 1], points[order, 2]
+    lab = labels[order]
+    dense = start.shape[0] > 1
     for a in range(n):
         key = sorted_keys[a]
         cy = key % n_y
