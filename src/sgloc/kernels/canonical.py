@@ -59,23 +59,33 @@ def canonical_order_kernel(positions: np.ndarray, labels: np.ndarray) -> np.ndar
 
 
 @kernel
-def restored_pairs(
+def restored_keys(
     pairs: np.ndarray, scores: np.ndarray, query_order: np.ndarray, target_order: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(pairs (k,2), rows (k,)): `pairs` (k,2) of canonical (query, target) indices mapped
-    through query_order / target_order to the caller's indices, sorted by (query, score
-    descending, target) (`scores` (k,); empty: by (query, target)), stable; rows: which
-    input row each output row is (np.lexsort of those keys)."""
+    """(pairs (k,2), keys (k,3)): `pairs` (k,2) of canonical (query, target) indices mapped
+    through query_order / target_order to the caller's indices, and the sort keys after the
+    query index: (-score, target, 0) (`scores` (k,); empty: (0, target, 0))."""
     k = pairs.shape[0]
     out = np.empty((k, 2), dtype=np.int64)
-    keys = np.zeros((k, 3))  # (-score, target, 0): the sort of `_stable_order`
+    keys = np.zeros((k, 3))
     for r in range(k):
         out[r, 0] = query_order[pairs[r, 0]]
         out[r, 1] = target_order[pairs[r, 1]]
         if scores.shape[0] > 0:
             keys[r, 0] = -scores[r]
         keys[r, 1] = out[r, 1]  # exact: indices < 2**53
-    rows = _stable_order(out[:, 0].copy(), keys)
+    return out, keys
+
+
+def restored_pairs(
+    pairs: np.ndarray, scores: np.ndarray, query_order: np.ndarray, target_order: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(pairs (k,2), rows (k,)): `restored_keys`' pairs sorted by (query, score descending,
+    target), stable; rows: which input row each output row is (np.lexsort of those keys).
+    The sort is `canonical_order_kernel`'s, called here so that it sees the read-only arrays
+    the kernels get (one compiled specialisation of the merge sort)."""
+    out, keys = restored_keys(pairs, scores, query_order, target_order)
+    rows = canonical_order_kernel(keys, np.ascontiguousarray(out[:, 0]))
     return out[rows], rows
 
 
@@ -89,7 +99,9 @@ def first_of_duplicates(
     only along runs of consecutive same-class steps of at most `radius` in x, compared up to
     `run` places apart. `long`: a run of `run` steps was met; then `kept` is empty, not
     computed (the caller searches that map by a KD-tree, as the numpy form)."""
-    return _first_of_groups(order, positions, labels, radius, run)
+    # A writable copy: `canonical_form` hands the search the order it computed, so both
+    # callers give it the same types (one compiled specialisation).
+    return _first_of_groups(order.copy(), positions, labels, radius, run)
 
 
 @kernel
