@@ -123,3 +123,27 @@ def test_largest_shift_is_measured_at_each_robots_objects():
     after = {0: _pose(1.0, [0, 0, 0])}  # 1 deg about the origin: ~1.78 m at x = 101
     m, deg = largest_shift(before, after, pts)
     assert abs(deg - 1.0) < 1e-9 and abs(m - 2 * 101 * np.sin(np.radians(0.5))) < 1e-9
+
+
+def test_the_session_refines_a_chain_placed_robot_on_objects_it_shares_off_its_links(rng):
+    """Robots linked in a chain 0-1-2 (each link a little rotated), robot 2 also passing
+    robot 0's objects: with refine_fleet the session places robot 2 close to the truth; off,
+    where the chain of links puts it."""
+    from sgloc.online import OnlineConfig, OnlineSession
+
+    objects, true = _chain(rng, noise=0.05)
+    frames = {}
+    for refine in (False, True):
+        s = OnlineSession(online=OnlineConfig(
+            association_radius=0.0, min_observations=1, min_objects=3, max_attempts=0,
+            refine_links=False, refine_fleet=refine))
+        for r in (0, 1, 2):
+            s.add_keyframe(f"r{r}", 0.0, np.eye(4), *objects[r])
+        cov = np.diag([1e-4] * 3 + [1e-2] * 3)
+        s.add_link("r0", "r1", invert(true[0]) @ _pose(0.2, [0.3, -0.2, 0]) @ true[1], cov)
+        s.add_link("r1", "r2", invert(true[1]) @ _pose(0.1, [0.2, 0.2, 0]) @ true[2], cov)
+        frames[refine] = s.T_fleet_robot("r2")
+    chain = invert(true[0]) @ _pose(0.2, [0.3, -0.2, 0]) @ _pose(0.1, [0.2, 0.2, 0]) @ true[2]
+    np.testing.assert_allclose(frames[False], chain, atol=1e-9)
+    before, after = (_off(frames[k], true[2], objects[2][0]) for k in (False, True))
+    assert before[0] > 0.5 and after[0] < 0.2 * before[0] and after[1] < 0.2 * before[1]
