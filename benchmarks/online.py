@@ -408,7 +408,7 @@ def run_one(sc, key: str, title: str, out: Path, preset: str, online: OnlineConf
 
 def variant_table(variants: list[tuple[str, dict]], sums: list[dict]) -> str:
     """Every scenario with the default settings and with each variant."""
-    rows = [("default (links refitted, no hold)", s) for s in sums]
+    rows = [("default (links refitted, joint refinement, no hold)", s) for s in sums]
     body = []
     for name, s in rows + variants:
         body.append([
