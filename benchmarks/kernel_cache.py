@@ -181,6 +181,7 @@ def check_matching() -> None:
 
 def check_evidence() -> None:
     from sgloc.acceptance import ChanceModel, inlier_spread
+    from sgloc.acceptance.assessment import squared_residuals_of
     from sgloc.acceptance.chance import chance_terms, object_nfa_over_radii
     from sgloc.acceptance.mirror import reflect_across_line
     from sgloc.graph import SemanticGraph
@@ -205,6 +206,7 @@ def check_evidence() -> None:
                 chance_terms(qlab, counts, used, qi, tlab, res2 < 25.0, model),
                 inlier_spread(qpos[:40], 4),
                 reflect_across_line(qpos, qpos[:30]),
+                squared_residuals_of(np.eye(4), qpos, tpos[:120]),
             )
     ref, got = out["reference"], out["compiled"]
     assert got[0] == ref[0], "per-object fits"
@@ -212,6 +214,7 @@ def check_evidence() -> None:
     assert np.allclose(got[1], ref[1], rtol=1e-12), "chance sums"
     assert abs(got[2] - ref[2]) < 1e-9 * ref[2], "spread"
     assert np.abs(got[3] - ref[3]).max() < 1e-9, "reflection"
+    assert np.allclose(got[4], ref[4], rtol=1e-12), "residuals"
 
 
 def check_neighbors() -> None:

@@ -287,11 +287,14 @@ def test_compiled_per_object_fits_equal_the_sorted_form(seed, monkeypatch):
 @pytest.mark.parametrize("seed", range(10))
 def test_compiled_chance_terms_and_axis_equal_numpy(seed, monkeypatch):
     """The compiled chance sums (counts equal, sums to rounding), inlier spread along the xy
-    axis and the reflection across it (closed form) equal the numpy forms (SVDs)."""
+    axis and the reflection across it (closed form), residuals under a transform equal the
+    numpy forms (SVDs)."""
     import sgloc.kernels
     from sgloc.acceptance import ChanceModel, inlier_spread
+    from sgloc.acceptance.assessment import squared_residuals_of
     from sgloc.acceptance.chance import chance_terms
     from sgloc.acceptance.mirror import reflect_across_line
+    from sgloc.geometry import random_rigid_transform
 
     rng = np.random.default_rng(seed)
     tpos = rng.uniform(-50, 50, (150, 3)) * [1, 1, 0.1]
@@ -304,12 +307,15 @@ def test_compiled_chance_terms_and_axis_equal_numpy(seed, monkeypatch):
     inlier = np.sum((qpos[qi] - tpos[cand[:, 1]]) ** 2, axis=1) < 25.0
     tlab = model.labels[cand[:, 1]].astype(np.int64)
     line = tpos[:30] * [1.0, 0.05 * seed, 1.0]  # from a nearly straight line to a blob
+    T = random_rigid_transform(rng)
     out = []
     for force in (None, "reference"):
         monkeypatch.setattr(sgloc.kernels, "FORCE", force)
         out.append((chance_terms(qlab, counts, used, qi, tlab, inlier, model),
-                    inlier_spread(line, 4), reflect_across_line(qpos, line)))  # fmt: skip
-    (got, spread, flipped), (ref, ref_spread, ref_flipped) = out
+                    inlier_spread(line, 4), reflect_across_line(qpos, line),
+                    squared_residuals_of(T, qpos, tpos[:90])))  # fmt: skip
+    (got, spread, flipped, res2), (ref, ref_spread, ref_flipped, ref_res2) = out
+    np.testing.assert_allclose(res2, ref_res2, rtol=1e-12)
     assert got[0] == ref[0] > 0 and got[3] == ref[3]  # inlier objects, co-located count
     np.testing.assert_allclose(got, ref, rtol=1e-12)
     assert spread == pytest.approx(ref_spread, rel=1e-9)

@@ -124,6 +124,16 @@ def required_spread(min_spread: float, dof: int) -> float:
     return min_spread * (DOF4_SPREAD_FACTOR if dof == 4 else 1.0)
 
 
+def squared_residuals_of(T: np.ndarray, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """(m,) squared distances (m^2) of src (m,3) moved by T (4x4) from dst (m,3): compiled in
+    one pass, or in numpy (the reference; equal to rounding)."""
+    if not use_compiled(len(src)):
+        return np.sum((apply(T, src) - dst) ** 2, axis=1)
+    from sgloc.kernels.evidence import moved_residuals
+
+    return moved_residuals(np.ascontiguousarray(T, dtype=np.float64), src, dst)
+
+
 @dataclass
 class _Candidates:
     """The tested candidates under the estimate T: (m,2) indices (their query objects `qi`
@@ -143,8 +153,7 @@ class _Candidates:
         cand = np.asarray(candidates, dtype=np.int64).reshape(-1, 2)
         src = query.positions[cand[:, 0]]
         dst = target.positions[cand[:, 1]]
-        moved = src @ transform[:3, :3].T + transform[:3, 3]
-        res2 = np.sum((moved - dst) ** 2, axis=1)
+        res2 = squared_residuals_of(transform, src, dst)
         tlab = np.asarray(target.labels[cand[:, 1]], dtype=np.int64)
         qi = np.ascontiguousarray(cand[:, 0])
         return cls(cand, qi, src, dst, tlab, res2, res2 < radius**2)
@@ -238,7 +247,7 @@ def _rival_nfa(
     if T2 is None:
         return np.inf
     (counts2,) = chance.near_counts(apply(T2, query.positions))
-    d2 = np.sum((apply(T2, c.src) - c.dst) ** 2, axis=1)
+    d2 = squared_residuals_of(T2, c.src, c.dst)
     lam2 = chance.expected_inliers(counts2, c.qi, c.tlab)
     return object_nfa_over_radii(d2, c.qi, ~explained, len(query), chance.radius, (lam2,),
                                  len(c.cand), tests.n_tests, tests.sample)[0][0]  # fmt: skip

@@ -1,6 +1,7 @@
 """The acceptance test's sums over candidates and objects in one pass each (numba).
 
-The compiled forms of `sgloc.acceptance`'s numpy glue: the per-object inlier fits at the
+The compiled forms of `sgloc.acceptance`'s numpy glue: the candidates' residuals under a
+transform (`moved_residuals`, equal to rounding), the per-object inlier fits at the
 test's radii (`object_fits`: `per_object_min`, then the sorted search of
 `nfa_over_radii_each`; counts and maxima, the same bits), the chance levels and the
 co-location count of the estimate (`chance_sums`: `expected_inliers`, `permutation_lambda`,
@@ -16,6 +17,19 @@ import numpy as np
 
 from sgloc.kernels import watch_compiles
 from sgloc.kernels.dispatch import kernel
+
+
+@kernel
+def moved_residuals(T: np.ndarray, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """(m,) squared distances (m^2) of the points src (m,3) moved by T (4x4) from dst (m,3)."""
+    out = np.empty(src.shape[0])
+    for r in range(src.shape[0]):
+        s = 0.0
+        for a in range(3):
+            e = T[a, 0] * src[r, 0] + T[a, 1] * src[r, 1] + T[a, 2] * src[r, 2] + T[a, 3]
+            s += (e - dst[r, a]) ** 2
+        out[r] = s
+    return out
 
 
 @kernel
