@@ -179,6 +179,44 @@ def check_matching() -> None:
     assert np.abs(sa - sb).max() < 1e-12, "similarities"
 
 
+def check_evidence() -> None:
+    from sgloc.acceptance import ChanceModel, inlier_spread
+    from sgloc.acceptance.assessment import squared_residuals_of
+    from sgloc.acceptance.chance import chance_terms, object_nfa_over_radii
+    from sgloc.acceptance.mirror import reflect_across_line
+    from sgloc.graph import SemanticGraph
+    from sgloc.kernels import evidence  # noqa: F401 (loaded first, then called as acceptance does)
+
+    rng = np.random.default_rng(9)
+    tpos = rng.uniform(-60, 60, (200, 3)) * [1, 1, 0.1]
+    qpos = tpos[:120] + rng.normal(0, 1.0, (120, 3))
+    qlab = rng.integers(0, 4, 120)
+    qi = np.sort(rng.integers(0, 120, 150))  # some objects with two candidates, half true
+    cand = np.stack([qi, np.where(rng.random(150) < 0.5, qi, rng.integers(0, 200, 150))], 1)
+    res2 = np.sum((qpos[cand[:, 0]] - tpos[cand[:, 1]]) ** 2, axis=1)
+    rows = rng.random(150) < 0.7
+    model = ChanceModel(SemanticGraph(tpos, rng.integers(0, 4, 200)), 5.0, 4)
+    counts, used = model.near_counts_and_targets(qpos, cand[:, 1])
+    tlab = model.labels[cand[:, 1]].astype(np.int64)
+    out = {}
+    for path in ("reference", "compiled"):
+        with _forced(path):
+            out[path] = (
+                object_nfa_over_radii(res2, qi, rows, 120, 5.0, (2.0, 0.5), 150, 1e4, 2),
+                chance_terms(qlab, counts, used, qi, tlab, res2 < 25.0, model),
+                inlier_spread(qpos[:40], 4),
+                reflect_across_line(qpos, qpos[:30]),
+                squared_residuals_of(np.eye(4), qpos, tpos[:120]),
+            )
+    ref, got = out["reference"], out["compiled"]
+    assert got[0] == ref[0], "per-object fits"
+    assert got[1][0] == ref[1][0] > 0 and got[1][3] == ref[1][3], "chance counts"
+    assert np.allclose(got[1], ref[1], rtol=1e-12), "chance sums"
+    assert abs(got[2] - ref[2]) < 1e-9 * ref[2], "spread"
+    assert np.abs(got[3] - ref[3]).max() < 1e-9, "reflection"
+    assert np.allclose(got[4], ref[4], rtol=1e-12), "residuals"
+
+
 def check_neighbors() -> None:
     from sgloc.acceptance import ChanceModel
     from sgloc.graph import SemanticGraph

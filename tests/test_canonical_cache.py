@@ -51,3 +51,17 @@ def test_cache_entries_go_with_the_graph():
     gc.collect()
     assert all(r() is None for r in refs)  # nothing (the cache included) kept them alive
     assert len(CANONICAL_FORMS) == n - 2
+
+
+def test_class_table_is_the_sorted_union_of_the_ids():
+    """The pair's class table is np.union1d of both graphs' class ids, small ids (marked in a
+    table) or large ones (sorted)."""
+    rng = np.random.default_rng(2)
+    cfg = LocalizerConfig()
+    for top in (5, 40, 10**9):
+        lq, lt = rng.integers(0, top, 30), rng.integers(0, top, 25)
+        q = SemanticGraph(rng.uniform(-20, 20, (30, 3)), lq)
+        t = SemanticGraph(rng.uniform(-20, 20, (25, 3)), lt)
+        classes = CanonicalPair(q, t, cfg).classes
+        assert classes.dtype == np.int64
+        np.testing.assert_array_equal(classes, np.union1d(lq, lt))

@@ -264,6 +264,64 @@ def test_nfa_over_radii_of_several_chance_levels_equals_the_plain_form(seed):
         assert g == _nfa_over_radii_plain(res2, radius, lam, m, n_tests, sample)
 
 
+@pytest.mark.parametrize("seed", range(20))
+def test_compiled_per_object_fits_equal_the_sorted_form(seed, monkeypatch):
+    """The compiled per-object fits (one pass, no sort) give the sorted numpy form's bits:
+    repeated query objects, a subset of rows, residuals exactly at the radii."""
+    import sgloc.kernels
+    from sgloc.acceptance.chance import object_nfa_over_radii
+
+    rng = np.random.default_rng(seed)
+    radius, m = float(rng.choice([1.0, 5.0])), int(rng.integers(1, 80))
+    res2 = (rng.random(m) * 1.3 * radius) ** 2
+    if seed % 3 == 0:
+        res2[: min(3, m)] = [(f * radius) ** 2 for f in (0.25, 0.5, 1.0)][:m]
+    qi = np.sort(rng.integers(0, max(m // (1 + seed % 2), 1), m))  # odd seeds: repeats
+    rows = rng.random(m) < (0.6 if seed % 4 else 1.0)
+    args = (res2, qi, rows, int(qi.max()) + 1, radius, (0.7, 3.0), m + 5, 1e5, 2)
+    got = object_nfa_over_radii(*args)
+    monkeypatch.setattr(sgloc.kernels, "FORCE", "reference")
+    assert got == object_nfa_over_radii(*args)
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_compiled_chance_terms_and_axis_equal_numpy(seed, monkeypatch):
+    """The compiled chance sums (counts equal, sums to rounding), inlier spread along the xy
+    axis and the reflection across it (closed form), residuals under a transform equal the
+    numpy forms (SVDs)."""
+    import sgloc.kernels
+    from sgloc.acceptance import ChanceModel, inlier_spread
+    from sgloc.acceptance.assessment import squared_residuals_of
+    from sgloc.acceptance.chance import chance_terms
+    from sgloc.acceptance.mirror import reflect_across_line
+    from sgloc.geometry import random_rigid_transform
+
+    rng = np.random.default_rng(seed)
+    tpos = rng.uniform(-50, 50, (150, 3)) * [1, 1, 0.1]
+    qpos = tpos[:90] + rng.normal(0, 1.5, (90, 3))
+    qlab = rng.integers(0, 4, 90)
+    qi = np.sort(rng.integers(0, 90, 120))
+    cand = np.stack([qi, np.where(rng.random(120) < 0.5, qi, rng.integers(0, 150, 120))], 1)
+    model = ChanceModel(SemanticGraph(tpos, rng.integers(0, 4, 150)), 5.0, 4)
+    counts, used = model.near_counts_and_targets(qpos, cand[:, 1])
+    inlier = np.sum((qpos[qi] - tpos[cand[:, 1]]) ** 2, axis=1) < 25.0
+    tlab = model.labels[cand[:, 1]].astype(np.int64)
+    line = tpos[:30] * [1.0, 0.05 * seed, 1.0]  # from a nearly straight line to a blob
+    T = random_rigid_transform(rng)
+    out = []
+    for force in (None, "reference"):
+        monkeypatch.setattr(sgloc.kernels, "FORCE", force)
+        out.append((chance_terms(qlab, counts, used, qi, tlab, inlier, model),
+                    inlier_spread(line, 4), reflect_across_line(qpos, line),
+                    squared_residuals_of(T, qpos, tpos[:90])))  # fmt: skip
+    (got, spread, flipped, res2), (ref, ref_spread, ref_flipped, ref_res2) = out
+    np.testing.assert_allclose(res2, ref_res2, rtol=1e-12)
+    assert got[0] == ref[0] > 0 and got[3] == ref[3]  # inlier objects, co-located count
+    np.testing.assert_allclose(got, ref, rtol=1e-12)
+    assert spread == pytest.approx(ref_spread, rel=1e-9)
+    np.testing.assert_allclose(flipped, ref_flipped, atol=1e-9)
+
+
 @pytest.mark.parametrize("n_target", [30, 3000])
 def test_one_search_chance_counts_equal_two_searches(n_target):
     from sgloc.acceptance import ChanceModel

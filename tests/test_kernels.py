@@ -284,6 +284,28 @@ def test_near_targets_equal_usage_weighted_counts(monkeypatch, path):
     np.testing.assert_array_equal(model.class_count, np.bincount(labels, minlength=7))
 
 
+@pytest.mark.parametrize("radius", [0.5, 3.0, 40.0, 1e-4])
+def test_grid_order_is_the_stable_sort_of_its_cells(radius):
+    """A grid's points are in np.argsort(kind="stable")'s order of their cells (a counting
+    sort on a small grid, numpy's sort on a sparse one), with their coordinates and labels;
+    the runs of `start` (when kept) bound each cell's points."""
+    from sgloc.kernels.neighbors import cell_grid
+
+    rng = np.random.default_rng(5)
+    pos = np.round(rng.uniform(-50, 50, (500, 3)), 0)  # repeated cells and coordinates
+    lab = rng.integers(0, 4, 500)
+    g = cell_grid(pos, lab, radius)
+    assert np.all(np.diff(g.sorted_keys) >= 0)
+    same = g.sorted_keys[1:] == g.sorted_keys[:-1]
+    assert np.all(g.order[1:][same] > g.order[:-1][same])  # stable: ties in index order
+    np.testing.assert_array_equal(np.sort(g.order), np.arange(500))
+    np.testing.assert_array_equal(g.xyz, pos[g.order].T)
+    np.testing.assert_array_equal(g.labels, lab[g.order])
+    if len(g.start) > 1:
+        np.testing.assert_array_equal(g.sorted_keys, np.repeat(np.arange(len(g.start) - 1),
+                                                               np.diff(g.start)))  # fmt: skip
+
+
 def test_grid_kept_for_a_kept_map():
     """The neighbour grid of a graph's frozen arrays is built once and reused (a query then
     costs its neighbourhood, not the map); writeable arrays get a new one; both count alike."""

@@ -93,6 +93,17 @@ def without_duplicates(graph: SemanticGraph, order: np.ndarray) -> np.ndarray:
     return order[np.sort(first)]
 
 
+def _class_table(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """np.union1d of two int64 label arrays: marked in a table when the ids are small (the
+    same ids, sorted, without a sort)."""
+    top = max(int(a.max(initial=-1)), int(b.max(initial=-1)))
+    if top >= 4 * (len(a) + len(b)) + 64:
+        return np.union1d(a, b)
+    present = np.zeros(top + 1, dtype=bool)
+    present[a], present[b] = True, True
+    return np.flatnonzero(present)
+
+
 class CanonicalPair:
     """(query, target) in canonical form, the config with class weights renumbered to match,
     and the maps back to the caller's vertex indices and class ids."""
@@ -102,7 +113,7 @@ class CanonicalPair:
     target_blocks = None
 
     def __init__(self, query: SemanticGraph, target: SemanticGraph, config: Any) -> None:
-        self.classes = np.union1d(query.labels, target.labels)  # original id of each new id
+        self.classes = _class_table(query.labels, target.labels)  # original id of each new id
         self.query_order, self.query = self._canonical(query)
         self.target_order, self.target = self._canonical(target)
         self._set_config(config)

@@ -268,18 +268,11 @@ class ConsistentPairs:
         if self._listed is not None:  # small: the pairs themselves, in numpy
             self.size = int(self._listed[0].size)
             return
-        from sgloc.kernels.triangles import upper_counts
+        from sgloc.kernels.triangles import kept_starts
 
-        if keep is None:  # every column: the first m bits set
-            self._keep_words = np.full(bits.shape[1], np.iinfo(np.uint64).max, dtype=np.uint64)
-            if m % 64 and m:
-                self._keep_words[-1] = np.uint64((1 << (m % 64)) - 1)
-        else:
-            self._keep_words = pack_rows(self.keep[None, :])[0]
-        if self._keep_words.shape[0] < bits.shape[1]:  # m = 0: no words at all
-            self._keep_words = np.zeros(bits.shape[1], dtype=np.uint64)
-        counts = upper_counts(bits, self._keep_words, self.keep)
-        self.row_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        # The kept columns as one packed row, and the row-major position of each row's first
+        # pair.
+        self._keep_words, self.row_start = kept_starts(bits, self.keep)
         self.size = int(self.row_start[-1])
 
     def at(self, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -20,7 +20,6 @@ from sgloc.acceptance.assessment import (
     Assessment,
     assess,
     inlier_spread,
-    per_object_min,
     required_spread,
 )
 from sgloc.acceptance.chance import (
@@ -32,6 +31,7 @@ from sgloc.acceptance.chance import (
     log10_nfa,
     nfa_over_radii,
     pair_consistency,
+    per_object_min,
     permutation_lambda,
     triangle_count,
 )

@@ -62,13 +62,12 @@ import numpy as np
 
 from sgloc.acceptance.chance import (
     ChanceModel,
+    chance_terms,
+    colocation_tail,
     confidence,
     confidence_terms,
-    log10_colocation_p,
-    nfa_over_radii,
-    nfa_over_radii_each,
+    object_nfa_over_radii,
     pair_consistency,
-    permutation_lambda,
     triangle_count,
 )
 from sgloc.acceptance.config import AcceptanceConfig
@@ -77,6 +76,7 @@ from sgloc.consistency import ALL_PAIRS_LIMIT, ConsistentPairs
 from sgloc.estimation import ANY_RIGID, MotionModel
 from sgloc.geometry import apply
 from sgloc.graph import SemanticGraph
+from sgloc.kernels import use_compiled
 from sgloc.sampled_consistency import SampledConsistency
 
 #: With dof=4, inliers must extend this many times `min_spread` along their first xy axis
@@ -100,23 +100,17 @@ class Assessment:
     radius_m: float | None = None
 
 
-def per_object_min(res2: np.ndarray, query_index: np.ndarray) -> np.ndarray:
-    """The smallest squared residual per query object of candidates (`query_index` per row): an
-    object with several candidate targets is one piece of evidence, inlier when any is."""
-    if res2.size == 0 or np.all(query_index[1:] > query_index[:-1]):
-        return res2  # one candidate per object (the usual top-1 candidates, sorted by query)
-    objects, row_object = np.unique(query_index, return_inverse=True)
-    best = np.full(objects.size, np.inf)
-    np.minimum.at(best, row_object, res2)
-    return best
-
-
 def inlier_spread(points: np.ndarray, dof: int = 6) -> float:
     """Standard deviation (metres) of `points` (k,3) along their second principal axis; with
     dof=4 along the first principal axis of their xy (with gravity fixing roll and pitch, a
     line of objects fixes the yaw: only its length matters)."""
     if len(points) < 3:
         return 0.0
+    if dof == 4 and use_compiled(len(points)):  # closed form (equal to rounding)
+        from sgloc.kernels.evidence import xy_axis
+
+        return float(xy_axis(np.ascontiguousarray(points, dtype=np.float64))[4]
+                     / np.sqrt(len(points)))  # fmt: skip
     if dof == 4:
         s = np.linalg.svd(points[:, :2] - points[:, :2].mean(axis=0), compute_uv=False)
         return float(s[0] / np.sqrt(len(points)))
@@ -130,12 +124,24 @@ def required_spread(min_spread: float, dof: int) -> float:
     return min_spread * (DOF4_SPREAD_FACTOR if dof == 4 else 1.0)
 
 
+def squared_residuals_of(T: np.ndarray, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """(m,) squared distances (m^2) of src (m,3) moved by T (4x4) from dst (m,3): compiled in
+    one pass, or in numpy (the reference; equal to rounding)."""
+    if not use_compiled(len(src)):
+        return np.sum((apply(T, src) - dst) ** 2, axis=1)
+    from sgloc.kernels.evidence import moved_residuals
+
+    return moved_residuals(np.ascontiguousarray(T, dtype=np.float64), src, dst)
+
+
 @dataclass
 class _Candidates:
-    """The tested candidates under the estimate T: (m,2) indices, their points (m,3) in each
+    """The tested candidates under the estimate T: (m,2) indices (their query objects `qi`
+    contiguous), their points (m,3) in each
     frame, target classes, squared residuals (m^2) under T and inliers within the radius."""
 
     cand: np.ndarray
+    qi: np.ndarray
     src: np.ndarray
     dst: np.ndarray
     tlab: np.ndarray
@@ -147,9 +153,10 @@ class _Candidates:
         cand = np.asarray(candidates, dtype=np.int64).reshape(-1, 2)
         src = query.positions[cand[:, 0]]
         dst = target.positions[cand[:, 1]]
-        moved = src @ transform[:3, :3].T + transform[:3, 3]
-        res2 = np.sum((moved - dst) ** 2, axis=1)
-        return cls(cand, src, dst, target.labels[cand[:, 1]], res2, res2 < radius**2)
+        res2 = squared_residuals_of(transform, src, dst)
+        tlab = np.asarray(target.labels[cand[:, 1]], dtype=np.int64)
+        qi = np.ascontiguousarray(cand[:, 0])
+        return cls(cand, qi, src, dst, tlab, res2, res2 < radius**2)
 
 
 @dataclass
@@ -194,20 +201,21 @@ def _best_evidence(
     """The evidence for the estimate under both nulls (module docstring): the details of
     `Assessment` up to the runner-up, and (n, n_classes) bool: which classes have a target
     object within the radius of each moved query object."""
-    r, cand, qi, tlab = chance.radius, c.cand, c.cand[:, 0], c.tlab
+    r, cand, qi = chance.radius, c.cand, c.qi
     m = len(cand)
-    k = int(np.count_nonzero(np.bincount(cand[c.inlier, 0])))  # distinct query objects
     # Permutation null: target j drawn with the frequency the candidates of its class chose it.
     moved = apply(transform, query.positions)
     counts, used = chance.near_counts_and_targets(moved, cand[:, 1])
-    lam = chance.expected_inliers(counts, qi, tlab)
-    obj2 = per_object_min(c.res2, qi)
-    lam_perm = permutation_lambda(used[qi, tlab], c.inlier, tlab, counts[qi, tlab], chance)
-    (lg_uniform, k_fit, r_fit), (lg_perm, _, _) = nfa_over_radii_each(
-        obj2, r, (lam, lam_perm), m, tests.n_tests, tests.sample
+    # k: distinct inlier query objects; colocated of mu_geo expected beyond them.
+    k, lam, lam_perm, colocated, mu_geo = chance_terms(
+        query.labels, counts, used, qi, c.tlab, c.inlier, chance
     )
+    (lg_uniform, k_fit, r_fit), (lg_perm, _, _) = object_nfa_over_radii(
+        c.res2, qi, np.ones(m, dtype=bool), len(query), r, (lam, lam_perm), m, tests.n_tests,
+        tests.sample,
+    )  # fmt: skip
     presence = counts > 0
-    lg_geo, colocated, mu_geo = log10_colocation_p(query, presence, cand[c.inlier, 0])
+    lg_geo = colocation_tail(colocated, mu_geo)
     lg_perm += min(lg_geo, 0.0)
     return {
         "inliers": k,
@@ -239,10 +247,10 @@ def _rival_nfa(
     if T2 is None:
         return np.inf
     (counts2,) = chance.near_counts(apply(T2, query.positions))
-    d2 = np.sum((apply(T2, c.src) - c.dst) ** 2, axis=1)
-    d2 = per_object_min(d2[~explained], c.cand[~explained, 0])
-    lam2 = chance.expected_inliers(counts2, c.cand[:, 0], c.tlab)
-    return nfa_over_radii(d2, chance.radius, lam2, len(c.cand), tests.n_tests, tests.sample)[0]
+    d2 = squared_residuals_of(T2, c.src, c.dst)
+    lam2 = chance.expected_inliers(counts2, c.qi, c.tlab)
+    return object_nfa_over_radii(d2, c.qi, ~explained, len(query), chance.radius, (lam2,),
+                                 len(c.cand), tests.n_tests, tests.sample)[0][0]  # fmt: skip
 
 
 def assess(

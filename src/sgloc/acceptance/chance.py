@@ -180,6 +180,17 @@ def _log10_poisson_tail(k: int, lam: float) -> float:
         return float(np.log(pdtrc(np.floor(np.float64(k - 1)), max(lam, 1e-12))) / _LN10)
 
 
+def per_object_min(res2: np.ndarray, query_index: np.ndarray) -> np.ndarray:
+    """The smallest squared residual per query object of candidates (`query_index` per row): an
+    object with several candidate targets is one piece of evidence, inlier when any is."""
+    if res2.size == 0 or np.all(query_index[1:] > query_index[:-1]):
+        return res2  # one candidate per object (the usual top-1 candidates, sorted by query)
+    objects, row_object = np.unique(query_index, return_inverse=True)
+    best = np.full(objects.size, np.inf)
+    np.minimum.at(best, row_object, res2)
+    return best
+
+
 def log10_colocation_p(
     query: SemanticGraph, presence: np.ndarray, exclude: np.ndarray
 ) -> tuple[float, int, float]:
@@ -188,15 +199,52 @@ def log10_colocation_p(
     after alignment. Under a label-permutation null (a query object's class drawn from the query's
     class frequencies f, independent of where it lies) C is Poisson-binomial with mean
     mu = sum_i sum_c presence[i, c] f_c. Returns (log10 P(X >= C), C, mu)."""
+    C, mu = _colocation_counts(query.labels, presence, exclude)
+    return colocation_tail(C, mu), C, mu
+
+
+def colocation_tail(C: int, mu: float) -> float:
+    """log10 P(X >= C) of `log10_colocation_p`'s count C with mean mu (0 when C = 0)."""
+    return _log10_poisson_tail(C, mu) if C else 0.0
+
+
+def _colocation_counts(
+    labels: np.ndarray, presence: np.ndarray, exclude: np.ndarray
+) -> tuple[int, float]:
+    """(C, mu) of `log10_colocation_p` (query classes `labels` (n,))."""
     n_classes = presence.shape[1]
-    f = np.bincount(query.labels, minlength=n_classes)[:n_classes] / max(len(query), 1)
-    keep = np.ones(len(query), dtype=bool)
+    f = np.bincount(labels, minlength=n_classes)[:n_classes] / max(len(labels), 1)
+    keep = np.ones(len(labels), dtype=bool)
     keep[exclude] = False
     mu = float((presence[keep] @ f).sum())
-    C = int(presence[np.flatnonzero(keep), query.labels[keep]].sum())
-    if C == 0:
-        return 0.0, C, mu
-    return _log10_poisson_tail(C, mu), C, mu
+    return int(presence[np.flatnonzero(keep), labels[keep]].sum()), mu
+
+
+def chance_terms(
+    labels: np.ndarray,
+    counts: np.ndarray,
+    used: np.ndarray,
+    qi: np.ndarray,
+    tlab: np.ndarray,
+    inlier: np.ndarray,
+    chance: ChanceModel,
+) -> tuple[int, float, float, int, float]:
+    """(k, lambda, lambda_p, C, mu) of the candidates (query objects `qi`, target classes
+    `tlab`, `inlier` (m,) bool; int64, contiguous) under one transform: the distinct inlier
+    query objects, `expected_inliers`, `permutation_lambda` and `log10_colocation_p`'s count
+    and mean (the query's classes `labels`; `counts`, `used`: `near_counts_and_targets`).
+    Compiled in one pass (sums in candidate order), or in numpy (the reference)."""
+    if use_compiled(len(qi)):
+        from sgloc.kernels.evidence import chance_sums
+
+        k, lam, lam_p, C, mu = chance_sums(qi, tlab, inlier, counts, used, chance.class_count,
+                                           labels)  # fmt: skip
+        return int(k), float(lam), float(lam_p), int(C), float(mu)
+    k = int(np.count_nonzero(np.bincount(qi[inlier])))
+    lam = chance.expected_inliers(counts, qi, tlab)
+    lam_p = permutation_lambda(used[qi, tlab], inlier, tlab, counts[qi, tlab], chance)
+    C, mu = _colocation_counts(labels, counts > 0, qi[inlier])
+    return k, lam, lam_p, C, mu
 
 
 def log10_nfa(k: int, m: int, lam: float, n_tests: float | None = None, sample: int = 3) -> float:
@@ -248,11 +296,43 @@ def nfa_over_radii_each(
     ordered = np.sort(res2)
     limits = [(f * radius) ** 2 for f in RADIUS_FRACTIONS]
     within = np.searchsorted(ordered, limits, side="left")  # how many res2 < each limit
+    tops = [float(ordered[k - 1]) if k else -1.0 for k in within.tolist()]
+    return _nfa_of_fits(_fits(within.tolist(), tops, radius), radius, lams, m, n_tests, sample)
+
+
+def object_nfa_over_radii(
+    res2: np.ndarray, qi: np.ndarray, rows: np.ndarray, n_objects: int, radius: float,
+    lams: tuple[float, ...], m: int, n_tests: float, sample: int = 3,
+) -> list[tuple[float, int, float]]:  # fmt: skip
+    """`nfa_over_radii_each` of the smallest squared residual per query object (`qi` (m,)
+    int64, of `n_objects`) of the candidates in `rows` (m,) bool (`per_object_min`): compiled
+    in one pass without a sort (the same bits), or in numpy (the reference)."""
+    if not use_compiled(len(res2)):
+        return nfa_over_radii_each(per_object_min(res2[rows], qi[rows]), radius, lams, m,
+                                   n_tests, sample)  # fmt: skip
+    from sgloc.kernels.evidence import object_fits
+
+    limits = np.array([(f * radius) ** 2 for f in RADIUS_FRACTIONS])
+    k, top = object_fits(res2, qi, rows, n_objects, limits)
+    return _nfa_of_fits(_fits(k.tolist(), top.tolist(), radius), radius, lams, m, n_tests, sample)
+
+
+def _fits(within: list[int], tops: list[float], radius: float) -> list[tuple[int, float, float]]:
+    """Per radius of RADIUS_FRACTIONS: (inliers k within it, r_fit, chance shrink) from k and
+    the largest squared residual below it (`tops`)."""
     fits = []
-    for f, k in zip(RADIUS_FRACTIONS, within.tolist(), strict=True):
-        r_fit = float(np.sqrt(ordered[k - 1])) if k else f * radius
+    for f, k, top in zip(RADIUS_FRACTIONS, within, tops, strict=True):
+        r_fit = float(np.sqrt(top)) if k else f * radius
         r_fit = max(r_fit, MIN_RADIUS_FRACTION * radius)
         fits.append((k, r_fit, min(r_fit / radius, 1.0) ** 2))
+    return fits
+
+
+def _nfa_of_fits(
+    fits: list[tuple[int, float, float]], radius: float, lams: tuple[float, ...], m: int,
+    n_tests: float, sample: int,
+) -> list[tuple[float, int, float]]:  # fmt: skip
+    """The best (log10 NFA, k, r_fit) over `fits` (`_fits`) for each chance level of `lams`."""
     log_tests = _log_tests(m, n_tests)
     out = []
     for lam in lams:

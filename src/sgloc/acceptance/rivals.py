@@ -61,7 +61,6 @@ def runner_up(
     free = ~exclude
     if free.sum() < 3 or cfg.runner_up_samples <= 0:
         return 0, None
-    ps, pd = src[free], dst[free]
     if isinstance(edges, SampledConsistency):
         i, j = edges.draw(free, cfg.runner_up_samples, rng)
         if len(i) == 0:
@@ -87,7 +86,7 @@ def runner_up(
     if not distinct.any():
         return 0, None
     R, t = R[distinct], t[distinct]
-    counts = (squared_residuals(R, t, ps, pd) < radius**2).sum(axis=1)
+    counts = (squared_residuals(R, t, src[free], dst[free]) < radius**2).sum(axis=1)
     h = int(np.argmax(counts))
     T2 = np.eye(4)
     T2[:3, :3], T2[:3, 3] = R[h], t[h]
@@ -98,10 +97,10 @@ def _compiled_yaw_runner_up(
     src, dst, T, exclude, i, j, radius, cfg
 ) -> tuple[int, np.ndarray | None]:
     """`runner_up`'s dof=4 branch from the drawn pairs (i, j) on, in one compiled pass
-    (`sgloc.kernels.runner_up`): the same alternative, its residuals equal to rounding."""
+    (`sgloc.kernels.runner_up`): the same alternative, its residuals and the centre of T's
+    support equal to rounding."""
     from sgloc.kernels.runner_up import best_yaw_alternative
 
-    c = src[exclude].mean(axis=0) if exclude.any() else src.mean(axis=0)
     count, T2, found = best_yaw_alternative(
         np.ascontiguousarray(src, dtype=np.float64),
         np.ascontiguousarray(dst, dtype=np.float64),
@@ -109,7 +108,6 @@ def _compiled_yaw_runner_up(
         j,
         ~exclude,
         np.ascontiguousarray(T, dtype=np.float64),
-        c,
         float(cfg.distinct_translation),
         float(cfg.distinct_rotation),
         float(radius),

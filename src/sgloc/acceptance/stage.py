@@ -135,7 +135,7 @@ def _refuse_mirrored(
     """Refuse `verdict`'s alignment when the query, reflected across its inliers' line, lands
     clearly more objects on the target (`looks_mirrored`; `plain_landed`: the test's own
     count of the aligned query, when at this radius); updates `verdict`."""
-    inliers = np.unique(verdict.matches[:, 0])
+    inliers = np.flatnonzero(np.bincount(verdict.matches[:, 0]))  # np.unique, without a sort
     mirrored, plain, flipped = looks_mirrored(
         query, target, verdict.transform, inliers, radius, plain_landed
     )

@@ -54,7 +54,7 @@ _BLAS_CONTROLLER = None
 
 #: The kernel modules (each compiled on first use, `cache=True`).
 MODULES = (
-    "canonical", "clique", "consistency", "fit", "matching", "neighbors",
+    "canonical", "clique", "consistency", "evidence", "fit", "matching", "neighbors",
     "local", "prune", "ransac", "runner_up", "spectral", "triangles", "walks",
 )  # fmt: skip
 

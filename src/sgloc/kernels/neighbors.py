@@ -108,17 +108,40 @@ def cell_grid(points: np.ndarray, labels: np.ndarray, radius: float) -> CellGrid
 def _build_grid(points: np.ndarray, labels: np.ndarray, radius: float) -> CellGrid:
     """The `CellGrid` of `cell_grid`, built."""
     keys, x0, y0, cell, n_y = _cell_keys(points, radius)
+    n_cells = (int(keys.max()) // n_y + 3) * n_y
+    # A table of runs when it costs at most a few entries per point, else binary searches.
+    if n_cells <= 2 * len(keys) + 4096:  # a stable counting sort: np.argsort's order
+        points = np.ascontiguousarray(points, dtype=np.float64)
+        grid = _counting_grid(points, np.ascontiguousarray(labels, dtype=np.int64), keys, n_cells)
+        return CellGrid(*grid, x0, y0, cell, n_y)
     # numpy's sort: numba's sort and search helpers are better kept out of cached kernels
     # (their generated symbols can clash with another cached kernel's in one process).
     order = np.argsort(keys, kind="stable")
-    sorted_keys = keys[order]
-    n_cells = (sorted_keys[-1] // n_y + 3) * n_y
-    # A table of runs when it costs at most a few entries per point, else binary searches.
-    dense = n_cells <= 2 * len(keys) + 4096
-    start = _cell_starts(sorted_keys, n_cells) if dense else np.zeros(1, np.int64)
-    return CellGrid(order, sorted_keys, np.ascontiguousarray(points[order].T),
-                    np.ascontiguousarray(labels[order], dtype=np.int64), start, x0, y0, cell,
-                    n_y)  # fmt: skip
+    return CellGrid(order, keys[order], np.ascontiguousarray(points[order].T),
+                    np.ascontiguousarray(labels[order], dtype=np.int64), np.zeros(1, np.int64),
+                    x0, y0, cell, n_y)  # fmt: skip
+
+
+@kernel
+def _counting_grid(
+    points: np.ndarray, labels: np.ndarray, keys: np.ndarray, n_cells: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(order, sorted_keys, xyz (3,n), labels, start) of a `CellGrid` of points (n,3) with
+    cell `keys` (n,) < n_cells, by a stable counting sort (np.argsort(kind="stable")'s order;
+    `start`: `_cell_starts`)."""
+    n = keys.shape[0]
+    start = _cell_starts(keys, n_cells)  # the runs do not depend on the order
+    fill = start[:-1].copy()
+    order = np.empty(n, dtype=np.int64)
+    sorted_keys = np.empty(n, dtype=np.int64)
+    xyz = np.empty((3, n))
+    sorted_labels = np.empty(n, dtype=np.int64)
+    for j in range(n):
+        s = fill[keys[j]]
+        fill[keys[j]] += 1
+        order[s], sorted_keys[s], sorted_labels[s] = j, keys[j], labels[j]
+        xyz[0, s], xyz[1, s], xyz[2, s] = points[j, 0], points[j, 1], points[j, 2]
+    return order, sorted_keys, xyz, sorted_labels, start
 
 
 @kernel

@@ -16,6 +16,27 @@ from sgloc.kernels.dispatch import kernel
 
 
 @kernel
+def support_centre(src: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """(3,) the mean of the rows of `src` (m,3) outside `free` (m,) bool, summed in order (of
+    every row when all are free)."""
+    centre = np.zeros(3)
+    n = 0
+    for k in range(src.shape[0]):
+        if not free[k]:
+            n += 1
+            for a in range(3):
+                centre[a] += src[k, a]
+    if n == 0:
+        for k in range(src.shape[0]):
+            for a in range(3):
+                centre[a] += src[k, a]
+        n = src.shape[0]
+    for a in range(3):
+        centre[a] /= max(n, 1)
+    return centre
+
+
+@kernel
 def best_yaw_alternative(
     src: np.ndarray,
     dst: np.ndarray,
@@ -23,16 +44,17 @@ def best_yaw_alternative(
     j: np.ndarray,
     free: np.ndarray,
     T: np.ndarray,
-    centre: np.ndarray,
     distinct_translation: float,
     distinct_rotation: float,
     radius: float,
 ) -> tuple[int, np.ndarray, bool]:
     """(inliers, 4x4 transform, found) of the best hypothesis from the pairs (i[n], j[n]) of
     candidates src/dst (m,3): pairs less than 1e-6 m apart in xy in either map are skipped, and
-    hypotheses moving `centre` (3,) less than `distinct_translation` metres from where T moves
-    it while rotating less than `distinct_rotation` degrees from T; inliers: the candidates in
-    `free` (m,) bool with squared residual < radius^2. Ties: the first pair drawn."""
+    hypotheses moving the centre of T's support (`support_centre`) less than
+    `distinct_translation` metres from where T moves it while rotating less than
+    `distinct_rotation` degrees from T; inliers: the candidates in `free` (m,) bool with
+    squared residual < radius^2. Ties: the first pair drawn."""
+    centre = support_centre(src, free)
     R = np.zeros((3, 3))
     R[2, 2] = 1.0
     t = np.zeros(3)

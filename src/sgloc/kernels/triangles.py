@@ -71,6 +71,22 @@ def upper_counts(bits: np.ndarray, keep_words: np.ndarray, keep_rows: np.ndarray
 
 
 @kernel
+def kept_starts(bits: np.ndarray, keep_rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(keep_words, row_start): the kept matches `keep_rows` (m,) bool as one packed row (the
+    layout of the rows of `bits`), and the running sum of their `upper_counts` from 0 (m+1,)."""
+    m = bits.shape[0]
+    keep_words = np.zeros(bits.shape[1], dtype=np.uint64)
+    for i in range(m):
+        if keep_rows[i]:
+            keep_words[i // WORD] |= np.uint64(1) << np.uint64(i % WORD)
+    counts = upper_counts(bits, keep_words, keep_rows)
+    row_start = np.zeros(m + 1, dtype=np.int64)
+    for i in range(m):
+        row_start[i + 1] = row_start[i] + counts[i]
+    return keep_words, row_start
+
+
+@kernel
 def _last_at_most(sorted_values: np.ndarray, value: int) -> int:
     """The last position of sorted_values holding a value <= `value` (-1 if none): numpy's
     searchsorted(side="right") - 1, as a plain binary search (see the `sgloc.kernels` rule on
