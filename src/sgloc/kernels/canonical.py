@@ -13,6 +13,7 @@ from numba import njit
 
 from sgloc.kernels import watch_compiles
 from sgloc.kernels.dispatch import kernel
+from sgloc.kernels.neighbors import first_at_least
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -118,15 +119,7 @@ def canonical_form(
         return order, np.zeros(0, dtype=np.int64), True
     out = np.empty(kept.shape[0], dtype=np.int64)
     for i in range(kept.shape[0]):
-        label = labels[kept[i]]
-        lo, hi = 0, classes.shape[0]  # the first class >= the label (binary search)
-        while lo < hi:
-            mid = (lo + hi) // 2
-            if classes[mid] < label:
-                lo = mid + 1
-            else:
-                hi = mid
-        out[i] = lo
+        out[i] = first_at_least(classes, labels[kept[i]])
     return kept, out, False
 
 

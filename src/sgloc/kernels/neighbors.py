@@ -173,7 +173,7 @@ def _cell_starts(sorted_keys: np.ndarray, n_cells: int) -> np.ndarray:
 
 
 @kernel
-def _first_at_least(sorted_keys: np.ndarray, key: int) -> int:
+def first_at_least(sorted_keys: np.ndarray, key: int) -> int:
     """The first position of sorted_keys holding a value >= key (binary search)."""
     lo, hi = 0, sorted_keys.shape[0]
     while lo < hi:
@@ -224,8 +224,8 @@ def _counts_in_cells(
             if dense:
                 lo, hi = start[lo_key], start[hi_key + 1]
             else:
-                lo = _first_at_least(sorted_keys, lo_key)
-                hi = _first_at_least(sorted_keys, hi_key + 1)
+                lo = first_at_least(sorted_keys, lo_key)
+                hi = first_at_least(sorted_keys, hi_key + 1)
             for s in range(lo, hi):
                 dx, dy, dz = qx - px[s], qy - py[s], qz - pz[s]
                 if dx * dx + dy * dy + dz * dz <= r2:
@@ -352,15 +352,15 @@ def _pairs_on_grid(out, points, labels, radius, n_bins, per_bin, slope, order, s
         cy = key % n_y
         # This cell after a, then the next cell of the column (keys are consecutive).
         hi_key = key + 1 if cy + 1 <= n_y - 1 else key
-        hi = start[hi_key + 1] if dense else _first_at_least(sorted_keys, hi_key + 1)
+        hi = start[hi_key + 1] if dense else first_at_least(sorted_keys, hi_key + 1)
         _pair_run(out, a, a + 1, hi, order, px, py, pz, lab, radius, n_bins, per_bin, slope)
         lo_key = key + n_y - 1 if cy >= 1 else key + n_y
         hi_key = key + n_y + 1 if cy + 1 <= n_y - 1 else key + n_y
         if dense:
             lo, hi = start[lo_key], start[hi_key + 1]
         else:
-            lo = _first_at_least(sorted_keys, lo_key)
-            hi = _first_at_least(sorted_keys, hi_key + 1)
+            lo = first_at_least(sorted_keys, lo_key)
+            hi = first_at_least(sorted_keys, hi_key + 1)
         _pair_run(out, a, lo, hi, order, px, py, pz, lab, radius, n_bins, per_bin, slope)
 
 
@@ -444,8 +444,8 @@ def _histograms_in_cells(
             if dense:
                 lo, hi = start[lo_key], start[hi_key + 1]
             else:
-                lo = _first_at_least(sorted_keys, lo_key)
-                hi = _first_at_least(sorted_keys, hi_key + 1)
+                lo = first_at_least(sorted_keys, lo_key)
+                hi = first_at_least(sorted_keys, hi_key + 1)
             for s in range(lo, hi):
                 if order[s] == self_index[r]:
                     continue
