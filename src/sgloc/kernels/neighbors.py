@@ -127,21 +127,34 @@ def _counting_grid(
     points: np.ndarray, labels: np.ndarray, keys: np.ndarray, n_cells: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(order, sorted_keys, xyz (3,n), labels, start) of a `CellGrid` of points (n,3) with
-    cell `keys` (n,) < n_cells, by a stable counting sort (np.argsort(kind="stable")'s order;
-    `start`: `_cell_starts`)."""
+    cell `keys` (n,) < n_cells (`_counting_order`)."""
+    # A writable copy: `_all_pair_histograms` sorts keys it computed, so both callers give
+    # `_counting_order` the same types (one compiled specialisation).
+    order, sorted_keys, start = _counting_order(keys.copy(), n_cells)
+    n = keys.shape[0]
+    xyz = np.empty((3, n))
+    sorted_labels = np.empty(n, dtype=np.int64)
+    for s in range(n):
+        j = order[s]
+        sorted_labels[s] = labels[j]
+        xyz[0, s], xyz[1, s], xyz[2, s] = points[j, 0], points[j, 1], points[j, 2]
+    return order, sorted_keys, xyz, sorted_labels, start
+
+
+@njit(cache=True, nogil=True)
+def _counting_order(keys, n_cells):
+    """(order, sorted_keys, start) of cell `keys` (n,) < n_cells by a stable counting sort
+    (np.argsort(kind="stable")'s order); `start`: `_cell_starts`."""
     n = keys.shape[0]
     start = _cell_starts(keys, n_cells)  # the runs do not depend on the order
     fill = start[:-1].copy()
     order = np.empty(n, dtype=np.int64)
     sorted_keys = np.empty(n, dtype=np.int64)
-    xyz = np.empty((3, n))
-    sorted_labels = np.empty(n, dtype=np.int64)
     for j in range(n):
         s = fill[keys[j]]
         fill[keys[j]] += 1
-        order[s], sorted_keys[s], sorted_labels[s] = j, keys[j], labels[j]
-        xyz[0, s], xyz[1, s], xyz[2, s] = points[j, 0], points[j, 1], points[j, 2]
-    return order, sorted_keys, xyz, sorted_labels, start
+        order[s], sorted_keys[s] = j, keys[j]
+    return order, sorted_keys, start
 
 
 @kernel
@@ -288,18 +301,7 @@ def _all_pair_histograms(
     n_cells = (keys.max() // n_y + 3) * n_y
     if n_cells > 8 * n + 4096:
         return False
-    start = np.zeros(n_cells + 1, dtype=np.int64)
-    for s in range(n):
-        start[keys[s] + 1] += 1
-    for c in range(n_cells):
-        start[c + 1] += start[c]
-    order = np.empty(n, dtype=np.int64)
-    sorted_keys = np.empty(n, dtype=np.int64)
-    fill = start[:-1].copy()
-    for s in range(n):
-        order[fill[keys[s]]] = s
-        sorted_keys[fill[keys[s]]] = keys[s]
-        fill[keys[s]] += 1
+    order, sorted_keys, start = _counting_order(keys, n_cells)
     _pairs_on_grid(out, points, labels, radius, n_bins, per_bin, slope, order, sorted_keys,
                    start, n_y)  # fmt: skip
     return True
