@@ -81,6 +81,12 @@ def without_duplicates(graph: SemanticGraph, order: np.ndarray) -> np.ndarray:
                                          _RUN_SEARCH)  # fmt: skip
         if not long:
             return kept
+    return _first_of_close_groups(graph, order)
+
+
+def _first_of_close_groups(graph: SemanticGraph, order: np.ndarray) -> np.ndarray:
+    """`without_duplicates` in numpy (the compiled search's reference; its KD-tree fallback
+    for long runs)."""
     pairs = _close_pairs(graph, order)
     if len(pairs) == 0:
         return order
@@ -170,7 +176,9 @@ class CanonicalPair:
                                                  DUPLICATE_RADIUS, _RUN_SEARCH)  # fmt: skip
             if not long:
                 return order, labels
-        order = without_duplicates(graph, canonical_order(graph))
+            order = _first_of_close_groups(graph, order)  # `order`: the whole canonical order
+        else:
+            order = without_duplicates(graph, canonical_order(graph))
         return order, np.searchsorted(self.classes, graph.labels[order])
 
     def _rebuilt(
