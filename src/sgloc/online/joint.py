@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from sgloc.geometry import apply
+from sgloc.covariance import skew
+from sgloc.geometry import apply, invert
 from sgloc.online.consistency import loop_error
 from sgloc.spatial import mutual_nearest_pairs
 
@@ -53,11 +54,8 @@ def _reached(n: int, root: int, ra: np.ndarray, rb: np.ndarray) -> np.ndarray:
 def _jacobian(points: np.ndarray, centres: np.ndarray, cols: list[int]) -> np.ndarray:
     """(n,3,len(cols)): d(point)/d[rx ry rz tx ty tz] for a rotation about its robot's centre
     (centres (n,3)) followed by a translation, both in the fleet frame."""
-    d = points - centres
     J = np.zeros((len(points), 3, 6))
-    J[:, 0, 1], J[:, 0, 2] = d[:, 2], -d[:, 1]
-    J[:, 1, 0], J[:, 1, 2] = -d[:, 2], d[:, 0]
-    J[:, 2, 0], J[:, 2, 1] = d[:, 1], -d[:, 0]
+    J[:, :, :3] = -skew(points - centres)  # d(w x d)/dw = -[d]x
     J[:, :, 3:] = np.eye(3)
     return J[:, :, cols]
 
@@ -137,8 +135,9 @@ def refine_fleet(
         i, j = co_located_pairs(moved, labels, robot_of, radius)
         free = _reached(len(robots), r0, robot_of[i], robot_of[j])
         n_pairs = int(np.sum(free[robot_of[i]] | free[robot_of[j]]))
-        if previous is not None and np.array_equal(i, previous[0]) \
-                and np.array_equal(j, previous[1]) or not free.any():
+        unchanged = previous is not None and np.array_equal(i, previous[0]) \
+            and np.array_equal(j, previous[1])
+        if unchanged or not free.any():
             break
         previous = i, j
         slot = np.where(free, np.cumsum(free) - 1, -1)
@@ -165,6 +164,6 @@ def largest_shift(
     centroid of its objects (points[r], its odometry frame) and in rotation."""
     worst = (0.0, 0.0)
     for r, T in after.items():
-        m, d = loop_error(T @ np.linalg.inv(before[r]), apply(before[r], points[r]))
+        m, d = loop_error(T @ invert(before[r]), apply(before[r], points[r]))
         worst = (max(worst[0], m), max(worst[1], d))
     return worst
