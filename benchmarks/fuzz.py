@@ -26,7 +26,7 @@ import sys
 import tempfile
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -39,6 +39,7 @@ BAD_OUTCOMES = (
     "error not one line / wrong exit code",
     "malformed file read as data",
     "valid file refused",
+    "user files moved or changed",
 )
 
 
@@ -53,6 +54,9 @@ class Case:
     name: str
     expect: str  # "fail" | "either" | "valid"
     argv: list[str]
+    cwd: Path | None = None  # the working folder the command runs in (default: unchanged)
+    around: Callable[[], contextlib.AbstractContextManager] | None = None  # e.g. a service
+    check: Callable[[], str] | None = None  # after the run: "" or a bad outcome
 
 
 # -- seed files ---------------------------------------------------------------------------------
@@ -508,18 +512,185 @@ def option_case(seeds: dict[str, Path], case_dir: Path, rng: np.random.Generator
     return Case(f"{command} option {option} {value}", "valid" if valid else "fail", argv)
 
 
+# -- output paths: --out at the working folder, an input's folder, an input ----------------------
+#: (name, output path inside the user's folder proj/ ({proj}: its absolute path), expectation).
+OUT_TARGETS = [
+    ("working-folder", ".", "fail"), ("working-folder-absolute", "{proj}", "fail"),
+    ("working-folder-by-parent", "../proj", "fail"), ("parent-of-working-folder", "..", "fail"),
+    ("input-folder", "maps", "fail"), ("input-file", "maps/query.json", "fail"),
+    ("folder-of-user-files", "docs", "fail"), ("new-folder", "results/new", "valid"),
+    ("empty-folder", "empty", "valid"),
+]  # fmt: skip
+#: Commands writing an output, each as argv before the output option, and that option.
+OUT_COMMANDS = [
+    (["localize", "maps/query.json", "maps/target.json"], "--out"),
+    (["localize", "maps/query.json", "maps/target.json"], "--json"),
+    (["fleet", "maps/query.json", "maps/target.json", "--workers", "1"], "--out"),
+    (["experiment", "table", "--trials", "1", "--workers", "1"], "--out"),
+    (["demo", "--objects-only"], "--out"),
+    (["build-graph", "airsim", "robot"], "-o"),
+]
+
+
+def out_path_case(seeds: dict[str, Path], work: Path, rng: np.random.Generator, k: int) -> Case:
+    """A user's folder (maps, notes, docs, an empty folder) as the working folder; a command
+    writing its output at a path that names the user's folder, an input, or a new path."""
+    import shutil
+
+    proj = work / f"case{k}" / "proj"
+    (proj / "maps").mkdir(parents=True)
+    (proj / "docs").mkdir()
+    (proj / "empty").mkdir()
+    (proj / "notes.txt").write_text("keep me\n")
+    (proj / "docs" / "plan.md").write_text("mine\n")
+    shutil.copy(seeds["query.json"], proj / "maps" / "query.json")
+    shutil.copy(seeds["target.json"], proj / "maps" / "target.json")
+    shutil.copytree(seeds["robot"], proj / "robot")
+    name, target, expect = OUT_TARGETS[int(rng.integers(0, len(OUT_TARGETS)))]
+    commands = OUT_COMMANDS if expect == "fail" else OUT_COMMANDS[:3]
+    argv, option = commands[int(rng.integers(0, len(commands)))]
+    out = target.format(proj=proj)
+    before = _snapshot(proj.parent)
+    written = (proj / out).resolve() if expect == "valid" else None
+    return Case(f"--out {name} ({argv[0]} {option})", expect, [*argv, option, out], cwd=proj,
+                check=lambda: _unchanged(proj.parent, before, written))
+
+
+def _snapshot(folder: Path) -> dict[str, bytes]:
+    """Every file and folder under `folder` (hidden ones too): bytes, or b"/" for a folder."""
+    return {p.relative_to(folder).as_posix(): b"/" if p.is_dir() else p.read_bytes()
+            for p in sorted(folder.rglob("*"))}  # fmt: skip
+
+
+def _unchanged(folder: Path, before: dict[str, bytes], written: Path | None) -> str:
+    """"" when every file of `before` is as it was and nothing new appeared but under the
+    command's own output `written`; the bad outcome otherwise."""
+    after = _snapshot(folder)
+
+    def ours(name: str) -> bool:  # the output, what is in it, or a folder made to hold it
+        where = (folder / name).resolve()
+        return written is not None and (where == written or written in where.parents
+                                        or where in written.parents)
+
+    new = [n for n in after if n not in before and not ours(n)]
+    changed = [n for n, b in before.items() if after.get(n) != b]
+    return "user files moved or changed" if new or changed else ""
+
+
+# -- --scheduler: services that are not a Dask scheduler -------------------------------------------
+SCHEDULER_KINDS = ["garbage", "http", "silent", "close", "refused", "bad-port", "no-port",
+                   "http-scheme", "nonsense"]  # fmt: skip
+
+
+def scheduler_case(seeds: dict[str, Path], work: Path, rng: np.random.Generator, k: int) -> Case:
+    """`fleet` or `experiment` with --scheduler at a loopback service that is not a Dask
+    scheduler (random bytes, an HTTP reply, silence, a hang-up, a closed port) or at a
+    malformed address: one clear error within the time limit."""
+    import socket
+
+    kind = SCHEDULER_KINDS[int(rng.integers(0, len(SCHEDULER_KINDS)))]
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+    address = {"bad-port": "tcp://127.0.0.1:99999", "no-port": "tcp://127.0.0.1",
+               "http-scheme": f"http://127.0.0.1:{port}", "nonsense": "not an address"}.get(
+        kind, f"tcp://127.0.0.1:{port}")  # fmt: skip
+    if kind == "refused":
+        server.close()
+    else:
+        server.listen(8)
+    case_dir = work / f"case{k}"
+    case_dir.mkdir()
+    if rng.random() < 0.8:
+        argv = ["fleet", str(seeds["query.json"]), str(seeds["target.json"]),
+                "--out", str(case_dir / "out")]  # fmt: skip
+    else:
+        argv = ["experiment", "table", "--trials", "1", "--out", str(case_dir / "out")]
+    noise_seed = int(rng.integers(0, 2**31))
+    return Case(f"--scheduler {kind} ({argv[0]})", "fail", [*argv, "--scheduler", address],
+                around=lambda: _service(server, kind, noise_seed))
+
+
+@contextlib.contextmanager
+def _service(server, kind: str, seed: int) -> Iterator[None]:
+    """Answer connections on the listening `server` as `kind` while the block runs."""
+    import threading
+
+    stop = threading.Event()
+    conns: list = []
+
+    def serve() -> None:
+        server.settimeout(0.1)
+        noise = np.random.default_rng(seed).integers(0, 256, 4096, dtype=np.uint8).tobytes()
+        while not stop.is_set():
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                continue
+            conns.append(conn)
+            with contextlib.suppress(OSError):
+                if kind == "garbage":
+                    conn.sendall(noise)
+                elif kind in ("http", "http-scheme"):
+                    conn.sendall(b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n")
+                elif kind == "close":
+                    conn.close()
+
+    thread = threading.Thread(target=serve, daemon=True)
+    if kind not in ("refused", "bad-port", "no-port", "nonsense"):
+        thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        if thread.is_alive():
+            thread.join(5)
+        for c in conns:
+            c.close()
+        server.close()
+
+
+@contextlib.contextmanager
+def case_setting(case: Case) -> Iterator[None]:
+    """Run a case in its working folder, with its service (if any) answering."""
+    here = os.getcwd()
+    with contextlib.ExitStack() as stack:
+        if case.around is not None:
+            stack.enter_context(case.around())
+        if case.cwd is not None:
+            os.chdir(case.cwd)
+            stack.callback(os.chdir, here)
+        yield
+
+
+#: Case families: name -> (case maker(seeds, work, rng, k), weight in a mixed run, what).
+FAMILIES: dict[str, tuple[Callable[..., Case], float, str]] = {
+    "files": (make_case, 0.9, "mutated graph files, bad options, FIFOs, folders"),
+    "out": (out_path_case, 0.06, "--out at the working folder, an input's folder, an input"),
+    "scheduler": (scheduler_case, 0.04, "--scheduler services that are not Dask schedulers"),
+}
+
+
 def run_fuzz(
     cases: int,
     seed: int = 0,
     timeout: float = 20.0,
     progress: bool = False,
     by_kind: Counter | None = None,
+    families: Sequence[str] | None = None,
 ) -> tuple[Counter, list[tuple[str, str, str]]]:
     """Run `cases` fuzz cases; (counts per outcome class, [(case, outcome, detail)] of the bad).
-    `by_kind`, when given, is filled with counts per (input kind, outcome)."""
+    `by_kind`, when given, is filled with counts per (input kind, outcome). `families`: the
+    case families to draw from (FAMILIES; default all), each case's by their weights."""
     import matplotlib
 
     matplotlib.use("Agg")
+    chosen = list(families or FAMILIES)
+    unknown = [f for f in chosen if f not in FAMILIES]
+    if unknown:
+        raise SystemExit(f"unknown families {unknown}; choose from {', '.join(FAMILIES)}")
+    weights = np.array([FAMILIES[f][1] for f in chosen], dtype=float)
+    weights /= weights.sum()
     rng = np.random.default_rng(seed)
     counts: Counter = Counter()
     bad: list[tuple[str, str, str]] = []
@@ -527,9 +698,13 @@ def run_fuzz(
         work = Path(tmp)
         seeds = write_seeds(work / "seeds", seed)
         for k in range(cases):
-            case = make_case(seeds, work, rng, k)
-            rc, _out, err, exc = run_case(case.argv, timeout)
+            family = chosen[int(rng.choice(len(chosen), p=weights))]
+            case = FAMILIES[family][0](seeds, work, rng, k)
+            with case_setting(case):
+                rc, _out, err, exc = run_case(case.argv, timeout)
             outcome = classify(case.expect, rc, err, exc)
+            if outcome not in BAD_OUTCOMES and case.check is not None:
+                outcome = case.check() or outcome
             counts[outcome] += 1
             if by_kind is not None:
                 by_kind[(case_kind(case.name), outcome)] += 1
@@ -543,6 +718,8 @@ def run_fuzz(
 def case_kind(name: str) -> str:
     """The input kind of a case name: the mutated file type and mutation, or the option."""
     words = name.split()
+    if words[0] in ("--out", "--scheduler"):
+        return " ".join(words[:2])
     if words[1] == "option":
         return f"{words[0]} option value"
     if words[0] == "build-graph":
@@ -586,10 +763,14 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--timeout", type=float, default=20.0, help="seconds before a case is a hang")
     ap.add_argument("--update-docs", action="store_true", help="write docs/robustness.md's table")
+    ap.add_argument("--family", action="append", choices=list(FAMILIES), metavar="NAME",
+                    help="run only this case family (repeatable): " + "; ".join(
+                        f"{k}: {FAMILIES[k][2]}" for k in FAMILIES))
     args = ap.parse_args()
     t0 = time.perf_counter()
     by_kind: Counter = Counter()
-    counts, bad = run_fuzz(args.cases, args.seed, args.timeout, progress=True, by_kind=by_kind)
+    counts, bad = run_fuzz(args.cases, args.seed, args.timeout, progress=True, by_kind=by_kind,
+                           families=args.family)
     elapsed = time.perf_counter() - t0
     print(table(counts))
     print()

@@ -19,7 +19,8 @@ def test_example_out_folder_holds_every_form_of_one_transform(tmp_path, capsys):
     assert main(["localize", "--example", "--out", str(out)]) == 0
     names = {p.name for p in out.iterdir()}
     assert names == {"result.json", "config.yaml", "T_target_query.txt",
-                     "T_target_query_kitti.txt", "T_target_query_tum.txt", "aligned_maps.png"}
+                     "T_target_query_kitti.txt", "T_target_query_tum.txt", "aligned_maps.png",
+                     ".sgloc-results.json"}  # the manifest: what sgloc wrote here
     text = (out / "result.json").read_text()
     res = json.loads(text)
     assert res["success"] and len(text.splitlines()) < 40  # compact: a matrix row a line

@@ -93,7 +93,8 @@ def test_from_csv_refuses_trial_options_it_would_ignore(tmp_path, capsys):
             "--workers", "1", "--out", str(out)]  # fmt: skip
     assert main([*base, "--trials", "1"]) == 0
     capsys.readouterr()
-    again = ["experiment", "table", "--from-csv", str(out / "trials.csv"), "--out", str(out)]
+    again = ["experiment", "table", "--from-csv", str(out / "trials.csv"), "--out",
+             str(tmp_path / "again")]  # a new folder: `out` holds the input trials.csv
     assert main([*again, "--trials", "50"]) == 2
     assert "--trials: --from-csv runs no trials (its trials.csv holds 1 per setting" in _err(capsys)
     assert main(again) == 0

@@ -4,6 +4,7 @@ layout and from a bag; every output file; robots never overwrite each other's fi
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -50,7 +51,7 @@ def test_replay_writes_every_output(replayed, world):
     assert any(",link_accepted,world0;world1," in e for e in events)
     joined_at = summary["robots"]["world1"]["joined_stamp"]
     assert any(e.startswith(f"{joined_at},robot_joined,world1,") for e in events)
-    assert not list(replayed.glob(".out.tmp-*"))  # the temporary folder is gone
+    assert sorted(os.listdir(replayed)) == ["out", "run"]  # no staging folder, no lock file
 
 
 def test_replayed_fleet_frame_is_right(replayed, world):
@@ -145,12 +146,14 @@ def test_oracle_join_stamps(world):
     assert robot_error(right, G["world0"], G["world1"], np.ones((3, 3))) == pytest.approx((0, 0))
 
 
-def test_out_bag_must_be_new(replayed, tmp_path, capsys):
+def test_out_bag_over_the_users_files_is_refused(replayed, tmp_path, capsys):
     (tmp_path / "taken").mkdir()
+    (tmp_path / "taken" / "mine.txt").write_text("x")
     rc = main(["replay", str(replayed / "run"), "--out", str(tmp_path / "o"), "--out-bag",
                str(tmp_path / "taken")])
-    assert rc == 2 and "exists already" in capsys.readouterr().err
+    assert rc == 2 and "sgloc did not write" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()  # refused before replaying
+    assert os.listdir(tmp_path / "taken") == ["mine.txt"]
 
 
 def test_a_join_is_judged_at_the_objects_the_robot_had_when_it_joined(world, tmp_path):

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from sgloc.errors import DatasetError, SglocError
+from sgloc.errors import DatasetError, OutputPathError, SglocError
 from sgloc.io.keyframes import format_stamp, make_robot_log, parse_stamp
 from sgloc.io.plain_layout import read_plain_layout, write_plain_layout
 from sgloc.optional import MissingExtraError
@@ -79,7 +79,10 @@ def test_fleet_bag_round_trip(tmp_path):
     assert [(s, r) for s, r, _ in back] == [(s, r) for s, r, _ in msgs]
     for (_, _, T), (_, _, U) in zip(msgs, back, strict=True):
         np.testing.assert_allclose(U, T, atol=1e-12)
-    with pytest.raises(DatasetError, match="exists already"):
+    write_fleet_bag(tmp_path / "fleet", msgs[:2])  # an earlier bag of sgloc: replaced
+    assert len(read_fleet_bag(tmp_path / "fleet")) == 2
+    (tmp_path / "fleet" / "mine.txt").write_text("x")
+    with pytest.raises(OutputPathError, match="mine.txt"):
         write_fleet_bag(tmp_path / "fleet", msgs)
 
 

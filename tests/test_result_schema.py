@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from sgloc.cli import main
-from sgloc.errors import SglocError
-from sgloc.io.files import staged_folder, write_text_atomic
-from sgloc.io.results import SCHEMA, summary
+from sgloc.errors import OutputPathError, SglocError
+from sgloc.io.files import MANIFEST, staged_folder, write_text_atomic
+from sgloc.io.results import SCHEMA, is_result_document, summary
 
 COMMON = ["schema", "success", "reason", "confidence", "T_target_query", "covariance",
           "n_candidates", "n_survivors", "n_matches", "timings_ms", "query", "target",
@@ -77,18 +77,28 @@ def test_too_long_path_is_named(tmp_path, capsys):
     assert len(err) == 1 and "xxxx" in err[0] and "shorter" in err[0]
 
 
-def test_existing_folder_is_replaced_whole_or_kept(tmp_path):
+def test_an_earlier_results_folder_is_replaced_whole_or_kept(tmp_path):
     out = tmp_path / "res"
-    out.mkdir()
-    (out / "old.txt").write_text("kept")
+    with staged_folder(out) as stage:
+        (stage / "old.txt").write_text("kept")
     with pytest.raises(SglocError, match="new.txt"):
         with staged_folder(out) as stage:
             (stage / "new.txt").write_text("half")
             raise OSError(errno.ENOSPC, "No space left on device")
-    assert sorted(os.listdir(out)) == ["old.txt"] and len(os.listdir(tmp_path)) == 1
+    assert sorted(os.listdir(out)) == [MANIFEST, "old.txt"] and len(os.listdir(tmp_path)) == 1
     with staged_folder(out) as stage:
         (stage / "new.txt").write_text("whole")
-    assert sorted(os.listdir(out)) == ["new.txt", "old.txt"] and len(os.listdir(tmp_path)) == 1
+    assert sorted(os.listdir(out)) == [MANIFEST, "new.txt"] and len(os.listdir(tmp_path)) == 1
+
+
+def test_a_folder_of_files_sgloc_did_not_write_is_never_replaced(tmp_path):
+    out = tmp_path / "res"
+    out.mkdir()
+    (out / "old.txt").write_text("mine")
+    with pytest.raises(OutputPathError, match="did not write"):
+        with staged_folder(out) as stage:
+            (stage / "new.txt").write_text("whole")
+    assert os.listdir(out) == ["old.txt"] and os.listdir(tmp_path) == ["res"]
 
 
 def test_out_naming_a_file_is_a_clear_error(tmp_path, capsys):
@@ -100,11 +110,16 @@ def test_out_naming_a_file_is_a_clear_error(tmp_path, capsys):
 
 def test_json_file_written_atomically(tmp_path, monkeypatch):
     p = tmp_path / "a.json"
-    p.write_text("before")
+    p.write_text('{"schema": "sgloc.result/1"}')  # an earlier result: sgloc may replace it
     monkeypatch.setattr(os, "replace", lambda *a: (_ for _ in ()).throw(OSError(errno.EIO, "I/O")))
     with pytest.raises(SglocError, match="a.json: cannot write"):
-        write_text_atomic(p, "after")
-    assert p.read_text() == "before" and os.listdir(tmp_path) == ["a.json"]
+        write_text_atomic(p, "after", ours=is_result_document)
+    assert p.read_text() == '{"schema": "sgloc.result/1"}' and os.listdir(tmp_path) == ["a.json"]
+    monkeypatch.undo()
+    write_text_atomic(p, "after", ours=is_result_document)
+    assert p.read_text() == "after"
+    with pytest.raises(OutputPathError, match="not written by sgloc"):
+        write_text_atomic(p, "again", ours=is_result_document)  # "after" is no result document
 
 
 def test_experiment_folder_appears_complete_or_not_at_all(tmp_path, monkeypatch, capsys):

@@ -29,3 +29,8 @@ class DatasetError(SglocError):
 
 class TooManyMatchesError(SglocError):
     """More matches than the pairwise consistency pass can hold in memory."""
+
+
+class OutputPathError(SglocError):
+    """An output path sgloc may not write: it holds the working folder, an input or files sgloc
+    did not write, or another run is writing it."""

@@ -5,6 +5,9 @@ Trials (`sgloc.evaluation.trials`) and a fleet's pairwise localizations run thro
 from __future__ import annotations
 
 import os
+import socket
+import struct
+import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import as_completed
 from typing import Any, TypeVar
@@ -17,6 +20,10 @@ Task = TypeVar("Task")
 Progress = Callable[[int], None]
 #: Seconds to wait for a Dask scheduler to answer.
 SCHEDULER_TIMEOUT_S = 15
+#: Seconds to wait for a TCP connection to the scheduler and for its greeting.
+PROBE_TIMEOUT_S = 4.0
+#: Largest greeting a Dask scheduler sends (bytes; a real one is about 60).
+_MAX_GREETING = 1 << 16
 
 
 def run_all(
@@ -66,6 +73,8 @@ def _run_dask(tasks: list[Any], scheduler: Any, tick: Progress, fn: Callable) ->
     from dask.distributed import as_completed as dask_completed
 
     own = not isinstance(scheduler, Client)
+    if own:
+        check_scheduler(str(scheduler))
     try:
         client = Client(scheduler, timeout=f"{SCHEDULER_TIMEOUT_S}s") if own else scheduler
     except (OSError, TimeoutError, ValueError, TypeError) as e:  # unreachable or malformed
@@ -78,3 +87,77 @@ def _run_dask(tasks: list[Any], scheduler: Any, tick: Progress, fn: Callable) ->
     finally:
         if own:
             client.close()
+
+
+def check_scheduler(address: str, timeout: float | None = None) -> None:
+    """Check that a Dask scheduler answers at the TCP `address` ("tcp://host:port" or
+    "host:port") within `timeout` seconds: it greets every new connection with a short framed
+    message, which is read and checked before the address is handed to Dask (whose client
+    would trust any length a non-Dask service sends, or wait forever for a silent one).
+    SglocError naming the address otherwise. Other schemes (tls://, inproc://) are left to
+    Dask."""
+    hostport = _tcp_host_port(address)
+    if hostport is None:
+        return
+    timeout = PROBE_TIMEOUT_S if timeout is None else timeout
+    deadline = time.monotonic() + timeout
+    fix = ("start one (e.g. `dask scheduler` and `dask worker ADDRESS`) or drop --scheduler to "
+           "run locally.")
+    try:
+        with socket.create_connection(hostport, timeout=timeout) as conn:
+            size = struct.unpack("Q", _read(conn, 8, deadline))[0]
+            if not 16 <= size <= _MAX_GREETING:
+                raise ValueError
+            body = _read(conn, size, deadline)
+    except TimeoutError:
+        raise SglocError(f"the scheduler at {address!r} does not answer like a Dask scheduler "
+                         f"(nothing within {timeout:g} s); check the address, or {fix}") from None
+    except OSError as e:
+        raise SglocError(f"cannot reach the Dask scheduler at {address!r} "
+                         f"({e.strerror or e}); {fix}") from None
+    except (ValueError, struct.error, EOFError):
+        body = None
+    if body is None or not _is_greeting(body):
+        raise SglocError(f"the service at {address!r} is not a Dask scheduler (its first bytes "
+                         f"are not a Dask greeting); check the address and port, or {fix}")
+
+
+def _tcp_host_port(address: str) -> tuple[str, int] | None:
+    """(host, port) of a TCP scheduler address; None for another scheme."""
+    scheme, sep, rest = address.partition("://")
+    if not sep:
+        scheme, rest = "tcp", address
+    if scheme != "tcp":
+        return None
+    host, colon, port = rest.rstrip("/").rpartition(":")
+    if not colon or not port.isdigit() or not 0 < int(port) < 65536 or not host:
+        raise SglocError(f"--scheduler {address!r}: give a Dask scheduler address such as "
+                         "tcp://10.0.0.5:8786.")
+    return host.strip("[]"), int(port)
+
+
+def _read(conn: socket.socket, n: int, deadline: float) -> bytes:
+    """Exactly `n` bytes from `conn` before `deadline`; EOFError if it closes, TimeoutError."""
+    data = bytearray()
+    while len(data) < n:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            raise TimeoutError
+        conn.settimeout(left)
+        chunk = conn.recv(n - len(data))
+        if not chunk:
+            raise EOFError
+        data += chunk
+    return bytes(data)
+
+
+def _is_greeting(body: bytes) -> bool:
+    """True for Dask's framed handshake: a frame count, the frames' lengths adding up to the
+    rest, and a msgpack map naming the pickle protocol."""
+    (count,) = struct.unpack_from("Q", body)
+    if not 1 <= count <= 64 or len(body) < 8 * (1 + count):
+        return False
+    lengths = struct.unpack_from(f"{count}Q", body, 8)
+    if 8 * (1 + count) + sum(lengths) != len(body):
+        return False
+    return b"pickle-protocol" in body and b"compression" in body

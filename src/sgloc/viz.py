@@ -14,6 +14,7 @@ import numpy as np
 from sgloc.classes import CLASS_PALETTE, class_colours
 from sgloc.geometry import apply
 from sgloc.graph import SemanticGraph
+from sgloc.io.files import PNG_SOFTWARE
 
 ROBOT_MARKERS: tuple[str, ...] = ("o", "^", "s", "D", "v", "P", "X", "*")
 
@@ -122,7 +123,7 @@ def plot_aligned_maps(
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, metadata={"Software": PNG_SOFTWARE})
     plt.close(fig)
     return path
 
@@ -182,6 +183,6 @@ def plot_fleet(result, graphs: Sequence, path) -> Path:
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
+    fig.savefig(path, metadata={"Software": PNG_SOFTWARE})
     plt.close(fig)
     return path

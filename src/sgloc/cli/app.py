@@ -2,11 +2,12 @@
 
 Exit codes: 0 localized (or the command did its work); 1 ran correctly but not localized (a valid
 answer: the maps gave too little evidence); 2 bad input or usage (one `error:` line, no
-traceback); 130 interrupted.
+traceback); 130 interrupted (Ctrl-C, SIGINT); 143 terminated (SIGTERM).
 """
 
 from __future__ import annotations
 
+import signal
 import sys
 from importlib.metadata import PackageNotFoundError, version
 
@@ -55,6 +56,34 @@ EXIT_OK = 0
 EXIT_NOT_LOCALIZED = 1
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 143
+
+
+class Interrupted(BaseException):
+    """Ctrl-C (SIGINT) or SIGTERM: raised in the main thread so that every cleanup runs (no
+    half-written output stays). A BaseException but no KeyboardInterrupt, which the command
+    framework would turn into a silent exit code."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def _interrupt(signum, frame) -> None:
+    raise Interrupted(signum)
+
+
+def _interrupted(e: BaseException, before: int) -> int:
+    """Print what an interruption left (one line); return the exit code."""
+    from sgloc.io.files import written
+
+    signum = getattr(e, "signum", signal.SIGINT)
+    done = written()[before:]
+    how = "terminated (SIGTERM)" if signum == signal.SIGTERM else "interrupted (SIGINT)"
+    what = ("nothing was written" if not done
+            else "it had written " + ", ".join(str(p) for p in done) + "; nothing else was")
+    typer.echo(f"{how}; {what}.", err=True)
+    return EXIT_TERMINATED if signum == signal.SIGTERM else EXIT_INTERRUPTED
 
 
 def _package_version() -> str:
@@ -106,12 +135,11 @@ def _is_framework_exception(e: BaseException) -> bool:
     return module.split(".")[0] in {"click", "typer"}
 
 
-def _framework_exit(e: BaseException) -> int:
+def _framework_exit(e: BaseException, before: int = 0) -> int:
     """Print a click/typer exception the one-line way; return its exit code."""
     name = type(e).__name__
-    if name == "Abort":
-        typer.echo("aborted", err=True)
-        return EXIT_INTERRUPTED
+    if name == "Abort":  # click's wrapper of Ctrl-C
+        return _interrupted(e, before)
     if name == "NoArgsIsHelpError":  # bare `sgloc` or `sgloc CMD`: the help is the message
         typer.echo(e.format_message(), err=True)
         return EXIT_USER_ERROR
@@ -144,18 +172,34 @@ def _one_line_summaries(typer_app: typer.Typer) -> None:
             _one_line_summaries(group.typer_instance)
 
 
+def _on_signals(handlers):
+    """Install a handler for SIGINT and SIGTERM (one callable, or a dict by signal as this
+    returns), in the main thread only; return the handlers replaced."""
+    previous = {}
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        handler = handlers.get(signum) if isinstance(handlers, dict) else handlers
+        try:
+            previous[signum] = signal.signal(signum, handler)
+        except (ValueError, TypeError):  # not the main thread, or nothing to restore
+            pass
+    return previous
+
+
 def main(argv: list[str] | None = None) -> int:
     """Console entry point. A user error (SglocError, bad usage) becomes one line on stderr and
     exit 2; "not localized" exits 1; no traceback reaches the user for either."""
+    from sgloc.io.files import written
+
     _one_line_summaries(app)
+    before = len(written())
+    previous = _on_signals(_interrupt)
     try:
         rc = app(args=argv, prog_name="sgloc", standalone_mode=False)
     except SglocError as e:
         typer.echo(f"error: {_one_line(e)}", err=True)
         rc = EXIT_USER_ERROR
-    except KeyboardInterrupt:
-        typer.echo("aborted", err=True)
-        rc = EXIT_INTERRUPTED
+    except (KeyboardInterrupt, Interrupted) as e:
+        rc = _interrupted(e, before)
     except OSError as e:  # the file system refused an input or output path
         where = f"{e.filename}: " if e.filename else ""
         typer.echo(
@@ -165,7 +209,9 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as e:
         if not _is_framework_exception(e):
             raise
-        rc = _framework_exit(e)
+        rc = _framework_exit(e, before)
+    finally:
+        _on_signals(previous)
     rc = int(rc) if isinstance(rc, int) else EXIT_OK
     if argv is None:
         sys.exit(rc)

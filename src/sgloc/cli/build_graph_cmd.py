@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from sgloc.cli.app import app, fail
+from sgloc.cli.outputs import claim_output
 from sgloc.datasets import DATASETS, make_dataset
 from sgloc.extraction import build_graph, extraction_preset
 
@@ -39,10 +40,12 @@ def _loader_options(dataset: str, given: dict) -> dict:
 
 @app.command("build-graph")
 def build_graph_cmd(
+    ctx: typer.Context,
     dataset: str = typer.Argument(..., help=f"Loader name: {' | '.join(sorted(DATASETS))}."),
     path: Path = typer.Argument(..., help="Dataset folder (or run folder with robot folders)."),
     out: Path = typer.Option(
-        ..., "-o", "--out", help="Graph file to write (.pcd .json .npz .ply .csv .txt)."
+        ..., "-o", "--out", help="Graph file to write (.pcd .json .npz .ply .csv .txt); a new "
+        "path: sgloc never writes over an existing file."
     ),
     robot: str | None = typer.Option(
         None, help="Robot folder (airsim) or camera (synthia: Omni_F | Omni_B)."
@@ -91,6 +94,7 @@ def build_graph_cmd(
     config = extraction_preset(preset or dataset).with_overrides(
         **{k: v for k, v in overrides.items() if v is not None}
     )
+    claim_output(ctx, out, [path], folder=False)
     ds = make_dataset(dataset, path, **options)
     console = Console(stderr=True)
     with Progress(
@@ -114,5 +118,9 @@ def build_graph_cmd(
 
 
 def _save(graph, out: Path) -> Path:
-    """Write the graph (every format SemanticGraph.save writes)."""
-    return graph.save(out)
+    """Write the graph (every format SemanticGraph.save writes) through a temporary file."""
+    from sgloc.io.files import staged_file
+
+    with staged_file(out, option="--out") as tmp:
+        graph.save(tmp)
+    return out

@@ -28,8 +28,10 @@ from rich.progress import (
 from rich.table import Table
 
 from sgloc.cli.app import app, fail, not_localized
+from sgloc.cli.outputs import claim_output
 from sgloc.geometry import transform_error
 from sgloc.graph import SemanticGraph
+from sgloc.io.files import is_sgloc_picture, staged_file
 from sgloc.localizer import LocalizationResult, localize
 
 #: Where `sgloc demo` saves its picture unless told otherwise (relative to the current folder).
@@ -57,6 +59,7 @@ def _progress(console: Console) -> Progress:
 
 @app.command("demo")
 def demo_cmd(
+    ctx: typer.Context,
     seed: int = typer.Option(0, min=0, help="Seed of the city, the routes and RANSAC."),
     overlap: float = typer.Option(0.5, help="Fraction of the two robots' routes they share."),
     width: int = typer.Option(320, help="Image width (px); fx = width / 2."),
@@ -75,7 +78,8 @@ def demo_cmd(
         False, help="Localize with the paper's defaults only (no city class weights)."
     ),
     out: Path = typer.Option(
-        DEFAULT_OUT, help="PNG of the aligned maps (its folder is created)."
+        DEFAULT_OUT, help="PNG of the aligned maps (its folder is created; an existing file is "
+        "replaced only if sgloc drew it)."
     ),
     objects_only: bool = typer.Option(
         False, "--objects-only", help="Use the tiny object world (no rendering, instant)."
@@ -95,6 +99,7 @@ def demo_cmd(
     console = Console()
     if not 0.0 <= overlap <= 1.0:
         raise fail(f"--overlap must be in [0, 1], got {overlap}.")
+    claim_output(ctx, out, [cache_dir], folder=False, ours=is_sgloc_picture)
     if objects_only:
         from sgloc.cli.options import localizer_config
 
@@ -154,10 +159,9 @@ def demo_cmd(
         te, re = transform_error(res.transform, T_gt)
         conf = "" if res.confidence is None else f", confidence {res.confidence:.3f}"
         title = f"B placed in A's map: error {te:.2f} m / {re:.2f}°{conf}"
-    path = plot_aligned_maps(
-        target, query, T_plot, res.matches, out, run_dir, res.success, title=title
-    )
-    console.print(f"saved {path}")
+    with staged_file(out, ours=is_sgloc_picture) as tmp:
+        plot_aligned_maps(target, query, T_plot, res.matches, tmp, run_dir, res.success, title)
+    console.print(f"saved {out}")
     if not res.success:
         raise not_localized(res.reason)
 
@@ -228,10 +232,11 @@ def _objects_only(
     res = localize(scene.query, scene.target, descriptor, rejection, seed=seed, config=config)
     _report(console, scene.query, scene.target, res, scene.T_target_query)
     how = "estimated" if res.success else "ground-truth (not localized)"
-    path = plot(
-        scene.target, scene.query, res.transform if res.success else scene.T_target_query,
-        res.matches, out, f"B placed in A's map by the {how} transform",
-    )  # fmt: skip
-    console.print(f"saved {path}")
+    with staged_file(out, ours=is_sgloc_picture) as tmp:
+        plot(
+            scene.target, scene.query, res.transform if res.success else scene.T_target_query,
+            res.matches, tmp, f"B placed in A's map by the {how} transform",
+        )  # fmt: skip
+    console.print(f"saved {out}")
     if not res.success:
         raise not_localized(res.reason)

@@ -11,6 +11,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from sgloc.cli.app import app, fail
 from sgloc.cli.options import config_option, merged_settings, parse_settings, preset_option
+from sgloc.cli.outputs import claim_output
 from sgloc.errors import SglocError
 from sgloc.evaluation.experiments import (
     EXPERIMENTS,
@@ -135,6 +136,8 @@ def experiment_cmd(
     if out is None:
         stamp = time.strftime("%Y%m%d-%H%M%S")
         out = Path("results") / f"{name}-{Path(dataset).name}-{stamp}"
+    given = [p for p in (Path(dataset), config, from_csv) if p is not None and p.exists()]
+    claim_output(ctx, out, given)
     console = Console()
     with Progress(
         TextColumn(f"[bold]{name}[/] on {dataset}: {{task.description}}"),
@@ -149,15 +152,9 @@ def experiment_cmd(
         def progress(done: int, total: int, phase: str = "trials") -> None:
             bar.update(task, completed=done, total=total, description=phase)
 
-        existed = out.exists()
-        try:
-            result = run_experiment(
-                name, dataset, out, opt, workers=workers, scheduler=scheduler, progress=progress
-            )
-        except BaseException:
-            if not existed and out.is_dir() and not any(out.iterdir()):
-                out.rmdir()  # a failed run leaves no empty results folder behind
-            raise
+        result = run_experiment(
+            name, dataset, out, opt, workers=workers, scheduler=scheduler, progress=progress
+        )
     console.print(result.markdown, markup=False, highlight=False, soft_wrap=True)
     console.print(f"results in {result.folder}/: " + ", ".join(p.name for p in result.files))
 

@@ -19,12 +19,14 @@ from sgloc.cli.options import (
     preset_option,
     set_option,
 )
+from sgloc.cli.outputs import claim_output
 from sgloc.fleet import FleetConfig, localize_fleet
 from sgloc.io.names import robot_names
 
 
 @app.command("fleet")
 def fleet_cmd(
+    ctx: typer.Context,
     graphs: list[Path] = typer.Argument(
         ..., help="Two or more robot graphs (.pcd .ply .csv .txt .json .npz)."
     ),
@@ -34,9 +36,9 @@ def fleet_cmd(
         "default: local processes.",
     ),
     out: Path = typer.Option(
-        Path("fleet_out"),
-        help="Folder for merged.json, fleet.json, poses.tum, poses.kitti, poses/, links.g2o, "
-        "config.yaml, fleet.png.",
+        Path("results/fleet"),
+        help="Results folder (new, empty or an earlier one of sgloc) for merged.json, "
+        "fleet.json, poses.tum, poses.kitti, poses/, links.g2o, config.yaml, fleet.png.",
     ),
     root: str | None = typer.Option(
         None,
@@ -64,8 +66,10 @@ def fleet_cmd(
     the robots, and the robots that cannot be placed are reported. Robots are named by their
     file's stem (r1/map.pcd and r2/map.pcd: r1-map and r2-map).
 
-    Example: sgloc fleet a.pcd b.pcd c.json d.npz --out fleet_out --scheduler tcp://10.0.0.5:8786
+    Example: sgloc fleet a.pcd b.pcd c.json d.npz --out results/fleet --scheduler
+    tcp://10.0.0.5:8786
     """
+    claim_output(ctx, out, [*graphs, config, colour_table])
     localizer = localizer_config(preset, config, setting, min_confidence=min_confidence)
     gs = [load_graph(p, edge_radius, label_field, colour_table) for p in graphs]
     cfg = FleetConfig(localizer=localizer, seed=seed)

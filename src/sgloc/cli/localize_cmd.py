@@ -20,9 +20,17 @@ from sgloc.cli.options import (
     preset_option,
     set_option,
 )
-from sgloc.io.files import write_text_atomic
+from sgloc.cli.outputs import claim_output
+from sgloc.io.files import staged_file, write_text_atomic
 from sgloc.io.inputs import check_reader_options
-from sgloc.io.results import FORMATS, compact_json, document, render, write_results
+from sgloc.io.results import (
+    FORMATS,
+    compact_json,
+    document,
+    is_result_document,
+    render,
+    write_results,
+)
 from sgloc.localizer import Localizer
 
 
@@ -95,6 +103,10 @@ def localize_cmd(
         descriptor=descriptor, rejection=rejection, ransac_threshold=ransac_threshold,
     )
     check_reader_options([query, target], label_field, colour_table, class_table)
+    inputs = [query, target, config, colour_table, class_table]
+    claim_output(ctx, out, inputs)
+    claim_output(ctx, json_out, inputs, "--json", folder=False, ours=is_result_document)
+    claim_output(ctx, rerun, inputs, "--rerun", folder=False)
     q = load_graph(query, edge_radius, label_field, colour_table, class_table)
     t = load_graph(target, edge_radius, label_field, colour_table, class_table)
     res = Localizer(cfg)(q, t, seed)
@@ -110,9 +122,11 @@ def localize_cmd(
         from sgloc.io.rerun_file import write_rerun
 
         T = res.transform if res.success else np.eye(4)
-        write_rerun(rerun, t, q, T, res.matches if res.success else np.zeros((0, 2)))
+        with staged_file(rerun, inputs, "--rerun") as tmp:
+            write_rerun(tmp, t, q, T, res.matches if res.success else np.zeros((0, 2)))
     if json_out is not None:
-        write_text_atomic(json_out, compact_json(document(res, full=True, **info)))
+        text = compact_json(document(res, full=True, **info))
+        write_text_atomic(json_out, text, inputs, "--json", ours=is_result_document)
     console = Console(stderr=fmt is not None)
     _report(console, q, t, res, example)
     if out is not None:

@@ -11,10 +11,12 @@ from rich.table import Table
 
 from sgloc.cli.app import app, fail, not_localized
 from sgloc.cli.options import config_option, localizer_config, preset_option, set_option
+from sgloc.cli.outputs import claim_output
 
 
 @app.command("replay")
 def replay_cmd(
+    ctx: typer.Context,
     source: Path | None = typer.Argument(
         None, help="A plain layout folder (one folder per robot: odometry.tum, objects.csv), a "
         "rosbag2 folder or an .mcap/.db3 file."
@@ -30,10 +32,12 @@ def replay_cmd(
                               "the truth (--kitti00): raw (poses_00.txt) or refined (made "
                               "consistent with the refined revisit transforms; needs gtsam)."),
     seed: int = typer.Option(0, min=0, help="City (--city) and session seed."),
-    out: Path = typer.Option(Path("replay_out"), help="Output folder (replaced if it holds an "
-                             "earlier replay)."),
+    out: Path = typer.Option(Path("results/replay"), help="Results folder: a new or empty "
+                             "folder, or an earlier results folder of sgloc (replaced)."),
     out_bag: Path | None = typer.Option(None, help="Also write the fleet frames as "
-                                        "geometry_msgs/TransformStamped into this new ROS 2 bag."),
+                                        "geometry_msgs/TransformStamped into this ROS 2 bag "
+                                        "folder: new, empty, or an earlier bag of sgloc "
+                                        "(replaced)."),
     classes: Path | None = typer.Option(None, help="Class table (`class_id name` lines) for "
                                         "class names in objects.csv or marker namespaces."),
     odom_topic: str | None = typer.Option(None, help="Odometry topic template (default "
@@ -51,7 +55,7 @@ def replay_cmd(
     write the fleet: fleet/<robot>.tum, events.csv, links.g2o, summary.json, timeline.png,
     fleet.png.
 
-    Examples: sgloc replay runs/campus --out replay_out --out-bag replay_bag
+    Examples: sgloc replay runs/campus --out results/campus --out-bag results/campus_bag
     |   sgloc replay --kitti00 --robots 4 --every 2 --poses refined
     |   sgloc replay --city --robots 8
     """
@@ -59,8 +63,9 @@ def replay_cmd(
     from sgloc.replay import replay_logs
     from sgloc.replay.outputs import write_replay
 
-    if out_bag is not None and out_bag.exists():
-        raise fail(f"{out_bag}: exists already; give a new path for --out-bag.")
+    inputs = [source, classes, config]
+    claim_output(ctx, out, inputs)
+    claim_output(ctx, out_bag, inputs, "--out-bag")
     logs, default_preset = _inputs(source, kitti00, city, robots, scans, every, seed, classes,
                                    odom_topic, objects_topic, poses)
     if root is not None and root not in {g.name for g in logs}:
@@ -73,7 +78,7 @@ def replay_cmd(
                   TimeElapsedColumn(), console=console, disable=quiet) as bar:
         task = bar.add_task("keyframes", total=sum(len(g) for g in logs))
         record = replay_logs(logs, session, progress=lambda n: bar.advance(task, n))
-    summary = write_replay(out, logs, session, record)
+    summary = write_replay(out, logs, session, record, inputs)
     if out_bag is not None:
         from sgloc.io.rosbag import write_fleet_bag
 

@@ -17,16 +17,24 @@ MAX_M, MAX_DEG = 3.0, 3.0
 def run_scenario(scenario: Any, out: Path, config: Any = None, online: Any = None) -> dict:
     """Replay `scenario` through a fresh OnlineSession, write the replay folder `out` (plus
     `gt/<stem>.tum`, each robot's ground-truth keyframe poses) and score it."""
+    from sgloc.io.files import staged_folder
+
+    with staged_folder(out) as stage:  # the replay folder and the score, whole or not at all
+        return _run_into(scenario, Path(stage), config, online)
+
+
+def _run_into(scenario: Any, out: Path, config: Any, online: Any) -> dict:
+    """run_scenario's work, written into the existing folder `out`."""
     from sgloc.evaluation.fleet_trajectory import fleet_ape
     from sgloc.io.plain_layout import write_tum_exact
     from sgloc.online import OnlineSession
     from sgloc.replay import replay_logs
     from sgloc.replay.names import robot_file_stems
-    from sgloc.replay.outputs import fleet_poses, write_replay
+    from sgloc.replay.outputs import fleet_poses, write_replay_into
 
     session = OnlineSession(config, online)
     record = replay_logs(scenario.logs, session)
-    summary = write_replay(out, scenario.logs, session, record)
+    summary = write_replay_into(out, scenario.logs, session, record)
     stems = robot_file_stems([g.name for g in scenario.logs])
     T_oracle = oracle_link_frames(session, scenario.T_gt_odom)
     pairs, oracle_pairs = [], []

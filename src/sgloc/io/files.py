@@ -1,18 +1,22 @@
-"""Opening user files safely: only regular files (a FIFO, device or folder is refused before it
-is opened, so nothing blocks), and never more than a size bound into memory."""
+"""Opening user files safely (only regular files: a FIFO, device or folder is refused before it
+is opened, so nothing blocks; never more than a size bound into memory) and writing outputs
+safely (the one writer of results folders and output files: atomic, after the umask, never over
+anything sgloc did not write)."""
 
 from __future__ import annotations
 
 import contextlib
 import errno
+import json
 import os
+import re
 import shutil
 import stat
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
-from sgloc.errors import GraphFileError, SglocError
+from sgloc.errors import GraphFileError, OutputPathError, SglocError
 
 #: Largest graph file read (bytes). A million objects in ASCII PCD is about 60 MB.
 MAX_GRAPH_FILE_BYTES = 512 * 2**20
@@ -60,40 +64,389 @@ def read_regular_file(
     return data
 
 
-@contextlib.contextmanager
-def staged_folder(out: str | Path) -> Iterator[Path]:
-    """Write a results folder atomically: yields an empty sibling folder to write into (holding
-    a copy of `out`'s files when `out` exists), which replaces `out` by a rename once the block
-    ends without error. On an error nothing of it stays and `out` is as before; an OSError
-    becomes an SglocError naming the file (a full disk, a path too long)."""
+# -- outputs: results folders and single files ----------------------------------------------------
+# Every command writes through `staged_folder` or `staged_file`: the output is written beside its
+# place under a hidden name carrying the writer's pid, then renamed into place, so it appears
+# complete or not at all. An output only ever replaces what sgloc wrote: a results folder is
+# marked by MANIFEST, which lists every entry sgloc wrote in it.
+
+#: The file that marks a results folder as sgloc's; it lists what sgloc wrote in the folder.
+MANIFEST = ".sgloc-results.json"
+#: The manifest's schema name.
+MANIFEST_SCHEMA = "sgloc.results-folder/1"
+#: Hidden names of this writer beside an output: staging, set aside, lock (`.NAME.KIND-PID-x`).
+_SIDE = re.compile(r"^\.(?P<name>.+)\.(?:partial|old|tmp)-(?P<pid>\d+)(?:-[^/]*)?$")
+
+
+def check_output_path(
+    out: str | Path, inputs: Sequence[str | Path | None] = (), option: str = "--out",
+    folder: bool = True, ours: Callable[[Path], bool] | None = None,
+) -> Path:
+    """Return `out` if sgloc may write it: a results folder (`folder`) or a single file that does
+    not exist, an empty folder, or an earlier output of sgloc (a folder holding only what its
+    MANIFEST lists; a file `ours(path)` recognises). OutputPathError (naming `out`, what it
+    holds and the fix) when it is the working folder or holds it, the home or root folder, an
+    input or a folder holding one, or anything else that exists."""
     out = Path(out)
-    stage: Path | None = None
+    fix = f"give a new path for {option}, such as results/NAME"
+    where = _real(out)
+    if where == Path(where.anchor) or where == _home():
+        raise OutputPathError(f"{out}: is the {'root' if where == Path(where.anchor) else 'home'}"
+                              f" folder; sgloc never writes over it; {fix}.")
+    if _real(Path.cwd()).is_relative_to(where):
+        raise OutputPathError(f"{out}: is the working folder or holds it; sgloc never replaces "
+                              f"a folder you work in; {fix}.")
+    for given in (p for p in inputs if p is not None):
+        src = _real(Path(given))
+        if src == where or src.is_relative_to(where):
+            what = "is the input" if src == where else "holds the input"
+            raise OutputPathError(f"{out}: {what} {given}; sgloc never writes over its inputs; "
+                                  f"{fix}.")
+    if os.path.islink(out):
+        raise OutputPathError(f"{out}: is a symbolic link; give the path it points to or {fix}.")
+    if folder:
+        _replaceable_folder(out, option)
+    elif _is(out, stat.S_ISDIR):
+        raise OutputPathError(f"{out}: is a folder; {option} takes a file path.")
+    elif _is(out, lambda mode: True) and not (ours is not None and ours(out)):
+        raise OutputPathError(f"{out}: exists and was not written by sgloc; give a new path for "
+                              f"{option} or move the file away first.")
+    return out
+
+
+def _is(path: Path, kind: Callable[[int], bool]) -> bool:
+    """True if `path` exists and its mode is of `kind`; SglocError when it cannot be looked at."""
     try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        stage = Path(tempfile.mkdtemp(prefix=f".{out.name[:100]}.partial-", dir=out.parent))
-        if out.is_dir():
-            shutil.copytree(out, stage, dirs_exist_ok=True)
-        elif out.exists():
-            raise SglocError(f"{out}: exists and is not a folder; give a results folder path.")
-        yield stage
-        _replace_folder(stage, out)
-        stage = None
+        return bool(kind(os.stat(path).st_mode))
+    except FileNotFoundError:
+        return False
     except OSError as e:
-        raise SglocError(_write_error(e, stage, out)) from None
-    finally:
-        if stage is not None:
-            shutil.rmtree(stage, ignore_errors=True)
+        raise SglocError(f"{path}: cannot write ({e.strerror or e}); {_hint(e)}") from None
 
 
-def _replace_folder(stage: Path, out: Path) -> None:
-    """Rename `stage` to `out`; an existing `out` is moved aside first and removed after."""
-    if not out.exists():
-        os.rename(stage, out)
+def _home() -> Path | None:
+    try:
+        return _real(Path.home())
+    except (RuntimeError, KeyError):  # no home folder known
+        return None
+
+
+def _real(path: Path) -> Path:
+    """`path` absolute with every symbolic link resolved (`..` after a link as the OS does)."""
+    return Path(os.path.realpath(path))
+
+
+def _replaceable_folder(out: Path, option: str) -> str:
+    """'absent', 'empty' or 'ours' (an earlier results folder); OutputPathError otherwise."""
+    try:
+        mode = os.stat(out).st_mode
+    except FileNotFoundError:
+        return "absent"
+    except OSError as e:
+        raise SglocError(f"{out}: cannot write ({e.strerror or e}); {_hint(e)}") from None
+    if not stat.S_ISDIR(mode):
+        raise OutputPathError(f"{out}: exists and is not a folder; give a results folder path "
+                              f"for {option}.")
+    try:
+        entries = sorted(_entries(out))
+    except OSError as e:
+        raise OutputPathError(f"{out}: cannot list ({e.strerror}); {_hint(e)}") from None
+    if not entries:
+        return "empty"
+    listed = _manifest(out)
+    if listed is None:
+        raise OutputPathError(f"{out}: holds files sgloc did not write (e.g. {entries[0]}); "
+                              f"give a new or empty folder for {option}.")
+    extra = [e for e in entries if e not in listed]
+    if extra:
+        raise OutputPathError(f"{out}: an earlier results folder that now also holds {extra[0]}, "
+                              f"which sgloc did not write; move it away or give a new folder "
+                              f"for {option}.")
+    return "ours"
+
+
+def _entries(folder: Path) -> Iterator[str]:
+    """Every entry under `folder` but the manifest, relative, folders with a trailing '/'."""
+    for dirpath, dirnames, filenames in os.walk(folder):
+        rel = Path(dirpath).relative_to(folder)
+        for d in list(dirnames):
+            if os.path.islink(os.path.join(dirpath, d)):  # never walk into a link
+                dirnames.remove(d)
+                filenames.append(d)
+        yield from ((rel / d).as_posix() + "/" for d in dirnames)
+        yield from ((rel / f).as_posix() for f in filenames if (rel / f).as_posix() != MANIFEST)
+
+
+def _manifest(folder: Path) -> set[str] | None:
+    """The entries listed by `folder`'s manifest; None when it has none (or not sgloc's)."""
+    try:
+        data = json.loads((folder / MANIFEST).read_text())
+        if data.get("schema") == MANIFEST_SCHEMA:
+            return {str(e) for e in data["files"]}
+    except (OSError, ValueError, TypeError, KeyError, AttributeError):
+        pass
+    return None
+
+
+@contextlib.contextmanager
+def claimed_output(out: str | Path, option: str = "--out") -> Iterator[Path]:
+    """Hold `out`'s lock (a hidden `.NAME.lock` file beside it, removed at the end) for the
+    block: another run claiming the same path meanwhile is refused at once (OutputPathError).
+    Leftovers of writers to `out` whose process is gone are removed first. Nested claims of
+    one path in one process share the lock."""
+    out = Path(out)
+    key = str(_real(out))
+    if key in _HELD:
+        _HELD[key] += 1
+        try:
+            yield out
+        finally:
+            _HELD[key] -= 1
         return
-    old = Path(tempfile.mkdtemp(prefix=f".{out.name[:100]}.old-", dir=out.parent))
-    os.rename(out, old / out.name)
-    os.rename(stage, out)
-    shutil.rmtree(old, ignore_errors=True)
+    created = _make_parents(out.parent)
+    try:
+        fd, lock = _lock(out, option)
+    except BaseException:
+        _remove_empty(created)
+        raise
+    _HELD[key] = 1
+    try:
+        _remove_stale(out)
+        yield out
+    finally:
+        del _HELD[key]
+        lock.unlink(missing_ok=True)
+        os.close(fd)
+        _remove_empty(created)
+
+
+#: The outputs this process holds the lock of (real path -> nesting depth).
+_HELD: dict[str, int] = {}
+
+
+def _lock(out: Path, option: str) -> tuple[int, Path]:
+    """(open file, path) of `out`'s lock file, locked; OutputPathError when another run has
+    it. A lock file removed by its last holder between our open and lock is opened again.
+    Without fcntl (Windows) the file is made but not locked."""
+    try:
+        import fcntl
+    except ImportError:
+        fcntl = None
+    lock = out.parent / f".{out.name[:100]}.lock"
+    for _ in range(5):
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+        except OSError as e:
+            raise SglocError(f"{out}: cannot write ({e.strerror or e}); {_hint(e)}") from None
+        try:
+            if fcntl is not None:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            raise OutputPathError(f"{out}: another sgloc run is writing it now; wait for that "
+                                  f"run to end or give another path for {option}.") from None
+        with contextlib.suppress(OSError):
+            if os.stat(lock).st_ino == os.fstat(fd).st_ino:
+                return fd, lock
+        os.close(fd)
+    raise OutputPathError(f"{out}: other sgloc runs keep writing it; give another {option}.")
+
+
+def _make_parents(folder: Path) -> list[Path]:
+    """Create `folder` and its missing parents; the ones created, deepest first."""
+    missing = []
+    for p in [folder, *folder.parents]:
+        if p.exists():
+            break
+        missing.append(p)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise SglocError(
+            f"{folder}: cannot make the folder ({e.strerror or e}); {_hint(e)}"
+        ) from None
+    return missing
+
+
+def _remove_empty(folders: list[Path]) -> None:
+    """Remove the folders (deepest first) a failed write created, where they are still empty."""
+    for p in folders:
+        with contextlib.suppress(OSError):
+            p.rmdir()
+
+
+def _remove_stale(out: Path) -> None:
+    """Remove the hidden staging / set-aside folders and files of earlier writers of `out`
+    whose process is gone (killed before it could clean up)."""
+    with contextlib.suppress(OSError):
+        for entry in out.parent.iterdir():
+            m = _SIDE.match(entry.name)
+            if m and m["name"] == out.name[:100] and not _alive(int(m["pid"])):
+                if entry.is_dir() and not entry.is_symlink():
+                    shutil.rmtree(entry, ignore_errors=True)
+                else:
+                    entry.unlink(missing_ok=True)
+
+
+def _alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # another user's process: alive
+        return True
+    return True
+
+
+def _umask_mode(mode: int) -> int:
+    """`mode` with the process's umask applied (what a plain mkdir / open would give)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mode & ~mask
+
+
+@contextlib.contextmanager
+def staged_folder(
+    out: str | Path, inputs: Sequence[str | Path | None] = (), option: str = "--out"
+) -> Iterator[Path]:
+    """Write the results folder `out` atomically: yields an empty hidden sibling folder to write
+    into, which becomes `out` (with a MANIFEST listing its entries, permissions after the
+    umask) once the block ends without error. `out` may be absent, an empty folder or an
+    earlier results folder of sgloc; anything else is refused before the block runs
+    (`check_output_path`). On an error or interruption nothing of the block's writing stays and
+    `out` is as before; an OSError becomes an SglocError naming the file."""
+    out = Path(out)
+    check_output_path(out, inputs, option)
+    with claimed_output(out, option):
+        stage = None
+        try:
+            stage = Path(tempfile.mkdtemp(prefix=f".{out.name[:100]}.partial-{os.getpid()}-",
+                                          dir=out.parent))
+            yield stage
+            with _signals_held():
+                _commit(stage, out, option)
+            stage = None
+        except OSError as e:
+            raise SglocError(_write_error(e, stage, out)) from None
+        finally:
+            if stage is not None:
+                shutil.rmtree(stage, ignore_errors=True)
+        written(out)
+
+
+def _commit(stage: Path, out: Path, option: str) -> None:
+    """List the stage's entries in its manifest, then move it into place: renamed to `out`
+    (an earlier results folder is set aside first and removed after), or its entries moved
+    into `out` when that is an existing empty folder."""
+    entries = sorted(_entries(stage))
+    manifest = {"schema": MANIFEST_SCHEMA, "written_by": "sgloc", "files": entries}
+    (stage / MANIFEST).write_text(json.dumps(manifest, indent=1) + "\n")
+    os.chmod(stage, _umask_mode(0o777))
+    state = _replaceable_folder(out, option)  # again, under the lock: it may have changed
+    if state == "absent":
+        os.rename(stage, out)
+    elif state == "empty":  # written into, keeping the folder the user made; the manifest
+        os.rename(stage / MANIFEST, out / MANIFEST)  # first, so a part is still sgloc's
+        for name in sorted(os.listdir(stage)):
+            os.rename(stage / name, out / name)
+        stage.rmdir()
+    else:
+        aside = Path(tempfile.mkdtemp(prefix=f".{out.name[:100]}.old-{os.getpid()}-",
+                                      dir=out.parent))
+        os.rename(out, aside / out.name)
+        try:
+            os.rename(stage, out)
+        except OSError:
+            os.rename(aside / out.name, out)
+            raise
+        finally:
+            shutil.rmtree(aside, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def _signals_held() -> Iterator[None]:
+    """SIGINT / SIGTERM wait for the end of the block (a few renames), so that an output is
+    moved into place whole or not at all."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held = {signal.SIGINT, signal.SIGTERM}
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+@contextlib.contextmanager
+def staged_file(
+    path: str | Path, inputs: Sequence[str | Path | None] = (), option: str = "--out",
+    ours: Callable[[Path], bool] | None = None,
+) -> Iterator[Path]:
+    """Write the single file `path` atomically: yields a hidden sibling path (same suffix) to
+    write, renamed to `path` (permissions after the umask) once the block ends without error.
+    An existing `path` is replaced only when `ours(path)` says sgloc wrote it
+    (`check_output_path`); an OSError becomes an SglocError naming `path`."""
+    path = Path(path)
+    check_output_path(path, inputs, option, folder=False, ours=ours)
+    with claimed_output(path, option):
+        fd, name = tempfile.mkstemp(prefix=f".{path.name[:100]}.partial-{os.getpid()}-",
+                                    suffix=path.suffix, dir=path.parent)
+        os.close(fd)
+        tmp: Path | None = Path(name)
+        try:
+            yield tmp
+            os.chmod(tmp, _umask_mode(0o666))
+            check_output_path(path, (), option, folder=False, ours=ours)
+            os.replace(tmp, path)
+            tmp = None
+        except OSError as e:
+            raise SglocError(f"{path}: cannot write ({e.strerror or e}); " + _hint(e)) from None
+        finally:
+            if tmp is not None:
+                tmp.unlink(missing_ok=True)
+        written(path)
+
+
+def write_text_atomic(
+    path: str | Path, text: str, inputs: Sequence[str | Path | None] = (), option: str = "--json",
+    ours: Callable[[Path], bool] | None = None,
+) -> Path:
+    """Write `text` to the single file `path` through `staged_file`: the file holds the whole
+    text or is as before."""
+    with staged_file(path, inputs, option, ours) as tmp:
+        tmp.write_text(text)
+    return Path(path)
+
+
+#: The `Software` text of the PNG pictures sgloc draws (`is_sgloc_picture` tells them apart).
+PNG_SOFTWARE = "sgloc"
+
+
+def is_sgloc_picture(path: Path) -> bool:
+    """True if `path` is a PNG picture sgloc drew (its `Software` text chunk says sgloc)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(1 << 16)
+    except OSError:
+        return False
+    return head[:8] == b"\x89PNG\r\n\x1a\n" and b"tEXtSoftware\x00" + PNG_SOFTWARE.encode() in head
+
+
+#: The outputs this process has moved into place (for the interruption message).
+_WRITTEN: list[Path] = []
+
+
+def written(path: Path | None = None) -> list[Path]:
+    """Record `path` as an output moved into place; the outputs recorded so far."""
+    if path is not None:
+        _WRITTEN.append(Path(path))
+    return list(_WRITTEN)
 
 
 def _write_error(e: OSError, stage: Path | None, out: Path) -> str:
@@ -117,26 +470,6 @@ def _hint(e: OSError) -> str:
         errno.EACCES: "choose a folder you may write to.",
         errno.EROFS: "choose a writable folder.",
     }.get(e.errno, "check the results path.")
-
-
-def write_text_atomic(path: str | Path, text: str) -> Path:
-    """Write `text` to `path` through a temporary sibling file and a rename: the file holds
-    the whole text or is as before; an OSError becomes an SglocError naming `path`."""
-    path = Path(path)
-    tmp = None
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name[:100]}.", suffix=".tmp", dir=path.parent)
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-        tmp = None
-    except OSError as e:
-        raise SglocError(f"{path}: cannot write ({e.strerror or e}); " + _hint(e)) from None
-    finally:
-        if tmp is not None:
-            Path(tmp).unlink(missing_ok=True)
-    return path
 
 
 @contextlib.contextmanager

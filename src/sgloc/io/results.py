@@ -29,6 +29,17 @@ FILES = {
 SCHEMA = "sgloc.result/1"
 
 
+def is_result_document(path: Path) -> bool:
+    """True if `path` holds a JSON result document sgloc wrote (`--json FILE`): it may be
+    replaced by the next one."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4096).decode("utf-8", "replace")
+    except OSError:
+        return False
+    return re.match(r'\{\s*"schema":\s*"sgloc\.result/', head) is not None
+
+
 def _array(a: Any, decimals: int | None = None) -> list | None:
     if a is None:
         return None

@@ -18,9 +18,8 @@ is the robot name):
 
 from __future__ import annotations
 
+import os
 import re
-import shutil
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -29,6 +28,7 @@ import numpy as np
 
 from sgloc.errors import DatasetError
 from sgloc.io.class_names import resolve_class
+from sgloc.io.files import staged_folder
 from sgloc.io.keyframes import RobotLog, make_robot_log
 from sgloc.optional import require
 
@@ -236,20 +236,13 @@ def write_fleet_bag(
     topic: str = FLEET_TOPIC,
 ) -> Path:
     """Write (stamp ns, robot, T_fleet_odom (4,4)) as geometry_msgs/TransformStamped on `topic`
-    (frame `fleet` -> `{robot}/odom`) into a new ROS 2 bag folder (mcap storage)."""
+    (frame `fleet` -> `{robot}/odom`) into a ROS 2 bag folder (mcap storage): a new path, an empty
+folder or an earlier bag of sgloc (`sgloc.io.files.staged_folder`)."""
     rosbag2, _, ts = _rosbags()
-    path = Path(path)
-    if path.exists():
-        raise DatasetError(f"{path}: exists already; give a new path for the output bag.")
-    # Written in a temporary sibling folder under its final name, then moved: never half a bag.
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
-    try:
-        _write_transforms(rosbag2, ts, tmp / path.name, transforms, topic)
-        (tmp / path.name).rename(path)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    return path
+    with staged_folder(path, option="--out-bag") as stage:  # a whole bag or none
+        os.rmdir(stage)  # the bag writer makes its folder itself
+        _write_transforms(rosbag2, ts, stage, transforms, topic)
+    return Path(path)
 
 
 def _write_transforms(rosbag2, ts, path: Path, transforms, topic: str) -> None:

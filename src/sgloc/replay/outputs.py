@@ -1,4 +1,4 @@
-"""The replay output folder, written atomically (a temporary sibling folder renamed at the end).
+"""The replay output folder, written atomically (`sgloc.io.files.staged_folder`).
 
     fleet/<robot>.tum   each PLACED robot's keyframe poses in the fleet frame (real stamps)
     events.csv          stamp,kind,robots,detail (robots joined by `;`)
@@ -12,15 +12,13 @@ from __future__ import annotations
 
 import csv
 import json
-import os
-import shutil
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from sgloc.errors import SglocError
+from sgloc.io.files import staged_folder
 from sgloc.io.keyframes import RobotLog, format_stamp
 from sgloc.io.plain_layout import write_tum_exact
 from sgloc.replay.names import robot_file_stems
@@ -91,26 +89,20 @@ def write_events(path: Path, events: Sequence[Any]) -> Path:
 
 
 def write_replay(out: str | Path, logs: Sequence[RobotLog], session: Any,
-                 record: ReplayRecord) -> dict[str, Any]:
-    """Write the output folder `out` (replacing an earlier replay output there); returns the
-    summary. SglocError if `out` is a non-empty folder that is not a replay output."""
-    out = Path(out)
-    foreign = out.is_dir() and any(out.iterdir()) and not (out / SUMMARY).is_file()
-    if out.exists() and (not out.is_dir() or foreign):
-        raise SglocError(f"{out}: exists and is not a replay output; give a new folder for --out.")
-    tmp = out.parent / f".{out.name}.tmp-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    try:
-        _write_all(tmp, logs, session, record)
-        summary = json.loads((tmp / SUMMARY).read_text())
-        old = out.parent / f".{out.name}.old-{os.getpid()}"
-        if out.exists():
-            out.rename(old)
-        tmp.rename(out)
-        shutil.rmtree(old, ignore_errors=True)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+                 record: ReplayRecord, inputs: Sequence[str | Path | None] = ()) -> dict[str, Any]:
+    """Write the output folder `out` atomically (`sgloc.io.files.staged_folder`: new, empty or
+    an earlier results folder of sgloc, never one holding `inputs` or other files); returns
+    the summary."""
+    with staged_folder(out, inputs) as stage:
+        summary = write_replay_into(stage, logs, session, record)
     return summary
+
+
+def write_replay_into(folder: Path, logs: Sequence[RobotLog], session: Any,
+                      record: ReplayRecord) -> dict[str, Any]:
+    """write_replay's files, written into the existing folder `folder`; returns the summary."""
+    _write_all(folder, logs, session, record)
+    return json.loads((folder / SUMMARY).read_text())
 
 
 def _write_all(tmp: Path, logs: Sequence[RobotLog], session: Any, record: ReplayRecord) -> None:
