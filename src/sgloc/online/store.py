@@ -5,6 +5,7 @@ document with everything else. A loaded file is checked by the rules `add_keyfra
 from __future__ import annotations
 
 import json
+import struct
 import zipfile
 import zlib
 from pathlib import Path
@@ -43,7 +44,9 @@ def load_session(cls, path: str | Path):
             arrays = {k: z[k] for k in z.files if k != "meta"}
             meta = json.loads(str(z["meta"]))
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error,
-            UnicodeDecodeError) as e:
+            struct.error, NotImplementedError, RuntimeError, OverflowError) as e:
+        # A damaged archive: zipfile raises NotImplementedError for a mangled compression
+        # method, RuntimeError for a flipped "encrypted" flag, struct.error for a short header.
         raise SessionFileError(
             f"{p}: not a saved online session, or a truncated one ({type(e).__name__}: "
             f"{str(e)[:80]}); give a file written by OnlineSession.save."
