@@ -77,7 +77,7 @@ def test_robots_on_the_same_path_stay_visible_in_the_fleet_picture():
     fig.canvas.draw()
     rgba = np.asarray(fig.canvas.buffer_rgba())
     for c in robot_colours(5):  # each robot's own colour shows on the shared path
-        assert _pixels_of(rgba, c) > 150
+        assert _pixels_of(rgba, c) > 100  # a hidden path leaves only its legend entry (~20)
 
 
 def test_a_small_scan_in_a_large_map_gets_a_zoomed_inset(tmp_path):

@@ -188,7 +188,10 @@ def check_keyframe(
                 f"{where}: the robot's map would exceed {MAX_VERTICES:,} objects; split the "
                 "run into several robots or drop small detections."
             )
-        n_classes = len(np.union1d(map_labels, lab))
+        # Ids below MAX_CLASSES cannot name more classes than that: no count needed.
+        small = lab.max() < MAX_CLASSES and (len(map_labels) == 0
+                                             or map_labels.max() < MAX_CLASSES)
+        n_classes = 0 if small else len(np.union1d(map_labels, lab))
         if n_classes > MAX_CLASSES:
             raise InvalidKeyframeError(
                 f"{where}: the robot's map would hold {n_classes} distinct classes, more than "

@@ -29,10 +29,10 @@ def robot_colours(n: int) -> list[Any]:
 
 def path_widths(n: int) -> list[float]:
     """Line widths (points) of n robots' paths drawn in order: each narrower than the one
-    before by up to 2 points, so that a path drawn over an earlier one (robots driving the same
+    before by up to 1.5 points, so that a path drawn over an earlier one (robots driving the same
     street) leaves the earlier one showing along both its sides."""
-    step = min(2.0, 10.0 / max(n - 1, 1))
-    return [1.6 + step * (n - 1 - k) for k in range(n)]
+    step = min(1.5, 9.0 / max(n - 1, 1))
+    return [1.4 + step * (n - 1 - k) for k in range(n)]
 
 
 def timeline_figure(logs: Sequence[RobotLog], events: Sequence[Any]) -> Any:
