@@ -715,6 +715,346 @@ def run_fuzz(
     return counts, bad
 
 
+# -- the online session through the Python API -----------------------------------------------
+# Hostile keyframes, links and save files fed to `OnlineSession` directly (no command line). A
+# refused call must raise an SglocError and change nothing; whatever one call did, every robot's
+# next good keyframe must still be taken; a damaged save file must be one SglocError naming it.
+SESSION_BAD = (
+    "traceback",
+    "hang",
+    "bad input accepted",
+    "valid input refused",
+    "refused call changed the session",
+    "session poisoned",
+)
+
+
+@dataclass
+class SessionCase:
+    """One hostile call: `call(session)` on a fresh copy of the base session (for a save file,
+    `call(None)` loads it and returns the session)."""
+
+    name: str
+    expect: str  # "fail" | "either" | "valid"
+    call: Callable
+
+
+def _session_base(folder: Path, seed: int = 0) -> tuple[Path, list[tuple], list[tuple]]:
+    """A saved session halfway through a two-robot replay, every robot's next keyframe
+    (robot, stamp, T_odom_sensor, positions, labels) after it (what the cases spoil), and every
+    robot's keyframe after that one (what must still be taken after any case)."""
+    from sgloc.evaluation.replay_scenarios import world_scenario
+    from sgloc.online import OnlineConfig, OnlineSession
+    from sgloc.replay.stream import keyframe_order
+
+    logs = world_scenario(stretches=((0.0, 120.0), (60.0, 180.0)), seed=seed).logs
+    obs = [list(g.observations()) for g in logs]
+    frames = [(logs[r].name, float(logs[r].stamps[k]), logs[r].poses[k], *obs[r][k][1:])
+              for r, k in keyframe_order(logs)]
+    s = OnlineSession(online=OnlineConfig(seed=seed, max_attempts=1))
+    half = len(frames) // 2
+    for f in frames[:half]:
+        s.add_keyframe(*f)
+    nxt: dict[str, list[tuple]] = {}
+    for f in frames[half:]:
+        nxt.setdefault(f[0], []).append(f)
+    return (s.save(folder / "base.npz"), [v[0] for v in nxt.values()],
+            [v[1] for v in nxt.values()])
+
+
+def _not_rigid(rng: np.random.Generator) -> tuple[str, np.ndarray]:
+    T = np.eye(4)
+    kind = str(rng.choice(["scaled", "mirrored", "zero", "sheared", "bottom row", "nan",
+                           "far", "shape"]))
+    if kind == "scaled":
+        T[:3, :3] *= rng.choice([2.0, 0.5, 1.001, -1.0])
+    elif kind == "mirrored":
+        T[int(rng.integers(0, 3)), int(rng.integers(0, 3))] = -1.0
+    elif kind == "zero":
+        T[:3, :3] = 0.0
+    elif kind == "sheared":
+        T[0, 1] = rng.uniform(0.01, 1.0)
+    elif kind == "bottom row":
+        T[3, int(rng.integers(0, 3))] = 1.0
+    elif kind == "nan":
+        T[int(rng.integers(0, 4)), int(rng.integers(0, 4))] = rng.choice([np.nan, np.inf])
+    elif kind == "far":
+        T[0, 3] = rng.choice([1e8, -1e12, 1e300])
+    else:
+        return kind, np.eye(3) if rng.random() < 0.5 else np.eye(4).ravel()
+    return kind, T
+
+
+def hostile_keyframe(rng: np.random.Generator, good: tuple, robots: list[str]) -> SessionCase:
+    """One part of a robot's next good keyframe made bad (or a valid variant of it)."""
+    robot, stamp, T, pos, lab = good
+    part = str(rng.choice(["stamp", "pose", "positions", "labels", "robot", "valid"]))
+    pos, lab = np.array(pos), np.array(lab)
+    expect = "fail"
+    if part == "stamp":
+        what, stamp = [("nan", np.nan), ("inf", np.inf), ("1e30", 1e30), ("text", "soon"),
+                       ("None", None), ("repeat", -1.0), ("backwards", stamp - 1e3),
+                       ("ns in the seconds column", stamp * 1e9 + 1e19)][int(rng.integers(0, 8))]
+        if what == "repeat":
+            stamp = None  # filled below with the robot's last stamp
+    elif part == "pose":
+        what, T = _not_rigid(rng)
+    elif part == "positions":
+        what = str(rng.choice(["nan", "1e8", "beyond after the pose", "shape", "text"]))
+        if what == "nan" and len(pos):
+            pos[int(rng.integers(0, len(pos))), 0] = np.nan
+        elif what == "1e8" and len(pos):
+            pos[0, 2] = 1e8
+        elif what == "beyond after the pose":
+            T = np.eye(4)
+            T[0, 3] = 9.99e6
+            pos = np.abs(pos) + [1e5, 0.0, 0.0]  # within the limit in the sensor frame
+        elif what == "shape":
+            pos = pos[:, :2]
+        else:
+            pos = np.array([["a", "b", "c"]] * max(len(pos), 1))
+        expect = "fail" if len(pos) or what in ("shape", "text") else "either"
+    elif part == "labels":
+        what = str(rng.choice(["negative", "fraction", "huge", "length", "many classes"]))
+        if what == "many classes":
+            pos = rng.uniform(-30, 30, (80, 3))
+            lab = np.arange(80) + 1000
+        elif len(lab) == 0:
+            expect = "either"
+        elif what == "negative":
+            lab[0] = -1
+        elif what == "fraction":
+            lab = lab + 0.5
+        elif what == "huge":
+            lab[0] = 2**40
+        else:
+            lab = lab[:-1]
+    elif part == "robot":
+        what, robot = [("empty", ""), ("None", None), ("number", 5)][int(rng.integers(0, 3))]
+    else:
+        what = str(rng.choice(["as is", "new robot", "float32 pose", "no detections"]))
+        expect = "valid"
+        if what == "new robot":
+            robot = f"newcomer{int(rng.integers(0, 9))}"
+        elif what == "float32 pose":
+            T = np.array(T, np.float32).astype(np.float64)
+        elif what == "no detections":
+            pos, lab = np.zeros((0, 3)), np.zeros(0, np.int64)
+
+    def call(session, robot=robot, stamp=stamp, T=T, pos=pos, lab=lab):
+        if stamp is None and what == "repeat":
+            stamp = float(session.keyframes(robot)[0][-1])
+        return session.add_keyframe(robot, stamp, T, pos, lab)
+
+    return SessionCase(f"session keyframe {part} {what}", expect, call)
+
+
+def hostile_link(rng: np.random.Generator, good: tuple, robots: list[str]) -> SessionCase:
+    """An add_link call with one bad argument (or a valid link)."""
+    a, b = robots[0], robots[1]
+    T, cov, conf, stamp = np.eye(4), np.eye(6) * 1e-3, 0.9, None
+    part = str(rng.choice(["robots", "pose", "covariance", "confidence", "stamp", "valid"]))
+    expect = "fail"
+    if part == "robots":
+        what, (a, b) = [("same robot", (a, a)), ("unknown robot", (a, "nobody")),
+                        ("not a name", (a, 3))][int(rng.integers(0, 3))]
+    elif part == "pose":
+        what, T = _not_rigid(rng)
+    elif part == "covariance":
+        what = str(rng.choice(["nan", "negative", "asymmetric", "1e300", "shape", "text"]))
+        cov = {"nan": np.full((6, 6), np.nan), "negative": -np.eye(6),
+               "asymmetric": np.eye(6) + np.triu(np.ones((6, 6)), 1), "1e300": np.eye(6) * 1e300,
+               "shape": np.eye(3), "text": "small"}[what]
+    elif part == "confidence":
+        what = str(rng.choice(["nan", "-1", "2", "text"]))
+        conf = {"nan": np.nan, "-1": -1.0, "2": 2.0, "text": "high"}[what]
+    elif part == "stamp":
+        what = str(rng.choice(["nan", "1e30", "text"]))
+        stamp = {"nan": np.nan, "1e30": 1e30, "text": "now"}[what]
+    else:
+        what, expect = str(rng.choice(["identity", "far", "zero covariance"])), "valid"
+        if what == "far":
+            T[:3, 3] = rng.uniform(-500, 500, 3)
+        elif what == "zero covariance":
+            cov = np.zeros((6, 6))
+
+    def call(session):
+        return session.add_link(a, b, T, cov, conf, stamp)
+
+    return SessionCase(f"session link {part} {what}", expect, call)
+
+
+def _meta_edit(raw_path: Path, out: Path, rng: np.random.Generator) -> tuple[str, str]:
+    """A saved session with its JSON document or arrays edited; (what, expect)."""
+    import json as _json
+
+    with np.load(raw_path) as z:
+        arrays = {k: z[k] for k in z.files}
+    meta = _json.loads(str(arrays.pop("meta")))
+    what = str(rng.choice(["robots shortened", "robots renamed twice", "robots not names",
+                           "link robot index", "link scaled", "stamps backwards",
+                           "pose scaled", "placed out of range", "no links key",
+                           "format", "detail text", "counts zero"]))
+    expect = "fail"
+    if what == "robots shortened":
+        meta["robots"] = meta["robots"][:1]
+    elif what == "robots renamed twice":
+        meta["robots"] = [meta["robots"][0]] * len(meta["robots"])
+    elif what == "robots not names":
+        meta["robots"] = list(range(len(meta["robots"])))
+    elif what == "link robot index" and meta["links"]:
+        meta["links"][0][1] = 9
+    elif what == "link scaled" and meta["links"]:
+        meta["links"][0][2]["T_a_b"][0][0] = 2.0
+    elif what == "stamps backwards":
+        arrays["map0_stamps"] = arrays["map0_stamps"][::-1].copy()
+    elif what == "pose scaled":
+        arrays["map1_poses"] = arrays["map1_poses"] * 3.0
+    elif what == "placed out of range":
+        meta["placed"] = [0, 7]
+    elif what == "no links key":
+        meta.pop("links")
+    elif what == "format":
+        meta["format"] = "sgloc-online-session-99"
+    elif what == "counts zero":
+        arrays["map0_counts"] = np.zeros_like(arrays["map0_counts"])
+    else:
+        expect = "valid"
+        for e in meta["events"]:
+            e["detail"] = e["detail"] + " (edited)"
+    if expect == "fail" and what.startswith("link") and not meta["links"]:
+        expect = "valid"
+    np.savez(out, meta=np.array(_json.dumps(meta)), **arrays)
+    return what, expect
+
+
+def hostile_save(rng: np.random.Generator, base: Path, folder: Path) -> SessionCase:
+    """The base session's file truncated, flipped or edited."""
+    out = folder / "edited.npz"
+    raw = base.read_bytes()
+    part = str(rng.choice(["truncate", "flip", "edit", "edit"]))
+    if part == "truncate":
+        out.write_bytes(raw[: int(rng.integers(0, len(raw) - 1))])
+        what, expect = "truncate", "fail"
+    elif part == "flip":
+        data = bytearray(raw)
+        for _ in range(int(rng.integers(1, 4))):
+            data[int(rng.integers(0, len(data)))] ^= int(rng.integers(1, 256))
+        out.write_bytes(bytes(data))
+        what, expect = "flip", "either"
+    else:
+        what, expect = _meta_edit(base, out, rng)
+
+    def call(_session):
+        from sgloc.online import OnlineSession
+
+        return OnlineSession.load(out)
+
+    return SessionCase(f"session file {part} {what}", expect, call)
+
+
+SESSION_FAMILIES: dict[str, Callable] = {
+    "keyframe": hostile_keyframe,
+    "link": hostile_link,
+}
+
+
+def _timed(fn: Callable, timeout: float) -> tuple[object, str]:
+    """(fn()'s value, '' | 'SglocError' | 'hang' | the exception class name)."""
+    from sgloc.errors import SglocError
+
+    def on_alarm(signum, frame):
+        raise CaseTimeout
+
+    previous = signal.signal(signal.SIGALRM, on_alarm)
+    signal.setitimer(signal.ITIMER_REAL, timeout)
+    try:
+        return fn(), ""
+    except CaseTimeout:
+        return None, "hang"
+    except SglocError as e:
+        return e, "SglocError"
+    except BaseException as e:  # noqa: BLE001 - classifying every escape is the point
+        return e, type(e).__name__
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def _session_text(session) -> str:
+    meta, arrays = session.to_state()
+    return json.dumps(meta, sort_keys=True) + repr(sorted((k, v.tobytes())
+                                                          for k, v in arrays.items()))
+
+
+def run_session_case(case: SessionCase, base: Path, good: list[tuple],
+                     timeout: float) -> tuple[str, str]:
+    """(outcome, detail) of one hostile call on a fresh copy of the base session, followed by
+    the good keyframes `good` (one per robot), which must all be taken."""
+    from sgloc.online import OnlineSession
+
+    is_file = case.name.startswith("session file")
+    session = None if is_file else OnlineSession.load(base)
+    before = "" if is_file else _session_text(session)
+    value, exc = _timed(lambda: case.call(session), timeout)
+    if exc not in ("", "SglocError"):
+        return ("hang" if exc == "hang" else "traceback"), f"{exc}: {str(value)[:200]}"
+    if exc == "SglocError":
+        if case.expect == "valid":
+            return "valid input refused", str(value)[:200]
+        if not is_file and _session_text(session) != before:
+            return "refused call changed the session", str(value)[:200]
+        if is_file and not str(value).startswith(str(base.parent / "edited.npz")):
+            return "traceback", f"error does not name the file: {str(value)[:200]}"
+        outcome = "clean error"
+    else:
+        if case.expect == "fail":
+            return "bad input accepted", case.name
+        outcome = "accepted"
+        session = value if is_file else session
+    if session is None:
+        return outcome, ""
+    for f in good:
+        _, exc = _timed(lambda f=f: session.add_keyframe(*f), timeout)
+        if exc:
+            return "session poisoned", f"{f[0]}'s next keyframe: {exc}"
+    return outcome, ""
+
+
+def run_session_fuzz(
+    cases: int, seed: int = 0, timeout: float = 20.0, by_kind: Counter | None = None
+) -> tuple[Counter, list[tuple[str, str, str]]]:
+    """Run `cases` hostile keyframes, links and save files through the Python API; (counts
+    per outcome, [(case, outcome, detail)] of the bad ones)."""
+    rng = np.random.default_rng([seed, 28])
+    counts: Counter = Counter()
+    bad: list[tuple[str, str, str]] = []
+    with tempfile.TemporaryDirectory(prefix="sgloc-fuzz-session-") as tmp:
+        base, good, after = _session_base(Path(tmp), seed)
+        robots = [g[0] for g in good]
+        for _ in range(cases):
+            family = str(rng.choice([*SESSION_FAMILIES, "save file"]))
+            if family == "save file":
+                case = hostile_save(rng, base, Path(tmp))
+            else:
+                target = good[int(rng.integers(0, len(good)))]
+                case = SESSION_FAMILIES[family](rng, target, robots)
+            outcome, detail = run_session_case(case, base, after, timeout)
+            counts[outcome] += 1
+            if by_kind is not None:
+                by_kind[(" ".join(case.name.split()[:3]), outcome)] += 1
+            if outcome in SESSION_BAD:
+                bad.append((case.name, outcome, detail))
+    return counts, bad
+
+
+def session_table(counts: Counter) -> str:
+    rows = ["| outcome (Python API) | cases |", "|---|---|"]
+    for name in ("clean error", "accepted", *SESSION_BAD):
+        rows.append(f"| {name} | {counts.get(name, 0):,} |")
+    return "\n".join(rows)
+
+
 def case_kind(name: str) -> str:
     """The input kind of a case name: the mutated file type and mutation, or the option."""
     words = name.split()
@@ -762,6 +1102,8 @@ def main() -> int:
     ap.add_argument("--cases", type=int, default=5000)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--timeout", type=float, default=20.0, help="seconds before a case is a hang")
+    ap.add_argument("--session-cases", type=int, default=400,
+                    help="hostile keyframes, links and save files through the Python API")
     ap.add_argument("--update-docs", action="store_true", help="write docs/robustness.md's table")
     ap.add_argument("--family", action="append", choices=list(FAMILIES), metavar="NAME",
                     help="run only this case family (repeatable): " + "; ".join(
@@ -776,6 +1118,11 @@ def main() -> int:
     print()
     print(kind_table(by_kind))
     print(f"\n{args.cases} cases, seed {args.seed}, {elapsed:.0f} s")
+    session_counts, session_bad = run_session_fuzz(args.session_cases, args.seed, args.timeout)
+    print()
+    print(session_table(session_counts))
+    print(f"\n{args.session_cases} Python API cases (keyframes, links, save files)")
+    bad += session_bad
     for name, outcome, detail in bad[:30]:
         print(f"BAD {outcome}: {name}: {detail}")
     if args.update_docs:

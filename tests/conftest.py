@@ -3,7 +3,8 @@
 Guo's Airsim maps ship with the package, so tests using them always run. Tests needing the
 downloaded KITTI 00 set carry the `data` marker (added here to every test using the `data_dir`
 or `kitti_dir` fixture) and skip, naming `sgloc data fetch kitti00`, when it is absent. With
-`SGLOC_REQUIRE_DATA=1` (as in CI, where the data is always there) such a test fails instead."""
+`SGLOC_REQUIRE_DATA=1` (as in CI, where the data is always there) such a test fails instead.
+Every run caches into a temporary folder ($SGLOC_CACHE set here), never the user's."""
 
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ import numpy as np
 import pytest
 
 from sgloc import SemanticGraph
-from sgloc.downloads import airsim_guo, dataset, dataset_dir, is_complete
+from sgloc.downloads import ENV_CACHE, airsim_guo, dataset, dataset_dir, is_complete
 
 #: Fixtures that need a downloaded data set; tests using them get the `data` marker.
 DATA_FIXTURES = {"data_dir", "kitti_dir"}
@@ -44,12 +45,29 @@ def benchmark_module() -> Callable[..., ModuleType]:
     return _load_benchmark
 
 
+#: The temporary cache folder of this test run (`pytest_configure`).
+_CACHE: list[Path] = []
+
+
 def pytest_configure(config: pytest.Config) -> None:
+    # Caches (rendered synthetic runs, extracted graphs) go to a temporary folder removed at the
+    # end, never into the user's cache folder; subprocesses (the docs' commands) inherit it.
+    import tempfile
+
+    _CACHE.append(Path(tempfile.mkdtemp(prefix="sgloc-test-cache-")))
+    os.environ[ENV_CACHE] = str(_CACHE[0])
     config.addinivalue_line(
         "markers",
         "data(name='kitti00'): needs a downloaded data set (`sgloc data fetch NAME`); skips when "
         "it is absent, fails then if SGLOC_REQUIRE_DATA is set",
     )
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    import shutil
+
+    for folder in _CACHE:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:

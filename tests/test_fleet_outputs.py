@@ -128,3 +128,21 @@ def test_negative_workers_are_refused(tmp_path, capsys):
              for i, g in enumerate(world_fleet(0).graphs[:2])]
     assert main(["fleet", *paths, "--workers", "-1"]) == 2
     assert "--workers" in capsys.readouterr().err
+
+
+def _documented_keys() -> set[str]:
+    """The keys the tables of docs/fleet_outputs.md name (first column, in backticks)."""
+    import re
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "fleet_outputs.md").read_text()
+    cells = re.findall(r"^\| ([^|]+) \|", doc, flags=re.M)
+    return {k for c in cells for k in re.findall(r"`([a-z_]+)`", c)}
+
+
+def test_fleet_json_is_versioned_and_every_key_documented(fleet4):
+    _, _, out = fleet4
+    info = json.loads((out / "fleet.json").read_text())
+    assert info["schema"] == "sgloc.fleet/1"
+    keys = set(info) | {k for lk in info["links"] for k in lk}
+    assert keys <= _documented_keys(), keys - _documented_keys()

@@ -45,3 +45,10 @@ def test_a_hang_is_caught_by_the_time_limit(monkeypatch, fuzz):
     monkeypatch.setattr(sgloc.cli, "main", lambda argv: time.sleep(5))
     rc, _out, _err, exc = fuzz.run_case(["localize"], timeout=0.2)
     assert rc is None and exc == "hang"
+
+
+def test_hostile_keyframes_links_and_save_files_through_the_python_api(fuzz):
+    counts, bad = fuzz.run_session_fuzz(cases=80, seed=11, timeout=20.0)
+    assert bad == []
+    assert sum(counts.values()) == 80
+    assert counts["clean error"] > 40 and counts["accepted"] > 3

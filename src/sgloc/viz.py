@@ -115,6 +115,9 @@ def plot_aligned_maps(
         ax.set_title("B placed in A's map", fontsize=9)
     if routes is not None:
         handles += _draw_routes(ax, routes, T_target_query)
+    box = scan_zoom(t, q)
+    if box is not None:
+        _zoom_inset(ax, box, t, q, target, query)
     handles += class_legend_handles(np.concatenate([target.labels, query.labels]), class_names)
     ax.legend(handles=handles, fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0),
               borderaxespad=0.0, frameon=False)
@@ -126,6 +129,40 @@ def plot_aligned_maps(
     fig.savefig(path, dpi=110, metadata={"Software": PNG_SOFTWARE})
     plt.close(fig)
     return path
+
+
+#: The placed query gets a zoomed inset when its extent is below this fraction of the panel's.
+ZOOM_FRACTION = 0.15
+
+
+def scan_zoom(t: np.ndarray, q: np.ndarray) -> tuple[float, float, float, float] | None:
+    """(x0, x1, y0, y1), metres: a square around the placed query's objects `q` (n,3) when they
+    cover less than ZOOM_FRACTION of the panel spanned with the target's `t` (a small scan in a
+    large map, lost at the panel's scale); None when they are large enough to see."""
+    if len(q) == 0 or len(t) == 0:
+        return None
+    both = np.concatenate([t[:, :2], q[:, :2]])
+    panel = float(np.ptp(both, axis=0).max())
+    lo, hi = q[:, :2].min(axis=0), q[:, :2].max(axis=0)
+    side = max(float((hi - lo).max()) * 1.3, 10.0)
+    if side >= ZOOM_FRACTION * panel:
+        return None
+    cx, cy = (lo + hi) / 2
+    return cx - side / 2, cx + side / 2, cy - side / 2, cy + side / 2
+
+
+def _zoom_inset(ax, box, t: np.ndarray, q: np.ndarray, target: SemanticGraph,
+                query: SemanticGraph) -> None:
+    """An inset in `ax`'s upper right showing both maps within `box` (x0, x1, y0, y1),
+    its place marked on the panel."""
+    inset = ax.inset_axes([0.62, 0.62, 0.36, 0.36])
+    _draw_maps(inset, t, q, target, query)
+    inset.set_xlim(box[0], box[1])
+    inset.set_ylim(box[2], box[3])
+    inset.set_aspect("equal", adjustable="box")
+    inset.tick_params(labelsize=6)
+    inset.set_title(f"B's area, {box[1] - box[0]:.0f} m across", fontsize=7)
+    ax.indicate_inset_zoom(inset, edgecolor="0.3")
 
 
 def _matches_panel(side, t: np.ndarray, target: SemanticGraph, query: SemanticGraph,
@@ -164,12 +201,16 @@ def plot_fleet(result, graphs: Sequence, path) -> Path:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7.5, 6), dpi=100)
-    for i in result.placed:
+    n = len(result.placed)
+    for k, i in enumerate(result.placed):
         p = apply(result.T_world_robot[i], graphs[i].positions)
         root = " (world frame)" if i == result.root else ""
-        ax.scatter(p[:, 0], p[:, 1], s=9, color=CLASS_PALETTE[i % len(CLASS_PALETTE)],
-                   marker=ROBOT_MARKERS[i % len(ROBOT_MARKERS)], alpha=0.75,
-                   label=f"{result.names[i]}{root}")
+        # Hollow markers, smaller for each robot drawn later: where two robots mapped the same
+        # objects, both stay visible (one inside the other).
+        ax.scatter(p[:, 0], p[:, 1], s=10 + 34 * (n - 1 - k) / max(n - 1, 1),
+                   facecolors="none", edgecolors=CLASS_PALETTE[i % len(CLASS_PALETTE)],
+                   marker=ROBOT_MARKERS[i % len(ROBOT_MARKERS)], linewidths=0.9,
+                   label=f"{result.names[i]}{root}", zorder=2 + k)
     if result.merged is not None and len(result.merged):
         ax.scatter(*result.merged.positions[:, :2].T, s=20, facecolors="none", edgecolors="k",
                    linewidths=0.3, label=f"merged map, {len(result.merged)} objects")

@@ -118,6 +118,18 @@ def fail(message: str) -> typer.Exit:
     return typer.Exit(EXIT_USER_ERROR)
 
 
+def compile_note() -> str:
+    """A note that the times shown include compiling the numba kernels on first use (once per
+    install; later runs load them from the cache); the empty string when nothing compiled."""
+    from sgloc.kernels import compile_seconds
+
+    wall = compile_seconds()[0]
+    if wall < 0.05:
+        return ""
+    return (f"(the times include {wall:.1f} s compiling the numba kernels on first use; later "
+            "runs load them from the cache)")
+
+
 def not_localized(message: str) -> typer.Exit:
     """Print `not localized: message` to stderr; return the Exit to raise (code 1)."""
     typer.echo(f"not localized: {_one_line(message)}", err=True)

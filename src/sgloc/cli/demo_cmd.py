@@ -27,7 +27,7 @@ from rich.progress import (
 )
 from rich.table import Table
 
-from sgloc.cli.app import app, fail, not_localized
+from sgloc.cli.app import app, compile_note, fail, not_localized
 from sgloc.cli.outputs import claim_output
 from sgloc.geometry import transform_error
 from sgloc.graph import SemanticGraph
@@ -183,7 +183,7 @@ def _report(console, query, target, res: LocalizationResult, T_gt: np.ndarray) -
         f"{len(res.candidates)} candidates, {len(res.survivors)} after rejection, "
         f"{len(res.matches)} final",
     )
-    table.add_row("time", f"{res.timings['total'] * 1e3:.1f} ms")
+    table.add_row("time", f"{res.timings['total'] * 1e3:.1f} ms {compile_note()}".rstrip())
     if res.success:
         te, re = transform_error(res.transform, T_gt)
         table.add_row("error vs ground truth", f"translation {te:.2f} m, rotation {re:.2f} deg")

@@ -9,7 +9,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from sgloc.cli.app import app, not_localized
+from sgloc.cli.app import app, compile_note, not_localized
 from sgloc.cli.options import (
     CLASSES_HELP,
     COLOURS_HELP,
@@ -147,6 +147,8 @@ def _report(console: Console, q, t, res, example: bool) -> None:
     for k, v in res.timings.items():
         table.add_row(k, f"{v * 1e3:.2f}")
     console.print(table)
+    if note := compile_note():
+        console.print(note)
     if res.success:
         conf = "n/a" if res.confidence is None else f"{res.confidence:.4f}"
         with np.printoptions(precision=4, suppress=True):

@@ -131,6 +131,9 @@ def _print(console: Console, summary: dict, out: Path, out_bag: Path | None) -> 
                       "yes" if r["placed"] else "NO",
                       f"{lat['median_ms']:.2f} / {lat['p99_ms']:.1f} / {lat['max_ms']:.1f}")
     console.print(table)
+    for name, r in summary["robots"].items():
+        if not r["placed"]:
+            console.print(f"{name} not placed: {r['unplaced_reason']}.")
     ev = summary["events"]
     console.print(f"{summary['placed']} of {len(summary['robots'])} robots placed in the frame of "
                   f"{summary['root']}; {ev['link_accepted']} links accepted, "

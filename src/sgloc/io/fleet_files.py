@@ -10,6 +10,10 @@ import numpy as np
 from sgloc.io.g2o import write_g2o
 from sgloc.io.poses import write_kitti_poses, write_tum_poses
 
+#: Version of fleet.json (docs/fleet_outputs.md lists its keys); a change of meaning of any key
+#: gets a new number.
+SCHEMA = "sgloc.fleet/1"
+
 
 def write_fleet_poses(result, folder: str | Path) -> list[Path]:
     """Each placed robot's pose T_world_robot as TUM and KITTI files (for evo and friends):
@@ -38,13 +42,15 @@ def write_fleet_g2o(result, path: str | Path) -> Path:
 
 
 def write_fleet_outputs(result, localizer_config, folder: str | Path) -> list[Path]:
-    """merged.json, fleet.json, poses.tum/.kitti, poses/<robot>.*, links.g2o, config.yaml."""
+    """merged.json, fleet.json (`{"schema": SCHEMA, **result.to_dict()}`), poses.tum/.kitti,
+    poses/<robot>.*, links.g2o, config.yaml."""
     d = Path(folder)
     d.mkdir(parents=True, exist_ok=True)
     files = []
     if result.merged is not None:
         files.append(result.merged.save(d / "merged.json"))
-    (d / "fleet.json").write_text(json.dumps(result.to_dict(), indent=1))
+    doc = {"schema": SCHEMA, **result.to_dict()}
+    (d / "fleet.json").write_text(json.dumps(doc, indent=1))
     files.append(d / "fleet.json")
     files += write_fleet_poses(result, d)
     files.append(write_fleet_g2o(result, d / "links.g2o"))

@@ -15,6 +15,7 @@ from decimal import Decimal, InvalidOperation
 import numpy as np
 
 from sgloc.errors import DatasetError
+from sgloc.keyframe_checks import check_increasing, check_quaternions
 
 
 @dataclass(frozen=True)
@@ -84,16 +85,11 @@ def make_robot_log(
     quat = np.asarray(quat, dtype=np.float64).reshape(-1, 4)
     if len(stamps_ns) == 0:
         raise DatasetError(f"{where}: no keyframes; give at least one odometry pose.")
-    if np.any(np.diff(stamps_ns) <= 0):
-        k = int(np.flatnonzero(np.diff(stamps_ns) <= 0)[0]) + 1
-        raise DatasetError(
-            f"{where}: keyframe {k + 1} (stamp {format_stamp(stamps_ns[k])}) does not come after "
-            "the one before; give keyframes in increasing stamp order, one pose per stamp."
-        )
-    if not (np.all(np.isfinite(xyz)) and np.all(np.isfinite(quat))):
+    # The same stamp and pose rules as the online session's (sgloc.keyframe_checks).
+    check_increasing(where, stamps_ns, format_stamp, DatasetError)
+    if not np.all(np.isfinite(xyz)):
         raise DatasetError(f"{where}: NaN or infinite odometry values; fix or drop those poses.")
-    if np.any(np.linalg.norm(quat, axis=1) < 1e-9):
-        raise DatasetError(f"{where}: a zero quaternion; give unit quaternions qx qy qz qw.")
+    check_quaternions(where, quat, DatasetError)
     keyframe = np.asarray(keyframe, dtype=np.int64).reshape(-1)
     order = np.argsort(keyframe, kind="stable")
     return RobotLog(

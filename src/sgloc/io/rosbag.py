@@ -236,8 +236,9 @@ def write_fleet_bag(
     topic: str = FLEET_TOPIC,
 ) -> Path:
     """Write (stamp ns, robot, T_fleet_odom (4,4)) as geometry_msgs/TransformStamped on `topic`
-    (frame `fleet` -> `{robot}/odom`) into a ROS 2 bag folder (mcap storage): a new path, an empty
-folder or an earlier bag of sgloc (`sgloc.io.files.staged_folder`)."""
+    (frame `fleet` -> `{robot}/odom`) into a ROS 2 bag folder (mcap storage), by stamp: a new
+    path, an empty folder or an earlier bag of sgloc (`sgloc.io.files.staged_folder`); of several
+    transforms of one robot at one stamp only the last given is written."""
     rosbag2, _, ts = _rosbags()
     with staged_folder(path, option="--out-bag") as stage:  # a whole bag or none
         os.rmdir(stage)  # the bag writer makes its folder itself
@@ -249,9 +250,12 @@ def _write_transforms(rosbag2, ts, path: Path, transforms, topic: str) -> None:
     from scipy.spatial.transform import Rotation
 
     t = ts.types
+    latest = {}  # one message per child frame and stamp: the last one given wins
+    for ns, robot, T in transforms:
+        latest[(int(ns), robot)] = T
     with _open_writer(rosbag2, path) as w:
         conn = w.add_connection(topic, TRANSFORM, typestore=ts)
-        for ns, robot, T in sorted(transforms, key=lambda x: (x[0], x[1])):
+        for (ns, robot), T in sorted(latest.items(), key=lambda x: x[0]):
             q = Rotation.from_matrix(np.asarray(T)[:3, :3]).as_quat()
             msg = t[TRANSFORM](
                 header=_header(ts, ns, FLEET_FRAME),

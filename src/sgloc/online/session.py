@@ -12,6 +12,7 @@ from sgloc.config import LocalizerConfig
 from sgloc.errors import SglocError
 from sgloc.geometry import invert
 from sgloc.graph import SemanticGraph
+from sgloc.keyframe_checks import check_keyframe, check_link, check_stamp
 from sgloc.online.attempts import run_tasks
 from sgloc.online.config import OnlineConfig
 from sgloc.online.consistency import (
@@ -132,19 +133,17 @@ class OnlineSession:
         Returns the events this update caused."""
         if not isinstance(robot, str) or not robot:
             raise SglocError(f"robot must be a non-empty name, got {robot!r}.")
-        try:
-            stamp = float(stamp)
-        except (TypeError, ValueError):
-            stamp = math.nan
-        if not math.isfinite(stamp):
-            raise SglocError(f"robot {robot!r}: the keyframe stamp must be a finite number of "
-                             "seconds.")
+        # Everything is checked before anything is stored: a refused call changes nothing.
+        m = self._maps.get(robot)
+        stamp, T, pos, lab = check_keyframe(
+            f"robot {robot!r}", stamp, m.stamps[-1] if m is not None and m.stamps else None,
+            T_odom_sensor, positions, labels, None if m is None else m.builder.labels)
         n_events = len(self.events)
-        if robot not in self._maps:
+        if m is None:
             o = self.online
-            self._maps[robot] = RobotMap(robot, o.association_radius, o.min_observations,
-                                         o.edge_radius)
-        self._maps[robot].add(stamp, T_odom_sensor, positions, labels)
+            m = RobotMap(robot, o.association_radius, o.min_observations, o.edge_radius)
+        m.add(stamp, T, pos, lab)
+        self._maps[robot] = m
         if robot == self.root and robot not in self._T:
             self._refresh(stamp)
         if self.online.max_attempts != 0:
@@ -187,7 +186,7 @@ class OnlineSession:
         """Attempt the pairs due under the growth rule (growth_ratio, growth_objects), only
         those with robot index `robot` when given, then refit the links due under the same
         rule (at most `max_attempts` of each; None: all)."""
-        stamp = float(stamp) if stamp is not None else self._now()
+        stamp = check_stamp("the update", stamp) if stamp is not None else self._now()
         n_events = len(self.events)
         sizes = [self._maps[r].n_confirmed for r in self.robots]
         o = self.online
@@ -318,17 +317,13 @@ class OnlineSession:
         i, j = self._index(robot_a), self._index(robot_b)
         if i == j:
             raise SglocError(f"a link needs two different robots, got {robot_a!r} twice.")
-        T = np.asarray(T_a_b, np.float64)
-        cov = np.asarray(covariance, np.float64)
-        if T.shape != (4, 4) or cov.shape != (6, 6) or not (np.isfinite(T).all()
-                                                           and np.isfinite(cov).all()):
-            raise SglocError("add_link: T_a_b must be a finite (4,4) and covariance a finite "
-                             f"(6,6) array, got {T.shape} and {cov.shape}.")
+        T, cov, confidence, stamp = check_link(f"add_link({robot_a!r}, {robot_b!r})", T_a_b,
+                                               covariance, confidence, stamp)
         if i > j:
             i, j = j, i
             T, cov = invert_with_covariance(T, cov)
         n_events = len(self.events)
-        stamp = float(stamp) if stamp is not None else self._now()
+        stamp = stamp if stamp is not None else self._now()
         self._store_link(i, j, T, cov, confidence, stamp, 0, "added link")
         self._refresh(stamp)
         return self.events[n_events:]
@@ -337,7 +332,7 @@ class OnlineSession:
         """Make `robot`'s odometry frame the fleet frame (re-solves; returns the events,
         stamped `stamp`, default: the newest keyframe's)."""
         self._index(robot)
-        stamp = float(stamp) if stamp is not None else self._now()
+        stamp = check_stamp("set_root", stamp) if stamp is not None else self._now()
         n_events = len(self.events)
         self._root = robot
         self._T = {}
@@ -443,9 +438,14 @@ class OnlineSession:
             "links": [[i, j, lk.to_dict()] for (i, j), lk in sorted(self._links.items())],
             "attempts": [a.to_dict() for a in self.attempts],
             "events": [e.to_dict() for e in self.events],
+            "placed": [k for k, r in enumerate(self.robots) if r in self._T],
         }
         arrays = {f"map{k}_{key}": arr for k, r in enumerate(self.robots)
                   for key, arr in self._maps[r].state().items()}
+        # The fleet frames as they stand, not re-solved on load: the maps may have grown since
+        # the last solve, and a resumed session must give exactly the saved frames.
+        arrays.update({f"frame{k}": self._T[r] for k, r in enumerate(self.robots)
+                       if r in self._T})
         return meta, arrays
 
     @classmethod
@@ -466,7 +466,10 @@ class OnlineSession:
         s._links = {(i, j): Link.from_dict(d) for i, j, d in meta["links"]}
         s.attempts = [Attempt.from_dict(d) for d in meta["attempts"]]
         s.events = [Event.from_dict(d) for d in meta["events"]]
-        if s.robots:
+        if "placed" in meta:
+            s._T = {s.robots[k]: np.array(arrays[f"frame{k}"], np.float64)
+                    for k in meta["placed"]}
+        elif s.robots:  # a save from before the frames were stored
             s._refresh(0.0, emit=False)
         return s
 

@@ -1,9 +1,10 @@
 """The replay output folder, written atomically (`sgloc.io.files.staged_folder`).
 
     fleet/<robot>.tum   each PLACED robot's keyframe poses in the fleet frame (real stamps)
-    events.csv          stamp,kind,robots,detail (robots joined by `;`)
-    links.g2o           the session's inter-robot factors and fleet poses (session.write_g2o)
-    summary.json        per robot: file stem, keyframes, stamp joined, latency median/p99/max
+    events.csv          stamp,kind,robots,detail (robots joined by `;`; exact input stamps)
+    links.g2o           the session's inter-robot factors and fleet poses (vertex id = the
+                        robot's place in summary.json's `robots`, also its `g2o_vertex`)
+    summary.json        per robot: file stem, keyframes, stamp joined, why not placed, latency
     timeline.png        events over stamps, one row per robot
     fleet.png           the placed robots' paths and objects, top-down, fleet frame
 """
@@ -25,6 +26,10 @@ from sgloc.replay.names import robot_file_stems
 from sgloc.replay.stream import ReplayRecord
 
 SUMMARY, EVENTS, LINKS, FLEET_DIR = "summary.json", "events.csv", "links.g2o", "fleet"
+#: Version of summary.json (docs/fleet_outputs.md lists its keys).
+SCHEMA = "sgloc.replay/1"
+#: The events.csv row kind of a robot that was never placed (after the session's events).
+NOT_PLACED = "robot_not_placed"
 
 
 def latency_stats(ms: np.ndarray) -> dict[str, float | None]:
@@ -46,46 +51,102 @@ def fleet_poses(log: RobotLog, T_fleet_odom: np.ndarray) -> tuple[np.ndarray, np
     return T[:, :3, 3], Rotation.from_matrix(T[:, :3, :3]).as_quat()
 
 
+def unplaced_reason(session: Any, robot: str) -> str:
+    """Why `robot` has no fleet frame, from the session's attempts and links ("" if placed)."""
+    if robot not in session.robots:
+        return "it sent no keyframe"
+    if session.T_fleet_robot(robot) is not None:
+        return ""
+    need, have = session.online.min_objects, len(session.map(robot))
+    mine = [a for a in session.attempts if robot in (a.query, a.target)]
+    links = [lk for lk in session.links if robot in (lk.robot_a, lk.robot_b)]
+    if not mine and have < need:
+        return (f"its map never reached the {need} confirmed objects an attempt needs (it has "
+                f"{have}; OnlineConfig.min_objects)")
+    if not mine:
+        return f"no other robot's map reached the {need} confirmed objects an attempt needs"
+    if not links:
+        return (f"none of its {len(mine)} localization attempts passed the acceptance test "
+                f"(the last: {mine[-1].reason})")
+    if not any(lk.active for lk in links):
+        return f"its links are not in the consistent set ({links[-1].reason})"
+    if session.root not in session.robots or session.T_fleet_robot(session.root) is None:
+        return "the root robot has no fleet frame"
+    if session.online.join_sigmas is not None:
+        return ("its links join it to the placed robots, but its predicted error is beyond the "
+                "join limits (OnlineConfig.join_sigmas)")
+    return "its links join it only to robots outside the root's group"
+
+
 def summarize(
     logs: Sequence[RobotLog], session: Any, record: ReplayRecord, stems: dict[str, str]
 ) -> dict[str, Any]:
-    """The summary.json content."""
+    """The summary.json content (robots in the order of `logs`, which is also their vertex
+    ids in links.g2o)."""
     robots = {}
-    for g in logs:
+    for k, g in enumerate(logs):
         j = record.joined_ns.get(g.name)
         T = session.T_fleet_robot(g.name) if g.name in session.robots else None
         robots[g.name] = {
             "file": f"{FLEET_DIR}/{stems[g.name]}.tum" if T is not None else None,
+            "g2o_vertex": k,
             "keyframes": len(g),
             "first_stamp": format_stamp(g.stamps_ns[0]),
             "last_stamp": format_stamp(g.stamps_ns[-1]),
             "joined_stamp": None if j is None else format_stamp(j),
             "placed": T is not None,
+            "unplaced_reason": None if T is not None else unplaced_reason(session, g.name),
             "latency": latency_stats(record.latency_ms[g.name]),
         }
     links = session.links
+    events = {k: int(sum(e.kind == k for e in session.events))
+              for k in ("robot_joined", "link_accepted", "link_revoked")}
     return {
+        "schema": SCHEMA,
         "robots": robots,
         "root": getattr(session, "root", None),
         "keyframes": int(sum(len(g) for g in logs)),
         "placed": int(sum(r["placed"] for r in robots.values())),
         "links_active": int(sum(lk.active for lk in links)),
-        "links_revoked": int(sum(not lk.active for lk in links)),
-        "events": {k: int(sum(e.kind == k for e in session.events))
-                   for k in ("robot_joined", "link_accepted", "link_revoked")},
+        "links_inactive": int(sum(not lk.active for lk in links)),
+        "links_revoked": events["link_revoked"],
+        "events": events,
         "latency": latency_stats(np.concatenate([record.latency_ms[g.name] for g in logs])),
     }
 
 
-def write_events(path: Path, events: Sequence[Any]) -> Path:
-    """events.csv: one row per event, in the order the session emitted them."""
+def write_events(
+    path: Path,
+    events: Sequence[Any],
+    stamps_ns: Sequence[int | None] | None = None,
+    unplaced: Sequence[tuple[int, str, str]] = (),
+) -> Path:
+    """events.csv: one row per event, in the order the session emitted them, stamped with
+    `stamps_ns` (the exact input stamps, one per event; else the event's float seconds
+    rounded to ns), then a `robot_not_placed` row per (stamp ns, robot, reason) of `unplaced`."""
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["stamp", "kind", "robots", "detail"])
-        for e in events:
-            stamp = format_stamp(round(float(e.stamp) * 1e9))  # the keyframe's stamp as written
-            w.writerow([stamp, e.kind, ";".join(e.robots), e.detail])
+        for k, e in enumerate(events):
+            ns = stamps_ns[k] if stamps_ns is not None and k < len(stamps_ns) else None
+            ns = round(float(e.stamp) * 1e9) if ns is None else ns
+            w.writerow([format_stamp(ns), e.kind, ";".join(e.robots), e.detail])
+        for ns, robot, reason in unplaced:
+            w.writerow([format_stamp(ns), NOT_PLACED, robot, reason])
     return path
+
+
+def write_links_g2o(path: Path, session: Any, names: Sequence[str]) -> Path:
+    """links.g2o with vertex id = the robot's index in `names` (summary.json's order): a
+    VERTEX_SE3:QUAT per placed robot (T_fleet_robot), an EDGE_SE3:QUAT per active link."""
+    from sgloc.io.g2o import write_g2o
+
+    ids = {r: k for k, r in enumerate(names)}
+    vertices = {ids[r]: T for r in names if r in session.robots
+                and (T := session.T_fleet_robot(r)) is not None}
+    edges = [(ids[lk.robot_a], ids[lk.robot_b], lk.T_a_b, lk.covariance)
+             for lk in session.links if lk.active]
+    return write_g2o(path, vertices, edges)
 
 
 def write_replay(out: str | Path, logs: Sequence[RobotLog], session: Any,
@@ -118,9 +179,12 @@ def _write_all(tmp: Path, logs: Sequence[RobotLog], session: Any, record: Replay
         frames[g.name] = T
         maps[g.name] = session.map(g.name).positions
         write_tum_exact(tmp / FLEET_DIR / f"{stems[g.name]}.tum", g.stamps_ns, *fleet_poses(g, T))
-    write_events(tmp / EVENTS, session.events)
-    session.write_g2o(tmp / LINKS)
     summary = summarize(logs, session, record, stems)
+    end = max(int(g.stamps_ns[-1]) for g in logs)
+    unplaced = [(end, name, r["unplaced_reason"]) for name, r in summary["robots"].items()
+                if not r["placed"]]
+    write_events(tmp / EVENTS, session.events, record.event_ns, unplaced)
+    write_links_g2o(tmp / LINKS, session, [g.name for g in logs])
     (tmp / SUMMARY).write_text(json.dumps(summary, indent=2) + "\n")
     plot_timeline(logs, session.events, tmp / "timeline.png")
     plot_fleet(logs, frames, maps, tmp / "fleet.png")

@@ -23,12 +23,16 @@ class ReplayRecord:
     transforms: (stamp ns, robot, T_fleet_odom) each time a robot's fleet frame took a new value.
     join_objects: per placed robot, its confirmed objects (k,3) (odometry frame, metres) when it
         was first placed: what the join was decided on.
+    event_ns: the exact stamp (ns) of each of the session's events, in order (the keyframe's
+        stamp as read; the events themselves hold it as float seconds); None for events the
+        session had before the replay.
     """
 
     latency_ms: dict[str, np.ndarray]
     joined_ns: dict[str, int | None]
     transforms: list[tuple[int, str, np.ndarray]] = field(default_factory=list)
     join_objects: dict[str, np.ndarray] = field(default_factory=dict)
+    event_ns: list[int | None] = field(default_factory=list)
 
 
 def keyframe_order(logs: Sequence[RobotLog]) -> np.ndarray:
@@ -65,14 +69,16 @@ def replay_logs(
     lat = {g.name: np.zeros(len(g)) for g in logs}
     joined: dict[str, int | None] = {g.name: None for g in logs}
     last: dict[str, np.ndarray] = {}
-    rec = ReplayRecord(lat, joined)
+    rec = ReplayRecord(lat, joined, event_ns=[None] * len(session.events))
     for r, k in keyframe_order(logs):
         g, (_, pos, lab) = logs[r], obs[r][k]
+        n_events = len(session.events)
         t0 = time.perf_counter_ns()
         session.add_keyframe(g.name, float(g.stamps[k]), poses[r][k], pos, lab)
         if finish and k == len(g) - 1:
             session.finish(g.name, float(g.stamps[k]))
         lat[g.name][k] = (time.perf_counter_ns() - t0) * 1e-6
+        rec.event_ns += [int(g.stamps_ns[k])] * (len(session.events) - n_events)
         _track(session, int(g.stamps_ns[k]), last, rec)
         if progress is not None:
             progress(1)

@@ -1,0 +1,161 @@
+"""`sgloc replay`'s outputs agree with their inputs and with each other: exact event stamps, one
+bag message per robot and stamp, links.g2o ids named in summary.json, revocation counts from the
+events, a reason for every unplaced robot, versioned JSON."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from sgloc.cli import main
+from sgloc.evaluation.replay_scenarios import world_scenario
+from sgloc.geometry import invert
+from sgloc.io.g2o import read_g2o
+from sgloc.io.keyframes import format_stamp, make_robot_log
+from sgloc.io.plain_layout import read_tum_exact, write_plain_layout
+from sgloc.online import OnlineSession
+from sgloc.replay import outputs
+from sgloc.replay.stream import ReplayRecord
+
+#: Real-clock stamps: 1.7e9 s, where float seconds cannot hold every nanosecond.
+OFFSET_NS = 1_700_000_043_750_000_000
+
+
+def _logs():
+    """world0 renamed `zulu`, world1 renamed `alpha` and starting 3 s later (so the order of
+    first keyframes is not the alphabetical order), and `lost`, a robot in another world."""
+    w = world_scenario()
+    zulu = dataclasses.replace(w.logs[0], name="zulu", stamps_ns=w.logs[0].stamps_ns + OFFSET_NS)
+    alpha = dataclasses.replace(w.logs[1], name="alpha",
+                                stamps_ns=w.logs[1].stamps_ns + OFFSET_NS + 3_000_000_001)
+    rng = np.random.default_rng(5)
+    n = 12
+    stamps = OFFSET_NS + 250_000_001 + 700_000_000 * np.arange(n)
+    xyz = np.column_stack([np.arange(n) * 3.0, np.zeros(n), np.zeros(n)])
+    world, classes = rng.uniform(-40, 40, (40, 3)), rng.integers(0, 8, 40)  # seen every time
+    kf = np.repeat(np.arange(n), len(world))
+    lost = make_robot_log("lost", stamps, xyz, np.tile([0, 0, 0, 1.0], (n, 1)), kf,
+                          np.concatenate([world - p for p in xyz]), np.tile(classes, n))
+    return [zulu, alpha, lost]
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    d = tmp_path_factory.mktemp("replay_outputs")
+    logs = _logs()
+    write_plain_layout(d / "run", logs)
+    argv = ["replay", str(d / "run"), "--out", str(d / "out")]
+    try:
+        import rosbags  # noqa: F401
+
+        argv += ["--out-bag", str(d / "bag")]
+    except ImportError:
+        pass
+    return d, logs, argv
+
+
+@pytest.fixture(scope="module")
+def replayed(run):
+    import contextlib
+    import io
+
+    d, logs, argv = run
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        assert main(argv) == 0
+    return d, logs, json.loads((d / "out" / "summary.json").read_text()), out.getvalue()
+
+
+def test_event_stamps_are_the_input_stamps_exactly(replayed):
+    d, logs, _, _ = replayed
+    stamps = {format_stamp(s) for g in logs for s in g.stamps_ns}
+    rows = list(csv.DictReader((d / "out" / "events.csv").open()))
+    assert any(r["kind"] == "robot_joined" for r in rows)
+    for r in rows:
+        assert r["stamp"] in stamps, r
+
+
+def test_the_bag_holds_one_transform_per_robot_and_stamp(replayed):
+    pytest.importorskip("rosbags")
+    from sgloc.io.rosbag import read_fleet_bag
+
+    d, _, summary, _ = replayed
+    msgs = read_fleet_bag(d / "bag")
+    keys = [(ns, r) for ns, r, _ in msgs]
+    assert len(keys) == len(set(keys))
+    assert {r for _, r in keys} == {r for r, v in summary["robots"].items() if v["placed"]}
+
+
+def test_fleet_bag_writer_keeps_the_last_of_repeated_transforms(tmp_path):
+    pytest.importorskip("rosbags")
+    from sgloc.io.rosbag import read_fleet_bag, write_fleet_bag
+
+    a, b = np.eye(4), np.eye(4)
+    b[0, 3] = 5.0
+    write_fleet_bag(tmp_path / "b", [(7, "r", a), (3, "s", a), (7, "r", b), (7, "s", a)])
+    back = read_fleet_bag(tmp_path / "b")
+    assert [(ns, r) for ns, r, _ in back] == [(3, "s"), (7, "r"), (7, "s")]
+    np.testing.assert_array_equal(back[1][2], b)
+
+
+def test_g2o_vertex_ids_are_named_in_the_summary(replayed):
+    d, logs, summary, _ = replayed
+    assert list(summary["robots"]) == sorted(g.name for g in logs)  # the layout's order
+    vertices, edges = read_g2o(d / "out" / "links.g2o")
+    placed = {r: v for r, v in summary["robots"].items() if v["placed"]}
+    assert sorted(vertices) == sorted(v["g2o_vertex"] for v in placed.values())
+    by_name = {g.name: g for g in logs}
+    for name, v in placed.items():
+        _, xyz, quat = read_tum_exact(d / "out" / v["file"])
+        T_fleet_sensor = dataclasses.replace(by_name[name], xyz=xyz, quat=quat).poses[0]
+        T_fleet_odom = T_fleet_sensor @ invert(by_name[name].poses[0])
+        np.testing.assert_allclose(vertices[v["g2o_vertex"]], T_fleet_odom, atol=1e-6)
+    ids = {v["g2o_vertex"] for v in placed.values()}
+    assert edges and all(a in ids and b in ids for a, b, _, _ in edges)
+
+
+def test_an_unplaced_robot_gets_its_reason_everywhere(replayed):
+    d, _, summary, stdout = replayed
+    lost = summary["robots"]["lost"]
+    assert not lost["placed"] and "attempts passed the acceptance test" in lost["unplaced_reason"]
+    assert summary["robots"]["alpha"]["unplaced_reason"] is None
+    assert f"lost not placed: {lost['unplaced_reason']}" in " ".join(stdout.split())
+    rows = list(csv.DictReader((d / "out" / "events.csv").open()))
+    mine = [r for r in rows if r["kind"] == "robot_not_placed"]
+    assert [(r["robots"], r["detail"]) for r in mine] == [("lost", lost["unplaced_reason"])]
+
+
+def test_summary_is_versioned_and_counts_revocations_from_the_events():
+    s = OnlineSession()
+    rng = np.random.default_rng(0)
+    for r in ("a", "b"):
+        s.add_keyframe(r, 1.0, np.eye(4), rng.uniform(-20, 20, (20, 3)), rng.integers(0, 4, 20))
+    T2 = np.eye(4)
+    T2[0, 3] = 40.0
+    s.add_link("a", "b", np.eye(4), np.eye(6) * 1e-4, 0.9, 2.0)
+    s.add_link("a", "b", T2, np.eye(6) * 1e-4, 0.9, 3.0)  # disagrees: the first is revoked
+    assert [e.kind for e in s.events].count("link_revoked") == 1
+    assert all(lk.active for lk in s.links)
+    logs = [make_robot_log(r, [1], [[0, 0, 0]], [[0, 0, 0, 1.0]], [], np.zeros((0, 3)), [])
+            for r in ("a", "b")]
+    rec = ReplayRecord({"a": np.ones(1), "b": np.ones(1)}, {"a": 1, "b": 3})
+    summary = outputs.summarize(logs, s, rec, {"a": "a", "b": "b"})
+    assert summary["schema"] == "sgloc.replay/1"
+    assert summary["links_revoked"] == summary["events"]["link_revoked"] == 1
+    assert summary["links_active"] == 1 and summary["links_inactive"] == 0
+
+
+def test_every_summary_key_is_documented(replayed):
+    import re
+    from pathlib import Path
+
+    _, _, summary, _ = replayed
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "fleet_outputs.md").read_text()
+    documented = {k for c in re.findall(r"^\| ([^|]+) \|", doc, flags=re.M)
+                  for k in re.findall(r"`([a-z_0-9]+)`", c)}
+    keys = set(summary) | {k for r in summary["robots"].values() for k in r}
+    assert keys <= documented, keys - documented
