@@ -13,6 +13,7 @@ from sgloc.cli.app import app, not_localized
 from sgloc.cli.options import (
     COLOURS_HELP,
     LABEL_HELP,
+    class_table_option,
     config_option,
     load_graph,
     localizer_config,
@@ -20,6 +21,7 @@ from sgloc.cli.options import (
     set_option,
 )
 from sgloc.fleet import FleetConfig, localize_fleet
+from sgloc.io.inputs import check_reader_options
 from sgloc.io.names import robot_names
 
 
@@ -56,6 +58,7 @@ def fleet_cmd(
     setting: list[str] = set_option(),
     label_field: str | None = typer.Option(None, help=LABEL_HELP),
     colour_table: Path | None = typer.Option(None, help=COLOURS_HELP),
+    class_table: Path | None = class_table_option(),
 ) -> None:
     """Place N robots' graphs in one common frame and merge their maps.
 
@@ -67,7 +70,8 @@ def fleet_cmd(
     Example: sgloc fleet a.pcd b.pcd c.json d.npz --out fleet_out --scheduler tcp://10.0.0.5:8786
     """
     localizer = localizer_config(preset, config, setting, min_confidence=min_confidence)
-    gs = [load_graph(p, edge_radius, label_field, colour_table) for p in graphs]
+    check_reader_options(graphs, label_field, colour_table, class_table)
+    gs = [load_graph(p, edge_radius, label_field, colour_table, class_table) for p in graphs]
     cfg = FleetConfig(localizer=localizer, seed=seed)
     res = localize_fleet(
         gs, cfg, names=robot_names(graphs), root=root, scheduler=scheduler, workers=workers,
