@@ -151,6 +151,8 @@ def test_w_first_quaternions_are_named_as_the_likely_mistake(tmp_path):
 def test_byte_order_marks_are_ignored_by_every_text_reader(tmp_path, airsim_graphs):
     from sgloc.cli.options import read_settings_file
     from sgloc.io.class_table import read_class_table
+    from sgloc.io.colour_table import read_colour_table
+
     g = airsim_graphs[0]
     plain, marked = tmp_path / "plain.csv", tmp_path / "marked.csv"
     write_table(plain, g.positions, g.labels)
@@ -168,6 +170,15 @@ def test_byte_order_marks_are_ignored_by_every_text_reader(tmp_path, airsim_grap
     cfg = tmp_path / "c.yaml"
     cfg.write_bytes(BOM + b"tau: 3\n")
     assert read_settings_file(cfg) == {"tau": 3}
+    cfg = tmp_path / "c.json"
+    cfg.write_bytes(BOM + b'{"tau": 3}')
+    assert read_settings_file(cfg) == {"tau": 3}
+    g.save(tmp_path / "g.json")
+    (tmp_path / "m.json").write_bytes(BOM + (tmp_path / "g.json").read_bytes())
+    assert np.array_equal(SemanticGraph.load(tmp_path / "m.json").positions, g.positions)
+    colours = tmp_path / "colours.txt"
+    colours.write_bytes(BOM + b"0 255 0 0 car\n1 0 255 0 tree\n")
+    assert read_colour_table(colours)[1] == ["car", "tree"]
 
 
 # -- class tables ----------------------------------------------------------------------------
@@ -328,3 +339,11 @@ def test_robots_named_on_the_command_line(world, one_bag_run, tmp_path, capsys):
     _one_error(capsys, "both name robot 'a'", "--robot NAME=PATH")
     assert main(["replay", "--robot", "nameless", "--out", str(tmp_path / "o4")]) == 2
     _one_error(capsys, "--robot 'nameless'", "NAME=PATH")
+
+
+def test_robot_folders_of_the_plain_layout_are_sources_too(world, one_bag_run, tmp_path):
+    write_plain_layout(tmp_path / "run", world.logs)
+    argv = ["replay", str(tmp_path / "run" / "world0"), str(tmp_path / "run" / "world1"),
+            "--out", str(tmp_path / "out"), "--quiet"]
+    assert main(argv) == 0
+    _same_outputs(one_bag_run, tmp_path / "out")

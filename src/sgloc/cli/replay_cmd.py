@@ -22,9 +22,9 @@ from sgloc.cli.options import (
 @app.command("replay")
 def replay_cmd(
     sources: list[Path] | None = typer.Argument(
-        None, help="A plain layout folder (one folder per robot: odometry.tum, objects.csv), a "
-        "rosbag2 folder or an .mcap/.db3 file; or one bag (or robot folder) per robot, each "
-        "robot named by its file's stem."
+        None, metavar="[SOURCE]...", help="A plain layout folder (one folder per robot: "
+        "odometry.tum, objects.csv), a rosbag2 folder or an .mcap/.db3 file; or one bag (or "
+        "robot folder) per robot, each robot named by its file's stem."
     ),
     robot: list[str] = typer.Option(
         [], "--robot", metavar="NAME=PATH", help="A robot's own bag (or robot folder), the "

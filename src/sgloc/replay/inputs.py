@@ -47,13 +47,16 @@ def read_logs(
     objects_topic: str | None = None,
 ) -> list[RobotLog]:
     """The robots of one source: a plain layout folder or a ROS 2 bag (folder, .mcap or .db3).
-    A bag read with a plain odometry topic (no `{robot}`) is one robot, named by the bag."""
-    from sgloc.io.plain_layout import read_plain_layout
+    A bag read with a plain odometry topic (no `{robot}`), or a plain-layout robot folder, is
+    one robot, named by the bag or folder."""
+    from sgloc.io.plain_layout import ODOMETRY_FILE, read_plain_layout
 
     path = _exists(Path(path))
     if not is_bag(path):
         if odom_topic or objects_topic:
             raise DatasetError(f"{path}: not a bag, so --odom-topic/--objects-topic do not apply.")
+        if (path / ODOMETRY_FILE).is_file():  # one robot's folder
+            return read_robot_sources([(None, path)], classes)
         return read_plain_layout(path, classes)
     from sgloc.io import rosbag
 
