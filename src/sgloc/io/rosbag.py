@@ -102,9 +102,11 @@ def _read_robots(reader, path, odom_topic, objects_topic, classes, robots) -> li
     ]
 
 
-def _bag_topics(reader) -> str:
-    """The bag's topics with their types, for error messages."""
-    return ", ".join(sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})) or "none"
+def _bag_topics(reader, shown: int = 30) -> str:
+    """The bag's topics with their types (the first `shown`), for error messages."""
+    topics = sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})
+    more = f", and {len(topics) - shown} more" if len(topics) > shown else ""
+    return ", ".join(topics[:shown]) + more if topics else "none"
 
 
 def _topic(reader, path: Path, robot: str, template: str, msgtype: str) -> list:
