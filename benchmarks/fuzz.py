@@ -97,6 +97,7 @@ def write_seeds(folder: Path, seed: int = 0) -> dict[str, Path]:
         Image.fromarray(seg).save(robot / "segmentation" / f"segmentation_{i}.png")
         Image.fromarray(dep).save(robot / "depth" / f"depth_{i}.png")
     files["robot"] = robot
+    files |= write_input_seeds(folder, q, seed)
     return files
 
 
@@ -373,6 +374,129 @@ def airsim_edit(robot: Path, rng: np.random.Generator) -> tuple[str, str]:
     return "poses folder", "fail"
 
 
+# -- input families: tables and replay layouts (stamps, quaternion order, byte-order marks) ------
+BOM = "\ufeff".encode()
+#: Stamps that no reader can hold (beyond int64 nanoseconds) or that are neither seconds nor
+#: nanoseconds since 1973 (integers between 1e11 and 1e17).
+BAD_STAMPS = ["1e30", "-1e30", "1e999999999", "9223372037", "92233720368547758070",
+              "1700000000123456789.0", "1700000000123", "1700000000123456"]
+
+
+def write_input_seeds(folder: Path, query, seed: int = 0) -> dict[str, Path]:
+    """A graph table (query.csv) and a small two-robot replay layout whose odometry starts at
+    the identity (as odometry does) with epoch stamps, class names and a classes.txt."""
+    from sgloc.evaluation.replay_scenarios import world_scenario
+    from sgloc.io.keyframes import make_robot_log
+    from sgloc.io.plain_layout import write_plain_layout
+    from sgloc.io.table import write_table
+
+    write_table(folder / "query.csv", query.positions, query.labels)
+    logs = []
+    for g in world_scenario(((0.0, 80.0), (40.0, 120.0)), seed=seed, spacing=8.0).logs:
+        from scipy.spatial.transform import Rotation
+
+        T = np.linalg.inv(g.poses[0]) @ g.poses
+        xyz, quat = T[:, :3, 3], Rotation.from_matrix(T[:, :3, :3]).as_quat()
+        xyz[0], quat[0] = 0.0, (0.0, 0.0, 0.0, 1.0)
+        logs.append(make_robot_log(g.name, g.stamps_ns + 1_700_000_000_123_456_789, xyz, quat,
+                                   g.keyframe, g.positions, g.labels))
+    write_plain_layout(folder / "layout", logs, [f"class{k}" for k in range(16)])
+    return {"query.csv": folder / "query.csv", "layout": folder / "layout"}
+
+
+def table_header_only(raw: bytes, rng: np.random.Generator) -> tuple[bytes, str]:
+    """The header line alone: a map without objects."""
+    return raw.split(b"\n", 1)[0] + b"\n" * int(rng.integers(0, 3)), "fail"
+
+
+def table_bom(raw: bytes, rng: np.random.Generator) -> tuple[bytes, str]:
+    """A UTF-8 byte-order mark in front (spreadsheet "CSV UTF-8"), with or without the header."""
+    body = raw if rng.random() < 0.5 else raw.split(b"\n", 1)[1]
+    return BOM + body, "valid"
+
+
+MUTATIONS["query.csv"] = [
+    ("header-only", table_header_only), ("bom", table_bom), ("flip", flip_bytes),
+]  # fmt: skip
+
+
+def _edit_stamps(path: Path, edit: Callable[[str], str], rows: list[int] | None = None) -> None:
+    """Rewrite the stamp (first field) of the data rows `rows` (all when None) of a layout file."""
+    lines = path.read_text().splitlines()
+    first = 1 if path.suffix == ".csv" else 0
+    sep = "," if path.suffix == ".csv" else " "
+    for i in range(first, len(lines)) if rows is None else [r + first for r in rows]:
+        head, rest = lines[i].split(sep, 1)
+        lines[i] = sep.join((edit(head), rest))
+    path.write_text("".join(f"{ln}\n" for ln in lines))
+
+
+def _integer_ns(stamp: str) -> str:
+    s, f = stamp.split(".")
+    return s + f
+
+
+def layout_edit(layout: Path, rng: np.random.Generator) -> tuple[str, str]:
+    """Change one robot's files of the seed layout in place; return (what, expect)."""
+    robot = layout / str(rng.choice(["world0", "world1"]))
+    odom, objects = robot / "odometry.tum", robot / "objects.csv"
+    file = odom if rng.random() < 0.5 else objects
+    kind = str(rng.choice(["integer-ns", "bad-stamp", "w-first", "bom", "class-case",
+                           "no-objects", "no-poses"]))
+    if kind == "integer-ns":  # integer nanoseconds in one file or all: the same stamps
+        for f in [file] if rng.random() < 0.5 else list(layout.glob("*/*.*")):
+            _edit_stamps(f, _integer_ns)
+        return kind, "valid"
+    if kind == "bad-stamp":
+        row = int(rng.integers(0, len(file.read_text().splitlines()) - (file == objects)))
+        _edit_stamps(file, lambda _: str(rng.choice(BAD_STAMPS)), [row])
+        return kind, "fail"
+    if kind == "w-first":  # qw moved first: the first pose, the identity, reads `1 0 0 0`
+        rows = [ln.split() for ln in odom.read_text().splitlines()]
+        odom.write_text("".join(" ".join(r[:4] + r[7:] + r[4:7]) + "\n" for r in rows))
+        return kind, "fail"
+    if kind == "bom":
+        for f in (file, layout / "classes.txt")[: int(rng.integers(1, 3))]:
+            f.write_bytes(BOM + f.read_bytes())
+        return kind, "valid"
+    if kind == "class-case":  # class names in another case: one name
+        objects.write_text(objects.read_text().replace(",class", ",CLASS").replace(
+            "stamp,x,y,z,CLASS", "stamp,x,y,z,class"))
+        return kind, "valid"
+    if kind == "no-objects":  # the header only: a robot that saw nothing
+        objects.write_text("stamp,x,y,z,class\n")
+        return kind, "valid"
+    odom.write_text("# stamp tx ty tz qx qy qz qw\n")
+    return kind, "fail"
+
+
+def layout_case(seeds: dict[str, Path], case_dir: Path, rng: np.random.Generator) -> Case:
+    """`sgloc replay` of the seed layout with one robot's files changed (`layout_edit`)."""
+    import shutil
+
+    layout = case_dir / "layout"
+    shutil.copytree(seeds["layout"], layout)
+    what, expect = layout_edit(layout, rng)
+    argv = ["replay", str(layout), "--out", str(case_dir / "out"), "--quiet"]
+    return Case(f"replay layout {what}", expect, argv)
+
+
+def input_case(seeds: dict[str, Path], work: Path, rng: np.random.Generator, k: int) -> Case:
+    """Case k of the input families alone: a replay layout, or a graph table edit."""
+    case_dir = work / f"case{k}"
+    case_dir.mkdir()
+    if rng.random() < 0.6:
+        return layout_case(seeds, case_dir, rng)
+    mutation, fn = MUTATIONS["query.csv"][int(rng.integers(0, len(MUTATIONS["query.csv"])))]
+    raw, expect = fn(seeds["query.csv"].read_bytes(), rng)
+    (case_dir / "query.csv").write_bytes(raw)
+    target = str(seeds["target.json"])
+    argv = ["localize", str(case_dir / "query.csv"), target]
+    if rng.random() < 0.3:
+        argv = ["fleet", argv[1], target, "--workers", "1", "--out", str(case_dir / "out")]
+    return Case(f"{argv[0]} query.csv {mutation}", expect, argv)
+
+
 # -- running a case -----------------------------------------------------------------------------
 def run_case(argv: list[str], timeout: float) -> tuple[int | None, str, str, str]:
     """(exit code or None, stdout, stderr, exception class or '') of `sgloc argv` in-process."""
@@ -459,6 +583,8 @@ def make_case(seeds: dict[str, Path], work: Path, rng: np.random.Generator, k: i
         path = case_dir / str(rng.choice(["empty.pcd", "empty.json", "empty.npz", "g.ply"]))
         path.write_bytes(b"")
         name, expect = "empty", "fail"
+    elif roll < 0.21:
+        return layout_case(seeds, case_dir, rng)
     else:
         source = str(rng.choice(list(MUTATIONS)))
         mutation, fn = MUTATIONS[source][int(rng.integers(0, len(MUTATIONS[source])))]
@@ -668,6 +794,8 @@ FAMILIES: dict[str, tuple[Callable[..., Case], float, str]] = {
     "files": (make_case, 0.9, "mutated graph files, bad options, FIFOs, folders"),
     "out": (out_path_case, 0.06, "--out at the working folder, an input's folder, an input"),
     "scheduler": (scheduler_case, 0.04, "--scheduler services that are not Dask schedulers"),
+    # Drawn alone (--family inputs): "files" already mixes these cases among its own.
+    "inputs": (input_case, 0.0, "graph tables and replay layouts: stamps, quaternion order, BOMs"),
 }
 
 
@@ -690,7 +818,8 @@ def run_fuzz(
     if unknown:
         raise SystemExit(f"unknown families {unknown}; choose from {', '.join(FAMILIES)}")
     weights = np.array([FAMILIES[f][1] for f in chosen], dtype=float)
-    weights /= weights.sum()
+    total = weights.sum()
+    weights = weights / total if total > 0 else np.full(len(chosen), 1 / len(chosen))
     rng = np.random.default_rng(seed)
     counts: Counter = Counter()
     bad: list[tuple[str, str, str]] = []
@@ -1108,11 +1237,14 @@ def main() -> int:
     ap.add_argument("--family", action="append", choices=list(FAMILIES), metavar="NAME",
                     help="run only this case family (repeatable): " + "; ".join(
                         f"{k}: {FAMILIES[k][2]}" for k in FAMILIES))
+    ap.add_argument("--inputs", action="store_true", help="the input families alone (same as "
+                    "--family inputs)")
     args = ap.parse_args()
     t0 = time.perf_counter()
     by_kind: Counter = Counter()
+    families = ["inputs"] if args.inputs else args.family
     counts, bad = run_fuzz(args.cases, args.seed, args.timeout, progress=True, by_kind=by_kind,
-                           families=args.family)
+                           families=families)
     elapsed = time.perf_counter() - t0
     print(table(counts))
     print()

@@ -96,7 +96,7 @@ def test_bag_topic_errors_name_the_fix(tmp_path):
     with pytest.raises(DatasetError, match="--objects-topic"):
         read_bag(tmp_path / "bag", objects_topic="/{robot}/detections")
     write_bag(tmp_path / "named", random_logs(), NAMES)
-    msg = r"objects message 1 marker 0: class '\w+' is neither an integer.*--classes"
+    msg = r"objects message 1 marker 0: class '\w+' is neither an integer.*--class-table"
     with pytest.raises(DatasetError, match=msg):
         read_bag(tmp_path / "named")
 
@@ -127,7 +127,7 @@ def _layout(tmp_path):
          r"objects.csv:2: stamp 5.0 is not a keyframe stamp"),
         (lambda d: (d / "objects.csv").write_text(
             "stamp,x,y,z,class\n" + (d / "odometry.tum").read_text().split()[0] + ",1,2,3,bus\n"),
-         r"objects.csv:2: class 'bus' .*known names: car, pole, tree"),
+         r"objects.csv:2: class 'bus' .*known: car, pole, tree"),
         (lambda d: (d / "objects.csv").write_text(
             "stamp,x,y,z,class\n" + (d / "odometry.tum").read_text().split()[0] + ",1,x,3,0\n"),
          r"objects.csv:2: stamp, x, y, z must be numbers"),
@@ -148,7 +148,7 @@ def test_bad_layout_files_give_one_clear_error(tmp_path, edit, match):
 def test_class_names_need_a_table(tmp_path):
     root, _ = _layout(tmp_path)
     (root / "classes.txt").unlink()
-    with pytest.raises(DatasetError, match="add a classes.txt"):
+    with pytest.raises(DatasetError, match="--class-table FILE; a replay layout .* classes.txt"):
         read_plain_layout(root)
 
 

@@ -234,13 +234,22 @@ def _unplaced_reasons(n: int, placed: set[int], links: list[PairLink]) -> dict[i
     return reasons
 
 
+def _graph_names(graphs: Sequence[SemanticGraph]) -> list[str]:
+    """Robot names of graphs, by the command line's rule: a graph file's stem (a graph read by
+    `SemanticGraph.load("runs/alpha.csv")` is named `alpha.csv`: robot `alpha`)."""
+    from sgloc.io.graph_files import READERS
+
+    return [Path(g.name).stem if Path(g.name).suffix.lower() in READERS else g.name
+            for g in graphs]
+
+
 def _check_inputs(graphs: list, names: Sequence[str] | None, root: str | None) -> list[str]:
     if len(graphs) < 2:
         raise SglocError(f"a fleet needs at least 2 robot graphs, got {len(graphs)}.")
     for g in graphs:
         if not isinstance(g, SemanticGraph):
             raise SglocError(f"every robot must be a SemanticGraph, got {type(g).__name__}.")
-    names = unique_names(list(names) if names is not None else [g.name for g in graphs])
+    names = unique_names(list(names) if names is not None else _graph_names(graphs))
     if len(names) != len(graphs):
         raise SglocError(f"{len(names)} names for {len(graphs)} robot graphs; give one each.")
     if root is not None and root not in names:
@@ -263,7 +272,8 @@ def localize_fleet(
     Args:
         graphs: the robots' semantic graphs, each in its own frame (metres).
         config: FleetConfig (pairwise localizer with acceptance, loop tolerances, fusion radius).
-        names: robot names (default: the graphs' names), made unique and file-safe.
+        names: robot names (default: the graphs' names, a graph file's name without its
+            suffix as `sgloc fleet` names robots), made unique and file-safe.
         root: the robot (name) whose frame is the fleet frame (default: the best-connected
             robot of the largest placed group).
         scheduler: address of an existing Dask scheduler (e.g. "tcp://10.0.0.5:8786"); None runs

@@ -349,6 +349,12 @@ def _chance_reason(details: dict, conf: float, cfg: AcceptanceConfig) -> str:
         f"{k} inliers of {details['candidates']} candidate matches could be chance "
         f"({details['expected_chance_inliers']:.1f} expected from repeated objects; about "
         f"10^{lg_best:.1f} such alignments expected by chance); confidence {conf:.6g} < "
-        f"min_confidence {cfg.min_confidence} (a lower one accepts more: --set "
-        "min_confidence=0.99); the maps may not overlap"
+        f"min_confidence {cfg.min_confidence:g} (a lower one accepts more: --set "
+        f"min_confidence={_lower_confidence(cfg.min_confidence):g}); the maps may not overlap"
     )
+
+
+def _lower_confidence(used: float) -> float:
+    """A min_confidence that accepts more than `used`: one nine fewer (0.9999 -> 0.999), or half
+    of `used` below 0.95."""
+    return round(1.0 - 10.0 * (1.0 - used), 12) if used >= 0.95 else round(used / 2, 3)

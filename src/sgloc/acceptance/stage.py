@@ -122,7 +122,7 @@ def accept(
         t0 = clock()
         _verify(verdict, query, target, desc_q, desc_t, cfg, matching, motion, refit)
         verdict.timings["verification"] = clock() - t0
-    return _settled(verdict, len(candidates))
+    return _settled(verdict, len(candidates), matching.min_similarity)
 
 
 def _refuse_mirrored(
@@ -148,9 +148,10 @@ def _refuse_mirrored(
         )
 
 
-def _settled(verdict: Verdict, n_candidates: int) -> Verdict:
+def _settled(verdict: Verdict, n_candidates: int, min_similarity: float) -> Verdict:
     """The verdict as handed on: no reason when accepted; no transform and no matches when
-    refused, and the reason of too few candidates when that was the cause."""
+    refused, and the reason of too few candidates when that was the cause (with a lower
+    `min_similarity` than the one used to try)."""
     if verdict.accepted:
         verdict.reason = ""
         return verdict
@@ -158,10 +159,22 @@ def _settled(verdict: Verdict, n_candidates: int) -> Verdict:
     if n_candidates < MIN_CANDIDATES:
         verdict.reason = (
             f"only {n_candidates} candidate match(es) between the graphs (fewer than "
-            f"{MIN_CANDIDATES}); the maps may not overlap, or lower the similarity needed for a "
-            "match (--set min_similarity=0.5; Python: min_similarity=0.5)"
+            f"{MIN_CANDIDATES}); the maps may not overlap, or {_similarity_hint(min_similarity)}"
         )
     return verdict
+
+
+def _similarity_hint(used: float) -> str:
+    """How to ask for more candidate matches than `min_similarity=used` gave: the default when
+    `used` is above it, else half of `used`."""
+    if used <= 0.0:
+        return "min_similarity is 0 already: every same-class pair was a candidate"
+    default = MatchingConfig().min_similarity
+    lower = default if used > default else round(used / 2, 3)
+    return (
+        f"lower the similarity needed for a match (min_similarity {used:g} now; e.g. --set "
+        f"min_similarity={lower:g}; Python: min_similarity={lower:g})"
+    )
 
 
 def _verify(

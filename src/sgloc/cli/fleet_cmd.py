@@ -13,6 +13,7 @@ from sgloc.cli.app import app, not_localized
 from sgloc.cli.options import (
     COLOURS_HELP,
     LABEL_HELP,
+    class_table_option,
     config_option,
     load_graph,
     localizer_config,
@@ -21,6 +22,7 @@ from sgloc.cli.options import (
 )
 from sgloc.cli.outputs import claim_output
 from sgloc.fleet import FleetConfig, localize_fleet
+from sgloc.io.inputs import check_reader_options
 from sgloc.io.names import robot_names
 
 
@@ -58,6 +60,7 @@ def fleet_cmd(
     setting: list[str] = set_option(),
     label_field: str | None = typer.Option(None, help=LABEL_HELP),
     colour_table: Path | None = typer.Option(None, help=COLOURS_HELP),
+    class_table: Path | None = class_table_option(),
 ) -> None:
     """Place N robots' graphs in one common frame and merge their maps.
 
@@ -71,7 +74,8 @@ def fleet_cmd(
     """
     claim_output(ctx, out, [*graphs, config, colour_table])
     localizer = localizer_config(preset, config, setting, min_confidence=min_confidence)
-    gs = [load_graph(p, edge_radius, label_field, colour_table) for p in graphs]
+    check_reader_options(graphs, label_field, colour_table, class_table)
+    gs = [load_graph(p, edge_radius, label_field, colour_table, class_table) for p in graphs]
     cfg = FleetConfig(localizer=localizer, seed=seed)
     res = localize_fleet(
         gs, cfg, names=robot_names(graphs), root=root, scheduler=scheduler, workers=workers,

@@ -11,9 +11,9 @@ from rich.table import Table
 
 from sgloc.cli.app import app, compile_note, not_localized
 from sgloc.cli.options import (
-    CLASSES_HELP,
     COLOURS_HELP,
     LABEL_HELP,
+    class_table_option,
     config_option,
     load_graph,
     localizer_config,
@@ -56,7 +56,7 @@ def localize_cmd(
     seed: int = typer.Option(0, min=0, help="Random seed."),
     label_field: str | None = typer.Option(None, help=LABEL_HELP),
     colour_table: Path | None = typer.Option(None, help=COLOURS_HELP),
-    class_table: Path | None = typer.Option(None, help=CLASSES_HELP),
+    class_table: Path | None = class_table_option(),
     out: Path | None = typer.Option(
         None, help="Results folder: result.json, T_target_query*.txt, config.yaml, PNG."
     ),
@@ -168,12 +168,9 @@ def _class_names(class_table: Path | None, colour_table: Path | None) -> list[st
     """Class names for the picture's legend (index = class id), from the class table or the
     colour table's names; None: "class k"."""
     if class_table is not None:
-        from sgloc.io.class_table import read_class_table
+        from sgloc.io.class_table import class_names_by_id, read_class_table
 
-        by_id: dict[int, str] = {}
-        for name, cid in read_class_table(class_table).items():
-            by_id.setdefault(cid, name)
-        return [by_id.get(i, f"class {i}") for i in range(max(by_id) + 1)]
+        return class_names_by_id(read_class_table(class_table))
     if colour_table is not None:
         from sgloc.io.colour_table import read_colour_table
 

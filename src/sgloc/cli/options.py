@@ -19,7 +19,7 @@ CONFIG_HELP = "Localizer settings from a YAML file (as written by --out DIR/conf
 SET_HELP = "A localizer setting NAME=VALUE (repeatable), e.g. --set tau=3 --set top_k=2."
 LABEL_HELP = "Class column of .ply/.csv/.txt graphs: a field name or a 0-based column index."
 COLOURS_HELP = "Colour table (lines `class r g b \\[name]`) for graphs whose classes are colours."
-CLASSES_HELP = "Class table (lines `class_id name`) for .csv/.txt graphs whose classes are names."
+CLASSES_HELP = "Class table (lines `class_id name`; names match in any case)"
 
 
 def preset_option() -> Any:
@@ -28,6 +28,12 @@ def preset_option() -> Any:
 
 def config_option() -> Any:
     return typer.Option(None, "--config", help=CONFIG_HELP, exists=False)
+
+
+def class_table_option(what: str = "for .csv/.txt graphs whose classes are names",
+                       *aliases: str) -> Any:
+    """`--class-table FILE` (`sgloc.io.class_table`), with the help saying what it is for."""
+    return typer.Option(None, "--class-table", *aliases, help=f"{CLASSES_HELP} {what}.")
 
 
 def set_option() -> Any:
@@ -70,8 +76,14 @@ def read_settings_file(path: Path) -> dict[str, Any]:
     data = read_settings_data(path)
     if not isinstance(data, dict):
         raise SglocError(f"{path}: expected a mapping of settings (NAME: value).")
+    bad = next((k for k in data if not isinstance(k, str)), None)
+    if bad is not None:
+        raise SglocError(f"{path}: setting name {bad!r} is not a name; write NAME: value lines.")
     if _NESTED & set(data):
-        return flat_settings(LocalizerConfig.from_dict(data))
+        try:
+            return flat_settings(LocalizerConfig.from_dict(data))
+        except SglocError as e:
+            raise type(e)(f"{path}: {e}") from None
     return data
 
 
@@ -97,10 +109,19 @@ def localizer_config(
     settings: list[str] | None = None,
     **named: Any,
 ) -> LocalizerConfig:
-    """The LocalizerConfig a command runs with (`merged_settings` over the defaults)."""
-    return LocalizerConfig().with_overrides(
-        **merged_settings(preset, config_file, settings, **named)
-    )
+    """The LocalizerConfig a command runs with (`merged_settings` over the defaults); an error
+    caused by a setting of `config_file` names that file."""
+    merged = merged_settings(preset, config_file, settings, **named)
+    try:
+        return LocalizerConfig().with_overrides(**merged)
+    except SglocError as e:
+        if config_file is None:
+            raise
+        try:  # the same settings without the file's: do they pass?
+            LocalizerConfig().with_overrides(**merged_settings(preset, None, settings, **named))
+        except SglocError:
+            raise e from None
+        raise type(e)(f"{config_file}: {e}") from None
 
 
 def load_graph(

@@ -10,16 +10,27 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from sgloc.cli.app import app, fail, not_localized
-from sgloc.cli.options import config_option, localizer_config, preset_option, set_option
+from sgloc.cli.options import (
+    class_table_option,
+    config_option,
+    localizer_config,
+    preset_option,
+    set_option,
+)
 from sgloc.cli.outputs import claim_output
 
 
 @app.command("replay")
 def replay_cmd(
     ctx: typer.Context,
-    source: Path | None = typer.Argument(
-        None, help="A plain layout folder (one folder per robot: odometry.tum, objects.csv), a "
-        "rosbag2 folder or an .mcap/.db3 file."
+    sources: list[Path] | None = typer.Argument(
+        None, metavar="[SOURCE]...", help="A plain layout folder (one folder per robot: "
+        "odometry.tum, objects.csv), a rosbag2 folder or an .mcap/.db3 file; or one bag (or "
+        "robot folder) per robot, each robot named by its file's stem."
+    ),
+    robot: list[str] = typer.Option(
+        [], "--robot", metavar="NAME=PATH", help="A robot's own bag (or robot folder), the "
+        "robot named NAME (repeatable; with or instead of SOURCES)."
     ),
     kitti00: bool = typer.Option(False, "--kitti00", help="Replay KITTI 00 (data `kitti00`) "
                                  "cut into --robots consecutive segments."),
@@ -38,12 +49,14 @@ def replay_cmd(
                                         "geometry_msgs/TransformStamped into this ROS 2 bag "
                                         "folder: new, empty, or an earlier bag of sgloc "
                                         "(replaced)."),
-    classes: Path | None = typer.Option(None, help="Class table (`class_id name` lines) for "
-                                        "class names in objects.csv or marker namespaces."),
+    classes: Path | None = class_table_option(
+        "for class names in objects.csv or marker namespaces", "--classes"
+    ),
     odom_topic: str | None = typer.Option(None, help="Odometry topic template (default "
-                                          "/{robot}/odom)."),
+                                          "/{robot}/odom), or a plain topic name (/odom) for "
+                                          "bags of one robot each."),
     objects_topic: str | None = typer.Option(None, help="Object topic template (default "
-                                             "/{robot}/objects)."),
+                                             "/{robot}/objects), or a plain topic name."),
     root: str | None = typer.Option(None, help="Robot whose odometry frame is the fleet frame "
                                     "(default: the first to send a keyframe)."),
     preset: str | None = preset_option(),
@@ -56,6 +69,7 @@ def replay_cmd(
     fleet.png.
 
     Examples: sgloc replay runs/campus --out results/campus --out-bag results/campus_bag
+    |   sgloc replay alpha.mcap beta.mcap --odom-topic /odom --objects-topic /objects
     |   sgloc replay --kitti00 --robots 4 --every 2 --poses refined
     |   sgloc replay --city --robots 8
     """
@@ -63,11 +77,11 @@ def replay_cmd(
     from sgloc.replay import replay_logs
     from sgloc.replay.outputs import write_replay
 
-    inputs = [source, classes, config]
+    inputs = [*(sources or []), *(r.partition("=")[2] for r in robot), classes, config]
     claim_output(ctx, out, inputs)
     claim_output(ctx, out_bag, inputs, "--out-bag")
-    logs, default_preset = _inputs(source, kitti00, city, robots, scans, every, seed, classes,
-                                   odom_topic, objects_topic, poses)
+    logs, default_preset = _inputs(sources or [], robot, kitti00, city, robots, scans, every,
+                                   seed, classes, odom_topic, objects_topic, poses)
     if root is not None and root not in {g.name for g in logs}:
         raise fail(f"--root {root!r} is not a robot of the input; robots: "
                    f"{', '.join(g.name for g in logs)}.")
@@ -88,14 +102,14 @@ def replay_cmd(
         raise not_localized(f"no robot joined the fleet frame of {summary['root']}.")
 
 
-def _inputs(source, kitti00, city, robots, scans, every, seed, classes, odom_topic,
+def _inputs(sources, named, kitti00, city, robots, scans, every, seed, classes, odom_topic,
             objects_topic, poses="raw"):
     """(robot logs, default localizer preset) of the chosen input."""
     from sgloc.evaluation import replay_scenarios as scenarios
-    from sgloc.replay.inputs import read_logs
 
-    if (source is not None) + kitti00 + city != 1:
-        raise fail("give exactly one input: a layout folder or bag, --kitti00, or --city.")
+    if bool(sources or named) + kitti00 + city != 1:
+        raise fail("give exactly one input: a layout folder or bag (or one bag per robot), "
+                   "--kitti00, or --city.")
     if poses not in ("raw", "refined"):
         raise fail(f"--poses {poses!r}: choose raw or refined.")
     if poses != "raw" and not kitti00:
@@ -108,7 +122,22 @@ def _inputs(source, kitti00, city, robots, scans, every, seed, classes, odom_top
         return scenarios.kitti_scenario(robots, first, last, every, poses).logs, "kitti-objects"
     if city:
         return scenarios.city_scenario(robots, seed).logs, "city"
-    return read_logs(source, classes, odom_topic, objects_topic), None
+    return _recorded(sources, named, classes, odom_topic, objects_topic), None
+
+
+def _recorded(sources, named, classes, odom_topic, objects_topic) -> list:
+    """The robots of one source, or of one source per robot (`named`: NAME=PATH items)."""
+    from sgloc.replay.inputs import read_logs, read_robot_sources
+
+    if len(sources) == 1 and not named:
+        return read_logs(sources[0], classes, odom_topic, objects_topic)
+    pairs = [(None, Path(p)) for p in sources]
+    for item in named:
+        name, sep, path = item.partition("=")
+        if not sep or not name.strip() or not path.strip():
+            raise fail(f"--robot {item!r}: give NAME=PATH, e.g. --robot alpha=runs/alpha.mcap.")
+        pairs.append((name.strip(), Path(path.strip())))
+    return read_robot_sources(pairs, classes, odom_topic, objects_topic)
 
 
 def _final(logs, session) -> list:

@@ -1,7 +1,8 @@
 """Colour tables: which colour is which class, for maps whose classes are coded as colours.
 
 File format: one class a line, `class_id r g b [name]` (spaces or commas; `#` comments), r g b
-in 0-255. Class ids need not be contiguous; colours must be distinct.
+in 0-255. Class ids need not be contiguous; colours must be distinct. A UTF-8 byte-order mark
+is ignored (`sgloc.io.text`).
 """
 
 from __future__ import annotations
@@ -11,16 +12,16 @@ from pathlib import Path
 import numpy as np
 
 from sgloc.errors import GraphFileError
+from sgloc.io.text import read_text_file
 
 
 def read_colour_table(path: str | Path) -> tuple[np.ndarray, list[str]]:
     """(table (k,3) uint8 where row c is class c's colour, names) from a colour-table file.
     Rows of ids missing from the file are set to an impossible colour (-1 never matches)."""
     path = Path(path)
-    if not path.is_file():
-        raise GraphFileError(f"{path}: no such colour table; give a file of `class r g b` lines.")
+    text = read_text_file(path, "colour table (lines `class r g b [name]`)", GraphFileError)
     ids, rgb, names = [], [], {}
-    for n, line in enumerate(path.read_text().splitlines(), 1):
+    for n, line in enumerate(text.splitlines(), 1):
         parts = line.split("#", 1)[0].replace(",", " ").split()
         if not parts:
             continue

@@ -79,7 +79,7 @@ def _read_json(path: Path) -> GraphArrays:
     if is_scene_graph_json(raw):  # a Hydra / spark-dsg scene graph: its objects layer
         return read_scene_graph(path)
     try:
-        text = raw.decode("utf-8")
+        text = raw.decode("utf-8").removeprefix("\ufeff")  # a byte-order mark is no JSON
     except UnicodeDecodeError as e:
         raise GraphFileError(
             f"{path}: not UTF-8 text (byte {e.start}); is this a JSON file?"

@@ -103,16 +103,46 @@ def make_robot_log(
     )
 
 
-def parse_stamp(text: str) -> int:
-    """A decimal stamp in seconds (`1403636579.763555527`, `12`, `1.5e3`) -> exact integer
-    nanoseconds; ValueError if it is not a finite number."""
+#: Integer stamps (digits only: no decimal point, no exponent) from this value on are integer
+#: nanoseconds (a common ROS export; 1e17 ns is 1973), smaller ones seconds.
+NS_INTEGER_MIN = 10**17
+#: Integer stamps from this value (1e11 s is the year 5138) up to NS_INTEGER_MIN are neither
+#: plausible seconds nor nanoseconds since 1973 (milliseconds or microseconds): refused.
+UNCLEAR_INTEGER_MIN = 10**11
+INT64_MAX = 2**63 - 1
+_MAX_SECONDS = Decimal(INT64_MAX).scaleb(-9)
+STAMP_RULE = (
+    "write seconds (`1700000043.75`) or integer nanoseconds (`1700000043750000000`, digits only)"
+)
+
+
+def parse_stamp(text: str, where: str = "") -> int:
+    """A stamp -> exact integer nanoseconds. Seconds as any decimal (`1403636579.763555527`,
+    `12`, `1.5e3`), or integer nanoseconds: digits only and >= NS_INTEGER_MIN
+    (`1403636579763555527`). ValueError if it is not a finite number; DatasetError naming
+    `where` for an integer in the unclear range or a stamp beyond int64 nanoseconds."""
+    t = text.strip()
     try:
-        d = Decimal(text.strip())
+        d = Decimal(t)
     except InvalidOperation:
         raise ValueError(text) from None
     if not d.is_finite():
         raise ValueError(text)
-    return int((d * 1_000_000_000).to_integral_value())
+    digits = t.lstrip("+-").isdigit()
+    if digits and UNCLEAR_INTEGER_MIN <= d.copy_abs() < NS_INTEGER_MIN:
+        raise DatasetError(
+            f"{where}: stamp {t} is an integer too large for seconds and too small for "
+            f"nanoseconds since 1973 (milliseconds or microseconds?); {STAMP_RULE}."
+        )
+    ns = d if digits and d.copy_abs() >= NS_INTEGER_MIN else None
+    if ns is None and d.copy_abs() <= _MAX_SECONDS:  # compared first: 1e999999999 * 1e9 overflows
+        ns = d * 1_000_000_000
+    if ns is None or ns.copy_abs() > INT64_MAX:  # a Decimal: never a Python int of a million digits
+        raise DatasetError(
+            f"{where}: stamp {t[:40]} is beyond the range of stamps (+-{INT64_MAX // 10**9} s, "
+            f"the year 2262, in nanoseconds); {STAMP_RULE}."
+        )
+    return int(ns.to_integral_value())
 
 
 def format_stamp(ns: int | np.integer) -> str:

@@ -8,7 +8,11 @@
                              keyframe stamps of odometry.tum; class an integer id or a name of
                              classes.txt
 
-The folder name is the robot name. Stamps are seconds (any decimal; kept exactly).
+The folder name is the robot name. Stamps are seconds (any decimal), or integer nanoseconds
+(digits only, >= 1e17: a common ROS export); both kept exactly as int64 nanoseconds
+(`sgloc.io.keyframes.parse_stamp`). Quaternions are x-first as in TUM files; a first pose whose
+quaternion is `1 0 0 0` (the identity written w-first) is refused as a likely column-order
+mistake.
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from sgloc.errors import DatasetError
-from sgloc.io.class_names import read_class_table, resolve_class, write_class_table
+from sgloc.io.class_table import read_class_table, resolve_class, write_class_table
 from sgloc.io.keyframes import RobotLog, float_text, format_stamp, make_robot_log, parse_stamp
 from sgloc.io.text import read_text_file
 
@@ -76,16 +80,34 @@ def read_tum_exact(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
                 f"{path}:{n}: expected 8 values `stamp tx ty tz qx qy qz qw`, got {len(s)}."
             )
         try:
-            stamps.append(parse_stamp(s[0]))
+            stamps.append(parse_stamp(s[0], f"{path}:{n}"))
             vals.append([float(v) for v in s[1:]])
+        except DatasetError:  # a stamp out of range: its own message
+            raise
         except ValueError:
             raise DatasetError(f"{path}:{n}: non-numeric value in {line.strip()[:60]!r}.") from None
         if not np.all(np.isfinite(vals[-1])):
             raise DatasetError(f"{path}:{n}: NaN or infinite value; fix or drop the line.")
+        if len(vals) == 1:
+            check_quaternion_order(vals[0][3:], f"{path}:{n}")
     if not stamps:
         raise DatasetError(f"{path}: no poses; give `stamp tx ty tz qx qy qz qw` lines.")
     v = np.array(vals, dtype=np.float64)
     return np.array(stamps, dtype=np.int64), v[:, :3], v[:, 3:]
+
+
+def check_quaternion_order(quat: Sequence[float], where: str) -> None:
+    """DatasetError naming `where` when a first pose's quaternion, read x-first (qx qy qz qw),
+    is exactly a half turn about x, `1 0 0 0`: the identity written w-first (qw qx qy qz), the
+    usual start of an odometry file whose columns are in the wrong order."""
+    qx, qy, qz, qw = (float(v) for v in quat)
+    if abs(qx) == 1.0 and qy == qz == qw == 0.0:
+        raise DatasetError(
+            f"{where}: the first pose's quaternion reads, in the TUM order qx qy qz qw, as a half "
+            "turn about x, and as the identity if written w-first: the quaternions look written "
+            "`qw qx qy qz`; write each line `stamp tx ty tz qx qy qz qw` (qw last). A first "
+            "pose that really is a half turn about x: write its qw as 1e-12, not 0."
+        )
 
 
 def read_objects_csv(
@@ -111,7 +133,9 @@ def read_objects_csv(
         if len(f) != len(OBJECT_COLUMNS):
             raise DatasetError(f"{where}: expected 5 comma-separated values, got {len(f)}.")
         try:
-            stamp, xyz = parse_stamp(f[col[0]]), [float(f[c]) for c in col[1:4]]
+            stamp, xyz = parse_stamp(f[col[0]], where), [float(f[c]) for c in col[1:4]]
+        except DatasetError:
+            raise
         except ValueError:
             raise DatasetError(
                 f"{where}: stamp, x, y, z must be numbers: {line.strip()!r}."

@@ -1,7 +1,9 @@
 """ROS 2 bags and mcap files through `rosbags` (pure Python; no ROS install needed).
 
 Message layout read and written (one robot = one pair of topics; `{robot}` in a topic template
-is the robot name):
+is the robot name). A bag holds several robots (`read_bag`: every robot whose odometry topic
+matches the template), or one robot (`read_robot_bag`: a bag per robot, the robot named by the
+caller, its topics the templates with `{robot}` filled in or plain names such as `/odom`):
 
 - `/{robot}/odom`, nav_msgs/msg/Odometry: one message per keyframe. header.stamp = the
   keyframe stamp; pose.pose = T_odom_sensor (the sensor pose in the robot's odometry frame;
@@ -27,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from sgloc.errors import DatasetError
-from sgloc.io.class_names import resolve_class
+from sgloc.io.class_table import resolve_class
 from sgloc.io.files import staged_folder
 from sgloc.io.keyframes import RobotLog, make_robot_log
 from sgloc.optional import require
@@ -88,23 +90,60 @@ def _read_robots(reader, path, odom_topic, objects_topic, classes, robots) -> li
     names = sorted(found) if robots is None else list(robots)
     missing = [r for r in names if r not in found]
     if not names or missing:
-        topics = ", ".join(sorted({c.topic for c in reader.connections})) or "none"
         raise DatasetError(
             f"{path}: no {ODOMETRY} topic matching {odom_topic!r} for robot(s) "
-            f"{', '.join(missing) or 'any'} (topics in the bag: {topics}); set the topic "
-            "template with --odom-topic."
+            f"{', '.join(missing) or 'any'} (topics in the bag: {_bag_topics(reader)}); set the "
+            "topic template with --odom-topic."
         )
-    logs = []
-    for r in names:
-        obj_topic = objects_topic.replace("{robot}", r)
-        obj = [c for c in reader.connections if c.topic == obj_topic]
-        if not obj or any(c.msgtype != MARKERS for c in obj):
-            raise DatasetError(
-                f"{path}: robot {r!r} has no {MARKERS} topic {obj_topic!r}; set the object "
-                "topic template with --objects-topic."
-            )
-        logs.append(_read_robot(reader, path, r, found[r], obj, classes))
-    return logs
+    return [
+        _read_robot(reader, path, r, found[r], _topic(reader, path, r, objects_topic, MARKERS),
+                    classes)
+        for r in names
+    ]
+
+
+def _bag_topics(reader, shown: int = 30) -> str:
+    """The bag's topics with their types (the first `shown`), for error messages."""
+    topics = sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})
+    more = f", and {len(topics) - shown} more" if len(topics) > shown else ""
+    return ", ".join(topics[:shown]) + more if topics else "none"
+
+
+def _topic(reader, path: Path, robot: str, template: str, msgtype: str) -> list:
+    """The connections of robot `robot`'s topic `template` ({robot} filled in) of type
+    `msgtype`; DatasetError listing the bag's topics when there is none."""
+    topic = template.replace("{robot}", robot)
+    conns = [c for c in reader.connections if c.topic == topic]
+    if not conns or any(c.msgtype != msgtype for c in conns):
+        option = "--odom-topic" if msgtype == ODOMETRY else "--objects-topic"
+        raise DatasetError(
+            f"{path}: robot {robot!r} has no {msgtype} topic {topic!r} (topics in the bag: "
+            f"{_bag_topics(reader)}); name the topic with {option}."
+        )
+    return conns
+
+
+def read_robot_bag(
+    path: str | Path,
+    robot: str,
+    odom_topic: str = ODOM_TOPIC,
+    objects_topic: str = OBJECTS_TOPIC,
+    classes: dict[str, int] | None = None,
+) -> RobotLog:
+    """One robot, `robot`, from a bag of its own (folder, .db3 or .mcap): its odometry and
+    object topics are the templates with `{robot}` filled in, or the plain topic names given
+    (`/odom`). DatasetError naming the bag, the topic, the bag's topics and the fix."""
+    _, highlevel, typestore = _rosbags()
+    path = Path(path)
+    if not path.exists():
+        raise DatasetError(f"{path}: no such bag; give a rosbag2 folder, .db3 or .mcap file.")
+    try:
+        with highlevel.AnyReader([path], default_typestore=typestore) as reader:
+            odom = _topic(reader, path, robot, odom_topic, ODOMETRY)
+            objects = _topic(reader, path, robot, objects_topic, MARKERS)
+            return _read_robot(reader, path, robot, odom, objects, classes)
+    except (highlevel.AnyReaderError, OSError, KeyError, AssertionError) as e:
+        raise DatasetError(f"{path}: cannot read the bag ({e}).") from None
 
 
 def _read_robot(reader, path, name, odom_conns, obj_conns, classes) -> RobotLog:

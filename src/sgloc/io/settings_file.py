@@ -1,5 +1,6 @@
 """The one reader of settings files (localizer configs, `--config`): YAML, or JSON for a
-`.json` file; a regular file of bounded size; every failure an SglocError naming the file."""
+`.json` file; a regular file of bounded size; a UTF-8 byte-order mark ignored; every failure an
+SglocError naming the file."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from typing import Any
 
 from sgloc.errors import SglocError
 from sgloc.io.files import MAX_TEXT_FILE_BYTES, read_regular_file
+from sgloc.io.text import BOM
 
 
 def is_json(path: str | Path) -> bool:
@@ -25,7 +27,7 @@ def read_settings_data(path: str | Path, kind: str | None = None) -> Any:
     kind = kind or ("JSON" if is_json(path) else "YAML")
     raw = read_regular_file(path, f"{kind} config file", MAX_TEXT_FILE_BYTES, SglocError)
     try:
-        text = raw.decode("utf-8")
+        text = raw.decode("utf-8").removeprefix(BOM)
         return json.loads(text) if kind == "JSON" else (yaml.safe_load(text) or {})
     except (ValueError, yaml.YAMLError, UnicodeDecodeError, RecursionError) as e:
         raise SglocError(f"{path}: not a valid {kind} config ({type(e).__name__}).") from None

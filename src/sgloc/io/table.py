@@ -3,8 +3,10 @@
 Columns are found by name when the first row is a header (`x,y,z,label`; class column named
 by `label_field`, else the first of label/class/class_id/semantic/category), else by position:
 x y z in columns 0-2 and the class in column 3 (or `label_field` as a 0-based index).
-Separators: commas, semicolons, tabs or spaces; `#` starts a comment. The class column holds
-integer class ids, or class names turned into ids by a class table (`sgloc.io.class_table`).
+Separators: commas, semicolons, tabs or spaces; `#` starts a comment; a leading UTF-8
+byte-order mark (spreadsheet "CSV UTF-8") is ignored. The class column holds integer class ids,
+or class names turned into ids by a class table (`sgloc.io.class_table`). A table with a header
+but no object rows is refused, as an empty file is: a map needs objects.
 """
 
 from __future__ import annotations
@@ -16,7 +18,9 @@ import numpy as np
 
 from sgloc.errors import GraphFileError
 from sgloc.io.class_table import class_ids
+from sgloc.io.files import MAX_GRAPH_FILE_BYTES, read_regular_file
 from sgloc.io.ply import LABEL_FIELDS
+from sgloc.io.text import decode_text
 
 _SPLIT = re.compile(r"[,;\s]+")
 
@@ -27,15 +31,25 @@ def read_table(
     """Read object positions (n,3) and class ids (n,) from a CSV or whitespace table; `classes`
     ({name: id}, `sgloc.io.class_table.read_class_table`) reads a class column of names."""
     path = Path(path)
+    what = "graph table (rows `x y z label`)"
+    text = decode_text(
+        read_regular_file(path, what, MAX_GRAPH_FILE_BYTES, GraphFileError), path, what,
+        GraphFileError,
+    )
     rows = [
         _SPLIT.split(ln.split("#", 1)[0].strip())
-        for ln in path.read_text().splitlines()
+        for ln in text.splitlines()
         if ln.split("#", 1)[0].strip()
     ]
     if not rows:
         raise GraphFileError(f"{path}: empty table; expected rows `x y z label`.")
     header = None if _is_number(rows[0][0]) else [h.strip().lower() for h in rows[0]]
     body = rows[1:] if header else rows
+    if not body:
+        raise GraphFileError(
+            f"{path}: a header but no object rows; a map needs at least one row `x,y,z,label` "
+            "under the header."
+        )
     cx, cy, cz, cl = _columns(path, header, label_field, len(body[0]) if body else 0)
     try:
         names = [r[cl] for r in body]

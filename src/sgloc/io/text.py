@@ -1,4 +1,8 @@
-"""Numeric text files (poses, calibration) read with clear errors."""
+"""Text files (poses, calibration, tables, class tables) read with clear errors.
+
+Every text file is UTF-8; a leading byte-order mark (what spreadsheet programs write for "CSV
+UTF-8") is dropped.
+"""
 
 from __future__ import annotations
 
@@ -7,16 +11,18 @@ from pathlib import Path
 
 import numpy as np
 
-from sgloc.errors import DatasetError
+from sgloc.errors import DatasetError, SglocError
 from sgloc.io.files import MAX_TEXT_FILE_BYTES, check_regular_file, read_regular_file
 
+BOM = "\ufeff"
 
-def require_file(path: Path, what: str) -> Path:
-    """Return `path` if it is a regular file, or raise DatasetError naming it and what it should
+
+def require_file(path: Path, what: str, error: type[SglocError] = DatasetError) -> Path:
+    """Return `path` if it is a regular file, or raise `error` naming it and what it should
     hold (a folder, pipe or device is refused before it is opened)."""
     if not Path(path).exists():
-        raise DatasetError(f"{path}: missing {what}.")
-    return check_regular_file(path, what, DatasetError)
+        raise error(f"{path}: missing {what}.")
+    return check_regular_file(path, what, error)
 
 
 def read_numbers(path: Path, what: str, per_row: int | None = None) -> np.ndarray:
@@ -54,10 +60,19 @@ def read_numbers(path: Path, what: str, per_row: int | None = None) -> np.ndarra
     return arr
 
 
-def read_text_file(path: Path, what: str) -> str:
-    """The UTF-8 text of a regular file of bounded size; DatasetError naming it otherwise."""
-    raw = read_regular_file(require_file(path, what), what, MAX_TEXT_FILE_BYTES, DatasetError)
+def read_text_file(path: Path, what: str, error: type[SglocError] = DatasetError) -> str:
+    """The UTF-8 text of a regular file of bounded size, without a leading byte-order mark;
+    `error` naming it otherwise."""
+    raw = read_regular_file(require_file(path, what, error), what, MAX_TEXT_FILE_BYTES, error)
+    return decode_text(raw, path, what, error)
+
+
+def decode_text(
+    raw: bytes, path: str | Path, what: str, error: type[SglocError] = DatasetError
+) -> str:
+    """`raw` as UTF-8 text without a leading byte-order mark; `error` naming `path` if it is not
+    UTF-8."""
     try:
-        return raw.decode("utf-8")
-    except UnicodeDecodeError:
-        raise DatasetError(f"{path}: {what}: not a UTF-8 text file.") from None
+        return raw.decode("utf-8").removeprefix(BOM)
+    except UnicodeDecodeError as e:
+        raise error(f"{path}: {what}: not a UTF-8 text file (byte {e.start}).") from None
