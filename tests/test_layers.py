@@ -25,6 +25,7 @@ LAYERS: dict[str, int] = {
     "sgloc.validation": 0,
     "sgloc.registry": 0,
     "sgloc.geometry": 0,
+    "sgloc.lie": 0,  # SO(3) / SE(3): skew, exp, log, adjoint
     "sgloc.spatial": 0,
     "sgloc.classes": 0,
     "sgloc.timing": 0,
@@ -36,6 +37,7 @@ LAYERS: dict[str, int] = {
     "sgloc.graph": 1,
     "sgloc.association": 1,  # sightings -> objects, for map building and the online session
     "sgloc.units": 1,
+    "sgloc.prepared_graph": 1,  # a graph and the structures the stages build from it
     # matching
     "sgloc.descriptors": 2,
     "sgloc.matching": 2,
