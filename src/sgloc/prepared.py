@@ -125,8 +125,8 @@ class PreparedMap:
             descriptors.flags.writeable = False
         self.descriptors = descriptors
         self.blocks = _matching_blocks(descriptors, self.target.labels, self.config)
+        # On a new map's `canonical` (`_set_graph` makes it): nothing built on old rows stays.
         self.canonical.descriptors, self.canonical.blocks = descriptors, self.blocks
-        self.canonical.class_indexes.clear()  # of the descriptors replaced
 
     # -- use --------------------------------------------------------------------------------
     def __len__(self) -> int:

@@ -101,10 +101,8 @@ def accept(
         motion: the motion model (`sgloc.estimation.MotionModel`) of the estimate.
         refit: the final fit of a verified alignment on its co-located matches (k,2) -> 4x4 or
             None (the verification's own refined transform when refit is None).
-        rng: draws the runner-up hypotheses; clock: seconds, for `Verdict.timings`.
-        prepared: the target's `PreparedGraph` (of `target` and `desc_t`) when the caller
-            keeps one: the neighbour grids, class counts and matching indexes the stage
-            builds are kept in it, and those it holds are used (the same result).
+        rng: draws the runner-up hypotheses; clock: seconds, for `Verdict.timings`; prepared:
+            the target's `PreparedGraph` (its grids, counts and indexes used, new ones kept).
     """
     cfg = config or AcceptanceConfig()
     matching = matching or MatchingConfig()
