@@ -43,9 +43,9 @@ from sgloc.covariance import (  # noqa: E402
     assemble,
     fit_statistics,
     pose_error,
-    skew,
     tilt_prior,
 )
+from sgloc.lie import skew  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SPLITS = ("tuning", "heldout")
@@ -373,7 +373,8 @@ GTSAM's `Pose3`:
 - tangent vector xi = [rx, ry, rz, tx, ty, tz], radians and metres;
 - right perturbation: T_true = T_target_query @ Exp(xi), so xi is expressed in the **query**
   frame, at the query frame's origin; `gtsam.Pose3.Expmap` / `Logmap` are Exp / Log
-  (`sgloc.covariance.se3_exp`, `se3_log`, `pose_error` do the same without gtsam);
+  (`sgloc.lie.se3_exp`, `sgloc.lie.se3_log` and `sgloc.covariance.pose_error` do the same
+  without gtsam);
 - so it is the noise model of a `BetweenFactorPose3(target_key, query_key, T_target_query,
   gtsam.noiseModel.Gaussian.Covariance(covariance))`;
 - the uncertainty of where the transform puts a query point p (metres, query frame) is

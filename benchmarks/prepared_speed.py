@@ -246,9 +246,9 @@ def _report_airsim(rows: list[dict]) -> list[str]:
     lines = ["## Prepared maps and the cold call", "",
              "`localize` on Guo's Airsim maps (cloud1 against cloud2, default settings), three "
              "ways, in rounds where each takes a turn of 5 calls: the same graph objects every "
-             "call (a map's canonical form and descriptors are cached per graph object), new "
-             "graph objects every call (what a user with changing maps does: everything is "
-             "computed each call), and a new query object against a map prepared once "
+             "call, new graph objects every call (what a user with changing maps does; a call "
+             "keeps nothing for the next, so both compute everything each call), and a new "
+             "query object against a map prepared once "
              "(`sgloc.prepare`). Milliseconds, median (min – max).", "",
              "| call | ms | stages, ms (medians) |", "|---|---|---|"]  # fmt: skip
     for r in rows:

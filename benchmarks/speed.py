@@ -10,8 +10,8 @@
    (m = 300 / 80 %, 2,000 / 90 %, 10,000 / 95 % outliers; random and structured outliers),
    calls interleaved set by set; wall-clock medians with min / max over all calls.
 2. Threads: register and `localize` on Guo's Airsim maps with the default BLAS threads vs
-   one thread, interleaved (`localize` also with new graph objects per call: no cached
-   descriptors).
+   one thread, interleaved (`localize` also with new graph objects per call; no call keeps
+   anything for the next).
 3. Start-up: `import sgloc`; the first call in a fresh process with an empty numba cache vs a
    later process; `sgloc localize` on the two Airsim maps as a whole process (after one run).
 5. Prepared maps and the cold call (benchmarks/prepared_speed.py): Airsim maps with new graph
@@ -510,9 +510,9 @@ def report_threads(threads, args) -> list[str]:
              "bursts of load fall on all alike; other processes ran at the "
              f"same time{load}. `localize` runs "
              "Guo's Airsim maps (cloud1 against cloud2, 318 and 328 objects) with default "
-             "settings; with the same graph objects every call (a map localized against "
-             "several others is described once: descriptors are cached per graph) and with "
-             "new graph objects per call (descriptors computed every time); and with every "
+             "settings; with the same graph objects every call and with new graph objects per "
+             "call (a call keeps nothing for the next: both describe the maps every time; a "
+             "map used again is prepared once, `sgloc.prepare`); and with every "
              "compiled kernel replaced by its numpy reference (same results).", "",
              "| call | BLAS threads | ms median (min – max) | stages, ms (medians) |",
              "|---|---|---|---|"]  # fmt: skip

@@ -1,5 +1,5 @@
-"""The localizer's canonical form is built once per caller's graph: later calls with the same
-map reuse it, and with it every cache the canonical graph holds (descriptors, adjacency)."""
+"""The localizer's canonical form: built for every call (no module keeps it: a target used
+again is prepared once, `sgloc.prepare`), the same for the same graphs, and its class table."""
 
 from __future__ import annotations
 
@@ -9,22 +9,23 @@ import weakref
 import numpy as np
 
 from sgloc import SemanticGraph, localize
-from sgloc.canonical import CANONICAL_FORMS, CanonicalPair
+from sgloc.canonical import CanonicalPair
 from sgloc.config import LocalizerConfig
-from sgloc.descriptors import distance
 
 
-def test_canonical_graph_is_reused_per_input_graph(airsim_graphs):
+def test_canonical_form_is_built_per_call_and_the_same(airsim_graphs):
     q, t = airsim_graphs
     cfg = LocalizerConfig()
     a, b = CanonicalPair(q, t, cfg), CanonicalPair(q, t, cfg)
-    assert a.query is b.query and a.target is b.target
+    assert a.query is not b.query and a.target is not b.target  # nothing kept between calls
+    for x, y in ((a.query, b.query), (a.target, b.target)):
+        assert np.array_equal(x.positions, y.positions) and np.array_equal(x.labels, y.labels)
     assert np.array_equal(a.query_order, b.query_order)
+    assert a.prepared_target is None  # a graph target: prepared for the call by the localizer
     # Another class table (a partner with other classes) gives another canonical graph.
     few = SemanticGraph(t.positions[:20], np.full(20, int(q.labels.max()) + 1), t.edge_radius)
     c = CanonicalPair(q, few, cfg)
-    assert c.query is not a.query
-    assert CanonicalPair(q, t, cfg).query is a.query
+    assert int(q.labels.max()) + 1 in c.classes and int(q.labels.max()) + 1 not in a.classes
 
 
 def test_repeated_localize_gives_the_same_answer(airsim_graphs):
@@ -33,24 +34,17 @@ def test_repeated_localize_gives_the_same_answer(airsim_graphs):
     assert first.success and second.success
     assert np.array_equal(first.transform, second.transform)
     assert np.array_equal(first.matches, second.matches)
-    # The descriptors of later calls come from the canonical graphs' cache.
-    pair = CanonicalPair(q, t, LocalizerConfig())
-    assert pair.query in distance.DESCRIPTOR_CACHE and pair.target in distance.DESCRIPTOR_CACHE
 
 
-def test_cache_entries_go_with_the_graph():
+def test_the_pair_keeps_no_graph_alive():
     rng = np.random.default_rng(0)
     g = SemanticGraph(rng.uniform(0, 50, (30, 3)), rng.integers(0, 3, 30))
     h = SemanticGraph(rng.uniform(0, 50, (30, 3)), rng.integers(0, 3, 30))
-    CanonicalPair(g, h, LocalizerConfig())
-    assert g in CANONICAL_FORMS and h in CANONICAL_FORMS
+    localize(g, h)
     refs = [weakref.ref(g), weakref.ref(h)]
-    gc.collect()  # earlier tests' graphs may go too: count only these two
-    n = len(CANONICAL_FORMS)
     del g, h
     gc.collect()
-    assert all(r() is None for r in refs)  # nothing (the cache included) kept them alive
-    assert len(CANONICAL_FORMS) == n - 2
+    assert all(r() is None for r in refs)  # no module holds the graphs (or their forms)
 
 
 def test_class_table_is_the_sorted_union_of_the_ids():

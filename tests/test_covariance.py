@@ -17,8 +17,6 @@ from sgloc.covariance import (
     CovarianceInflation,
     point_covariance,
     pose_error,
-    se3_exp,
-    se3_log,
     transform_covariance,
 )
 from sgloc.errors import SglocError
@@ -26,6 +24,7 @@ from sgloc.estimation import fit_rigid, weighted_kabsch
 from sgloc.geometry import apply, invert, make_transform, random_rigid_transform
 from sgloc.graph import SemanticGraph
 from sgloc.io.results import render
+from sgloc.lie import se3_exp, se3_log
 
 DRAWS = 300
 SIGMA = 0.3

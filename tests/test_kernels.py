@@ -306,31 +306,31 @@ def test_grid_order_is_the_stable_sort_of_its_cells(radius):
                                                                np.diff(g.start)))  # fmt: skip
 
 
-def test_grid_kept_for_a_kept_map():
-    """The neighbour grid of a graph's frozen arrays is built once and reused (a query then
-    costs its neighbourhood, not the map); writeable arrays get a new one; both count alike."""
+def test_grid_kept_by_a_prepared_graph():
+    """A prepared graph builds its neighbour grid once per radius and keeps it (a query then
+    costs its neighbourhood, not the map); `cell_grid` itself keeps nothing; the counts are
+    the same with the kept grid or without one."""
     from sgloc.kernels.neighbors import cell_grid, near_class_counts
+    from sgloc.prepared_graph import PreparedGraph
 
     rng = np.random.default_rng(3)
     g = SemanticGraph(rng.uniform(-50, 50, (2000, 3)), rng.integers(0, 4, 2000))
-    assert cell_grid(g.positions, g.labels, 3.0) is cell_grid(g.positions, g.labels, 3.0)
-    assert cell_grid(g.positions, g.labels, 3.0) is not cell_grid(g.positions, g.labels, 5.0)
-    pos, lab = g.positions.copy(), g.labels.copy()
-    assert cell_grid(pos, lab, 3.0) is not cell_grid(pos, lab, 3.0)
+    prepared = PreparedGraph(g)
+    assert prepared.grid(3.0) is prepared.grid(3.0)
+    assert prepared.grid(3.0) is not prepared.grid(5.0)
+    assert PreparedGraph(g).grid(3.0) is not prepared.grid(3.0)
+    assert cell_grid(g.positions, g.labels, 3.0) is not cell_grid(g.positions, g.labels, 3.0)
     moved = rng.uniform(-60, 60, (300, 3))
     w = rng.uniform(0, 1, 2000)
-    for a, b in zip(near_class_counts(moved, g.positions, g.labels, 4, 3.0, w),
+    pos, lab = g.positions.copy(), g.labels.copy()
+    for a, b in zip(near_class_counts(moved, g.positions, g.labels, 4, 3.0, w,
+                                      prepared.grid(3.0)),
                     near_class_counts(moved, pos, lab, 4, 3.0, w), strict=True):  # fmt: skip
         np.testing.assert_array_equal(a, b)
-    # Several kept maps keep their grids; a grid leaves with its map.
-    maps = [SemanticGraph(rng.uniform(-50, 50, (500, 3)), rng.integers(0, 4, 500))
-            for _ in range(6)]  # fmt: skip
-    grids = [cell_grid(m.positions, m.labels, 3.0) for m in maps]
-    assert all(cell_grid(m.positions, m.labels, 3.0) is x for m, x in zip(maps, grids, strict=True))
-    gone = weakref.ref(grids[0])
-    del maps[0], grids[0]
+    gone = weakref.ref(prepared.grid(3.0))
+    del prepared
     gc.collect()
-    assert gone() is None
+    assert gone() is None  # the grid goes with the object that holds it
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])

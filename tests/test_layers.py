@@ -26,6 +26,7 @@ LAYERS: dict[str, int] = {
     "sgloc.keyframe_checks": 0,  # stamps, rigid poses, links: readers and the online session
     "sgloc.registry": 0,
     "sgloc.geometry": 0,
+    "sgloc.lie": 0,  # SO(3) / SE(3): skew, exp, log, adjoint
     "sgloc.spatial": 0,
     "sgloc.classes": 0,
     "sgloc.timing": 0,
@@ -37,6 +38,7 @@ LAYERS: dict[str, int] = {
     "sgloc.graph": 1,
     "sgloc.association": 1,  # sightings -> objects, for map building and the online session
     "sgloc.units": 1,
+    "sgloc.prepared_graph": 1,  # a graph and the structures the stages build from it
     # matching
     "sgloc.descriptors": 2,
     "sgloc.matching": 2,

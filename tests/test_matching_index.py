@@ -65,15 +65,17 @@ def test_auto_rule():
     assert mi.uses_index("auto", mi.INDEX_MIN_CLASS + 1)
 
 
-def test_index_is_kept_for_read_only_descriptors():
+def test_index_is_kept_by_the_callers_store():
     rng = np.random.default_rng(4)
     D, lab = descriptors(rng, 2000)
     D.flags.writeable = False
-    a = mi.class_index(D, lab, 1)
-    assert mi.class_index(D, lab, 1) is a  # built once for these descriptors
+    assert mi.class_index(D, lab, 1) is not mi.class_index(D, lab, 1)  # nothing kept itself
+    kept: dict = {}
+    a = mi.class_index(D, lab, 1, kept)
+    assert mi.class_index(D, lab, 1, kept) is a and list(kept) == [1]  # built once
     other = lab.copy()
     other[np.flatnonzero(lab == 1)[:5]] = 0
-    assert mi.class_index(D, other, 1) is not a  # another class table: built anew
+    assert mi.class_index(D, other, 1, kept) is not a  # another class table: built anew
 
 
 def test_auto_is_exact_below_the_rule_and_the_index_above(monkeypatch):

@@ -135,9 +135,12 @@ def test_prepared_map_keeps_the_chance_grid(street, tmp_path):
     radius = float(cfg.acceptance.radius or cfg.ransac.threshold)
     grid = prepared.chance_grid
     assert grid is not None and len(grid.order) == len(street) - 30
+    fresh = cell_grid(prepared.target.positions, prepared.target.labels, radius)
+    for name in ("order", "sorted_keys", "xyz", "labels", "start"):
+        assert np.array_equal(getattr(grid, name), getattr(fresh, name))
     for seed, query in enumerate(scans(street, np.random.default_rng(4), 2, 60.0)):
         localize(query, prepared, seed=seed)
-        assert cell_grid(prepared.target.positions, prepared.target.labels, radius) is grid
+        assert prepared.canonical.grid(radius) is grid  # the queries used the map's grid
     prepared.add(street.positions[-30:], street.labels[-30:])
     assert prepared.chance_grid is not grid and len(prepared.chance_grid.order) == len(street)
     loaded = PreparedMap.load(prepared.save(tmp_path / "map.npz"))

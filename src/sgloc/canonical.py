@@ -2,12 +2,15 @@
 an object listed twice (same class, within DUPLICATE_RADIUS) kept once, and the classes present
 renumbered 0..L-1. The pipeline then gives the same answer for any
 vertex order of either graph, and no array is sized by a large class id. `restore` maps the
-result's vertex indices back to the caller's order."""
+result's vertex indices back to the caller's order.
+
+Built for every call; a target localized against again and again is prepared once instead
+(`sgloc.prepared.PreparedMap` keeps its canonical form, `CanonicalPair.with_canonical_target`).
+"""
 
 from __future__ import annotations
 
 import dataclasses
-import weakref
 from typing import Any
 
 import numpy as np
@@ -16,15 +19,9 @@ from scipy import sparse
 from sgloc.graph import SemanticGraph
 from sgloc.kernels import use_compiled
 
-#: Canonical forms already built, per caller's graph (graphs are immutable; entries go with the
-#: graph): {class table bytes: (order, canonical graph)}. Reusing the canonical graph lets its
-#: own caches (descriptors, adjacency) serve every later call with the same map.
-CANONICAL_FORMS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 #: Objects of one class closer than this (metres) are one object listed twice: kept once (the
 #: first in canonical order), else every copy would be a rival of its twin in the ratio tests.
 DUPLICATE_RADIUS = 1e-3
-#: Class tables kept per graph (a map localized against maps with other classes).
-_FORMS_PER_GRAPH = 4
 
 
 def canonical_order(graph: SemanticGraph) -> np.ndarray:
@@ -114,9 +111,9 @@ class CanonicalPair:
     """(query, target) in canonical form, the config with class weights renumbered to match,
     and the maps back to the caller's vertex indices and class ids."""
 
-    #: The target's descriptors and matching blocks when they come prepared (sgloc.prepared).
-    target_descriptors = None
-    target_blocks = None
+    #: The canonical target's `PreparedGraph` (descriptors, matching blocks, grids) when the
+    #: target comes prepared (`sgloc.prepared.PreparedMap.pair`), else None.
+    prepared_target = None
 
     def __init__(self, query: SemanticGraph, target: SemanticGraph, config: Any) -> None:
         self.classes = _class_table(query.labels, target.labels)  # original id of each new id
@@ -154,16 +151,10 @@ class CanonicalPair:
             self.config = dataclasses.replace(config, class_weights=weights)
 
     def _canonical(self, graph: SemanticGraph) -> tuple[np.ndarray, SemanticGraph]:
-        """(order, canonical graph) of `graph` under this pair's class table, built once."""
-        key = self.classes.tobytes()
-        forms = CANONICAL_FORMS.setdefault(graph, {})
-        if key not in forms:
-            if len(forms) >= _FORMS_PER_GRAPH:
-                forms.pop(next(iter(forms)))
-            order, labels = self._form(graph)
-            order.flags.writeable = False
-            forms[key] = (order, self._rebuilt(graph, order, labels))
-        return forms[key]
+        """(order, canonical graph) of `graph` under this pair's class table."""
+        order, labels = self._form(graph)
+        order.flags.writeable = False
+        return order, self._rebuilt(graph, order, labels)
 
     def _form(self, graph: SemanticGraph) -> tuple[np.ndarray, np.ndarray]:
         """(order, labels): `without_duplicates(graph, canonical_order(graph))` and the class

@@ -2,7 +2,8 @@
 
 Convention: tangent vector xi = [rx, ry, rz, tx, ty, tz] (radians, metres), right perturbation
 T_true = T_est @ Exp(xi), so xi is expressed in the SOURCE (query) frame, at its origin; this is
-`gtsam.Pose3`'s Logmap / Expmap and the noise model of a `BetweenFactorPose3(target, query)`.
+`gtsam.Pose3`'s Logmap / Expmap and the noise model of a `BetweenFactorPose3(target, query)`
+(`sgloc.lie` holds Exp, Log and the skew matrices in this convention).
 
 Model (`transform_covariance`):
 1. The least-squares fit's covariance. Residuals r_i = R src_i + t - dst_i; a right
@@ -32,6 +33,7 @@ import numpy as np
 
 from sgloc.errors import SglocError
 from sgloc.kernels.constants import MAD_SCALE, TUKEY_C
+from sgloc.lie import between, se3_log, skew
 from sgloc.validation import MAX_COORDINATE, real, setting, validate_settings
 
 #: Tukey biweight's support in robust scales (that of `sgloc.estimation.irls_refine`).
@@ -73,49 +75,10 @@ DEFAULT_INFLATION = CovarianceInflation(
 )
 
 
-def skew(v: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) cross-product matrices [v]x of vectors v (..., 3)."""
-    v = np.asarray(v, dtype=np.float64)
-    out = np.zeros((*v.shape[:-1], 3, 3))
-    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
-    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
-    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
-    return out
-
-
-def _left_jacobian(omega: np.ndarray) -> np.ndarray:
-    """SO(3) left Jacobian V(omega) (3,3): t = V v in the SE(3) exponential."""
-    a = float(np.linalg.norm(omega))
-    K = skew(omega)
-    if a < 1e-8:
-        return np.eye(3) + 0.5 * K + K @ K / 6.0
-    return np.eye(3) + (1 - np.cos(a)) / a**2 * K + (a - np.sin(a)) / a**3 * (K @ K)
-
-
-def se3_exp(xi: np.ndarray) -> np.ndarray:
-    """(4,4) Exp of xi = [rx, ry, rz, tx, ty, tz] (rad, m), as gtsam.Pose3.Expmap."""
-    from scipy.spatial.transform import Rotation  # deferred: a localization never needs it
-
-    xi = np.asarray(xi, dtype=np.float64)
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec(xi[:3]).as_matrix()
-    T[:3, 3] = _left_jacobian(xi[:3]) @ xi[3:]
-    return T
-
-
-def se3_log(T: np.ndarray) -> np.ndarray:
-    """xi (6,) = Log of a (4,4) rigid transform, as gtsam.Pose3.Logmap ([rotation, translation])."""
-    from scipy.spatial.transform import Rotation
-
-    T = np.asarray(T, dtype=np.float64)
-    omega = Rotation.from_matrix(T[:3, :3]).as_rotvec()
-    return np.concatenate([omega, np.linalg.solve(_left_jacobian(omega), T[:3, 3])])
-
-
 def pose_error(T_est: np.ndarray, T_true: np.ndarray) -> np.ndarray:
     """xi (6,) with T_true = T_est @ Exp(xi): the error of T_est in the convention of
-    `transform_covariance` (query frame, [rotation rad, translation m])."""
-    return se3_log(np.linalg.solve(T_est, T_true))
+    `transform_covariance` (query frame, [rotation rad, translation m]; `sgloc.lie`)."""
+    return se3_log(between(T_est, T_true))
 
 
 def point_covariance(covariance: np.ndarray, point: np.ndarray) -> np.ndarray:

@@ -1,4 +1,10 @@
-"""Localizer / localize(): run the stages graph pair -> transform, timing each one."""
+"""Localizer / localize(): run the stages graph pair -> transform, timing each one.
+
+A call puts both graphs in canonical form (`sgloc.canonical`) and holds each in a
+`PreparedGraph` (`sgloc.prepared_graph`: its descriptors, neighbour grids, class counts and
+matching indexes), which it hands to the stages: the prepared query and target live for the
+call, unless the target comes as a `PreparedMap`, whose own prepared graph serves every query.
+Nothing is kept between calls anywhere else, so a result does not depend on what ran before."""
 
 from __future__ import annotations
 
@@ -20,6 +26,7 @@ from sgloc.estimation import FinalFit, PoseEstimate, estimate_pose, final_fit, i
 from sgloc.graph import SemanticGraph
 from sgloc.matching import match_flagged
 from sgloc.prepared import PreparedMap, prepare
+from sgloc.prepared_graph import PreparedGraph
 from sgloc.rejection import make_rejector
 from sgloc.timing import StageTimer
 from sgloc.units import units_hint
@@ -160,13 +167,15 @@ class Localizer:
         query, target, cfg = canonical.query, canonical.target, canonical.config
         streams, timer = stage_streams(rng), StageTimer(clock)
         n_classes = max(query.n_classes, target.n_classes)
+        prepared = canonical.prepared_target or PreparedGraph(target)  # kept or for this call
         with timer("descriptors"):
             dq = self.descriptor(query, n_classes, streams["descriptors"])
-            dt = canonical.target_descriptors  # None unless prepared
-            if dt is None:
-                dt = self.descriptor(target, n_classes, streams["descriptors"])
+            if prepared.descriptors is None:
+                prepared.descriptors = self.descriptor(target, n_classes, streams["descriptors"])
+            dt = prepared.descriptors
+        prepared_query = PreparedGraph(query, dq)
         with timer("matching"):
-            matched = _match(dq, dt, query, target, cfg, canonical.target_blocks)
+            matched = _match(prepared_query, prepared, cfg)
         c = matched.candidates
         weights = _match_weights(cfg, query, c, n_classes)
         pose = estimate_pose(
@@ -182,7 +191,7 @@ class Localizer:
             timer=timer,
         )
         verdict = self._accept(
-            query, target, cfg, (dq, dt), matched, pose, streams["acceptance"], timer
+            query, prepared, cfg, (dq, dt), matched, pose, streams["acceptance"], timer
         )
         result = LocalizationResult(
             success=verdict.accepted,
@@ -202,7 +211,7 @@ class Localizer:
     def _accept(
         self,
         query: SemanticGraph,
-        target: SemanticGraph,
+        prepared: PreparedGraph,
         cfg: LocalizerConfig,
         descriptors: tuple[Any, Any],
         matched: _Matched,
@@ -211,14 +220,16 @@ class Localizer:
         timer: StageTimer,
     ) -> Verdict:
         """The acceptance stage (sgloc.acceptance.accept): the test of the pose and, for a
-        refused small query, the whole-map verification, refitted by the same final fit."""
+        refused small query, the whole-map verification, refitted by the same final fit, on
+        the `prepared` target."""
+        target = prepared.graph
         c = matched.candidates
         final = c[pose.inliers] if pose.inliers.size else np.zeros((0, 2), np.int64)
         verdict = accept(
             query, target, *descriptors, c, matched.distinct, pose.transform, final,
             pose.reason, radius=cfg.ransac.threshold, config=cfg.acceptance,
             matching=cfg.matching, motion=cfg.motion, rng=rng, clock=timer.clock,
-            refit=lambda matches: _fit_matches(query, target, matches, cfg),
+            refit=lambda matches: _fit_matches(query, target, matches, cfg), prepared=prepared,
         )  # fmt: skip
         timer.add(verdict.timings)
         if not verdict.accepted:
@@ -226,21 +237,15 @@ class Localizer:
         return verdict
 
 
-def _match(
-    dq: Any,
-    dt: Any,
-    query: SemanticGraph,
-    target: SemanticGraph,
-    cfg: LocalizerConfig,
-    target_blocks: Any = None,
-) -> _Matched:
-    """Candidate matches of the descriptors; also flags the candidates the acceptance test
-    counts (its ratio test) in the same pass. `target_blocks`: the target's matching blocks
-    when prepared (sgloc.prepared)."""
+def _match(query: PreparedGraph, target: PreparedGraph, cfg: LocalizerConfig) -> _Matched:
+    """Candidate matches of the prepared graphs' descriptors (the target's kept blocks and
+    indexes used); also flags the candidates the acceptance test counts (its ratio test) in
+    the same pass."""
     flag_ratio = cfg.acceptance.evidence.ratio_for(len(query))
     candidates, scores, distinct = match_flagged(
-        dq, dt, query.labels, target.labels, cfg.matching, flag_ratio, target_blocks
-    )
+        query.descriptors, target.descriptors, query.graph.labels, target.graph.labels,
+        cfg.matching, flag_ratio, target,
+    )  # fmt: skip
     return _Matched(candidates, scores, distinct, flag_ratio)
 
 

@@ -15,6 +15,7 @@ from scipy import sparse
 
 from sgloc.kernels import one_blas_thread, use_compiled
 from sgloc.matching_index import build_index, class_index, search_class, uses_index
+from sgloc.prepared_graph import PreparedGraph
 from sgloc.validation import (
     MAX_ITERATIONS,
     MAX_VERTICES,
@@ -121,19 +122,19 @@ def _top_k(
     max_ratio: float | None = None,
     flag_ratio: float | None = None,
     compiled: bool = False,
-    blocks: TargetBlocks | None = None,
+    target: PreparedGraph | None = None,
     search: tuple[str, int] = ("exact", 8),
 ) -> tuple[np.ndarray, ...]:
     """Per query row its k most similar same-class targets with similarity >= min_sim and > 0
     (and passing the ratio test when max_ratio is set): (query idx, target idx, score, flag),
     ordered by query, then score descending, then target; flag: the query passes the ratio
     test at `flag_ratio` (all True when it is None). Of equally similar targets the lower
-    index ranks first. `compiled`: by the kernel (dense descriptors only, `_use_kernel`), on
-    the target's prepared `blocks` when given; search: (MatchingConfig.search, .probes), for
-    the compiled path."""
+    index ranks first. `compiled`: by the kernel (dense descriptors only, `_use_kernel`), with
+    the `target`'s kept blocks and indexes when given (its `PreparedGraph`); search:
+    (MatchingConfig.search, .probes), for the compiled path."""
     if compiled:
         return _compiled_top_k(desc_q, desc_t, labels_q, labels_t, k, min_sim, max_ratio,
-                               flag_ratio, blocks, *search)  # fmt: skip
+                               flag_ratio, target, *search)  # fmt: skip
     Q, T = unit_rows(desc_q), unit_rows(desc_t)
     out_q, out_t, out_s, out_f = [], [], [], []
     for rows, it, S in _blocks(Q, T, labels_q, labels_t):
@@ -228,13 +229,15 @@ def target_blocks(desc_t, labels_t: np.ndarray, search: str = "auto") -> TargetB
 
 
 def _compiled_top_k(desc_q, desc_t, labels_q, labels_t, k, min_sim, max_ratio, flag_ratio,
-                    blocks: TargetBlocks | None = None, search: str = "exact",
+                    target: PreparedGraph | None = None, search: str = "exact",
                     probes: int = 8):  # fmt: skip
     """`_top_k` by `sgloc.kernels.matching.top_k_same_class` (same candidates; similarities
-    equal to rounding), on the target's prepared `blocks` when given (the same bits); the
+    equal to rounding), on the `target`'s kept blocks when it has them (the same bits); the
     classes `search` sends to an index (`sgloc.matching_index.uses_index`) by their index
-    (the target's prepared one when `blocks` holds it)."""
+    (the one of the target's blocks, else one kept in `target.class_indexes`, else built)."""
     from sgloc.kernels.matching import top_k_in_blocks, top_k_same_class
+
+    blocks = None if target is None else target.blocks
 
     labels_q = np.asarray(labels_q, dtype=np.int64)
     labels_t = np.asarray(labels_t, dtype=np.int64)
@@ -247,8 +250,8 @@ def _compiled_top_k(desc_q, desc_t, labels_q, labels_t, k, min_sim, max_ratio, f
     order_q = np.argsort(exact_q, kind="stable")
     query = (np.ascontiguousarray(desc_q, dtype=np.float64), order_q, exact_q[order_q])
     if blocks is not None and blocks.covers(np.unique(exact_q)):
-        target = (blocks.blocks, blocks.block_class, blocks.block_start, blocks.order)
-        out = top_k_in_blocks(*query, *target, *tests)
+        kept_blocks = (blocks.blocks, blocks.block_class, blocks.block_start, blocks.order)
+        out = top_k_in_blocks(*query, *kept_blocks, *tests)
     else:
         order_t = np.argsort(labels_t, kind="stable")
         Q, order_q, sorted_q = query
@@ -258,8 +261,9 @@ def _compiled_top_k(desc_q, desc_t, labels_q, labels_t, k, min_sim, max_ratio, f
         return out
     parts = [out]
     kept = blocks.index if blocks is not None else {}
+    store = None if target is None else target.class_indexes
     for c in indexed:
-        index = kept.get(int(c)) or class_index(desc_t, labels_t, int(c))
+        index = kept.get(int(c)) or class_index(desc_t, labels_t, int(c), store)
         parts.append(search_class(index, query[0], np.flatnonzero(labels_q == c), probes, tests))
     q, t, s, f = (np.concatenate(x) for x in zip(*parts, strict=True))
     order = np.lexsort((t, -s, q))
@@ -307,15 +311,18 @@ def match_descriptors(
     labels_q: np.ndarray,
     labels_t: np.ndarray,
     config: MatchingConfig | None = None,
+    target: PreparedGraph | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Candidate matches (m,2) int (query index, target index) and their scores (m,).
 
     Strategy "top_k": for each query vertex its `top_k` most similar same-class target
     vertices with similarity >= `min_similarity`, optionally mutually best. Strategy "all":
     every same-class pair above `min_similarity`, the `max_candidates` most similar.
-    Ordered by query index, then score (descending).
+    Ordered by query index, then score (descending). target: the target's `PreparedGraph`
+    (of `desc_t`) when the caller keeps one: its matching blocks and class indexes are used
+    and the indexes built here kept in it (the same result).
     """
-    return match_flagged(desc_q, desc_t, labels_q, labels_t, config)[:2]
+    return match_flagged(desc_q, desc_t, labels_q, labels_t, config, target=target)[:2]
 
 
 def match_flagged(
@@ -325,23 +332,23 @@ def match_flagged(
     labels_t: np.ndarray,
     config: MatchingConfig | None = None,
     flag_ratio: float | None = None,
-    blocks: TargetBlocks | None = None,
+    target: PreparedGraph | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """`match_descriptors` plus, per candidate, whether it is also a candidate of the same
     matching with `max_ratio=flag_ratio` (one pass instead of two): (candidates, scores,
     flags (m,) bool). flags is None when that set is not a subset of these candidates (a
     looser flag_ratio than the config's max_ratio); strategy "all" has no ratio test: all
-    True. blocks: the target's `target_blocks`, kept for many queries (the same result)."""
+    True. target: as `match_descriptors`' (a prepared map's holds its `target_blocks`)."""
     cfg = config or MatchingConfig()
     if cfg.strategy not in STRATEGIES:
         raise ValueError(f"unknown matching strategy {cfg.strategy!r}; use one of {STRATEGIES}")
     if cfg.search not in SEARCHES:
         raise ValueError(f"unknown matching search {cfg.search!r}; use one of {SEARCHES}")
     if flag_ratio is not None and cfg.max_ratio is not None and flag_ratio > cfg.max_ratio:
-        return (*match_descriptors(desc_q, desc_t, labels_q, labels_t, cfg), None)
+        return (*match_descriptors(desc_q, desc_t, labels_q, labels_t, cfg, target), None)
     desc_q, desc_t = _as_matrix(desc_q), _as_matrix(desc_t)
     if cfg.strategy == "top_k" and _use_kernel(desc_q, desc_t):  # no BLAS products
-        return _match(desc_q, desc_t, labels_q, labels_t, cfg, flag_ratio, True, blocks)
+        return _match(desc_q, desc_t, labels_q, labels_t, cfg, flag_ratio, True, target)
     with one_blas_thread():  # small block products
         return _match(desc_q, desc_t, labels_q, labels_t, cfg, flag_ratio)
 
@@ -354,7 +361,7 @@ def _match(
     cfg: MatchingConfig,
     flag_ratio: float | None = None,
     compiled: bool = False,
-    blocks: TargetBlocks | None = None,
+    target: PreparedGraph | None = None,
 ) -> tuple[np.ndarray, ...]:
     if desc_q.shape[0] == 0 or desc_t.shape[0] == 0:
         return np.zeros((0, 2), dtype=np.int64), np.zeros(0), np.zeros(0, bool)
@@ -366,7 +373,7 @@ def _match(
     else:
         k = max(int(cfg.top_k), 1)
         search = (cfg.search, int(cfg.probes))
-        args = (labels_q, labels_t, k, min_sim, cfg.max_ratio, flag_ratio, compiled, blocks)
+        args = (labels_q, labels_t, k, min_sim, cfg.max_ratio, flag_ratio, compiled, target)
         q, t, s, f = _top_k(desc_q, desc_t, *args, search)
         if cfg.mutual and q.size:
             # j's best k queries (any similarity), by the same blocks with the roles swapped.

@@ -14,7 +14,6 @@ Used by `sgloc.matching` (`MatchingConfig.search`) per class: see `uses_index` f
 
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -116,28 +115,20 @@ def build_index(desc: np.ndarray, labels: np.ndarray, min_class: int | None = No
     }
 
 
-#: Indexes built for read-only descriptor arrays, by the array's id: {id: (weak reference,
-#: {class: (rows, ClassIndex)})}; an entry leaves with its array.
-_BUILT: dict[int, tuple] = {}
-
-
-def class_index(desc: np.ndarray, labels: np.ndarray, c: int) -> ClassIndex:
-    """The index of class c of a target's descriptors (n, d) and labels (n,); kept while a
-    read-only `desc` lives (a map's cached or prepared descriptors), so repeated queries
-    against the same descriptors build it once."""
+def class_index(
+    desc: np.ndarray, labels: np.ndarray, c: int, kept: dict | None = None
+) -> ClassIndex:
+    """The index of class c of a target's descriptors (n, d) and labels (n,). `kept`: the
+    indexes of these descriptors that the caller keeps ({class: (rows, ClassIndex)}, a
+    prepared graph's `class_indexes`): read when it holds class c with the same rows, else
+    the index is built and stored there."""
     rows = np.flatnonzero(np.asarray(labels) == c)
-    if desc.flags.writeable:
+    if kept is None:
         return build_class_index(desc, rows)
-    key = id(desc)
-    entry = _BUILT.get(key)
-    if entry is None or entry[0]() is not desc:
-        entry = (weakref.ref(desc, lambda _, k=key: _BUILT.pop(k, None)), {})
-        _BUILT[key] = entry
-    kept = entry[1].get(int(c))
-    if kept is None or not np.array_equal(kept[0], rows):
-        kept = (rows, build_class_index(desc, rows))
-        entry[1][int(c)] = kept
-    return kept[1]
+    entry = kept.get(int(c))
+    if entry is None or not np.array_equal(entry[0], rows):
+        entry = kept[int(c)] = (rows, build_class_index(desc, rows))
+    return entry[1]
 
 
 def probe_lists(index: ClassIndex, Q: np.ndarray, rows: np.ndarray, probes: int) -> np.ndarray:

@@ -15,8 +15,14 @@ objects a second, normalised copy for the matching kernel: grouped by class for 
 searched exhaustively, by the lists of the candidate-search index for the classes of more than
 `sgloc.matching_index.INDEX_MIN_CLASS` objects (`MatchingConfig.search`; rebuilt by `add` and
 on `load`). The acceptance test's neighbour grid of the map (`chance_grid`, at most 64 bytes
-per object) is built with it and kept while the map lives, so a query's chance model costs its
-own neighbourhood, not the map.
+per object) and its class counts are built with it, so a query's chance model costs its own
+neighbourhood, not the map.
+
+All of it is held by the map's `canonical` (`sgloc.prepared_graph.PreparedGraph`), which the
+localizer hands to the stages; what a query builds on it for later ones (grids at other radii,
+the candidate-search index of a class a localizer searches by index) is kept there too, and
+goes with the map. Nothing is kept anywhere else: a localization against the graph itself
+builds all of it for that call.
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ from sgloc.descriptors import DistanceHistogramDescriptor, RandomWalkDescriptor
 from sgloc.errors import SglocError
 from sgloc.graph import SemanticGraph
 from sgloc.kernels import use_compiled
+from sgloc.prepared_graph import PreparedGraph
 from sgloc.validation import check_graph_arrays
 
 #: The file format's name and version (`PreparedMap.save`).
@@ -58,8 +65,11 @@ class PreparedMap:
     classes: (L,) the map's class ids, sorted; order: (n,) its canonical vertex order
         (`sgloc.canonical`); target: the canonical graph (classes renumbered 0..L-1);
         descriptors: (n, d) the canonical graph's descriptor rows (read-only);
+        blocks: the matching kernel's class blocks (`sgloc.matching.TargetBlocks`) or None;
+        canonical: the `PreparedGraph` of `target` holding descriptors, blocks, neighbour
+        grids and class indexes, handed to the stages of every query;
         chance_grid: the acceptance test's neighbour grid of `target` at the config's
-        acceptance radius (None without compiled kernels), kept while the map lives.
+        acceptance radius (None without compiled kernels), built when the map is.
     """
 
     def __init__(self, graph: SemanticGraph, config: LocalizerConfig | None = None) -> None:
@@ -90,21 +100,18 @@ class PreparedMap:
         self.target = SemanticGraph(
             graph.positions[self.order], labels, graph.edge_radius, graph.name
         )
+        self.canonical = PreparedGraph(self.target)
         self.chance_grid = self._chance_grid()
 
     def _chance_grid(self):
         """The acceptance test's neighbour grid of the map at the config's acceptance radius
-        (`sgloc.kernels.neighbors.cell_grid`), built now rather than by the first query, and
-        the class counts; None when the chance model searches by KD-trees."""
+        (`PreparedGraph.grid`), built now rather than by the first query, and the class
+        counts; None when the chance model searches by KD-trees."""
         if not use_compiled(len(self.target)):
             return None
-        from sgloc.acceptance.chance import class_counts
-        from sgloc.kernels.neighbors import cell_grid
-
         radius = float(self.config.acceptance.radius or self.config.ransac.threshold)
-        class_counts(self.target.labels, len(self.classes))
-        positions = np.ascontiguousarray(self.target.positions, dtype=np.float64)
-        return cell_grid(positions, np.asarray(self.target.labels, dtype=np.int64), radius)
+        _ = self.canonical.class_counts  # built now, not by the first query
+        return self.canonical.grid(radius)
 
     def _describe(self) -> np.ndarray:
         """The canonical graph's descriptors, computed whole."""
@@ -118,6 +125,8 @@ class PreparedMap:
             descriptors.flags.writeable = False
         self.descriptors = descriptors
         self.blocks = _matching_blocks(descriptors, self.target.labels, self.config)
+        # On a new map's `canonical` (`_set_graph` makes it): nothing built on old rows stays.
+        self.canonical.descriptors, self.canonical.blocks = descriptors, self.blocks
 
     # -- use --------------------------------------------------------------------------------
     def __len__(self) -> int:
@@ -260,9 +269,10 @@ class PreparedMap:
             )
 
     def pair(self, query: SemanticGraph, config: LocalizerConfig) -> CanonicalPair | None:
-        """The canonical (query, map) pair carrying the prepared descriptors and matching
-        blocks, for a localizer with `config`; None when the query holds a class the map does
-        not (the class table then differs: localize against `graph` instead)."""
+        """The canonical (query, map) pair carrying the map's `canonical` prepared graph
+        (descriptors, matching blocks, grids), for a localizer with `config`; None when the
+        query holds a class the map does not (the class table then differs: localize against
+        `graph` instead)."""
         if config is not self._accepted:  # a localizer passes the same config every call
             self._check(config)
             self._accepted = config
@@ -272,8 +282,7 @@ class PreparedMap:
         pair = CanonicalPair.with_canonical_target(
             query, self.classes, self.order, self.target, config
         )
-        pair.target_descriptors = self.descriptors
-        pair.target_blocks = self.blocks
+        pair.prepared_target = self.canonical
         return pair
 
 

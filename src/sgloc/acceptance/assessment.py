@@ -77,6 +77,7 @@ from sgloc.estimation import ANY_RIGID, MotionModel
 from sgloc.geometry import apply
 from sgloc.graph import SemanticGraph
 from sgloc.kernels import use_compiled
+from sgloc.prepared_graph import PreparedGraph
 from sgloc.sampled_consistency import SampledConsistency
 
 #: With dof=4, inliers must extend this many times `min_spread` along their first xy axis
@@ -262,6 +263,7 @@ def assess(
     config: AcceptanceConfig | None = None,
     rng: np.random.Generator | None = None,
     motion: MotionModel = ANY_RIGID,
+    prepared: PreparedGraph | None = None,
 ) -> Assessment:
     """Score an estimated T_target_query against chance (module docstring).
 
@@ -272,6 +274,8 @@ def assess(
         radius: inlier radius in metres (the RANSAC threshold unless config.radius is set).
         rng: draws the runner-up's hypotheses.
         motion: the motion model (`MotionModel`) of the runner-up hypotheses.
+        prepared: the target's `PreparedGraph` (its neighbour grids and class counts are
+            used and kept), or None.
     """
     dof, max_tilt = motion.dof, motion.max_tilt
     cfg = config or AcceptanceConfig()
@@ -280,7 +284,7 @@ def assess(
         return Assessment(False, 0.0, "no transform to assess")
     r = float(cfg.radius or radius)
     c = _Candidates.of(query, target, candidates, transform, r)
-    chance = ChanceModel(target, r, max(query.n_classes, target.n_classes))
+    chance = ChanceModel(target, r, max(query.n_classes, target.n_classes), prepared)
     tests = _Tests.of(c, r, dof, rng)
     details, presence = _best_evidence(query, target, c, transform, chance, tests)
     seen = {"landed": presence[np.arange(len(query)), query.labels], "radius_m": r}

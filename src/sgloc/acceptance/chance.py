@@ -9,7 +9,6 @@ one formula that weighs the best hypothesis against its rival and chance. Used b
 
 from __future__ import annotations
 
-import weakref
 from functools import cached_property
 
 import numpy as np
@@ -17,6 +16,7 @@ import numpy as np
 from sgloc.consistency import ConsistentPairs, common_partner_count, consistency_bits
 from sgloc.graph import SemanticGraph
 from sgloc.kernels import use_compiled
+from sgloc.prepared_graph import PreparedGraph
 
 _LN10 = np.log(10.0)
 _TRIANGLE_EDGES = 2048
@@ -42,17 +42,25 @@ class ChanceModel:
     """Chance agreement of a transform under the nulls, from one neighbour search: the
     same-class target objects within the radius of each moved query object.
 
-    Against a map searched again and again (a prepared map, or the same graph object) the
-    search's grid and the class counts are built once (`sgloc.kernels.neighbors.cell_grid`,
-    `class_counts`): a query then costs O(its objects x the map objects around them), not
-    O(map)."""
+    prepared: the target's `PreparedGraph` when the caller keeps one (the localizer's, or a
+    prepared map's): the search's grid at this radius and the class counts come from it,
+    built once for every model of a call and every query of a kept map (a query then costs
+    O(its objects x the map objects around them), not O(map)). Without it the model keeps its
+    own for its searches."""
 
-    def __init__(self, target: SemanticGraph, radius: float, n_classes: int) -> None:
-        self.positions = np.ascontiguousarray(target.positions, dtype=np.float64)
+    def __init__(
+        self,
+        target: SemanticGraph,
+        radius: float,
+        n_classes: int,
+        prepared: PreparedGraph | None = None,
+    ) -> None:
+        self.prepared = PreparedGraph(target) if prepared is None else prepared
+        self.positions = self.prepared.positions
         self.labels = target.labels
         self.n_classes = n_classes
         self.radius = radius
-        # The neighbour search: compiled (a grid, kept for a kept map) or by KD-trees (the
+        # The neighbour search: compiled (on the prepared graph's grid) or by KD-trees (the
         # reference).
         self.compiled = use_compiled(len(target))
         self.tree = None
@@ -60,7 +68,7 @@ class ChanceModel:
     @cached_property
     def class_count(self) -> np.ndarray:
         """(at least n_classes,) float64: the target objects of each class."""
-        return class_counts(self.labels, self.n_classes)
+        return class_counts(self.labels, self.n_classes, self.prepared.class_counts)
 
     def near_counts(
         self, moved: np.ndarray, weights: tuple[np.ndarray | None, ...] = (None,)
@@ -79,6 +87,7 @@ class ChanceModel:
                 self.n_classes,
                 float(self.radius),
                 np.zeros(0) if w is None else np.asarray(w, dtype=np.float64),
+                self.prepared.grid(self.radius),
             )
             return [counts, summed][: len(weights)]
         return self.near_counts_reference(moved, weights)
@@ -141,25 +150,13 @@ class ChanceModel:
         return float(np.sum(counts[qi, tlab] / self.class_count[tlab]))
 
 
-#: Class counts of read-only label arrays: id -> (weak reference, counts); an entry leaves
-#: with its array.
-_COUNTS: dict[int, tuple] = {}
-
-
-def class_counts(labels: np.ndarray, n_classes: int) -> np.ndarray:
-    """(max(n_classes, labels.max() + 1),) float64: the number of `labels` (n,) of each class;
-    kept while a read-only `labels` array lives."""
-    kept = _COUNTS.get(id(labels))
-    if kept is None or kept[0]() is not labels:
+def class_counts(
+    labels: np.ndarray, n_classes: int, counts: np.ndarray | None = None
+) -> np.ndarray:
+    """(max(n_classes, labels.max() + 1),) float64: the number of `labels` (n,) of each class
+    (`counts`: np.bincount(labels) as float64 when the caller keeps it, a prepared graph's)."""
+    if counts is None:
         counts = np.bincount(labels).astype(np.float64)
-        counts.flags.writeable = False
-        if labels.flags.writeable or labels.base is not None:
-            kept = (None, counts)
-        else:
-            key = id(labels)
-            kept = (weakref.ref(labels, lambda _, k=key: _COUNTS.pop(k, None)), counts)
-            _COUNTS[key] = kept
-    counts = kept[1]
     if len(counts) >= n_classes:
         return counts
     return np.concatenate([counts, np.zeros(n_classes - len(counts))])

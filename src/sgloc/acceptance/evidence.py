@@ -21,6 +21,7 @@ import numpy as np
 from sgloc.acceptance.config import EvidenceConfig
 from sgloc.graph import SemanticGraph
 from sgloc.matching import BLOCK_ENTRIES, MatchingConfig, match_descriptors, unit_rows
+from sgloc.prepared_graph import PreparedGraph
 
 
 def spatially_distinctive(
@@ -70,13 +71,15 @@ def select_evidence(
     flags: np.ndarray | None,
     matching: MatchingConfig,
     config: EvidenceConfig,
+    prepared: PreparedGraph | None = None,
 ) -> np.ndarray:
     """The candidates (m,2) (query index, target index) that count as evidence for a query of
     this size: all of them when its ratio (`config.ratio_for`) is None; else those passing the
     ratio test against rivals farther than `config.exclusion_for` metres when that is > 0
     (`spatially_distinctive`), else those `flags` marks (`sgloc.matching.match_flagged` at that
     ratio); without flags, the candidates of `matching` with `max_ratio` at that ratio.
-    desc_q, desc_t: the graphs' vertex descriptors (dense or CSR)."""
+    desc_q, desc_t: the graphs' vertex descriptors (dense or CSR); prepared: the target's
+    `PreparedGraph` (of desc_t) for that matching, or None."""
     ratio = config.ratio_for(len(query))
     if ratio is None:
         return candidates
@@ -91,4 +94,4 @@ def select_evidence(
     if flags is not None:
         return candidates[flags]
     strict = dataclasses.replace(matching, max_ratio=ratio)
-    return match_descriptors(desc_q, desc_t, query.labels, target.labels, strict)[0]
+    return match_descriptors(desc_q, desc_t, query.labels, target.labels, strict, prepared)[0]

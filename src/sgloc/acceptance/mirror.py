@@ -15,6 +15,7 @@ from sgloc.acceptance.chance import ChanceModel
 from sgloc.geometry import apply
 from sgloc.graph import SemanticGraph
 from sgloc.kernels import use_compiled
+from sgloc.prepared_graph import PreparedGraph
 
 #: The reflected query must land this fraction of the query's objects more than the
 #: alignment does (on Guo's Airsim maps, crops of 4-120 objects: true pairs land 14 % or more
@@ -51,17 +52,19 @@ def reflect_across_line(points: np.ndarray, on_line: np.ndarray) -> np.ndarray:
 def looks_mirrored(
     query: SemanticGraph, target: SemanticGraph, T_target_query: np.ndarray,
     inlier_objects: np.ndarray, radius: float, plain_landed: np.ndarray | None = None,
+    prepared: PreparedGraph | None = None,
 ) -> tuple[bool, int, int]:  # fmt: skip
     """(mirrored, objects the alignment lands on the target, objects the query reflected across
     its inliers' line lands): query objects within `radius` metres of a same-class target
     object, the reflection tried in the query frame (module docstring). `plain_landed`: the
     (n,) bool `landed` of the query under T_target_query at this radius when already known
-    (the acceptance test's neighbour search): only the reflected query is searched then."""
+    (the acceptance test's neighbour search): only the reflected query is searched then.
+    prepared: the target's `PreparedGraph` (its neighbour grid is used and kept), or None."""
     if len(inlier_objects) < 2:
         return False, 0, 0
     flipped = apply(T_target_query, reflect_across_line(query.positions,
                                                         query.positions[inlier_objects]))
-    chance = ChanceModel(target, radius, max(query.n_classes, target.n_classes))
+    chance = ChanceModel(target, radius, max(query.n_classes, target.n_classes), prepared)
     if plain_landed is None:
         moved = apply(T_target_query, query.positions)
         both = landed(np.vstack([moved, flipped]), np.tile(query.labels, 2), chance)

@@ -24,6 +24,7 @@ from sgloc.acceptance.verification import Verification, verify_small_query
 from sgloc.estimation import GROUND_VEHICLE, MotionModel
 from sgloc.graph import SemanticGraph
 from sgloc.matching import MatchingConfig
+from sgloc.prepared_graph import PreparedGraph
 
 #: Fewer candidate matches than this fix no transform (a triple).
 MIN_CANDIDATES = 3
@@ -84,6 +85,7 @@ def accept(
     refit: Callable[[np.ndarray], np.ndarray | None] | None = None,
     rng: np.random.Generator | None = None,
     clock: Callable[[], float] = time.perf_counter,
+    prepared: PreparedGraph | None = None,
 ) -> Verdict:
     """Accept or refuse the estimate `transform` (T_target_query, None when estimation failed
     with `reason`) fitted on `matches` (k,2).
@@ -99,7 +101,8 @@ def accept(
         motion: the motion model (`sgloc.estimation.MotionModel`) of the estimate.
         refit: the final fit of a verified alignment on its co-located matches (k,2) -> 4x4 or
             None (the verification's own refined transform when refit is None).
-        rng: draws the runner-up hypotheses; clock: seconds, for `Verdict.timings`.
+        rng: draws the runner-up hypotheses; clock: seconds, for `Verdict.timings`; prepared:
+            the target's `PreparedGraph` (its grids, counts and indexes used, new ones kept).
     """
     cfg = config or AcceptanceConfig()
     matching = matching or MatchingConfig()
@@ -109,18 +112,19 @@ def accept(
     if transform is not None and cfg.enabled:
         t0 = clock()
         tested = select_evidence(
-            query, target, desc_q, desc_t, candidates, distinct_flags, matching, cfg.evidence
+            query, target, desc_q, desc_t, candidates, distinct_flags, matching, cfg.evidence,
+            prepared,
         )
-        a = assess(query, target, tested, transform, radius, cfg, rng, motion)
+        a = assess(query, target, tested, transform, radius, cfg, rng, motion, prepared)
         verdict = Verdict(a.accepted, transform if a.accepted else None, matches, a.confidence,
                           a.reason, assessment=a)  # fmt: skip
         if verdict.accepted:  # a self-similar strip of a mirrored map (acceptance.mirror)
             known = a.landed if a.radius_m == radius else None
-            _refuse_mirrored(verdict, query, target, radius, known)
+            _refuse_mirrored(verdict, query, target, radius, known, prepared)
         verdict.timings["acceptance"] = clock() - t0
     if not verdict.accepted and verifies(cfg, motion, len(query)):
         t0 = clock()
-        _verify(verdict, query, target, desc_q, desc_t, cfg, matching, motion, refit)
+        _verify(verdict, query, target, desc_q, desc_t, cfg, matching, motion, refit, prepared)
         verdict.timings["verification"] = clock() - t0
     return _settled(verdict, len(candidates), matching.min_similarity)
 
@@ -131,13 +135,14 @@ def _refuse_mirrored(
     target: SemanticGraph,
     radius: float,
     plain_landed: np.ndarray | None = None,
+    prepared: PreparedGraph | None = None,
 ) -> None:
     """Refuse `verdict`'s alignment when the query, reflected across its inliers' line, lands
     clearly more objects on the target (`looks_mirrored`; `plain_landed`: the test's own
     count of the aligned query, when at this radius); updates `verdict`."""
     inliers = np.flatnonzero(np.bincount(verdict.matches[:, 0]))  # np.unique, without a sort
     mirrored, plain, flipped = looks_mirrored(
-        query, target, verdict.transform, inliers, radius, plain_landed
+        query, target, verdict.transform, inliers, radius, plain_landed, prepared
     )
     if mirrored:
         verdict.accepted, verdict.transform, verdict.confidence = False, None, 0.0
@@ -187,11 +192,12 @@ def _verify(
     matching: MatchingConfig,
     motion: MotionModel,
     refit: Callable[[np.ndarray], np.ndarray | None] | None,
+    prepared: PreparedGraph | None = None,
 ) -> None:
     """A small query's candidates are too few to decide: check its whole geometry against the
     map, and take its alignment (refitted by `refit`) when it passes; updates `verdict`."""
     check = verify_small_query(
-        query, target, desc_q, desc_t, cfg, matching.min_similarity, motion
+        query, target, desc_q, desc_t, cfg, matching.min_similarity, motion, prepared
     )
     verdict.verification = check
     fitted = None

@@ -48,6 +48,7 @@ from sgloc.acceptance.rivals import distinct_from
 from sgloc.estimation import GROUND_VEHICLE, MotionModel, fit_rigid, yaw_from_pairs
 from sgloc.graph import SemanticGraph
 from sgloc.matching import MatchingConfig, match_descriptors, match_flagged
+from sgloc.prepared_graph import PreparedGraph
 from sgloc.spatial import ClassKDTree
 
 #: Rounds of nearest-neighbour re-association and refit of the best hypothesis.
@@ -237,7 +238,8 @@ def self_rival(
     sub = SemanticGraph(tpos[placed], target.labels[placed])
     k = int(cfg.verification.verify_top_k) + 1
     matching = MatchingConfig(top_k=k, min_similarity=min_similarity)
-    cand, _ = match_descriptors(desc_t[placed], desc_t, sub.labels, target.labels, matching)
+    cand, _ = match_descriptors(desc_t[placed], desc_t, sub.labels, target.labels, matching,
+                                context.chance.prepared)  # fmt: skip
     cand = cand[cand[:, 1] != placed[cand[:, 0]]]  # not itself
     R, t, _, order = _scored_hypotheses(sub, tpos, tree, cand, cfg.verification.verify_hypotheses)
     if len(R) == 0:
@@ -253,6 +255,7 @@ def _distinct_support(
     matches: np.ndarray,
     cfg: AcceptanceConfig,
     min_similarity: float,
+    prepared: PreparedGraph | None = None,
 ) -> int:
     """How many co-located (query, target) pairs `matches` are the query object's best
     descriptor match and count as evidence for the acceptance test (`select_evidence`)."""
@@ -260,8 +263,10 @@ def _distinct_support(
         return 0
     best_match = MatchingConfig(min_similarity=min_similarity)
     ratio = cfg.evidence.ratio_for(len(query))
-    best, _, flags = match_flagged(desc_q, desc_t, query.labels, target.labels, best_match, ratio)
-    best = select_evidence(query, target, desc_q, desc_t, best, flags, best_match, cfg.evidence)
+    best, _, flags = match_flagged(desc_q, desc_t, query.labels, target.labels, best_match, ratio,
+                                   prepared)  # fmt: skip
+    best = select_evidence(query, target, desc_q, desc_t, best, flags, best_match, cfg.evidence,
+                           prepared)  # fmt: skip
     n_t = len(target) + 1
     return int(np.isin(matches[:, 0] * n_t + matches[:, 1], best[:, 0] * n_t + best[:, 1]).sum())
 
@@ -290,11 +295,13 @@ def verify_small_query(
     config: AcceptanceConfig | None = None,
     min_similarity: float = 0.5,
     motion: MotionModel = GROUND_VEHICLE,
+    prepared: PreparedGraph | None = None,
 ) -> Verification:
     """Localize a small `query` by checking its whole geometry against `target` (module
     docstring); desc_q, desc_t: the graphs' vertex descriptors (dense or CSR). `motion`: a 4-dof
     model (the hypotheses are rotations about z), its max_tilt (degrees) bounding the refits;
-    candidates need `min_similarity`."""
+    candidates need `min_similarity`. prepared: the target's `PreparedGraph` (of `target` and
+    desc_t: its grids and matching indexes are used and kept), or None."""
     if motion.dof != 4:
         raise ValueError(f"the whole-map verification needs the 4-dof motion model, got {motion}")
     max_tilt = motion.max_tilt
@@ -302,7 +309,7 @@ def verify_small_query(
     vcfg = cfg.verification
     r = float(vcfg.verify_radius)
     matching = MatchingConfig(top_k=int(vcfg.verify_top_k), min_similarity=min_similarity)
-    cand, _ = match_descriptors(desc_q, desc_t, query.labels, target.labels, matching)
+    cand, _ = match_descriptors(desc_q, desc_t, query.labels, target.labels, matching, prepared)
     tree = ClassTree(target, r)
     R, t, n_tests, order = _scored_hypotheses(
         query, target.positions, tree, cand, vcfg.verify_hypotheses
@@ -314,11 +321,12 @@ def verify_small_query(
     T[:3, :3], T[:3, 3] = R[order[0]], t[order[0]]
     fit = _Fit(*_refine(query, target.positions, tree, T, max_tilt))
     n_classes = max(query.n_classes, target.n_classes)
-    chance = ChanceModel(target, float(vcfg.verify_density_radius), n_classes)
+    chance = ChanceModel(target, float(vcfg.verify_density_radius), n_classes, prepared)
     context = SearchContext(target.positions, tree, chance, max_tilt, cfg.distinct_rotation)
     evidence = _evidence(query, target, desc_t, fit, (R, t, order), context, cfg,
                          min_similarity, n_tests)  # fmt: skip
-    support = _distinct_support(query, target, desc_q, desc_t, fit.matches, cfg, min_similarity)
+    support = _distinct_support(query, target, desc_q, desc_t, fit.matches, cfg, min_similarity,
+                                prepared)  # fmt: skip
     details = {"candidates": len(cand), **evidence, "distinct_support": support}
     return _decide(query, fit, details, cfg)
 

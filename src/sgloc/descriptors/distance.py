@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,10 +14,6 @@ from sgloc.validation import MAX_COORDINATE, integer, real, setting
 
 #: Descriptor weights are multiples of this (`sgloc.kernels.neighbors.WEIGHT_QUANTUM`).
 WEIGHT_QUANTUM = 2.0**-24
-
-#: Descriptors already computed, per graph (graphs are immutable; entries go with the graph).
-DESCRIPTOR_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
 
 def neighbour_pairs(positions: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
     """(pairs (e,2) int i<j, distances (e,) m) of the vertices closer than `radius` metres
@@ -69,17 +64,11 @@ class DistanceHistogramDescriptor(Descriptor):
     name = "distance_histogram"
 
     def __call__(self, graph: SemanticGraph, n_classes: int, rng: np.random.Generator):
-        # Deterministic: a map localized against several others is described once.
-        key = (n_classes, float(self.radius), int(self.n_bins), float(self.taper))
-        per_graph = DESCRIPTOR_CACHE.setdefault(graph, {})
-        if key not in per_graph:
-            H = self._compute(graph, n_classes)
-            H.flags.writeable = False
-            per_graph[key] = H
-        return per_graph[key]
-
-    def _compute(self, graph: SemanticGraph, n_classes: int) -> np.ndarray:
-        return self.rows(graph.positions, graph.labels, n_classes)
+        # Deterministic (rng unused): a map described once is kept by the caller (a prepared
+        # map, `sgloc.prepared`). Read-only, as the rows a prepared map holds.
+        H = self.rows(graph.positions, graph.labels, n_classes)
+        H.flags.writeable = False
+        return H
 
     def rows(
         self,

@@ -9,6 +9,7 @@ from sgloc.errors import DegenerateGeometryError
 from sgloc.estimation.fits import fit_rigid, tilt_deg, weighted_kabsch
 from sgloc.geometry import make_transform
 from sgloc.kernels.constants import MAD_SCALE, TUKEY_C
+from sgloc.lie import skew, so3_exp
 from sgloc.spatial import ClassKDTree
 
 
@@ -159,9 +160,7 @@ def anisotropic_fit(
         c = (w_xy @ p) / max(w_xy.sum(), 1e-300)
         q = p - c
         J = np.zeros((len(p), 3, 6))  # d(p)/d(rotation vector, translation) about c
-        J[:, 0, 1], J[:, 0, 2] = q[:, 2], -q[:, 1]
-        J[:, 1, 0], J[:, 1, 2] = -q[:, 2], q[:, 0]
-        J[:, 2, 0], J[:, 2, 1] = q[:, 1], -q[:, 0]
+        J[:, :, :3] = skew(-q)  # d(w x q)/dw = -[q]x
         J[:, 0, 3] = J[:, 1, 4] = J[:, 2, 5] = 1.0
         J = J[:, :, cols]
         H = np.einsum("nki,nk,nkj->ij", J, W, J)
@@ -171,7 +170,7 @@ def anisotropic_fit(
             x[cols] = np.linalg.solve(H, g)
         except np.linalg.LinAlgError:
             break
-        dR = _rotvec_to_matrix(x[:3])
+        dR = so3_exp(x[:3])
         R = dR @ T[:3, :3]
         if max_tilt and len(cols) == 6 and tilt_deg(R) > max_tilt:
             break
@@ -179,16 +178,6 @@ def anisotropic_fit(
         if np.abs(x).max() < 1e-12:
             break
     return T
-
-
-def _rotvec_to_matrix(v: np.ndarray) -> np.ndarray:
-    """Rodrigues: the rotation (3,3) by angle |v| about v / |v|."""
-    a = float(np.linalg.norm(v))
-    if a < 1e-15:
-        return np.eye(3)
-    k = v / a
-    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + np.sin(a) * K + (1.0 - np.cos(a)) * (K @ K)
 
 
 def icp_refine(

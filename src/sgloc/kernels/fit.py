@@ -397,7 +397,8 @@ def _solve(H: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, bool]:
 
 @kernel
 def _rotvec_matrix(v: np.ndarray) -> np.ndarray:
-    """Rodrigues: the rotation (3,3) by angle |v| about v / |v|."""
+    """Rodrigues: the rotation (3,3) by angle |v| about v / |v| (the compiled form of
+    `sgloc.lie.so3_exp`, equal to rounding; no module outside the kernels is imported here)."""
     a = np.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
     R = np.eye(3)
     if a < 1e-15:

@@ -15,7 +15,6 @@ reference and an incremental update of a few rows give the same bits.
 
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,16 +39,18 @@ def near_class_counts(
     n_classes: int,
     radius: float,
     weights: np.ndarray,
+    grid: CellGrid | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(counts, weighted), each (n_query, n_classes) float64: per query point (n_query,3) and
     class c, the number of `points` (n,3) of label c within `radius` (distance <= radius), and
     the sum of their `weights` (n,) (an empty `weights`: the second array stays zero).
 
-    The points' grid is kept for read-only arrays (a prepared map's objects, searched by every
-    query), so a search then costs O(n_query x the points around them), not O(n)."""
+    grid: the points' `cell_grid` at this radius when the caller keeps it (a prepared graph's,
+    `sgloc.prepared_graph`: searched by every query, so a search then costs O(n_query x the
+    points around them), not O(n)); None: built for this call."""
     if len(points) == 0 or len(query) == 0:
         return np.zeros((len(query), n_classes)), np.zeros((len(query), n_classes))
-    g = cell_grid(points, labels, radius)
+    g = cell_grid(points, labels, radius) if grid is None else grid
     w = weights[g.order] if len(weights) == len(points) else np.zeros(0)
     return _counts_in_cells(np.ascontiguousarray(query, dtype=np.float64), g.xyz, g.labels,
                             n_classes, radius, w, g.sorted_keys, g.start, g.x0, g.y0, g.cell,
@@ -74,39 +75,9 @@ class CellGrid:
     n_y: int
 
 
-#: Grids of read-only point arrays (a prepared map's objects, searched by every query):
-#: id(points) -> (weak reference to the points, {radius: (weak reference to the labels,
-#: CellGrid)}); an entry leaves with its points, and keeps its _RADII_KEPT latest radii.
-_GRIDS: dict[int, tuple] = {}
-_RADII_KEPT = 4
-
-
-def _frozen(a: np.ndarray) -> bool:
-    """A graph's own, frozen array (not a view whose base could still change)."""
-    return not a.flags.writeable and a.base is None
-
-
 def cell_grid(points: np.ndarray, labels: np.ndarray, radius: float) -> CellGrid:
-    """The `CellGrid` of points (n,3) with labels (n,) int64 for `radius` metres; kept while
-    both arrays live when both are read-only (the same grid for every query of a map)."""
-    entry = _GRIDS.get(id(points))
-    kept = entry[1].get(radius) if entry is not None and entry[0]() is points else None
-    if kept is not None and kept[0]() is labels:
-        return kept[1]
-    grid = _build_grid(points, labels, radius)
-    if _frozen(points) and _frozen(labels):
-        if entry is None or entry[0]() is not points:
-            key = id(points)
-            entry = (weakref.ref(points, lambda _, k=key: _GRIDS.pop(k, None)), {})
-            _GRIDS[key] = entry
-        if len(entry[1]) >= _RADII_KEPT and radius not in entry[1]:
-            entry[1].pop(next(iter(entry[1]), None), None)
-        entry[1][radius] = (weakref.ref(labels), grid)
-    return grid
-
-
-def _build_grid(points: np.ndarray, labels: np.ndarray, radius: float) -> CellGrid:
-    """The `CellGrid` of `cell_grid`, built."""
+    """The `CellGrid` of points (n,3) with labels (n,) int64 for `radius` metres (a caller
+    that searches the same points again keeps it: `sgloc.prepared_graph.PreparedGraph.grid`)."""
     keys, x0, y0, cell, n_y = _cell_keys(points, radius)
     n_cells = (int(keys.max()) // n_y + 3) * n_y
     # A table of runs when it costs at most a few entries per point, else binary searches.

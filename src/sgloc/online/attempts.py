@@ -19,8 +19,8 @@ def localize_pair(
 ) -> dict[str, Any]:
     """Localize `query` in `target` with `localizer` (a `sgloc.Localizer`) and the random seed
     `seed`: accepted, transform (T_target_query), covariance (6,6, `sgloc.covariance`),
-    confidence, n_matches, reason, seconds. Passing the
-    same graph objects again lets the localizer reuse what it computed for them."""
+    confidence, n_matches, reason, seconds. The localizer keeps nothing between calls; a
+    `sgloc.PreparedMap` as `target` carries what its preparation computed to every call."""
     t0 = time.perf_counter()
     out: dict[str, Any] = {"transform": None, "covariance": None}
     try:

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sgloc.geometry import apply, invert, rotation_angle_deg
+from sgloc.lie import adjoint
 
 
 @dataclass(frozen=True)
@@ -31,13 +32,8 @@ def relative(edge: Edge, frm: int) -> np.ndarray:
 
 def invert_with_covariance(T_a_b: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(T_b_a, its covariance) from T_a_b and its covariance ([rx ry rz tx ty tz], right
-    perturbation): T_a_b Exp(xi) inverted is T_b_a Exp(-Ad(T_a_b) xi)."""
-    R, t = T_a_b[:3, :3], T_a_b[:3, 3]
-    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
-    ad = np.zeros((6, 6))
-    ad[:3, :3] = R
-    ad[3:, 3:] = R
-    ad[3:, :3] = tx @ R
+    perturbation): T_a_b Exp(xi) inverted is T_b_a Exp(-Ad(T_a_b) xi) (`sgloc.lie.adjoint`)."""
+    ad = adjoint(T_a_b)
     return invert(T_a_b), ad @ cov @ ad.T
 
 

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from sgloc.covariance import skew
 from sgloc.geometry import apply, invert
+from sgloc.lie import skew, so3_exp
 from sgloc.online.consistency import loop_error
 from sgloc.spatial import mutual_nearest_pairs
 
@@ -99,11 +99,9 @@ def _step(
 
 def _moved(T: np.ndarray, xi: np.ndarray, centre: np.ndarray) -> np.ndarray:
     """T moved by the rotation xi[:3] (rotation vector, rad) about `centre` and then by
-    xi[3:] (metres), both in the fleet frame."""
-    from scipy.spatial.transform import Rotation
-
+    xi[3:] (metres), both in the fleet frame (not Exp(xi): the rotation is about `centre`)."""
     M = np.eye(4)
-    M[:3, :3] = Rotation.from_rotvec(xi[:3]).as_matrix()
+    M[:3, :3] = so3_exp(xi[:3])
     M[:3, 3] = centre - M[:3, :3] @ centre + xi[3:]
     return M @ T
 

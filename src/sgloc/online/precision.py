@@ -9,18 +9,8 @@ import numpy as np
 
 from sgloc.covariance import point_covariance
 from sgloc.geometry import invert
+from sgloc.lie import adjoint
 from sgloc.online.consistency import Edge, invert_with_covariance
-
-
-def adjoint(T: np.ndarray) -> np.ndarray:
-    """(6,6) adjoint of T in the [rx ry rz tx ty tz] order: Exp(Ad(T) xi) = T Exp(xi) T^-1."""
-    R, t = T[:3, :3], T[:3, 3]
-    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
-    ad = np.zeros((6, 6))
-    ad[:3, :3] = R
-    ad[3:, 3:] = R
-    ad[3:, :3] = tx @ R
-    return ad
 
 
 def chain_covariance(

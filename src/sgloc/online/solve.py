@@ -9,6 +9,7 @@ import numpy as np
 
 from sgloc.errors import SglocError
 from sgloc.geometry import invert, regularized_covariance
+from sgloc.lie import so3_exp, so3_log
 from sgloc.online.consistency import Edge
 
 
@@ -59,19 +60,17 @@ def _solve_gtsam(initial, edges, covariances, root):
 
 
 def _exp(delta: np.ndarray) -> np.ndarray:
-    """Retraction used by the scipy solver: [rx ry rz tx ty tz] -> (Exp(r), t)."""
-    from scipy.spatial.transform import Rotation
-
+    """The scipy solver's chart, [rx ry rz tx ty tz] -> (Exp(r), t): rotation and translation
+    apart (`sgloc.lie.so3_exp`), not SE(3)'s Exp (whose translation is V(r) t)."""
     T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec(delta[:3]).as_matrix()
+    T[:3, :3] = so3_exp(delta[:3])
     T[:3, 3] = delta[3:]
     return T
 
 
 def _log(T: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    return np.concatenate([Rotation.from_matrix(T[:3, :3]).as_rotvec(), T[:3, 3]])
+    """The inverse of `_exp`: (Log(R), t) (`sgloc.lie.so3_log`)."""
+    return np.concatenate([so3_log(T[:3, :3]), T[:3, 3]])
 
 
 def _solve_scipy(initial, edges, covariances, root):
