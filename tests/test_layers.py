@@ -36,6 +36,7 @@ LAYERS: dict[str, int] = {
     "sgloc.graph": 1,
     "sgloc.association": 1,  # sightings -> objects, for map building and the online session
     "sgloc.units": 1,
+    "sgloc.scale": 1,  # the scene scale: unit lengths of the named scenes, hints
     # matching
     "sgloc.descriptors": 2,
     "sgloc.matching": 2,
