@@ -76,7 +76,7 @@ def scene_hint(query: SemanticGraph, target: SemanticGraph, unit: float) -> str:
     suggestion = closest if SCENES[closest] < unit else "room"
     return (
         f"; objects stand a median {spacing:.2f} m from their nearest neighbour, closer than "
-        f"the settings' scene scale ({unit:g} m) assumes: its lengths (inlier distance, spread, "
-        f"radii) are too long for this map; try preset={suggestion!r} or set scale "
-        f"(metres, e.g. scale={max(spacing, 0.05):.2g}; docs/scenes.md)"
+        f"the settings' scene scale ({unit:g} m) assumes: its lengths (inlier distance, "
+        f"min_spread, radii) are too long for this map; try preset={suggestion!r} (scene "
+        f"scale {SCENES[suggestion]:g} m) or set scale=<metres> (docs/scenes.md)"
     )
