@@ -205,7 +205,9 @@ def forest_scan(
     centre = np.full(2, config.size / 2.0)
     path = robot_path(rng, centre, rng.uniform(0.0, 2.0 * np.pi), length)
     tgt = map_along_path(rng, trunks, path, config)
-    k = int(rng.integers(0, len(path)))
+    # A point of the path inside the stand (a path may wander out of it).
+    inside = np.flatnonzero(np.all((path > 0.0) & (path < config.size), axis=1))
+    k = int(inside[rng.integers(0, len(inside))]) if inside.size else 0
     spot = path[k] + rng.normal(0.0, 3.0, 2)
     scan = map_along_path(rng, trunks, spot[None, :], config, view_radius=scan_radius)
     yaw = rng.uniform(0.0, 2.0 * np.pi)
