@@ -115,3 +115,18 @@ def test_cli_room_preset(tmp_path, capsys):
     import json
 
     assert json.loads(out.read_text())["success"]
+
+
+def test_hard_case_scene_categories_split_and_truth(benchmark_module):
+    hc = benchmark_module("hard_cases")
+    tuning = hc.category_specs("room_pairs", quick=True)
+    heldout = hc.category_specs("room_pairs", quick=True, heldout=True)
+    assert {s.seed for s in tuning}.isdisjoint({s.seed for s in heldout})
+    assert all(s.positive for s in tuning)
+    assert not any(s.positive for s in hc.category_specs("repeated_rooms", quick=True))
+    pair = hc.scene_pair(tuning[0])
+    assert pair.info["shared"] > 0
+    # the ground truth puts the true objects on each other (5 cm noise in each map)
+    assert hc.local_residual(pair, pair.T_target_query, np.array([[0, 0]])) < 0.2
+    row = hc.run_spec(tuning[0], {"scene": {}})[0]
+    assert row["config"] == "scene" and row["outcome"] in ("localized", "refused", "wrong")
