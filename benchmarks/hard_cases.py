@@ -913,8 +913,9 @@ def scene_goals(rows: list[dict[str, Any]], config: str = "scene") -> list[str]:
             out.append(f"- {cat} sharing >= {least} objects: {100 * share:.0f} % of {len(pos)} "
                        f"localized (goal >= 90 %): {verdict(share >= 0.9)}")  # fmt: skip
     wrong = sum(r["outcome"] == "wrong" for r in sel)
-    out.append(f"- wrong accepts over all scene categories: {wrong} (goal 0): "
-               f"{verdict(wrong == 0)}")  # fmt: skip
+    repeated = sum(r["outcome"] == "wrong" for r in sel if r["category"] == "repeated_rooms")
+    out.append(f"- wrong accepts over all scene categories: {wrong}, {repeated} of them "
+               f"repeated-room negatives (goal 0): {verdict(wrong == 0)}")  # fmt: skip
     rep_rows = [r for r in sel if r["category"] == "repeated_rooms"]
     if rep_rows:
         refused = sum(r["outcome"] == "refused" for r in rep_rows)
