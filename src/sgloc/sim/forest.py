@@ -91,7 +91,7 @@ def robot_path(
 
 
 @dataclass
-class _Mapping:
+class ForestMap:
     """A robot's map: object positions in its map frame, true trunk index per object (-1:
     spurious), and per point of its path the heading error (rad) and the position the robot
     believed it was at (xy, map frame)."""
@@ -123,7 +123,7 @@ def map_along_path(
     path: np.ndarray,
     config: ForestConfig,
     view_radius: float | None = None,
-) -> _Mapping:
+) -> ForestMap:
     """The map a robot drives along `path` (k,2) makes of `trunks` (n,3): trunks within the view
     radius, each missed with config.miss, noisy, plus spurious ones; in the robot's map frame
     (origin at the path's start, x along its first step, heading error growing along the
@@ -157,7 +157,7 @@ def map_along_path(
     h = float(np.arctan2(*(path[1] - path[0])[::-1])) if len(path) > 1 else 0.0
     pos[:, :2] = pos[:, :2] @ planar_transform(-h, np.zeros(3))[:2, :2].T
     order = rng.permutation(len(pos))  # no hint of the truth in the vertex order
-    return _Mapping(pos[order], truth[order], e, believed, path, h)
+    return ForestMap(pos[order], truth[order], e, believed, path, h)
 
 
 def _step(path: np.ndarray) -> float:
