@@ -797,6 +797,14 @@ are dropped (column `pairs`: "+n dropped").
 Rendered city (`city` pair source): two robots drive opposite ways (reverse revisits by
 construction) sharing 10 % / 20 % of their routes; tuning uses cities 0-9, held out 10-19.
 airsim: Guo's cloud1 against cloud2 under random transforms (`airsim-guo`; no held-out set).
+Synthetic forests and rooms (`sgloc.sim.forest`, `sgloc.sim.rooms`; docs/scenes.md), 40
+pairs each, tuning seeds 0-39, held out 10000-10039: forest_pairs (two robots starting
+together, 250 m paths, one class; the goals count those sharing >= 50 trunks), forest_scan
+(one 20 m scan against a robot's map), forest_negatives (maps of two different stands),
+room_pairs (two parts of one room; goals: those sharing >= 8 objects), floor_pairs (two maps
+of an 8-room floor sharing two facing rooms), repeated_rooms (one office of a floor of
+identical offices against the floor: must be refused). Forest targets move up to 200 m, room
+targets up to 20 m.
 Every target map is moved by a random rigid transform (any yaw, roll/pitch <= 5 deg, up to
 200 m), so no method profits from the identity.
 
@@ -804,16 +812,20 @@ Every target map is moved by a random rigid transform (any yaw, roll/pitch <= 5 
 Error = T_est @ inv(T_gt) in the target map's own (unmoved) frame. localized = accepted and
 within 3 m / 3 deg (airsim: 5 m / 2 deg, Guo's two maps disagree by metres; city: 10 m /
 5 deg, since a least-squares fit on every true pair is itself 1-6.5 m off at the target's
-origin, hundreds of metres from the shared stretch); wrong = accepted but outside (negatives:
-any accept); refused = not localized. Mean error over the localized pairs; median ms = CPU time
-of the whole `localize` call (thread time, one BLAS thread; configurations interleaved pair by
-pair).
+origin, hundreds of metres from the shared stretch; forests: 1 m / 3 deg, rooms: 0.5 m /
+3 deg, or the true objects within 30 m of the matched ones put on each other to a median
+within that distance, since a drifted forest map aligns differently where two paths cross
+again); wrong = accepted but outside (negatives: any accept); refused = not localized.
+Mean error over the localized pairs; median ms = CPU time of the whole `localize` call
+(thread time, one BLAS thread; configurations interleaved pair by pair).
 
 ## Configurations
 - paper: histogram + neighbor (Alg. 1, tau 5 m), Guo's RANSAC (1000 iterations, most inliers,
   T_error 5 m, >= 5 inliers and >= 1 %), plain weighted fit, Guo's acceptance rule only.
 - previous: sgloc's defaults before the hard-case work, written out setting by setting.
 - default: `localize(query, target)` with no settings (the defaults of the code measured).
+- scene: `localize(query, target, preset=P)`, P the pair's kind of scene: `street` (the
+  defaults) for KITTI, city and Airsim, `forest` or `room` for the synthetic scenes.
 """
 
 SECTION_TITLES = {"tuning": "tuning pairs (scans 0-3000)", "heldout": "held-out pairs"}
