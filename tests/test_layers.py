@@ -39,6 +39,7 @@ LAYERS: dict[str, int] = {
     "sgloc.association": 1,  # sightings -> objects, for map building and the online session
     "sgloc.units": 1,
     "sgloc.prepared_graph": 1,  # a graph and the structures the stages build from it
+    "sgloc.scale": 1,  # the scene scale: unit lengths of the named scenes, hints
     # matching
     "sgloc.descriptors": 2,
     "sgloc.matching": 2,

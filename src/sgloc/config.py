@@ -15,8 +15,12 @@ from sgloc.io.settings_file import read_settings_data, write_settings_data
 from sgloc.matching import MatchingConfig
 from sgloc.registry import Registry
 from sgloc.rejection import REJECTORS, Rejector, make_rejector
+from sgloc.scale import STREET_UNIT
+from sgloc.scale import edge_radius as scene_edge_radius
+from sgloc.scale import factor as scale_factor
 from sgloc.validation import (
     MAX_COORDINATE,
+    InvalidSettingError,
     check_class_scale,
     check_class_weights,
     flag,
@@ -27,6 +31,11 @@ from sgloc.validation import (
     stage_name,
     validate_settings,
 )
+
+#: ICP's default pairing radius (m), the street value `scale` multiplies.
+_DEFAULT_ICP_DISTANCE = 5.0
+#: Fields of descriptors and rejectors that are lengths in metres (`scale` multiplies them).
+_STAGE_LENGTHS = {"radius", "tau", "local_radius", "sigma"}
 
 
 @dataclass
@@ -53,6 +62,10 @@ class LocalizerConfig:
     icp_max_distance: ICP pairing radius (metres).
     acceptance: the test behind `success` (sgloc.acceptance; strictness = min_confidence),
         with its `evidence` and `verification` groups (their fields keep their flat names).
+    scale: metres, the scene's unit length (`sgloc.scale`; street maps 5 m, the default).
+        Setting it through `with_overrides` (`localize(..., scale=...)`, the `forest` and
+        `room` presets) sets every absolute length of the stages to its street default times
+        scale / 5 m, except the lengths given explicitly; the config records the scale used.
     """
 
     descriptor: str | Descriptor | dict[str, Any] = setting(
@@ -67,10 +80,13 @@ class LocalizerConfig:
     robust_refit: bool = setting(True, check=flag())
     class_scale: bool | str = setting("none", check=check_class_scale)
     icp: bool = setting(False, check=flag())
-    icp_max_distance: float = setting(5.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+    icp_max_distance: float = setting(
+        _DEFAULT_ICP_DISTANCE, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m")
+    )
     acceptance: AcceptanceConfig = setting(
         default_factory=AcceptanceConfig, check=group(AcceptanceConfig)
     )
+    scale: float = setting(STREET_UNIT, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
 
     def __post_init__(self) -> None:
         self.descriptor, self.descriptor_params = _named_stage(
@@ -88,6 +104,12 @@ class LocalizerConfig:
         """The motion model (`MotionModel`) of these settings: RANSAC's `dof` and `max_tilt`,
         which the final fit, the acceptance test and the verification assume too."""
         return self.ransac.motion
+
+    @property
+    def edge_radius(self) -> float:
+        """Graph edge radius (m) that suits this config's scene scale (street: 20 m); used
+        where the command line builds graphs from files without an explicit radius."""
+        return scene_edge_radius(self.scale)
 
     @property
     def descriptor_config(self) -> Descriptor:
@@ -115,6 +137,10 @@ class LocalizerConfig:
         is checked by the stage config it lands in (sgloc.validation).
         """
         overrides = dict(overrides)
+        scaled: dict[str, Any] = {}
+        if "scale" in overrides:
+            scaled = self._scaled_lengths(overrides)
+            explicit, overrides = overrides, scaled | overrides
         top = {k: overrides.pop(k) for k in ("descriptor", "rejection") if k in overrides}
         # A new descriptor or rejector starts from its own defaults (or the typed object's).
         params = {
@@ -141,7 +167,7 @@ class LocalizerConfig:
             else:
                 top[name] = value
         try:
-            return dataclasses.replace(
+            out = dataclasses.replace(
                 self,
                 **top,
                 **params,
@@ -151,6 +177,53 @@ class LocalizerConfig:
             )
         except TypeError as e:  # a descriptor/rejector given a parameter it does not have
             raise UnknownNameError(f"unknown setting: {e}") from None
+        if scaled:
+            out._drop_default_lengths(explicit, scaled)
+        return out
+
+    def _scaled_lengths(self, overrides: dict[str, Any]) -> dict[str, Any]:
+        """The flat length settings of the scene scale overrides["scale"] (`sgloc.scale`): each
+        length's street default times scale / 5 m, for the descriptor and rejector these
+        overrides (or this config) name."""
+        unit = overrides["scale"]
+        if isinstance(unit, bool) or not isinstance(unit, (int, float)) or not unit > 0:
+            raise InvalidSettingError(
+                f"setting scale={unit!r}: give the scene's unit length in metres (a number > 0;"
+                " street maps 5, forests 1.25, rooms 0.5: docs/scenes.md)."
+            )
+        f = scale_factor(unit)
+        out = {"ransac_threshold": RansacConfig().threshold * f,
+               "icp_max_distance": _DEFAULT_ICP_DISTANCE * f}  # fmt: skip
+        acceptance, evidence, verification = (
+            AcceptanceConfig(),
+            EvidenceConfig(),
+            VerificationConfig(),
+        )
+        for stage, names in (
+            (acceptance, ("min_spread", "distinct_translation")),
+            (evidence, ("small_exclusion",)),
+            (verification, ("verify_radius", "verify_density_radius")),
+        ):
+            out |= {f"acceptance_{n}": getattr(stage, n) * f for n in names}  # fmt: skip
+        for key, table in (("descriptor", DESCRIPTORS), ("rejection", REJECTORS)):
+            name = overrides.get(key, getattr(self, key))
+            klass = table.find(name) if isinstance(name, str) else type(name)
+            ok = isinstance(klass, type) and dataclasses.is_dataclass(klass)
+            lengths = _STAGE_LENGTHS & _fields(klass) if ok else set()
+            default = klass() if lengths else None
+            out |= {f"{key}_{n}": getattr(default, n) * f for n in sorted(lengths)}
+        return out
+
+    def _drop_default_lengths(self, overrides: dict[str, Any], scaled: dict[str, Any]) -> None:
+        """Remove from the descriptor and rejector parameters the scaled lengths equal to their
+        defaults (scale 5 m), so that `with_overrides(scale=5.0)` gives the default config."""
+        for key in ("descriptor", "rejection"):
+            params = getattr(self, f"{key}_params")
+            klass = (DESCRIPTORS if key == "descriptor" else REJECTORS).find(getattr(self, key))
+            for n in [n for n in list(params) if f"{key}_{n}" in scaled]:
+                explicit = n in overrides or f"{key}_{n}" in overrides
+                if not explicit and klass is not None and params[n] == getattr(klass(), n):
+                    del params[n]
 
     def flat_settings(self) -> dict[str, Any]:
         """The settings in which this config differs from the defaults, as flat names: bare
@@ -312,7 +385,7 @@ FLAT_AMBIGUOUS = {
 #: The stage configs whose fields are routed by flat name (evidence and verification: groups
 #: of the acceptance stage).
 _STAGES = ("matching", "ransac", "acceptance", "evidence", "verification")
-_TOP_LEVEL = {"class_weights", "robust_refit", "class_scale", "icp", "icp_max_distance"}
+_TOP_LEVEL = {"class_weights", "robust_refit", "class_scale", "icp", "icp_max_distance", "scale"}
 
 
 def _flat_routes(descriptor: Any, rejection: Any) -> dict[str, list[tuple[str, str]]]:

@@ -28,6 +28,7 @@ from sgloc.matching import match_flagged
 from sgloc.prepared import PreparedMap, prepare
 from sgloc.prepared_graph import PreparedGraph
 from sgloc.rejection import make_rejector
+from sgloc.scale import scene_hint
 from sgloc.timing import StageTimer
 from sgloc.units import units_hint
 from sgloc.validation import check_seed
@@ -233,7 +234,7 @@ class Localizer:
         )  # fmt: skip
         timer.add(verdict.timings)
         if not verdict.accepted:
-            verdict.reason += units_hint(query, target)
+            verdict.reason += units_hint(query, target) + scene_hint(query, target, cfg.scale)
         return verdict
 
 

@@ -19,6 +19,13 @@ Localizer presets (flat `LocalizerConfig.with_overrides` settings):
   robots see opposite ends), so every other class weighs 10x a building in the final fit.
 - `kitti-objects`: GOSMatch LiDAR object centroids; precise to well under a metre, so a 2 m
   RANSAC threshold and tau = 2 m suit them better than the image-based 5 m defaults.
+- `street`, `forest`, `room`: the scene scales of `sgloc.scale` (docs/scenes.md): `street` is
+  the defaults; `forest` (unit 1.25 m: one-class trunk maps, trunks a few metres apart, good
+  to 0.2-0.5 m) and `room` (unit 0.5 m: furniture under a metre apart, good to ~5 cm) set
+  every absolute length of the pipeline to its street value times unit / 5 m. `forest` also
+  keeps 5 candidates per object with 20 m descriptors and lets every candidate count as the
+  acceptance test's evidence: with one class, neighbourhoods look alike and the right match is
+  seldom the most similar one (chosen on the synthetic forests' tuning seeds, docs/scenes.md).
 
 Extraction presets (`ExtractionConfig` fields):
 - `kitti-objects`: consecutive scans are ~1 m apart and poles and trunks stand a few metres
@@ -35,6 +42,7 @@ import copy
 from typing import TYPE_CHECKING, Any
 
 from sgloc.registry import Registry
+from sgloc.scale import SCENES
 
 if TYPE_CHECKING:
     from sgloc.config import LocalizerConfig
@@ -73,6 +81,13 @@ LOCALIZER_PRESETS: Registry[dict[str, Any]] = Registry("preset", {
     "airsim-guo": {},
     "city": {"class_weights": {0: 0.1}},
     "kitti-objects": {"ransac_threshold": 2.0, "tau": 2.0},
+    "street": {},
+    # One class: more candidates per trunk (the right one is rarely the most similar), wider
+    # descriptors (16 units: ~60 trunks at 0.05 per m^2), and every candidate is evidence
+    # (the ratio test finds no match distinct when all objects are alike).
+    "forest": {"scale": SCENES["forest"], "top_k": 5, "descriptor_radius": 20.0,
+               "distinct_ratio": None},  # fmt: skip
+    "room": {"scale": SCENES["room"]},
 })
 
 EXTRACTION_PRESETS: Registry[dict[str, Any]] = Registry("extraction preset", {

@@ -53,7 +53,9 @@ def fleet_cmd(
     workers: int | None = typer.Option(
         None, min=0, help="Local processes (default: CPU count; 0: in this process)."
     ),
-    edge_radius: float = typer.Option(20.0, help="Graph edge radius (m)."),
+    edge_radius: float | None = typer.Option(
+        None, help="Graph edge radius (m); default 4 x the scene scale (20 m for streets)."
+    ),
     seed: int = typer.Option(0, min=0, help="Random seed."),
     preset: str | None = preset_option(),
     config: Path | None = config_option(),
@@ -75,7 +77,8 @@ def fleet_cmd(
     claim_output(ctx, out, [*graphs, config, colour_table])
     localizer = localizer_config(preset, config, setting, min_confidence=min_confidence)
     check_reader_options(graphs, label_field, colour_table, class_table)
-    gs = [load_graph(p, edge_radius, label_field, colour_table, class_table) for p in graphs]
+    radius = localizer.edge_radius if edge_radius is None else edge_radius
+    gs = [load_graph(p, radius, label_field, colour_table, class_table) for p in graphs]
     cfg = FleetConfig(localizer=localizer, seed=seed)
     res = localize_fleet(
         gs, cfg, names=robot_names(graphs), root=root, scheduler=scheduler, workers=workers,

@@ -52,7 +52,9 @@ def localize_cmd(
     preset: str | None = preset_option(),
     config: Path | None = config_option(),
     setting: list[str] = set_option(),
-    edge_radius: float = typer.Option(20.0, help="Graph edge radius (m)."),
+    edge_radius: float | None = typer.Option(
+        None, help="Graph edge radius (m); default 4 x the scene scale (20 m for streets)."
+    ),
     seed: int = typer.Option(0, min=0, help="Random seed."),
     label_field: str | None = typer.Option(None, help=LABEL_HELP),
     colour_table: Path | None = typer.Option(None, help=COLOURS_HELP),
@@ -107,8 +109,9 @@ def localize_cmd(
     claim_output(ctx, out, inputs)
     claim_output(ctx, json_out, inputs, "--json", folder=False, ours=is_result_document)
     claim_output(ctx, rerun, inputs, "--rerun", folder=False)
-    q = load_graph(query, edge_radius, label_field, colour_table, class_table)
-    t = load_graph(target, edge_radius, label_field, colour_table, class_table)
+    radius = cfg.edge_radius if edge_radius is None else edge_radius
+    q = load_graph(query, radius, label_field, colour_table, class_table)
+    t = load_graph(target, radius, label_field, colour_table, class_table)
     res = Localizer(cfg)(q, t, seed)
     info = {"query": str(query), "target": str(target), "seed": seed}
     if out is not None:

@@ -1,0 +1,82 @@
+"""The scale of a scene: one length, the scene's *unit* (metres), from which every absolute
+length of the pipeline derives. A street map (objects metres apart, positions good to about a
+metre) has the unit STREET_UNIT = 5 m and the code's defaults are its lengths; a forest or a
+room has a smaller unit, and each length is its street default times unit / 5 m:
+
+| length (flat setting)             | street default | as a multiple of the unit |
+|-----------------------------------|----------------|---------------------------|
+| RANSAC inlier distance (ransac_threshold) | 5 m     | 1                         |
+| Alg. 1 tolerance (tau), local radius      | 5 m, 40 m | 1, 8                    |
+| descriptor radius (descriptor_radius)     | 40 m (triangles 30 m) | 8 (6)       |
+| acceptance: min_spread                    | 5 m     | 1                         |
+| acceptance: distinct_translation, small_exclusion | 10 m | 2                   |
+| acceptance: verify_radius, verify_density_radius  | 1.5 m, 15 m | 0.3, 3       |
+| ICP pairing radius (icp_max_distance)     | 5 m     | 1                         |
+| graph edge radius (`edge_radius`)         | 20 m    | 4                         |
+| sighting association radius (online)      | 1.5 m   | 0.3                       |
+
+`LocalizerConfig.with_overrides(scale=...)` (and `localize(..., scale=...)`, the `forest` and
+`room` presets, `--set scale=...`) applies the table; a length also given explicitly wins.
+Named scenes: SCENES. `scene_hint` adds a sentence to a refusal when the maps' objects stand
+much closer together than the scale assumes.
+"""
+
+from __future__ import annotations
+
+import math
+
+from sgloc.graph import SemanticGraph
+from sgloc.registry import Registry
+from sgloc.units import median_spacing
+
+#: The unit length (m) of a street map: the lengths of the code's defaults are the street's.
+STREET_UNIT = 5.0
+
+#: Unit lengths (m) of the named kinds of scene (the presets of the same names use them).
+#: street: KITTI, city and Airsim object maps (objects a median 3.5-6 m apart, positions good
+#: to ~1 m); forest: trunk maps (0.02-0.1 stems per m^2, trunk centres good to 0.2-0.5 m);
+#: room: indoor furniture (a median ~0.8 m apart, centres good to ~5 cm).
+SCENES: Registry[float] = Registry("scene", {"street": STREET_UNIT, "forest": 1.25, "room": 0.5})
+
+#: Median distance (m) from an object to its nearest neighbour in maps of each named scene
+#: (measured on KITTI, city and Airsim maps, the synthetic forests and rooms of `sgloc.sim`).
+TYPICAL_SPACING = {"street": 4.5, "forest": 2.3, "room": 0.85}
+
+#: Multiples of the unit of the lengths outside LocalizerConfig.
+EDGE_RADIUS_UNITS = 4.0
+ASSOCIATION_RADIUS_UNITS = 0.3
+
+#: Below this median nearest-neighbour spacing as a multiple of the unit, a refusal says that
+#: the maps look like a smaller scene than the settings assume (street maps: ~0.7-1.2 units).
+CLOSE_SPACING_UNITS = 0.4
+
+
+def factor(unit: float) -> float:
+    """The multiple of the street defaults that a scene of unit length `unit` (m) uses."""
+    return float(unit) / STREET_UNIT
+
+
+def edge_radius(unit: float) -> float:
+    """Graph edge radius (m) of a scene of unit length `unit` (street: 20 m)."""
+    return EDGE_RADIUS_UNITS * float(unit)
+
+
+def association_radius(unit: float) -> float:
+    """Radius (m) within which sightings are one object, for a scene of unit `unit`."""
+    return ASSOCIATION_RADIUS_UNITS * float(unit)
+
+
+def scene_hint(query: SemanticGraph, target: SemanticGraph, unit: float) -> str:
+    """Empty, or a sentence for a refusal when the maps' objects stand much closer together
+    than a scene of unit length `unit` (m) assumes (rooms or forests with street settings)."""
+    spacing = min(median_spacing(query), median_spacing(target))
+    if not spacing < CLOSE_SPACING_UNITS * unit:
+        return ""
+    closest = min(TYPICAL_SPACING, key=lambda k: abs(math.log(spacing / TYPICAL_SPACING[k])))
+    suggestion = closest if SCENES[closest] < unit else "room"
+    return (
+        f"; objects stand a median {spacing:.2f} m from their nearest neighbour, closer than "
+        f"the settings' scene scale ({unit:g} m) assumes: its lengths (inlier distance, "
+        f"min_spread, radii) are too long for this map; try preset={suggestion!r} (scene "
+        f"scale {SCENES[suggestion]:g} m) or set scale=<metres> (docs/scenes.md)"
+    )
