@@ -74,7 +74,7 @@ def fleet_cmd(
     Example: sgloc fleet a.pcd b.pcd c.json d.npz --out results/fleet --scheduler
     tcp://10.0.0.5:8786
     """
-    claim_output(ctx, out, [*graphs, config, colour_table])
+    claim_output(ctx, out, [*graphs, config, colour_table, class_table])
     localizer = localizer_config(preset, config, setting, min_confidence=min_confidence)
     check_reader_options(graphs, label_field, colour_table, class_table)
     radius = localizer.edge_radius if edge_radius is None else edge_radius
