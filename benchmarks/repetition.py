@@ -12,6 +12,10 @@ is recorded: the attempt set is fixed once (cached under --cache) so that each s
 scored on the same attempts. Each attempt is then localized again under each setting; an
 accept is wrong when the robot is more than 3 m (or 3 deg) off at its objects, as the online
 benchmark counts it. Tuning seeds are 0-1; seeds 2-3 are reported apart and never tuned on.
+Settings (acceptance, over the city preset): `defaults` (both repetition checks off),
+`shifts 8` (`repetition_shifts=8`: the target's self-similar shifts as rivals), `agreement
+0.75` (`min_agreement=0.75`: the claimed overlap must mostly agree); seconds: all attempts of
+the row, one process, with other processes running.
 """
 
 from __future__ import annotations
