@@ -9,6 +9,8 @@ One entry point, `accept(...) -> Verdict` (`stage.py`), used by the localizer. M
 - `chance.py`: `ChanceModel` (same-class target objects near moved query objects), the NFA
   (`log10_nfa`, `nfa_over_radii`) and the one `confidence` formula;
 - `rivals.py`: `distinct_from` (a different alignment) and `runner_up` (the best distinct one);
+- `repetition.py`: `check_repetition` -> `Repetition`, the checks for a repeating layout (the
+  target's self-similar shifts as rivals; the agreement of the claimed overlap);
 - `assessment.py`: `assess` -> `Assessment`, the a-contrario test (its docstring: the model);
 - `verification.py`: `verify_small_query` -> `Verification`, a small query's whole geometry
   checked against the map;
@@ -37,6 +39,12 @@ from sgloc.acceptance.chance import (
 )
 from sgloc.acceptance.config import AcceptanceConfig, EvidenceConfig, VerificationConfig
 from sgloc.acceptance.evidence import select_evidence, spatially_distinctive
+from sgloc.acceptance.repetition import (
+    Repetition,
+    check_repetition,
+    log10_rival_weight,
+    self_similar_shifts,
+)
 from sgloc.acceptance.rivals import distinct_from, runner_up
 from sgloc.acceptance.stage import Verdict, accept, verifies
 from sgloc.acceptance.verification import (
@@ -56,17 +64,20 @@ __all__ = [
     "ChanceModel",
     "ClassTree",
     "EvidenceConfig",
+    "Repetition",
     "SearchContext",
     "Verdict",
     "Verification",
     "VerificationConfig",
     "accept",
     "assess",
+    "check_repetition",
     "confidence",
     "distinct_from",
     "inlier_spread",
     "log10_colocation_p",
     "log10_nfa",
+    "log10_rival_weight",
     "nfa_over_radii",
     "pair_consistency",
     "per_object_min",
@@ -75,6 +86,7 @@ __all__ = [
     "runner_up",
     "select_evidence",
     "self_rival",
+    "self_similar_shifts",
     "spatially_distinctive",
     "triangle_count",
     "verifies",

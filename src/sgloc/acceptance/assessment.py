@@ -52,6 +52,17 @@ first principal axis of their xy counts instead). A result is accepted when conf
 `min_confidence` (the one strictness setting; 0 gives back Guo's rule alone). When chance
 alone already puts the confidence below `min_confidence`, the runner-up search is skipped (it
 could only lower it) and the confidence reported is 1 / (1 + NFA_best).
+
+A repeating layout (a street grid, a fixed spacing of poles, blocks or rooms of one template)
+makes many inliers one coincidence, which the nulls above count as many. With
+`repetition_shifts` > 0 (off by default) an estimate that passes is checked against it
+(`sgloc.acceptance.repetition`): the query is also scored under
+the target's self-similar shifts near the estimate, and the weight p of the best such rival
+(the objects only it lands against those only the estimate lands, each against what a shift
+lands by chance) joins the rival term: confidence = 1 / (1 / confidence + p), about 1/2 when
+a shift explains the query as well ("ambiguous"). With `min_agreement` > 0, an estimate
+whose claimed overlap mostly disagrees (too few of the query objects it puts next to target
+objects land on one of their class) is refused too.
 """
 
 from __future__ import annotations
@@ -71,6 +82,7 @@ from sgloc.acceptance.chance import (
     triangle_count,
 )
 from sgloc.acceptance.config import AcceptanceConfig
+from sgloc.acceptance.repetition import Repetition, check_repetition
 from sgloc.acceptance.rivals import runner_up
 from sgloc.consistency import ALL_PAIRS_LIMIT, ConsistentPairs
 from sgloc.estimation import ANY_RIGID, MotionModel
@@ -308,7 +320,93 @@ def assess(
         return Assessment(False, 0.0, _spread_reason(details, min_spread, dof), details, **seen)
     if conf < cfg.min_confidence:
         return Assessment(False, conf, _chance_reason(details, conf, cfg), details, **seen)
-    return Assessment(True, conf, "", details, **seen)
+    if cfg.repetition_shifts == 0 and cfg.min_agreement == 0:
+        return Assessment(True, conf, "", details, **seen)
+    return _against_repetition(Assessment(True, conf, "", details, **seen), query, target, c,
+                               transform, cfg)  # fmt: skip
+
+
+def _against_repetition(
+    passed: Assessment,
+    query: SemanticGraph,
+    target: SemanticGraph,
+    c: _Candidates,
+    transform: np.ndarray,
+    cfg: AcceptanceConfig,
+) -> Assessment:
+    """The assessment `passed` (accepted so far) after the repetition checks: its confidence
+    with the best self-similar shift as a rival, refused when that falls below min_confidence
+    or when the claimed overlap disagrees (`min_agreement`)."""
+    rep = _repetition(query, target, c, transform, float(passed.radius_m), cfg)
+    passed.details |= _repetition_details(rep)
+    if np.isfinite(rep.log10_p) and passed.confidence > 0:  # joins the test's rival term
+        passed.confidence = float(1.0 / (1.0 / passed.confidence + 10.0**rep.log10_p))
+    if passed.confidence < cfg.min_confidence:
+        passed.accepted, passed.reason = False, repeated_reason(rep, passed.confidence, cfg)
+    elif cfg.min_agreement > 0 and rep.covered >= cfg.min_covered \
+            and rep.agreement < cfg.min_agreement:  # fmt: skip
+        passed.accepted, passed.reason = False, disagreement_reason(rep, cfg)
+    return passed
+
+
+def _repetition(
+    query: SemanticGraph,
+    target: SemanticGraph,
+    c: _Candidates,
+    transform: np.ndarray,
+    radius: float,
+    cfg: AcceptanceConfig,
+) -> Repetition:
+    """The repetition checks (`sgloc.acceptance.repetition`) of the estimate, anchored on the
+    target objects of its inliers."""
+    shifts = (cfg.distinct_translation, cfg.repetition_search, cfg.repetition_shifts)
+    radii = cfg.repetition_radii(radius, _precision(c))
+    return check_repetition(query, target, apply(transform, query.positions),
+                            c.cand[c.inlier, 1], radii, shifts)  # fmt: skip
+
+
+def _precision(c: _Candidates) -> float:
+    """Metres: the median residual of the inlier candidates under the estimate."""
+    return float(np.sqrt(np.median(c.res2[c.inlier]))) if c.inlier.any() else 0.0
+
+
+def _repetition_details(rep: Repetition) -> dict:
+    """The repetition checks' figures for `Assessment.details`."""
+    return {
+        "agreement_landed": rep.landed,
+        "agreement_covered": rep.covered,
+        "repetition_shifts_tried": rep.shifts_tried,
+        "repetition_shift_m": None if rep.shift is None else float(np.hypot(*rep.shift[:2])),
+        "repetition_rival_only": rep.rival_only,
+        "repetition_estimate_only": rep.estimate_only,
+        "repetition_log10_p": float(rep.log10_p),
+    }
+
+
+def repeated_reason(rep: Repetition, conf: float, cfg: AcceptanceConfig) -> str:
+    """Why a repeating layout makes the estimate ambiguous."""
+    shift = float(np.hypot(*rep.shift[:2])) if rep.shift is not None else 0.0
+    return (
+        f"ambiguous: the target map repeats itself; moved {shift:.1f} m further along the "
+        f"repetition the query lands {rep.rival_only} objects the alignment does not, against "
+        f"{rep.estimate_only} only the alignment lands (confidence {conf:.6g} < "
+        f"min_confidence {cfg.min_confidence}); the place cannot be told from its copies "
+        "(--set repetition_shifts=0 turns this check off; Python: repetition_shifts=0)"
+    )
+
+
+def disagreement_reason(rep: Repetition, cfg: AcceptanceConfig) -> str:
+    """Why an alignment whose overlap mostly disagrees is refused."""
+    land, cover = rep.radii
+    return (
+        f"only {rep.landed} of the {rep.covered} query objects the alignment puts next to the "
+        f"target's (within {cover:.3g} m) land on an object of their class (within {land:.3g} "
+        "m): "
+        f"{100 * rep.agreement:.0f} % < min_agreement {100 * cfg.min_agreement:g} %; where two "
+        "maps truly overlap most do, so this looks like a coincidence of a repeating layout "
+        "(--set min_agreement=0 turns this check off, Python: min_agreement=0; agreement_radius "
+        "and cover_radius set the distances)"
+    )
 
 
 def _few_reason(details: dict, radius: float) -> str:
@@ -326,17 +424,24 @@ def _few_reason(details: dict, radius: float) -> str:
     )
 
 
+#: What a spread refusal tells about its setting (metres, chosen for street-sized scenes).
+_SPREAD_SETTING = (
+    "; min_spread is in metres for street-sized maps: a smaller scene needs a smaller one "
+    "(--set min_spread=1; Python: min_spread=1)"
+)
+
+
 def _spread_reason(details: dict, min_spread: float, dof: int) -> str:
     k, spread = details["inliers"], details["spread_m"]
     if dof == 6:
         return (
             f"the {k} inliers lie in a narrow strip (spread {spread:.1f} m < min_spread "
-            f"{min_spread} m); the rotation about its line is not determined"
+            f"{min_spread} m); the rotation about its line is not determined{_SPREAD_SETTING}"
         )
     return (
         f"the {k} inliers lie within a few metres (spread {spread:.1f} m along their "
         f"line < {min_spread:g} m = {DOF4_SPREAD_FACTOR:g} x min_spread); too little of the "
-        "map agrees to fix the place"
+        f"map agrees to fix the place{_SPREAD_SETTING}"
     )
 
 

@@ -17,7 +17,9 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
+
+import numpy as np
 
 from sgloc.validation import (
     MAX_COORDINATE,
@@ -126,6 +128,24 @@ class AcceptanceConfig:
     distinct_translation, distinct_rotation: metres / degrees; an alternative hypothesis is
         distinct when its transform differs from the best by more than either.
     runner_up_samples: hypotheses drawn when searching for the best distinct alternative.
+    repetition_shifts: how many self-similar shifts of the target near the estimate (found
+        from its same-class object offsets) the query is also scored under
+        (`sgloc.acceptance.repetition`); 0 (the default): none. A shift that lands the query's
+        objects about as well as the estimate makes the result ambiguous. 8 refuses a crop of
+        a lattice at a one-period offset; it costs about 1-1.5 ms per accepted alignment on
+        Guo's Airsim maps and refused one held-out one-scan KITTI query that the default
+        localizes (docs/acceptance.md), hence off by default.
+    repetition_search: metres; the longest shift looked for (the longest period of a repeating
+        layout; the shortest is `distinct_translation`).
+    min_agreement: fraction in [0, 1]; of the query objects the estimate puts next to a target
+        object (within `cover_radius`), at least this fraction must land on an object of their
+        class (within `agreement_radius`) when there are at least `min_covered` of them; 0: no
+        such check. Chosen on pair attempts of the rendered 12x12-block city, seeds 0-1
+        (docs/acceptance.md).
+    agreement_radius, cover_radius: metres; None: agreement_radius is a quarter of the test's
+        radius, or twice the median residual of the inliers when that is larger (noisy maps),
+        and cover_radius twice agreement_radius (`repetition_radii`): they follow the scene's
+        scale with the RANSAC threshold.
     evidence: which candidates count (`EvidenceConfig`).
     verification: the whole-map verification of small queries (`VerificationConfig`).
     """
@@ -139,6 +159,18 @@ class AcceptanceConfig:
     distinct_translation: float = setting(10.0, check=real(0.0, MAX_COORDINATE, unit="m"))
     distinct_rotation: float = setting(10.0, check=real(0.0, 180.0, unit="degrees"))
     runner_up_samples: int = setting(128, check=integer(0, MAX_ITERATIONS))
+    repetition_shifts: int = setting(0, check=integer(0, 1000))
+    repetition_search: float = setting(
+        100.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m")
+    )
+    min_agreement: float = setting(0.0, check=real(0.0, 1.0))
+    min_covered: int = setting(10, check=integer(1, MAX_VERTICES))
+    agreement_radius: float | None = setting(
+        None, check=real(0.0, MAX_COORDINATE, low_open=True, none_ok=True, unit="m")
+    )
+    cover_radius: float | None = setting(
+        None, check=real(0.0, MAX_COORDINATE, low_open=True, none_ok=True, unit="m")
+    )
     evidence: EvidenceConfig = setting(default_factory=EvidenceConfig, check=group(EvidenceConfig))
     verification: VerificationConfig = setting(
         default_factory=VerificationConfig, check=group(VerificationConfig)
@@ -146,6 +178,41 @@ class AcceptanceConfig:
 
     def __post_init__(self) -> None:
         validate_settings(self, "acceptance")  # the checks declared beside the fields
+
+    #: The settings in metres, by group ("": the test's own): what a scene's scale scales
+    #: (`scaled`). Every length the acceptance stage uses is one of these, a multiple of one,
+    #: or the RANSAC threshold (`radius` None).
+    LENGTHS: ClassVar[dict[str, tuple[str, ...]]] = {
+        "": ("radius", "min_spread", "distinct_translation", "repetition_search",
+             "agreement_radius", "cover_radius"),
+        "evidence": ("small_exclusion",),
+        "verification": ("verify_radius", "verify_density_radius"),
+    }  # fmt: skip
+
+    def scaled(self, factor: float) -> AcceptanceConfig:
+        """A copy with every length setting (`LENGTHS`; None stays None) multiplied by
+        `factor` > 0: the same test for a scene `factor` times the size (a room: well
+        below 1)."""
+        if not (np.isfinite(factor) and factor > 0):
+            raise InvalidSettingError(f"scale factor {factor!r}: must be a positive number.")
+
+        def times(obj: Any, names: tuple[str, ...]) -> Any:
+            new = {n: None if getattr(obj, n) is None else getattr(obj, n) * factor
+                   for n in names}  # fmt: skip
+            return dataclasses.replace(obj, **new)
+
+        groups = {g: times(getattr(self, g), names) for g, names in self.LENGTHS.items() if g}
+        return dataclasses.replace(times(self, self.LENGTHS[""]), **groups)
+
+    def repetition_radii(self, radius: float, precision: float = 0.0) -> tuple[float, float]:
+        """(agreement_radius, cover_radius) in metres for the test's radius `radius` and the
+        median inlier residual `precision` (metres): the settings, or max(radius / 4,
+        2 x precision) and twice that."""
+        land = self.agreement_radius
+        if land is None:
+            land = max(radius / 4.0, 2.0 * precision)
+        cover = self.cover_radius if self.cover_radius is not None else 2.0 * land
+        return float(land), float(max(cover, land))
 
     @classmethod
     def from_settings(cls, settings: Mapping[str, Any]) -> AcceptanceConfig:

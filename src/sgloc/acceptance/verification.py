@@ -382,7 +382,8 @@ def _decide(query: SemanticGraph, fit: _Fit, details: dict, cfg: AcceptanceConfi
         conf = 0.0
         reason = (
             f"the {n_fit} objects of the query that fit the map lie within a few metres "
-            f"(spread {spread:.1f} m < {min_spread:g} m); too little of the map agrees"
+            f"(spread {spread:.1f} m < {min_spread:g} m = 2 x min_spread); too little of the "
+            "map agrees (a smaller scene needs a smaller min_spread: --set min_spread=1)"
         )
     elif support < MIN_DISTINCT_SUPPORT:
         reason = (
