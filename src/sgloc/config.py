@@ -194,17 +194,11 @@ class LocalizerConfig:
         f = scale_factor(unit)
         out = {"ransac_threshold": RansacConfig().threshold * f,
                "icp_max_distance": _DEFAULT_ICP_DISTANCE * f}  # fmt: skip
-        acceptance, evidence, verification = (
-            AcceptanceConfig(),
-            EvidenceConfig(),
-            VerificationConfig(),
-        )
-        for stage, names in (
-            (acceptance, ("min_spread", "distinct_translation")),
-            (evidence, ("small_exclusion",)),
-            (verification, ("verify_radius", "verify_density_radius")),
-        ):
-            out |= {f"acceptance_{n}": getattr(stage, n) * f for n in names}  # fmt: skip
+        accept = AcceptanceConfig()  # its length settings: AcceptanceConfig.LENGTHS
+        for group_name, names in AcceptanceConfig.LENGTHS.items():
+            stage = getattr(accept, group_name) if group_name else accept
+            out |= {f"acceptance_{n}": getattr(stage, n) * f for n in names
+                    if getattr(stage, n) is not None}  # fmt: skip
         for key, table in (("descriptor", DESCRIPTORS), ("rejection", REJECTORS)):
             name = overrides.get(key, getattr(self, key))
             klass = table.find(name) if isinstance(name, str) else type(name)
