@@ -673,7 +673,8 @@ def out_path_case(seeds: dict[str, Path], work: Path, rng: np.random.Generator, 
     shutil.copy(seeds["target.json"], proj / "maps" / "target.json")
     shutil.copytree(seeds["robot"], proj / "robot")
     name, target, expect = OUT_TARGETS[int(rng.integers(0, len(OUT_TARGETS)))]
-    commands = OUT_COMMANDS if expect == "fail" else OUT_COMMANDS[:3]
+    commands = OUT_COMMANDS if expect == "fail" else [  # an empty folder takes a folder only
+        c for c in OUT_COMMANDS[:3] if name != "empty-folder" or c[1] == "--out"]
     argv, option = commands[int(rng.integers(0, len(commands)))]
     out = target.format(proj=proj)
     before = _snapshot(proj.parent)

@@ -372,7 +372,9 @@ def _signals_held() -> Iterator[None]:
     import signal
     import threading
 
-    if threading.current_thread() is not threading.main_thread():
+    if threading.current_thread() is not threading.main_thread() or not hasattr(
+        signal, "pthread_sigmask"
+    ):  # signals reach the main thread only; no signal masks on Windows
         yield
         return
     held = {signal.SIGINT, signal.SIGTERM}
