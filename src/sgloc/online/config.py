@@ -15,6 +15,7 @@ from sgloc.validation import (
     MAX_VERTICES,
     choice,
     flag,
+    group,
     integer,
     real,
     setting,
@@ -110,6 +111,15 @@ class OnlineConfig:
         at the centroid of its objects, worst direction) are within loop_translation metres
         and loop_rotation degrees; until then it is held back (placed robots stay placed).
     solver: "auto" (gtsam when installed, else scipy), "gtsam" or "scipy".
+    backend: "robots" (one rigid frame per robot: the pose graph's nodes are the robots'
+        odometry frames) or "keyframes" (a pose graph over every robot's keyframes, odometry
+        factors between consecutive keyframes, links between keyframes; drift is corrected,
+        see docs/online_session.md).
+    odometry: the odometry's noise model (OdometryNoise), for backend "keyframes".
+    submap_length: metres; backend "keyframes": an attempt matches the objects the query
+        robot saw over its last submap_length metres of travel (its local submap).
+    loop_closures: backend "keyframes": also match each robot's local submap against its own
+        older map (objects last seen before the submap's stretch), intra-robot loop closures.
     seed: attempt k of the pair (i, j) (robot indices, i < j) uses the seed [seed, i, j]
         (k = 0) or [seed, i, j, k].
     """
@@ -135,6 +145,12 @@ class OnlineConfig:
     join_sigmas: float | None = setting(None, check=real(0.0, low_open=True, none_ok=True))
     solver: str = setting("auto", check=choice("auto", "gtsam", "scipy", what="the solver"))
     seed: int = setting(0, check=integer(0))
+    backend: str = setting("robots", check=choice("robots", "keyframes", what="the back-end"))
+    odometry: OdometryNoise = setting(default_factory=OdometryNoise, check=group(OdometryNoise))
+    submap_length: float = setting(
+        100.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m")
+    )
+    loop_closures: bool = setting(True, check=flag())
 
     def __post_init__(self) -> None:
         validate_settings(self, "OnlineConfig")

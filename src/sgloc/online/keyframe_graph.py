@@ -157,7 +157,9 @@ class KeyframeGraph:
         None when the robot is not placed."""
         if int(robot) not in self._in:
             return None
-        return np.stack([self._est[key] for key in self._keys[int(robot)]])
+        new: dict[int, np.ndarray] = {}
+        self._chain(int(robot), new)  # keyframes added since: chained by odometry
+        return np.stack([self._est.get(key, new.get(key)) for key in self._keys[int(robot)]])
 
     def T_fleet_odom(self, robot: int) -> np.ndarray | None:
         """(4,4) `robot`'s odometry frame in the fleet frame at its latest solved keyframe
@@ -167,6 +169,63 @@ class KeyframeGraph:
         keys = self._keys[int(robot)]
         k = max(i for i, key in enumerate(keys) if key in self._est)
         return self._est[keys[k]] @ lie.between(self._odom[int(robot)][k], np.eye(4))
+
+    # -- state ---------------------------------------------------------------------------------
+    def state(self) -> tuple[dict, dict[str, np.ndarray]]:
+        """(JSON-ready dict, arrays) that `from_state` restores exactly: keyframes, factors,
+        the solved estimate and which robots and factors the solver holds."""
+        robots = sorted(self._odom)
+        fids = sorted(self._factors)
+        f = [self._factors[i] for i in fids]
+        est = sorted(self._est)
+        meta = {"root": self.root, "solver": self.solver_kind, "next_fid": self._next_fid,
+                "robots": robots, "in": self._in, "sent": sorted(self._sent),
+                "kinds": [x.kind for x in f]}
+        arrays = {
+            "kg_odom": np.concatenate([self.keyframes(r) for r in robots]).reshape(-1, 4, 4),
+            "kg_count": np.array([len(self._odom[r]) for r in robots], np.int64),
+            "kg_keys": np.concatenate([self._keys[r] for r in robots]).astype(np.int64)
+            if robots else np.zeros(0, np.int64),
+            "kg_fid": np.array(fids, np.int64),
+            "kg_ends": np.array([[x.robot_a, x.k_a, x.robot_b, x.k_b] for x in f],
+                                np.int64).reshape(-1, 4),
+            "kg_T": np.array([x.T_a_b for x in f]).reshape(-1, 4, 4),
+            "kg_cov": np.array([x.covariance for x in f]).reshape(-1, 6, 6),
+            "kg_est_keys": np.array(est, np.int64),
+            "kg_est": np.array([self._est[k] for k in est]).reshape(-1, 4, 4),
+        }
+        return meta, arrays
+
+    @classmethod
+    def from_state(cls, noise: OdometryNoise, meta: dict, arrays: dict[str, np.ndarray]
+                   ) -> KeyframeGraph:
+        """The graph `state` described, its solver holding the saved estimate."""
+        g = cls(noise, meta["solver"], meta["root"])
+        start = 0
+        for r, n in zip(meta["robots"], arrays["kg_count"], strict=True):
+            g._odom[int(r)] = [T.copy() for T in arrays["kg_odom"][start:start + n]]
+            g._keys[int(r)] = [int(k) for k in arrays["kg_keys"][start:start + n]]
+            start += int(n)
+        g._n_nodes = start
+        for fid, kind, e, T, C in zip(arrays["kg_fid"], meta["kinds"], arrays["kg_ends"],
+                                      arrays["kg_T"], arrays["kg_cov"], strict=True):
+            g._factors[int(fid)] = GraphFactor(kind, *(int(x) for x in e), T.copy(), C.copy())
+        g._next_fid = int(meta["next_fid"])
+        g._in = [int(r) for r in meta["in"]]
+        g._est = {int(k): T.copy() for k, T in zip(arrays["kg_est_keys"], arrays["kg_est"],
+                                                    strict=True)}
+        if g._in:
+            g._sent = {int(i) for i in meta["sent"]}
+            key0 = g.node(g.root, 0)
+            g._solver = make_solver(g.solver_kind, key0, g._est[key0])
+            g._solver.restore({k: T for k, T in g._est.items() if k != key0},
+                              [g._factor(i) for i in sorted(g._sent)])
+        return g
+
+    def _factor(self, fid: int) -> Factor:
+        f = self._factors[fid]
+        return Factor(fid, self.node(f.robot_a, f.k_a), self.node(f.robot_b, f.k_b), f.T_a_b,
+                      f.covariance)
 
     # -- solving -------------------------------------------------------------------------------
     def _component(self) -> list[int]:
@@ -201,9 +260,7 @@ class KeyframeGraph:
             self._in = [self.root]
         new = self._new_poses(comp)
         placed = set(self._in)
-        add = [Factor(fid, self.node(f.robot_a, f.k_a), self.node(f.robot_b, f.k_b), f.T_a_b,
-                      f.covariance)
-               for fid, f in sorted(self._factors.items())
+        add = [self._factor(fid) for fid, f in sorted(self._factors.items())
                if fid not in self._sent and f.robot_a in placed and f.robot_b in placed]
         gone = sorted(self._sent - set(self._factors))
         if not new and not add and not gone:

@@ -55,45 +55,64 @@ class SparseSolver:
                  max_iterations: int = 100) -> None:
         self.fixed = int(fixed)
         self.tolerance, self.max_iterations = float(tolerance), int(max_iterations)
-        self._keys: list[int] = [self.fixed]
-        self._slot: dict[int, int] = {self.fixed: 0}
+        # Nodes sorted by key and factors by fid, whatever the order they came in: the
+        # solution is a function of the graph and the estimate only (a resumed solver continues
+        # exactly as the original).
+        self._keys = np.array([self.fixed], np.int64)
         self._X = np.asarray(fixed_pose, np.float64).reshape(1, 4, 4).copy()
         self._fid = np.zeros(0, np.int64)
-        self._ab = np.zeros((0, 2), np.int64)  # slots
+        self._abk = np.zeros((0, 2), np.int64)  # node keys
         self._Zinv = np.zeros((0, 4, 4))
         self._U = np.zeros((0, 6, 6))
 
     def update(self, new_poses: dict[int, np.ndarray], new_factors: Sequence[Factor] = (),
                removed: Sequence[int] = ()) -> None:
         """Add nodes (initial poses), add factors, remove factors (by fid), re-optimise."""
-        for k in sorted(new_poses):
-            self._slot[int(k)] = len(self._keys)
-            self._keys.append(int(k))
-        if new_poses:
-            add = np.stack([np.asarray(new_poses[k], np.float64) for k in sorted(new_poses)])
-            self._X = np.concatenate([self._X, add])
+        self._add_nodes(new_poses)
         if len(removed):
             keep = ~np.isin(self._fid, np.asarray(removed, np.int64))
-            self._fid, self._ab = self._fid[keep], self._ab[keep]
+            self._fid, self._abk = self._fid[keep], self._abk[keep]
             self._Zinv, self._U = self._Zinv[keep], self._U[keep]
-        if len(new_factors):
-            f = list(new_factors)
-            cov = np.stack([regularized_covariance(x.covariance) for x in f])
-            U = np.swapaxes(np.linalg.cholesky(np.linalg.inv(cov)), -1, -2)
-            Z = np.stack([np.asarray(x.T_a_b, np.float64) for x in f])
-            self._fid = np.concatenate([self._fid, [x.fid for x in f]]).astype(np.int64)
-            self._ab = np.concatenate([self._ab, [[self._slot[x.a], self._slot[x.b]] for x in f]])
-            self._Zinv = np.concatenate([self._Zinv, lie.between(Z, np.eye(4))])
-            self._U = np.concatenate([self._U, U])
+        self._add_factors(new_factors)
         self._optimize()
+
+    def _add_nodes(self, poses: dict[int, np.ndarray]) -> None:
+        if not poses:
+            return
+        keys = np.concatenate([self._keys, np.array(sorted(poses), np.int64)])
+        X = np.concatenate([self._X, np.stack([np.asarray(poses[k], np.float64)
+                                               for k in sorted(poses)])])
+        order = np.argsort(keys, kind="stable")
+        self._keys, self._X = keys[order], X[order]
+
+    def _add_factors(self, new_factors: Sequence[Factor]) -> None:
+        if not len(new_factors):
+            return
+        f = list(new_factors)
+        cov = np.stack([regularized_covariance(x.covariance) for x in f])
+        U = np.swapaxes(np.linalg.cholesky(np.linalg.inv(cov)), -1, -2)
+        Z = np.stack([np.asarray(x.T_a_b, np.float64) for x in f])
+        fid = np.concatenate([self._fid, [x.fid for x in f]]).astype(np.int64)
+        order = np.argsort(fid, kind="stable")
+        self._fid = fid[order]
+        self._abk = np.concatenate([self._abk, [[x.a, x.b] for x in f]])[order]
+        self._Zinv = np.concatenate([self._Zinv, lie.between(Z, np.eye(4))])[order]
+        self._U = np.concatenate([self._U, U])[order]
 
     def estimate(self) -> dict[int, np.ndarray]:
         """{key: (4,4) pose} of every node."""
-        return {k: self._X[i].copy() for i, k in enumerate(self._keys)}
+        return {int(k): self._X[i].copy() for i, k in enumerate(self._keys)}
+
+    def restore(self, poses: dict[int, np.ndarray], factors: Sequence[Factor]) -> None:
+        """Hold these nodes at exactly these poses and these factors, without optimising (a
+        saved solution resumed; the next `update` continues from it as the original would)."""
+        self._add_nodes(poses)
+        self._add_factors(factors)
 
     def _linearize(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Whitened residuals (m,6) and Jacobians (m,6,6) w.r.t. X_a and X_b."""
-        Xa, Xb = X[self._ab[:, 0]], X[self._ab[:, 1]]
+        ab = np.searchsorted(self._keys, self._abk)
+        Xa, Xb = X[ab[:, 0]], X[ab[:, 1]]
         e = lie.se3_log(self._Zinv @ lie.between(Xa, Xb))
         Jr = lie.se3_right_jacobian_inv(e)
         Ja = -Jr @ lie.adjoint(lie.between(Xb, Xa))
@@ -105,10 +124,11 @@ class SparseSolver:
         from scipy import sparse
 
         n = len(self._keys)
-        var = np.arange(n) - 1  # slot 0 is the fixed node
+        free = self._keys != self.fixed
+        var = np.where(free, np.cumsum(free) - 1, -1)  # the fixed node has no variables
         J = np.stack([Ja, Jb], axis=1)  # (m, 2, 6, 6)
         blocks = np.einsum("mpki,mqkj->mpqij", J, J)  # J_p^T J_q
-        slots = var[self._ab]  # (m, 2)
+        slots = var[np.searchsorted(self._keys, self._abk)]  # (m, 2)
         base = 6 * slots
         i6 = np.arange(6)
         rows = base[:, :, None, None, None] + i6[None, None, None, :, None]
@@ -126,7 +146,8 @@ class SparseSolver:
 
     def _step(self, X: np.ndarray, dx: np.ndarray) -> np.ndarray:
         out = X.copy()
-        out[1:] = X[1:] @ lie.se3_exp(dx.reshape(-1, 6))
+        free = self._keys != self.fixed
+        out[free] = X[free] @ lie.se3_exp(dx.reshape(-1, 6))
         return out
 
     def _optimize(self) -> None:
@@ -205,6 +226,14 @@ class IsamSolver:
         self._pending, self._pending_values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         self._prior_pending = False
         self._converge()
+
+    def restore(self, poses: dict[int, np.ndarray], factors: Sequence[Factor]) -> None:
+        """Start from a saved solution: these nodes at these poses with these factors. ISAM2
+        relinearizes from them; `estimate` gives the saved poses until the next `update`."""
+        saved = {k: np.asarray(T, np.float64).copy() for k, T in poses.items()}
+        fixed = dict(self._estimate)
+        self.update(poses, factors)
+        self._estimate = {**fixed, **saved}
 
     def _converge(self) -> None:
         est = self._read()

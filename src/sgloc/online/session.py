@@ -21,6 +21,8 @@ from sgloc.online.consistency import (
     loop_tolerance,
 )
 from sgloc.online.joint import largest_shift, refine_fleet
+from sgloc.online.keyframe_fleet import KeyframeFleet, link_of, make_query
+from sgloc.online.keyframe_graph import keyframe_link
 from sgloc.online.posegraph import fleet_frame
 from sgloc.online.precision import chain_covariance, predicted_error
 from sgloc.online.records import (
@@ -63,6 +65,9 @@ class OnlineSession:
         self._T: dict[str, np.ndarray] = {}
         self.attempts: list[Attempt] = []
         self.events: list[Event] = []
+        # backend "keyframes": the keyframe pose graph, its links, each robot's last loop try
+        self._kf = KeyframeFleet(self.online) if self.online.backend == "keyframes" else None
+        self._loop_last: dict[int, int] = {}
 
     # -- what the session knows ---------------------------------------------------------------
     @property
@@ -79,7 +84,10 @@ class OnlineSession:
 
     @property
     def links(self) -> list[Link]:
-        """Every accepted link (one per robot pair, the newest), active or not."""
+        """Every accepted link (one per robot pair, the newest), active or not; with backend
+        "keyframes", every accepted keyframe link in the order found (revoked ones included)."""
+        if self._kf is not None:
+            return list(self._kf.links)
         return [self._links[k] for k in sorted(self._links)]
 
     def T_fleet_robot(self, robot: str) -> np.ndarray | None:
@@ -103,6 +111,8 @@ class OnlineSession:
         if T is None:
             return None
         stamps, poses = self.keyframes(robot)
+        if self._kf is not None:  # the keyframes as the pose graph corrected them
+            return stamps, self._kf.graph.poses(self._index(robot))
         return stamps, T @ poses
 
     def _now(self) -> float:
@@ -145,6 +155,8 @@ class OnlineSession:
             self._maps[robot] = RobotMap(robot, o.association_radius, o.min_observations,
                                          o.edge_radius)
         self._maps[robot].add(stamp, T_odom_sensor, positions, labels)
+        if self._kf is not None:
+            self._kf.graph.add_keyframe(self.robots.index(robot), self._maps[robot].poses[-1])
         if robot == self.root and robot not in self._T:
             self._refresh(stamp)
         if self.online.max_attempts != 0:
@@ -198,13 +210,20 @@ class OnlineSession:
             group = self._groups()
             due.sort(key=lambda p: group[p[0]] == group[p[1]])  # stable: growth order within
             due = due if max_attempts is None else due[:max_attempts]
+        if self._kf is not None:
+            loops = self._due_loops(sizes, growth_ratio, growth_objects, robot)
+            changed = self._kf_attempts(due, loops, sizes, stamp, max_attempts, scheduler,
+                                        workers)
+        elif due:
             # Each attempt on graphs rebuilt from arrays, wherever it runs: the localizer's
             # caches on a reused graph shift results by ~1e-13 with their history, and a
             # resumed session or a worker process must give the same results bit for bit.
             results = run_tasks([self._task(i, j) for i, j in due], scheduler, workers)
             for (i, j), r in zip(due, results, strict=True):
                 changed |= self._record(i, j, sizes, r, stamp)
-        changed |= self._refine_due(sizes, max_attempts, growth_ratio, growth_objects, robot)
+        if self._kf is None:
+            changed |= self._refine_due(sizes, max_attempts, growth_ratio, growth_objects,
+                                        robot)
         if changed:
             self._refresh(stamp)
         return self.events[n_events:]
@@ -214,8 +233,13 @@ class OnlineSession:
         from scipy import sparse
         from scipy.sparse.csgraph import connected_components
 
-        n = len(self._maps)
-        ij = np.array([k for k, lk in self._links.items() if lk.active], np.int64).reshape(-1, 2)
+        n, names = len(self._maps), self.robots
+        if self._kf is not None:
+            pairs = [(names.index(lk.robot_a), names.index(lk.robot_b)) for lk in self._kf.links
+                     if lk.active]
+        else:
+            pairs = [k for k, lk in self._links.items() if lk.active]
+        ij = np.array(pairs, np.int64).reshape(-1, 2)
         adj = sparse.coo_array((np.ones(len(ij)), (ij[:, 0], ij[:, 1])), shape=(n, n))
         return connected_components(adj, directed=False)[1]
 
@@ -229,6 +253,62 @@ class OnlineSession:
         q, t = self._maps[names[j]].graph(), self._maps[names[i]].graph()
         return ((i, j), q.positions, q.labels, q.edge_radius, t.positions, t.labels,
                 t.edge_radius, self.config.to_dict(), self._seed(i, j))
+
+    def _due_loops(self, sizes, growth_ratio, growth_objects, robot) -> list[int]:
+        """Robots (indices) due for a loop-closure attempt under the growth rule."""
+        if not self.online.loop_closures:
+            return []
+        out = []
+        for r, n in enumerate(sizes):
+            prev = self._loop_last.get(r)
+            if robot not in (None, r) or n < self.online.min_objects:
+                continue
+            if prev is None or n - prev >= growth_objects or (n - prev) / max(prev, 1) \
+                    >= growth_ratio:
+                out.append(r)
+        return out
+
+    def _kf_attempts(self, due, loops, sizes, stamp, budget, scheduler, workers) -> bool:
+        """Backend "keyframes": attempt each due pair (the robot whose map grew more since the
+        pair's last attempt is the query: its recent submap in the other's map) and each due
+        loop closure (at most `budget` in all); keep the accepted ones as keyframe links."""
+        o, names = self.online, self.robots
+        maps = [self._maps[r] for r in names]
+        pairs = []
+        for i, j in due:
+            prev = self._last.get((i, j), (0, 0))
+            pairs.append((j, i) if sizes[i] - prev[0] > sizes[j] - prev[1] else (i, j))
+        pairs += [(r, r) for r in loops]
+        queries = []
+        for t, q in pairs if budget is None else pairs[:budget]:
+            if t == q:
+                self._loop_last[q] = sizes[q]
+            else:
+                i, j = min(t, q), max(t, q)
+                self._last[(i, j)] = (sizes[i], sizes[j])
+            qu = make_query(maps, t, q, o.submap_length)
+            if min(len(qu.query_graph.positions), len(qu.target_graph.positions)) >= \
+                    o.min_objects:
+                queries.append(qu)
+        tasks = []
+        for qu in queries:
+            a, b = qu.query_graph, qu.target_graph
+            key = (min(qu.target, qu.query), max(qu.target, qu.query))
+            tasks.append(((qu.target, qu.query), a.positions, a.labels, a.edge_radius,
+                          b.positions, b.labels, b.edge_radius, self.config.to_dict(),
+                          self._seed(*key)))
+            self._tries[key] = self._tries.get(key, 0) + 1
+        changed = False
+        for qu, r in zip(queries, run_tasks(tasks, scheduler, workers), strict=True):
+            self.attempts.append(Attempt(
+                names[qu.query], names[qu.target], stamp, r["accepted"], r["transform"],
+                r["confidence"], r["n_matches"], r["reason"], r["seconds"],
+                (len(qu.query_graph.positions), len(qu.target_graph.positions)),
+            ))
+            if r["accepted"]:
+                self._kf.links.append(link_of(maps, names, qu, r, stamp))
+                changed = True
+        return changed
 
     def _record(self, i: int, j: int, sizes: list[int], r: dict, stamp: float) -> bool:
         """Store one attempt; True when it added or replaced a link."""
@@ -329,7 +409,15 @@ class OnlineSession:
             T, cov = invert_with_covariance(T, cov)
         n_events = len(self.events)
         stamp = float(stamp) if stamp is not None else self._now()
-        self._store_link(i, j, T, cov, confidence, stamp, 0, "added link")
+        if self._kf is not None:  # between the two robots' latest keyframes
+            a, b = self._maps[self.robots[i]], self._maps[self.robots[j]]
+            ka, kb = a.keyframes - 1, b.keyframes - 1
+            T, cov = keyframe_link(a.anchors()[ka], T, cov, b.anchors()[kb])
+            self._kf.links.append(Link(self.robots[i], self.robots[j], T, cov,
+                                       float(confidence), stamp, active=False,
+                                       reason="added link", keyframe_a=ka, keyframe_b=kb))
+        else:
+            self._store_link(i, j, T, cov, confidence, stamp, 0, "added link")
         self._refresh(stamp)
         return self.events[n_events:]
 
@@ -341,12 +429,17 @@ class OnlineSession:
         n_events = len(self.events)
         self._root = robot
         self._T = {}
+        if self._kf is not None:
+            self._kf.graph.set_root(self._index(robot))
         self._refresh(stamp)
         return self.events[n_events:]
 
     # -- the fleet frame -----------------------------------------------------------------------
     def _refresh(self, stamp: float, emit: bool = True) -> None:
         """Re-select the consistent links, re-solve the fleet frame, emit what changed."""
+        if self._kf is not None:
+            self._kf_refresh(stamp, emit)
+            return
         names = self.robots
         o = self.online
         for lk in self._links.values():
@@ -388,6 +481,36 @@ class OnlineSession:
             if r in T_new and r not in self._T:
                 self._emit(emit, stamp, ROBOT_JOINED, (r,),
                            "the fleet frame's root" if r == root else "placed in the fleet frame")
+        self._T = T_new
+
+    def _kf_refresh(self, stamp: float, emit: bool) -> None:
+        """Backend "keyframes": re-select the links, update and solve the keyframe graph,
+        reanchor the maps, emit what changed."""
+        names = self.robots
+        if self.root not in self._maps:
+            self._T = {}
+            return
+        root = names.index(self.root)
+        if self._kf.graph.root != root:
+            self._kf.graph.set_root(root)
+        entered, left = self._kf.update([self._maps[r] for r in names], names)
+        g = self._kf.graph
+        T_new = {names[r]: g.T_fleet_odom(r) for r in g.placed}
+        lost = [r for r in names if r in self._T and r not in T_new]
+        for lid in left:
+            lk = self._kf.links[lid]
+            note = f"; no longer placed: {', '.join(lost)}" if lost else ""
+            self._emit(emit, stamp, LINK_REVOKED, (lk.robot_a, lk.robot_b), lk.reason + note)
+        for lid in entered:
+            lk = self._kf.links[lid]
+            self._emit(emit, stamp, LINK_ACCEPTED, (lk.robot_a, lk.robot_b),
+                       f"confidence {lk.confidence:.6f}, {lk.n_matches} matches, keyframes "
+                       f"{lk.keyframe_a} and {lk.keyframe_b}")
+        for r in names:
+            if r in T_new and r not in self._T:
+                self._emit(emit, stamp, ROBOT_JOINED, (r,),
+                           "the fleet frame's root" if r == self.root else
+                           "placed in the fleet frame")
         self._T = T_new
 
     def _held(self, frame, edges: list[Edge], covariances: list[np.ndarray]) -> list[str]:
@@ -443,9 +566,13 @@ class OnlineSession:
             "links": [[i, j, lk.to_dict()] for (i, j), lk in sorted(self._links.items())],
             "attempts": [a.to_dict() for a in self.attempts],
             "events": [e.to_dict() for e in self.events],
+            "loop_last": sorted([r, n] for r, n in self._loop_last.items()),
         }
         arrays = {f"map{k}_{key}": arr for k, r in enumerate(self.robots)
                   for key, arr in self._maps[r].state().items()}
+        if self._kf is not None:
+            meta["keyframes"], kf_arrays = self._kf.state()
+            arrays.update(kf_arrays)
         return meta, arrays
 
     @classmethod
@@ -466,7 +593,12 @@ class OnlineSession:
         s._links = {(i, j): Link.from_dict(d) for i, j, d in meta["links"]}
         s.attempts = [Attempt.from_dict(d) for d in meta["attempts"]]
         s.events = [Event.from_dict(d) for d in meta["events"]]
-        if s.robots:
+        s._loop_last = {int(r): int(n) for r, n in meta.get("loop_last", [])}
+        if s._kf is not None:  # the saved solution as it was (not re-solved)
+            s._kf = KeyframeFleet.from_state(o, meta["keyframes"], arrays)
+            g = s._kf.graph
+            s._T = {s.robots[r]: g.T_fleet_odom(r) for r in g.placed}
+        elif s.robots:
             s._refresh(0.0, emit=False)
         return s
 
