@@ -181,3 +181,31 @@ def test_save_and_resume_give_identical_frames_with_keyframes(tmp_path, out_and_
     np.testing.assert_array_equal(resumed.trajectory("a")[1], s.trajectory("a")[1])
     np.testing.assert_array_equal(resumed.map("a").positions, s.map("a").positions)
     assert [lk.to_dict() for lk in resumed.links] == [lk.to_dict() for lk in s.links]
+
+
+@pytest.mark.skipif(not gtsam_available(), reason="gtsam not installed")
+def test_the_keyframe_graph_g2o_reads_back_with_gtsam(tmp_path, out_and_back):
+    import gtsam
+
+    frames, _ = out_and_back
+    s = OnlineSession(online=OnlineConfig(backend="keyframes", min_observations=1,
+                                          growth_objects=3))
+    for stamp, T, p, lab in frames:
+        s.add_keyframe("a", stamp, T, p, lab)
+    path = s.write_g2o(tmp_path / "graph.g2o")
+    graph, initial = gtsam.readG2o(str(path), True)
+    n_links = sum(lk.active for lk in s.links)
+    assert n_links and graph.size() == len(frames) - 1 + n_links  # odometry included
+    assert initial.size() == len(frames)
+    ids = s.keyframe_ids()
+    assert [(r, k) for _, r, k in ids] == [("a", k) for k in range(len(frames))]
+    X = s.trajectory("a")[1]
+    for key, _, k in ids:
+        np.testing.assert_allclose(initial.atPose3(key).matrix(), X[k], atol=1e-6)
+    # The file's graph is the session's: its optimum (first keyframe held) is the session's.
+    key0 = ids[0][0]
+    graph.add(gtsam.PriorFactorPose3(key0, initial.atPose3(key0),
+                                     gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
+    result = gtsam.LevenbergMarquardtOptimizer(graph, initial).optimize()
+    moved = max(np.abs(result.atPose3(key).matrix() - X[k]).max() for key, _, k in ids)
+    assert moved < 1e-4

@@ -301,3 +301,22 @@ class KeyframeGraph:
             if keys[k] not in self._est and keys[k] not in new:
                 X = new.get(keys[k - 1], self._est.get(keys[k - 1]))
                 new[keys[k]] = X @ lie.between(odom[k - 1], odom[k])
+
+
+def write_keyframe_g2o(graph: KeyframeGraph, path) -> tuple:
+    """Write the placed robots' part of `graph` as a g2o file (`sgloc.io.g2o.write_g2o`): a
+    VERTEX_SE3:QUAT per keyframe (id = its key, pose = its corrected T_fleet_sensor), an
+    EDGE_SE3:QUAT per odometry factor and per link factor among them. Returns (path, ids)
+    with ids = [(key, robot, k)] of the vertices written, to name them."""
+    from sgloc.io.g2o import write_g2o
+
+    vertices, ids = {}, []
+    for r in graph.placed:
+        for k, X in enumerate(graph.poses(r)):
+            key = graph.node(r, k)
+            vertices[key] = X
+            ids.append((key, r, k))
+    edges = [(graph.node(f.robot_a, f.k_a), graph.node(f.robot_b, f.k_b), f.T_a_b,
+              f.covariance) for _, f in sorted(graph.factors().items())
+             if f.robot_a in graph.placed and f.robot_b in graph.placed]
+    return write_g2o(path, vertices, edges), sorted(ids)

@@ -115,6 +115,14 @@ class OnlineSession:
             return stamps, self._kf.graph.poses(self._index(robot))
         return stamps, T @ poses
 
+    def keyframe_ids(self) -> list[tuple[int, str, int]]:
+        """(vertex id in `write_g2o`'s file, robot, keyframe index) of every keyframe of the
+        pose graph (backend "keyframes"; empty with backend "robots")."""
+        if self._kf is None:
+            return []
+        names = self.robots
+        return [(key, names[r], k) for key, r, k in self._kf.graph.nodes()]
+
     def _now(self) -> float:
         """The newest keyframe stamp of any robot (0.0 before the first)."""
         return max((m.stamps[-1] for m in self._maps.values() if m.stamps), default=0.0)
@@ -617,8 +625,15 @@ class OnlineSession:
 
     def write_g2o(self, path: str | Path) -> Path:
         """g2o file: VERTEX_SE3:QUAT per placed robot (its T_fleet_robot; id = robot index),
-        EDGE_SE3:QUAT per active link with its information matrix (g2o order [t, r])."""
+        EDGE_SE3:QUAT per active link with its information matrix (g2o order [t, r]). With
+        backend "keyframes": the keyframe pose graph of the placed robots, a vertex per
+        keyframe (`keyframe_ids` names them) and an edge per odometry and active link factor."""
         from sgloc.io.g2o import write_g2o
+
+        if self._kf is not None:
+            from sgloc.online.keyframe_graph import write_keyframe_g2o
+
+            return write_keyframe_g2o(self._kf.graph, path)[0]
 
         names = self.robots
         vertices = {names.index(r): T for r, T in self._T.items()}
