@@ -193,14 +193,12 @@ class IsamSolver:
         self._isam = gtsam.ISAM2(params)
         self.tolerance, self.max_steps = float(tolerance), int(max_steps)
         self._index: dict[int, int] = {}
-        self._keys: list[int] = []
         self._pending = gtsam.NonlinearFactorGraph()
         self._pending_values = gtsam.Values()
         pose = gtsam.Pose3(np.asarray(fixed_pose, np.float64))
         self._pending.add(gtsam.PriorFactorPose3(
             int(fixed), pose, gtsam.noiseModel.Isotropic.Sigma(6, FIXED_SIGMA)))
         self._pending_values.insert(int(fixed), pose)
-        self._keys.append(int(fixed))
         self._prior_pending = True
         self._estimate: dict[int, np.ndarray] = {int(fixed): np.asarray(fixed_pose, float)}
 
@@ -212,7 +210,6 @@ class IsamSolver:
         fids = [-1] if self._prior_pending else []
         for k in sorted(new_poses):
             values.insert(int(k), gtsam.Pose3(np.asarray(new_poses[k], np.float64)))
-            self._keys.append(int(k))
         for f in new_factors:
             noise = gtsam.noiseModel.Gaussian.Covariance(regularized_covariance(f.covariance))
             graph.add(gtsam.BetweenFactorPose3(int(f.a), int(f.b),
@@ -236,19 +233,25 @@ class IsamSolver:
         self._estimate = {**fixed, **saved}
 
     def _converge(self) -> None:
-        est = self._read()
+        keys, est = self._read()
         for _ in range(self.max_steps):
             self._isam.update()
-            new = self._read()
-            moved = max(float(np.max(np.abs(new[k] - est[k]))) for k in new)
+            keys, new = self._read()
+            moved = float(np.abs(new - est).max()) if new.shape == est.shape else np.inf
             est = new
             if moved < self.tolerance:
                 break
-        self._estimate = est
+        self._estimate = dict(zip(keys.tolist(), est, strict=True))
 
-    def _read(self) -> dict[int, np.ndarray]:
+    def _read(self) -> tuple[np.ndarray, np.ndarray]:
+        """(keys (n,), poses (n,4,4)) of ISAM2's current estimate, by key."""
         values = self._isam.calculateEstimate()
-        return {k: values.atPose3(k).matrix() for k in self._keys}
+        rows = self._gtsam.utilities.extractPose3(values)  # (n,12): R row-major, t
+        T = np.zeros((len(rows), 4, 4))
+        T[:, :3, :3] = rows[:, :9].reshape(-1, 3, 3)
+        T[:, :3, 3] = rows[:, 9:]
+        T[:, 3, 3] = 1.0
+        return np.array(values.keys(), np.int64), T
 
     def estimate(self) -> dict[int, np.ndarray]:
         """{key: (4,4) pose} of every node."""
