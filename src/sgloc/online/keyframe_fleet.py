@@ -77,6 +77,29 @@ class KeyframeFleet:
         self.graph = KeyframeGraph(online.odometry, online.solver, root)
         self.links: list[Link] = []
         self.fid: dict[int, int] = {}  # link id -> factor id while in the graph
+        # (i, j) robot indices (i <= j; i == j: loop closures) -> metres each had travelled
+        # at the pair's last attempt
+        self.travel_last: dict[tuple[int, int], tuple[float, float]] = {}
+
+    def due_by_travel(self, travelled: list[float], sizes: list[int], min_objects: int,
+                      robot: int | None) -> list[tuple[int, int]]:
+        """Pairs (i, j), i <= j (i == j: a loop closure; only with `loop_closures`), both maps
+        with >= min_objects, of which a robot travelled half a submap (submap_length / 2)
+        since the pair's last attempt; those never attempted first, then most travelled."""
+        step = self.online.submap_length / 2
+        scored = []
+        for j in range(len(sizes)):
+            for i in range(j + 1):
+                if sizes[i] < min_objects or sizes[j] < min_objects or robot not in (None, i, j):
+                    continue
+                if i == j and not self.online.loop_closures:
+                    continue
+                prev = self.travel_last.get((i, j), (0.0, 0.0))
+                moved = max(travelled[i] - prev[0], travelled[j] - prev[1])
+                if moved >= step:
+                    scored.append(((i, j) not in self.travel_last, moved, i, j))
+        scored.sort(key=lambda x: (not x[0], -x[1], x[2], x[3]))
+        return [(i, j) for _, _, i, j in scored]
 
     def select(self, maps: list[RobotMap], names: list[str]) -> tuple[list[int], dict]:
         """The link ids the evidence supports now, and why the others are not taken."""
@@ -127,6 +150,7 @@ class KeyframeFleet:
         meta, arrays = self.graph.state()
         meta["links"] = [lk.to_dict() for lk in self.links]
         meta["fid"] = sorted([lid, f] for lid, f in self.fid.items())
+        meta["travel_last"] = [[i, j, a, b] for (i, j), (a, b) in sorted(self.travel_last.items())]
         return meta, arrays
 
     @classmethod
@@ -135,4 +159,6 @@ class KeyframeFleet:
         f.graph = KeyframeGraph.from_state(online.odometry, meta, arrays)
         f.links = [Link.from_dict(d) for d in meta["links"]]
         f.fid = {int(lid): int(fid) for lid, fid in meta["fid"]}
+        f.travel_last = {(int(i), int(j)): (float(a), float(b))
+                         for i, j, a, b in meta.get("travel_last", [])}
         return f

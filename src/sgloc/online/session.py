@@ -214,14 +214,19 @@ class OnlineSession:
         due = [p for p in due_pairs(sizes, self._last, o.min_objects, growth_ratio,
                                     growth_objects) if robot is None or robot in p]
         changed = False
+        if self._kf is not None:  # also every half submap of travel; loop closures too
+            travelled = [float(self._maps[r].travelled()[-1]) for r in self.robots]
+            more = self._kf.due_by_travel(travelled, sizes, o.min_objects, robot)
+            loops = self._due_loops(sizes, growth_ratio, growth_objects, robot)
+            due += [p for p in more if p[0] != p[1] and p not in due]
+            loops += [i for i, j in more if i == j and i not in loops]
         if due:
             group = self._groups()
             due.sort(key=lambda p: group[p[0]] == group[p[1]])  # stable: growth order within
             due = due if max_attempts is None else due[:max_attempts]
         if self._kf is not None:
-            loops = self._due_loops(sizes, growth_ratio, growth_objects, robot)
-            changed = self._kf_attempts(due, loops, sizes, stamp, max_attempts, scheduler,
-                                        workers)
+            changed = self._kf_attempts(due, loops, sizes, travelled, stamp, max_attempts,
+                                        scheduler, workers)
         elif due:
             # Each attempt on graphs rebuilt from arrays, wherever it runs: the localizer's
             # caches on a reused graph shift results by ~1e-13 with their history, and a
@@ -276,23 +281,25 @@ class OnlineSession:
                 out.append(r)
         return out
 
-    def _kf_attempts(self, due, loops, sizes, stamp, budget, scheduler, workers) -> bool:
-        """Backend "keyframes": attempt each due pair (the robot whose map grew more since the
+    def _kf_attempts(self, due, loops, sizes, travelled, stamp, budget, scheduler,
+                     workers) -> bool:
+        """Backend "keyframes": attempt each due pair (the robot that travelled more since the
         pair's last attempt is the query: its recent submap in the other's map) and each due
         loop closure (at most `budget` in all); keep the accepted ones as keyframe links."""
         o, names = self.online, self.robots
         maps = [self._maps[r] for r in names]
         pairs = []
         for i, j in due:
-            prev = self._last.get((i, j), (0, 0))
-            pairs.append((j, i) if sizes[i] - prev[0] > sizes[j] - prev[1] else (i, j))
+            prev = self._kf.travel_last.get((i, j), (0.0, 0.0))
+            pairs.append((j, i) if travelled[i] - prev[0] > travelled[j] - prev[1] else (i, j))
         pairs += [(r, r) for r in loops]
         queries = []
         for t, q in pairs if budget is None else pairs[:budget]:
+            i, j = min(t, q), max(t, q)
+            self._kf.travel_last[(i, j)] = (travelled[i], travelled[j])
             if t == q:
                 self._loop_last[q] = sizes[q]
             else:
-                i, j = min(t, q), max(t, q)
                 self._last[(i, j)] = (sizes[i], sizes[j])
             qu = make_query(maps, t, q, o.submap_length)
             if min(len(qu.query_graph.positions), len(qu.target_graph.positions)) >= \
