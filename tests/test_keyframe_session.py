@@ -209,3 +209,23 @@ def test_the_keyframe_graph_g2o_reads_back_with_gtsam(tmp_path, out_and_back):
     result = gtsam.LevenbergMarquardtOptimizer(graph, initial).optimize()
     moved = max(np.abs(result.atPose3(key).matrix() - X[k]).max() for key, _, k in ids)
     assert moved < 1e-4
+
+
+def test_an_added_link_places_a_robot_and_set_root_moves_the_fleet_frame():
+    s = OnlineSession(online=OnlineConfig(backend="keyframes", min_observations=1,
+                                          max_attempts=0, solver="scipy"))
+    pts = np.random.default_rng(2).uniform(-20, 20, (10, 3))
+    for k in range(3):
+        T = lie.se3_exp([0, 0, 0.1 * k, 4.0 * k, 0, 0])
+        for r in ("a", "b"):
+            s.add_keyframe(r, float(k), T, pts, np.zeros(10, np.int64))
+    assert s.T_fleet_robot("b") is None
+    T_ab = lie.se3_exp([0, 0, 0.4, 30.0, -5.0, 0.0])
+    events = s.add_link("a", "b", T_ab, np.eye(6) * 1e-4)
+    assert [e.kind for e in events] == ["link_accepted", "robot_joined"]
+    np.testing.assert_allclose(s.T_fleet_robot("b"), T_ab, atol=1e-9)
+    lk = s.links[0]
+    assert (lk.keyframe_a, lk.keyframe_b) == (2, 2) and lk.active
+    s.set_root("b")
+    np.testing.assert_allclose(s.T_fleet_robot("a"), np.linalg.inv(T_ab), atol=1e-9)
+    np.testing.assert_allclose(s.T_fleet_robot("b"), np.eye(4), atol=1e-9)

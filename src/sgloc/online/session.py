@@ -91,7 +91,9 @@ class OnlineSession:
         return [self._links[k] for k in sorted(self._links)]
 
     def T_fleet_robot(self, robot: str) -> np.ndarray | None:
-        """(4,4) mapping `robot`'s odometry frame into the fleet frame; None while unplaced."""
+        """(4,4) mapping `robot`'s odometry frame into the fleet frame; None while unplaced.
+        With backend "keyframes": at the robot's latest solved keyframe (map -> odom: the
+        latest odometry pose to the corrected one)."""
         self._index(robot)
         T = self._T.get(robot)
         return None if T is None else T.copy()
