@@ -37,6 +37,7 @@ class RobotMap:
         self.stamps: list[float] = []
         self.poses: list[np.ndarray] = []
         self._anchor: list[np.ndarray] = []  # the keyframe poses the objects are placed with
+        self._travel: list[float] = []  # metres travelled to each keyframe
         self._chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self._sightings: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
@@ -67,6 +68,8 @@ class RobotMap:
         self._chunks.append((np.full(int(ok.sum()), len(self.poses), np.int64), pos[ok],
                              went[ok]))
         self._sightings = None
+        step = float(np.linalg.norm(T[:3, 3] - self.poses[-1][:3, 3])) if self.poses else 0.0
+        self._travel.append(self._travel[-1] + step if self._travel else 0.0)
         self.stamps.append(float(stamp))
         self.poses.append(T.copy())
         self._anchor.append(T.copy())
@@ -128,9 +131,12 @@ class RobotMap:
 
     def travelled(self) -> np.ndarray:
         """(k,) metres travelled (odometry) from the first keyframe to each keyframe."""
-        _, poses = self.trajectory()
-        steps = np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1)
-        return np.concatenate([[0.0], np.cumsum(steps)])
+        return np.array(self._travel, np.float64)
+
+    @property
+    def distance(self) -> float:
+        """Metres travelled (odometry) from the first keyframe to the latest (0.0 before)."""
+        return self._travel[-1] if self._travel else 0.0
 
     def seen_since(self, first: int) -> np.ndarray:
         """(n,) bool over the association's objects: sighted by keyframe `first` or a later
@@ -163,6 +169,9 @@ class RobotMap:
         self.builder = ObjectAssociation.from_state(self.builder.config, state)
         self.stamps = [float(t) for t in state["stamps"]]
         self.poses = [np.array(T) for T in np.asarray(state["poses"]).reshape(-1, 4, 4)]
+        self._travel = [0.0] * bool(len(self.poses))
+        for a, b in zip(self.poses[:-1], self.poses[1:], strict=True):  # as `add` sums them
+            self._travel.append(self._travel[-1] + float(np.linalg.norm(b[:3, 3] - a[:3, 3])))
         anchors = np.asarray(state.get("anchors", state["poses"])).reshape(-1, 4, 4)
         self._anchor = [np.array(T) for T in anchors]
         if "sighting_keyframe" in state:  # sessions saved before sightings were kept have none

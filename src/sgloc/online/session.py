@@ -217,7 +217,7 @@ class OnlineSession:
                                     growth_objects) if robot is None or robot in p]
         changed = False
         if self._kf is not None:  # also every half submap of travel; loop closures too
-            travelled = [float(self._maps[r].travelled()[-1]) for r in self.robots]
+            travelled = [self._maps[r].distance for r in self.robots]
             more = self._kf.due_by_travel(travelled, sizes, o.min_objects, robot)
             loops = self._due_loops(sizes, growth_ratio, growth_objects, robot)
             due += [p for p in more if p[0] != p[1] and p not in due]
