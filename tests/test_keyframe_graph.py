@@ -135,3 +135,13 @@ def test_odometry_noise_grows_with_distance_and_a_link_moves_to_keyframes():
     g.add_keyframe(0, np.eye(4))
     with pytest.raises(SglocError, match="no keyframe"):
         g.add_link(0, 0, 0, 3, np.eye(4), np.eye(6))
+
+
+def test_without_gtsam_the_sparse_solver_is_used(monkeypatch):
+    import sgloc.online.keyframe_solve as ks
+
+    monkeypatch.setattr(ks, "gtsam_available", lambda: False)
+    assert isinstance(ks.make_solver("auto", 0, np.eye(4)), ks.SparseSolver)
+    g = _random_graph("auto", seed=4)
+    g.solve()
+    assert sorted(g.placed) == [0, 1, 2]
