@@ -222,7 +222,7 @@ class OnlineSession:
             loops = self._due_loops(sizes, growth_ratio, growth_objects, robot)
             due += [p for p in more if p[0] != p[1] and p not in due]
             loops += [i for i, j in more if i == j and i not in loops]
-        if due:
+        if due and self._kf is None:
             group = self._groups()
             due.sort(key=lambda p: group[p[0]] == group[p[1]])  # stable: growth order within
             due = due if max_attempts is None else due[:max_attempts]
@@ -285,16 +285,22 @@ class OnlineSession:
 
     def _kf_attempts(self, due, loops, sizes, travelled, stamp, budget, scheduler,
                      workers) -> bool:
-        """Backend "keyframes": attempt each due pair (the robot that travelled more since the
-        pair's last attempt is the query: its recent submap in the other's map) and each due
-        loop closure (at most `budget` in all); keep the accepted ones as keyframe links."""
+        """Backend "keyframes": attempt the due pairs (the robot that travelled more since the
+        pair's last attempt is the query: its recent submap in the other's map) and loop
+        closures, at most `budget` in all: pairs that would join two separate groups first,
+        then never attempted, then most travelled since the last attempt; keep the accepted
+        ones as keyframe links."""
         o, names = self.online, self.robots
         maps = [self._maps[r] for r in names]
-        pairs = []
-        for i, j in due:
-            prev = self._kf.travel_last.get((i, j), (0.0, 0.0))
-            pairs.append((j, i) if travelled[i] - prev[0] > travelled[j] - prev[1] else (i, j))
-        pairs += [(r, r) for r in loops]
+        group = self._groups()
+        scored = []
+        for i, j in [*due, *((r, r) for r in loops)]:
+            prev = self._kf.travel_last.get((i, j))
+            d = (np.inf, np.inf) if prev is None else (travelled[i] - prev[0],
+                                                       travelled[j] - prev[1])
+            pair = (j, i) if d[0] > d[1] else (i, j)  # (target, query)
+            scored.append((bool(group[i] == group[j]), -max(d), len(scored), pair))
+        pairs = [p for *_, p in sorted(scored)]
         queries = []
         for t, q in pairs if budget is None else pairs[:budget]:
             i, j = min(t, q), max(t, q)
