@@ -147,6 +147,8 @@ class KeyframeFleet:
             maps[r].reanchor(lie.between(T, np.eye(4)) @ X)
 
     def state(self) -> tuple[dict, dict[str, np.ndarray]]:
+        """(JSON-ready dict, arrays): the graph (`KeyframeGraph.state`), links, factor ids and
+        the pairs' travel at their last attempts; `from_state` restores them exactly."""
         meta, arrays = self.graph.state()
         meta["links"] = [lk.to_dict() for lk in self.links]
         meta["fid"] = sorted([lid, f] for lid, f in self.fid.items())
@@ -155,6 +157,7 @@ class KeyframeFleet:
 
     @classmethod
     def from_state(cls, online: OnlineConfig, meta: dict, arrays: dict) -> KeyframeFleet:
+        """The back-end `state` described, its graph holding the saved solution."""
         f = cls(online)
         f.graph = KeyframeGraph.from_state(online.odometry, meta, arrays)
         f.links = [Link.from_dict(d) for d in meta["links"]]
