@@ -162,13 +162,18 @@ class SparseSolver:
         for _ in range(self.max_iterations):
             H, g = self._normal_equations(r, Ja, Jb)
             d = H.diagonal()
-            dx = spsolve((H + sparse.diags_array(lam * np.maximum(d, 1e-9))).tocsc(), -g)
+            A = (H + sparse.diags_array(lam * np.maximum(d, 1e-9))).tocsc()
+            dx = spsolve(A, -g)
             X_new = self._step(self._X, dx)
             r_new, Ja_new, Jb_new = self._linearize(X_new)
             cost_new = float(np.sum(r_new * r_new))
+            if abs(cost_new - cost) <= 1e-12 * cost and np.max(np.abs(dx)) < 1e-6:
+                if cost_new <= cost:  # at the optimum: what is left is rounding
+                    self._X = X_new
+                return
             if cost_new <= cost:
                 self._X, r, Ja, Jb = X_new, r_new, Ja_new, Jb_new
-                done = np.max(np.abs(dx)) < self.tolerance or cost - cost_new <= 1e-15 * cost
+                done = np.max(np.abs(dx)) < self.tolerance
                 cost, lam = cost_new, max(lam / 10, 1e-12)
                 if done:
                     return
