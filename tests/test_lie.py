@@ -54,3 +54,15 @@ def test_matches_gtsam_pose3():
         d = _random_xi(rng, 1, 0.5)[0]
         np.testing.assert_allclose(lie.retract(T, d), gtsam.Pose3(T).retract(d).matrix(),
                                    atol=1e-10)
+
+
+def test_right_jacobian_inverse_is_the_derivative_of_log():
+    rng = np.random.default_rng(3)
+    xi = _random_xi(rng, 1, 0.3)[0]
+    J = lie.se3_right_jacobian_inv(xi)
+    eps = 1e-6
+    num = np.stack([(lie.se3_log(lie.se3_exp(xi) @ lie.se3_exp(eps * e))
+                     - lie.se3_log(lie.se3_exp(xi) @ lie.se3_exp(-eps * e))) / (2 * eps)
+                    for e in np.eye(6)], axis=1)
+    np.testing.assert_allclose(J, num, atol=1e-6)
+    np.testing.assert_allclose(lie.se3_ad(xi) @ xi, np.zeros(6), atol=1e-15)

@@ -134,11 +134,12 @@ def _stage_configs() -> list[type]:
     from sgloc.estimation import RansacConfig
     from sgloc.matching import MatchingConfig
     from sgloc.online import OnlineConfig
+    from sgloc.online.config import OdometryNoise
     from sgloc.rejection import REJECTORS
 
     return [*DESCRIPTORS.values(), *REJECTORS.values(), MatchingConfig, RansacConfig,
             AcceptanceConfig, EvidenceConfig, VerificationConfig, LocalizerConfig,
-            CovarianceInflation, OnlineConfig]  # fmt: skip
+            CovarianceInflation, OnlineConfig, OdometryNoise]  # fmt: skip
 
 
 def test_every_stage_setting_declares_its_bounds_beside_its_field():

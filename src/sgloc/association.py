@@ -84,6 +84,12 @@ class ObjectAssociation:
         b.n_observations = int(state["n_observations"])
         return b
 
+    def shift(self, objects: np.ndarray, delta: np.ndarray) -> None:
+        """Move observations already merged: add delta (k,3) metres to the position sums of
+        `objects` (k,) (repeats add up), e.g. when the poses they were seen from are corrected;
+        counts and labels are unchanged."""
+        np.add.at(self._sums, np.asarray(objects, np.int64), np.asarray(delta, np.float64))
+
     def add_observations(self, positions: np.ndarray, labels: np.ndarray) -> np.ndarray:
         """Associate one frame's observations ((k,3) map-frame metres, (k,) class ids).
 

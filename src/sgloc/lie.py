@@ -113,3 +113,26 @@ def between(T_a: np.ndarray, T_b: np.ndarray) -> np.ndarray:
     out[..., :3, 3] = np.einsum("...ij,...j->...i", Rt, T_b[..., :3, 3] - T_a[..., :3, 3])
     out[..., 3, 3] = 1.0
     return out
+
+
+def se3_ad(xi: np.ndarray) -> np.ndarray:
+    """(..., 6, 6) small adjoint ad(xi) of xi (..., 6) = [rx ry rz tx ty tz]: the matrix of the
+    Lie bracket, ad(xi) @ eta = [xi, eta] ([[w]x, 0], [[v]x, [w]x] in this order)."""
+    xi = np.asarray(xi, dtype=np.float64)
+    W, V = skew(xi[..., :3]), skew(xi[..., 3:])
+    out = np.zeros((*xi.shape[:-1], 6, 6))
+    out[..., :3, :3] = W
+    out[..., 3:, 3:] = W
+    out[..., 3:, :3] = V
+    return out
+
+
+def se3_right_jacobian_inv(xi: np.ndarray) -> np.ndarray:
+    """(..., 6, 6) inverse right Jacobian of SE(3) at xi (..., 6), by its series
+    I + ad/2 + ad^2/12 - ad^4/720 + ad^6/30240 (Bernoulli numbers; relative error ~|xi|^8 /
+    1.2e6): Log(Exp(xi) Exp(d)) ~= xi + J d. Meant for the small residuals of a pose graph's
+    between factors (rotations well below pi)."""
+    ad = se3_ad(xi)
+    ad2 = ad @ ad
+    ad4 = ad2 @ ad2
+    return np.eye(6) + 0.5 * ad + ad2 / 12.0 - ad4 / 720.0 + (ad4 @ ad2) / 30240.0

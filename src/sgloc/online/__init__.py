@@ -7,8 +7,8 @@ robot pairs as their maps grow and keeps one fleet frame over the mutually consi
     s.T_fleet_robot("r2")   # (4,4) r2's odometry frame -> fleet frame, or None
 """
 
-from sgloc.online.config import OnlineConfig
+from sgloc.online.config import OdometryNoise, OnlineConfig
 from sgloc.online.records import Event, Link
 from sgloc.online.session import OnlineSession
 
-__all__ = ["Event", "Link", "OnlineConfig", "OnlineSession"]
+__all__ = ["Event", "Link", "OdometryNoise", "OnlineConfig", "OnlineSession"]

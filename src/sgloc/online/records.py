@@ -24,6 +24,12 @@ class Link:
     n_matches: the localization's inliers; agreed: how many accepted attempts of this pair in
         a row agree with each other (`OnlineConfig.confirmations`); refined_pairs: the object
         pairs of the link's last refit on the grown maps (0: as the localization gave it).
+    keyframe_a, keyframe_b: None for a link between two robots' odometry frames (back-end
+        "robots"); with back-end "keyframes", the indices of the two keyframes it relates, and
+        then T_a_b is the pose of keyframe_b of robot_b in keyframe_a of robot_a's sensor frame
+        and covariance is in keyframe_b's frame; robot_a == robot_b for a loop closure.
+    revoked: the link was in the consistent set and left it; it does not come back (a newer
+        attempt of the pair, new evidence, makes a new link).
     """
 
     robot_a: str
@@ -37,6 +43,9 @@ class Link:
     n_matches: int = 0
     agreed: int = 1
     refined_pairs: int = 0
+    keyframe_a: int | None = None
+    keyframe_b: int | None = None
+    revoked: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -44,7 +53,8 @@ class Link:
             "covariance": self.covariance.tolist(), "confidence": self.confidence,
             "stamp": self.stamp, "active": self.active, "reason": self.reason,
             "n_matches": self.n_matches, "agreed": self.agreed,
-            "refined_pairs": self.refined_pairs,
+            "refined_pairs": self.refined_pairs, "keyframe_a": self.keyframe_a,
+            "keyframe_b": self.keyframe_b, "revoked": self.revoked,
         }
 
     @classmethod

@@ -1,5 +1,7 @@
 """One robot's growing object map in its odometry frame: sightings associated and averaged by
-the same association as offline map building (`sgloc.association`)."""
+the same association as offline map building (`sgloc.association`). Every sighting is kept
+with the keyframe that saw it and its position in that keyframe's sensor frame, so that the map
+follows a corrected trajectory (`RobotMap.reanchor`)."""
 
 from __future__ import annotations
 
@@ -18,7 +20,9 @@ class RobotMap:
     A sighting joins the nearest object of its class within `radius` metres (its position
     becomes the running mean of its sightings); sightings of one keyframe never merge with each
     other; sightings that join nothing start new objects. An object is confirmed from
-    `min_observations` sightings; only confirmed objects are in `graph()`.
+    `min_observations` sightings; only confirmed objects are in `graph()`. `sightings()`
+    gives, per sighting, its keyframe, its position in that keyframe's sensor frame and its
+    object; `reanchor` re-places the objects under corrected keyframe poses.
     """
 
     def __init__(self, name: str, radius: float, min_observations: int, edge_radius: float):
@@ -32,6 +36,10 @@ class RobotMap:
         self._confirmed = 0
         self.stamps: list[float] = []
         self.poses: list[np.ndarray] = []
+        self._anchor: list[np.ndarray] = []  # the keyframe poses the objects are placed with
+        self._travel: list[float] = []  # metres travelled to each keyframe
+        self._chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._sightings: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     @property
     def n_confirmed(self) -> int:
@@ -56,8 +64,15 @@ class RobotMap:
             )
         pos, lab = check_graph_arrays(f"robot {self.name!r} keyframe", positions, labels)
         went = self.builder.add_observations(apply(T, pos), lab)
+        ok = went >= 0
+        self._chunks.append((np.full(int(ok.sum()), len(self.poses), np.int64), pos[ok],
+                             went[ok]))
+        self._sightings = None
+        step = float(np.linalg.norm(T[:3, 3] - self.poses[-1][:3, 3])) if self.poses else 0.0
+        self._travel.append(self._travel[-1] + step if self._travel else 0.0)
         self.stamps.append(float(stamp))
         self.poses.append(T.copy())
+        self._anchor.append(T.copy())
         counts = self.builder.counts
         # The confirmed map changed when a sighting went to an object that is now confirmed.
         if len(went) and (counts[went] >= self.min_observations).any():
@@ -70,6 +85,74 @@ class RobotMap:
             self._graph = self.builder.graph(self.name)
         return self._graph
 
+    def sightings(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(keyframe (s,) index, position (s,3) metres in that keyframe's sensor frame, object
+        (s,) index into the association's objects) of every sighting kept, in arrival order."""
+        if self._sightings is None:
+            if self._chunks:
+                k, p, o = (np.concatenate(x) for x in zip(*self._chunks, strict=True))
+            else:
+                k, p, o = np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0, np.int64)
+            self._chunks = [(k, p, o)]
+            self._sightings = (k, p, o)
+        return self._sightings
+
+    def anchors(self) -> np.ndarray:
+        """(k,4,4) the keyframe poses (odometry frame) the objects are placed with now: the
+        odometry's, or the last `reanchor`'s."""
+        return np.array(self._anchor).reshape(-1, 4, 4)
+
+    def reanchor(self, T_odom_keyframes: np.ndarray, tolerance: float = 1e-12) -> int:
+        """Re-place every object at the mean of its sightings seen from the corrected keyframe
+        poses T_odom_keyframes (k,4,4) (odometry frame, one per keyframe so far). Only the
+        sightings of keyframes whose pose moved by more than `tolerance` (any matrix entry) are
+        re-projected: their objects' sums change by the difference. Returns how many
+        keyframes moved."""
+        T = np.asarray(T_odom_keyframes, np.float64)
+        if T.shape != (len(self.poses), 4, 4) or not np.isfinite(T).all():
+            raise SglocError(
+                f"robot {self.name!r}: reanchor needs ({len(self.poses)},4,4) finite keyframe "
+                f"poses, got {T.shape}."
+            )
+        old = self.anchors()
+        moved = np.abs(T - old).reshape(len(T), -1).max(axis=1, initial=0.0) > tolerance
+        if not moved.any():
+            return 0
+        k, p, o = self.sightings()
+        sel = moved[k]
+        ks, ps = k[sel], p[sel]
+        delta = (np.einsum("sij,sj->si", T[ks, :3, :3], ps) + T[ks, :3, 3]
+                 - np.einsum("sij,sj->si", old[ks, :3, :3], ps) - old[ks, :3, 3])
+        self.builder.shift(o[sel], delta)
+        for i in np.flatnonzero(moved):
+            self._anchor[i] = T[i].copy()
+        self._graph = None
+        return int(moved.sum())
+
+    def travelled(self) -> np.ndarray:
+        """(k,) metres travelled (odometry) from the first keyframe to each keyframe."""
+        return np.array(self._travel, np.float64)
+
+    @property
+    def distance(self) -> float:
+        """Metres travelled (odometry) from the first keyframe to the latest (0.0 before)."""
+        return self._travel[-1] if self._travel else 0.0
+
+    def seen_since(self, first: int) -> np.ndarray:
+        """(n,) bool over the association's objects: sighted by keyframe `first` or a later
+        one."""
+        k, _, o = self.sightings()
+        seen = np.zeros(len(self.builder.counts), bool)
+        seen[o[k >= first]] = True
+        return seen
+
+    def subgraph(self, objects: np.ndarray) -> SemanticGraph:
+        """The confirmed objects among `objects` ((n,) bool over the association's objects) as a
+        SemanticGraph (odometry frame)."""
+        keep = np.asarray(objects, bool) & (self.builder.counts >= self.min_observations)
+        return SemanticGraph(self.builder.positions[keep], self.builder.labels[keep],
+                             self.builder.config.edge_radius, name=self.name)
+
     def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         """(stamps (k,), T_odom_sensor (k,4,4)) of the keyframes so far."""
         return np.array(self.stamps, np.float64), np.array(self.poses).reshape(-1, 4, 4)
@@ -77,11 +160,26 @@ class RobotMap:
     def state(self) -> dict[str, np.ndarray]:
         """Arrays that restore this map (`set_state`)."""
         stamps, poses = self.trajectory()
-        return {**self.builder.state(), "stamps": stamps, "poses": poses}
+        k, p, o = self.sightings()
+        return {**self.builder.state(), "stamps": stamps, "poses": poses,
+                "anchors": self.anchors(), "sighting_keyframe": k, "sighting_position": p,
+                "sighting_object": o}
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
         self.builder = ObjectAssociation.from_state(self.builder.config, state)
         self.stamps = [float(t) for t in state["stamps"]]
         self.poses = [np.array(T) for T in np.asarray(state["poses"]).reshape(-1, 4, 4)]
+        self._travel = [0.0] * bool(len(self.poses))
+        for a, b in zip(self.poses[:-1], self.poses[1:], strict=True):  # as `add` sums them
+            self._travel.append(self._travel[-1] + float(np.linalg.norm(b[:3, 3] - a[:3, 3])))
+        anchors = np.asarray(state.get("anchors", state["poses"])).reshape(-1, 4, 4)
+        self._anchor = [np.array(T) for T in anchors]
+        if "sighting_keyframe" in state:  # sessions saved before sightings were kept have none
+            self._chunks = [(np.asarray(state["sighting_keyframe"], np.int64).ravel(),
+                             np.asarray(state["sighting_position"], np.float64).reshape(-1, 3),
+                             np.asarray(state["sighting_object"], np.int64).ravel())]
+        else:
+            self._chunks = []
+        self._sightings = None
         self._confirmed = int(np.count_nonzero(self.builder.counts >= self.min_observations))
         self._graph = None

@@ -22,6 +22,8 @@ from sgloc.online.consistency import (
     loop_tolerance,
 )
 from sgloc.online.joint import largest_shift, refine_fleet
+from sgloc.online.keyframe_fleet import KeyframeFleet, link_of, make_query
+from sgloc.online.keyframe_graph import keyframe_link
 from sgloc.online.posegraph import fleet_frame
 from sgloc.online.precision import chain_covariance, predicted_error
 from sgloc.online.records import (
@@ -64,6 +66,9 @@ class OnlineSession:
         self._T: dict[str, np.ndarray] = {}
         self.attempts: list[Attempt] = []
         self.events: list[Event] = []
+        # backend "keyframes": the keyframe pose graph, its links, each robot's last loop try
+        self._kf = KeyframeFleet(self.online) if self.online.backend == "keyframes" else None
+        self._loop_last: dict[int, int] = {}
 
     # -- what the session knows ---------------------------------------------------------------
     @property
@@ -80,11 +85,16 @@ class OnlineSession:
 
     @property
     def links(self) -> list[Link]:
-        """Every accepted link (one per robot pair, the newest), active or not."""
+        """Every accepted link (one per robot pair, the newest), active or not; with backend
+        "keyframes", every accepted keyframe link in the order found (revoked ones included)."""
+        if self._kf is not None:
+            return list(self._kf.links)
         return [self._links[k] for k in sorted(self._links)]
 
     def T_fleet_robot(self, robot: str) -> np.ndarray | None:
-        """(4,4) mapping `robot`'s odometry frame into the fleet frame; None while unplaced."""
+        """(4,4) mapping `robot`'s odometry frame into the fleet frame; None while unplaced.
+        With backend "keyframes": at the robot's latest solved keyframe (map -> odom: the
+        latest odometry pose to the corrected one)."""
         self._index(robot)
         T = self._T.get(robot)
         return None if T is None else T.copy()
@@ -104,7 +114,17 @@ class OnlineSession:
         if T is None:
             return None
         stamps, poses = self.keyframes(robot)
+        if self._kf is not None:  # the keyframes as the pose graph corrected them
+            return stamps, self._kf.graph.poses(self._index(robot))
         return stamps, T @ poses
+
+    def keyframe_ids(self) -> list[tuple[int, str, int]]:
+        """(vertex id in `write_g2o`'s file, robot, keyframe index) of every keyframe of the
+        pose graph (backend "keyframes"; empty with backend "robots")."""
+        if self._kf is None:
+            return []
+        names = self.robots
+        return [(key, names[r], k) for key, r, k in self._kf.graph.nodes()]
 
     def _now(self) -> float:
         """The newest keyframe stamp of any robot (0.0 before the first)."""
@@ -144,6 +164,8 @@ class OnlineSession:
             m = RobotMap(robot, o.association_radius, o.min_observations, o.edge_radius)
         m.add(stamp, T, pos, lab)
         self._maps[robot] = m
+        if self._kf is not None:
+            self._kf.graph.add_keyframe(self.robots.index(robot), m.poses[-1])
         if robot == self.root and robot not in self._T:
             self._refresh(stamp)
         if self.online.max_attempts != 0:
@@ -193,17 +215,29 @@ class OnlineSession:
         due = [p for p in due_pairs(sizes, self._last, o.min_objects, growth_ratio,
                                     growth_objects) if robot is None or robot in p]
         changed = False
-        if due:
+        if self._kf is not None:  # also every half submap of travel; loop closures too
+            travelled = [self._maps[r].distance for r in self.robots]
+            more = self._kf.due_by_travel(travelled, sizes, o.min_objects, robot)
+            loops = self._due_loops(sizes, growth_ratio, growth_objects, robot)
+            due += [p for p in more if p[0] != p[1] and p not in due]
+            loops += [i for i, j in more if i == j and i not in loops]
+        if due and self._kf is None:
             group = self._groups()
             due.sort(key=lambda p: group[p[0]] == group[p[1]])  # stable: growth order within
             due = due if max_attempts is None else due[:max_attempts]
+        if self._kf is not None:
+            changed = self._kf_attempts(due, loops, sizes, travelled, stamp, max_attempts,
+                                        scheduler, workers)
+        elif due:
             # Each attempt on graphs rebuilt from arrays, wherever it runs: the localizer's
             # caches on a reused graph shift results by ~1e-13 with their history, and a
             # resumed session or a worker process must give the same results bit for bit.
             results = run_tasks([self._task(i, j) for i, j in due], scheduler, workers)
             for (i, j), r in zip(due, results, strict=True):
                 changed |= self._record(i, j, sizes, r, stamp)
-        changed |= self._refine_due(sizes, max_attempts, growth_ratio, growth_objects, robot)
+        if self._kf is None:
+            changed |= self._refine_due(sizes, max_attempts, growth_ratio, growth_objects,
+                                        robot)
         if changed:
             self._refresh(stamp)
         return self.events[n_events:]
@@ -213,8 +247,13 @@ class OnlineSession:
         from scipy import sparse
         from scipy.sparse.csgraph import connected_components
 
-        n = len(self._maps)
-        ij = np.array([k for k, lk in self._links.items() if lk.active], np.int64).reshape(-1, 2)
+        n, names = len(self._maps), self.robots
+        if self._kf is not None:
+            pairs = [(names.index(lk.robot_a), names.index(lk.robot_b)) for lk in self._kf.links
+                     if lk.active]
+        else:
+            pairs = [k for k, lk in self._links.items() if lk.active]
+        ij = np.array(pairs, np.int64).reshape(-1, 2)
         adj = sparse.coo_array((np.ones(len(ij)), (ij[:, 0], ij[:, 1])), shape=(n, n))
         return connected_components(adj, directed=False)[1]
 
@@ -228,6 +267,70 @@ class OnlineSession:
         q, t = self._maps[names[j]].graph(), self._maps[names[i]].graph()
         return ((i, j), q.positions, q.labels, q.edge_radius, t.positions, t.labels,
                 t.edge_radius, self.config.to_dict(), self._seed(i, j))
+
+    def _due_loops(self, sizes, growth_ratio, growth_objects, robot) -> list[int]:
+        """Robots (indices) due for a loop-closure attempt under the growth rule."""
+        if not self.online.loop_closures:
+            return []
+        out = []
+        for r, n in enumerate(sizes):
+            prev = self._loop_last.get(r)
+            if robot not in (None, r) or n < self.online.min_objects:
+                continue
+            if prev is None or n - prev >= growth_objects or (n - prev) / max(prev, 1) \
+                    >= growth_ratio:
+                out.append(r)
+        return out
+
+    def _kf_attempts(self, due, loops, sizes, travelled, stamp, budget, scheduler,
+                     workers) -> bool:
+        """Backend "keyframes": attempt the due pairs (the robot that travelled more since the
+        pair's last attempt is the query: its recent submap in the other's map) and loop
+        closures, at most `budget` in all: pairs that would join two separate groups first,
+        then never attempted, then most travelled since the last attempt; keep the accepted
+        ones as keyframe links."""
+        o, names = self.online, self.robots
+        maps = [self._maps[r] for r in names]
+        group = self._groups()
+        scored = []
+        for i, j in [*due, *((r, r) for r in loops)]:
+            prev = self._kf.travel_last.get((i, j))
+            d = (np.inf, np.inf) if prev is None else (travelled[i] - prev[0],
+                                                       travelled[j] - prev[1])
+            pair = (j, i) if d[0] > d[1] else (i, j)  # (target, query)
+            scored.append((bool(group[i] == group[j]), -max(d), len(scored), pair))
+        pairs = [p for *_, p in sorted(scored)]
+        queries = []
+        for t, q in pairs if budget is None else pairs[:budget]:
+            i, j = min(t, q), max(t, q)
+            self._kf.travel_last[(i, j)] = (travelled[i], travelled[j])
+            if t == q:
+                self._loop_last[q] = sizes[q]
+            else:
+                self._last[(i, j)] = (sizes[i], sizes[j])
+            qu = make_query(maps, t, q, o.submap_length)
+            if min(len(qu.query_graph.positions), len(qu.target_graph.positions)) >= \
+                    o.min_objects:
+                queries.append(qu)
+        tasks = []
+        for qu in queries:
+            a, b = qu.query_graph, qu.target_graph
+            key = (min(qu.target, qu.query), max(qu.target, qu.query))
+            tasks.append(((qu.target, qu.query), a.positions, a.labels, a.edge_radius,
+                          b.positions, b.labels, b.edge_radius, self.config.to_dict(),
+                          self._seed(*key)))
+            self._tries[key] = self._tries.get(key, 0) + 1
+        changed = False
+        for qu, r in zip(queries, run_tasks(tasks, scheduler, workers), strict=True):
+            self.attempts.append(Attempt(
+                names[qu.query], names[qu.target], stamp, r["accepted"], r["transform"],
+                r["confidence"], r["n_matches"], r["reason"], r["seconds"],
+                (len(qu.query_graph.positions), len(qu.target_graph.positions)),
+            ))
+            if r["accepted"]:
+                self._kf.links.append(link_of(maps, names, qu, r, stamp))
+                changed = True
+        return changed
 
     def _record(self, i: int, j: int, sizes: list[int], r: dict, stamp: float) -> bool:
         """Store one attempt; True when it added or replaced a link."""
@@ -324,7 +427,15 @@ class OnlineSession:
             T, cov = invert_with_covariance(T, cov)
         n_events = len(self.events)
         stamp = stamp if stamp is not None else self._now()
-        self._store_link(i, j, T, cov, confidence, stamp, 0, "added link")
+        if self._kf is not None:  # between the two robots' latest keyframes
+            a, b = self._maps[self.robots[i]], self._maps[self.robots[j]]
+            ka, kb = a.keyframes - 1, b.keyframes - 1
+            T, cov = keyframe_link(a.anchors()[ka], T, cov, b.anchors()[kb])
+            self._kf.links.append(Link(self.robots[i], self.robots[j], T, cov,
+                                       float(confidence), stamp, active=False,
+                                       reason="added link", keyframe_a=ka, keyframe_b=kb))
+        else:
+            self._store_link(i, j, T, cov, confidence, stamp, 0, "added link")
         self._refresh(stamp)
         return self.events[n_events:]
 
@@ -336,12 +447,17 @@ class OnlineSession:
         n_events = len(self.events)
         self._root = robot
         self._T = {}
+        if self._kf is not None:
+            self._kf.graph.set_root(self._index(robot))
         self._refresh(stamp)
         return self.events[n_events:]
 
     # -- the fleet frame -----------------------------------------------------------------------
     def _refresh(self, stamp: float, emit: bool = True) -> None:
         """Re-select the consistent links, re-solve the fleet frame, emit what changed."""
+        if self._kf is not None:
+            self._kf_refresh(stamp, emit)
+            return
         names = self.robots
         o = self.online
         for lk in self._links.values():
@@ -383,6 +499,36 @@ class OnlineSession:
             if r in T_new and r not in self._T:
                 self._emit(emit, stamp, ROBOT_JOINED, (r,),
                            "the fleet frame's root" if r == root else "placed in the fleet frame")
+        self._T = T_new
+
+    def _kf_refresh(self, stamp: float, emit: bool) -> None:
+        """Backend "keyframes": re-select the links, update and solve the keyframe graph,
+        reanchor the maps, emit what changed."""
+        names = self.robots
+        if self.root not in self._maps:
+            self._T = {}
+            return
+        root = names.index(self.root)
+        if self._kf.graph.root != root:
+            self._kf.graph.set_root(root)
+        entered, left = self._kf.update([self._maps[r] for r in names], names)
+        g = self._kf.graph
+        T_new = {names[r]: g.T_fleet_odom(r) for r in g.placed}
+        lost = [r for r in names if r in self._T and r not in T_new]
+        for lid in left:
+            lk = self._kf.links[lid]
+            note = f"; no longer placed: {', '.join(lost)}" if lost else ""
+            self._emit(emit, stamp, LINK_REVOKED, (lk.robot_a, lk.robot_b), lk.reason + note)
+        for lid in entered:
+            lk = self._kf.links[lid]
+            self._emit(emit, stamp, LINK_ACCEPTED, (lk.robot_a, lk.robot_b),
+                       f"confidence {lk.confidence:.6f}, {lk.n_matches} matches, keyframes "
+                       f"{lk.keyframe_a} and {lk.keyframe_b}")
+        for r in names:
+            if r in T_new and r not in self._T:
+                self._emit(emit, stamp, ROBOT_JOINED, (r,),
+                           "the fleet frame's root" if r == self.root else
+                           "placed in the fleet frame")
         self._T = T_new
 
     def _held(self, frame, edges: list[Edge], covariances: list[np.ndarray]) -> list[str]:
@@ -439,6 +585,7 @@ class OnlineSession:
             "attempts": [a.to_dict() for a in self.attempts],
             "events": [e.to_dict() for e in self.events],
             "placed": [k for k, r in enumerate(self.robots) if r in self._T],
+            "loop_last": sorted([r, n] for r, n in self._loop_last.items()),
         }
         arrays = {f"map{k}_{key}": arr for k, r in enumerate(self.robots)
                   for key, arr in self._maps[r].state().items()}
@@ -446,6 +593,9 @@ class OnlineSession:
         # the last solve, and a resumed session must give exactly the saved frames.
         arrays.update({f"frame{k}": self._T[r] for k, r in enumerate(self.robots)
                        if r in self._T})
+        if self._kf is not None:
+            meta["keyframes"], kf_arrays = self._kf.state()
+            arrays.update(kf_arrays)
         return meta, arrays
 
     @classmethod
@@ -466,7 +616,12 @@ class OnlineSession:
         s._links = {(i, j): Link.from_dict(d) for i, j, d in meta["links"]}
         s.attempts = [Attempt.from_dict(d) for d in meta["attempts"]]
         s.events = [Event.from_dict(d) for d in meta["events"]]
-        if "placed" in meta:
+        s._loop_last = {int(r): int(n) for r, n in meta.get("loop_last", [])}
+        if s._kf is not None:  # the saved solution as it was (not re-solved)
+            s._kf = KeyframeFleet.from_state(o, meta["keyframes"], arrays)
+            g = s._kf.graph
+            s._T = {s.robots[r]: g.T_fleet_odom(r) for r in g.placed}
+        elif "placed" in meta:
             s._T = {s.robots[k]: np.array(arrays[f"frame{k}"], np.float64)
                     for k in meta["placed"]}
         elif s.robots:  # a save from before the frames were stored
@@ -488,8 +643,15 @@ class OnlineSession:
 
     def write_g2o(self, path: str | Path) -> Path:
         """g2o file: VERTEX_SE3:QUAT per placed robot (its T_fleet_robot; id = robot index),
-        EDGE_SE3:QUAT per active link with its information matrix (g2o order [t, r])."""
+        EDGE_SE3:QUAT per active link with its information matrix (g2o order [t, r]). With
+        backend "keyframes": the keyframe pose graph of the placed robots, a vertex per
+        keyframe (`keyframe_ids` names them) and an edge per odometry and active link factor."""
         from sgloc.io.g2o import write_g2o
+
+        if self._kf is not None:
+            from sgloc.online.keyframe_graph import write_keyframe_g2o
+
+            return write_keyframe_g2o(self._kf.graph, path)[0]
 
         names = self.robots
         vertices = {names.index(r): T for r, T in self._T.items()}
