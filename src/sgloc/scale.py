@@ -11,7 +11,7 @@ room has a smaller unit, and each length is its street default times unit / 5 m:
 | acceptance: min_spread                    | 5 m     | 1                         |
 | acceptance: distinct_translation, small_exclusion | 10 m | 2                   |
 | acceptance: verify_radius, verify_density_radius  | 1.5 m, 15 m | 0.3, 3       |
-| acceptance: repetition_search (and every other length of `AcceptanceConfig.LENGTHS`) | 100 m | 20 |
+| acceptance: repetition_search (all of `AcceptanceConfig.LENGTHS`) | 100 m | 20 |
 | ICP pairing radius (icp_max_distance)     | 5 m     | 1                         |
 | graph edge radius (`edge_radius`)         | 20 m    | 4                         |
 | sighting association radius (online)      | 1.5 m   | 0.3                       |

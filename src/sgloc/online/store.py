@@ -66,14 +66,17 @@ def load_session(cls, path: str | Path):
         ) from None
 
 
-def _pairs(meta: dict, key: str, n: int, width: int) -> None:
-    """meta[key]: rows [i, j, value...] with robot indices 0 <= i < j < n and `width` ints."""
+def _pairs(meta: dict, key: str, n: int, width: int, ordered: bool = False) -> None:
+    """meta[key]: rows [i, j, value...] with robot indices 0 <= i, j < n (`ordered`: i < j;
+    otherwise i == j is a robot's own loop closures) and `width` ints."""
     for row in meta.get(key, []):
         if (not isinstance(row, list) or len(row) != 2 + width
                 or not all(isinstance(v, int) and not isinstance(v, bool) for v in row)
-                or not 0 <= row[0] < row[1] < n or min(row[2:], default=0) < 0):
+                or not (0 <= row[0] < row[1] < n if ordered else 0 <= min(row[:2]) <= max(
+                    row[:2]) < n) or min(row[2:], default=0) < 0):
+            rule = f"0 <= i < j < {n}" if ordered else f"0 <= i, j < {n}"
             raise SglocError(f"{key!r} entry {row!r:.60} is not [robot i, robot j, counts] with "
-                             f"0 <= i < j < {n}.")
+                             f"{rule}.")
 
 
 def check_state(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
@@ -108,7 +111,7 @@ def check_state(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
     for key, width in (("last", 2), ("tries", 1), ("refined", 2)):
         _pairs(meta, key, n, width)
     for row in meta["links"]:
-        _pairs({"links": [row[:2]]}, "links", n, 0)
+        _pairs({"links": [row[:2]]}, "links", n, 0, ordered=True)
         d = row[2]
         if (d["robot_a"], d["robot_b"]) != (robots[row[0]], robots[row[1]]):
             raise SglocError(f"link {row[:2]} names robots {d['robot_a']!r}, {d['robot_b']!r}, "
