@@ -159,3 +159,30 @@ def test_every_summary_key_is_documented(replayed):
                   for k in re.findall(r"`([a-z_0-9]+)`", c)}
     keys = set(summary) | {k for r in summary["robots"].values() for k in r}
     assert keys <= documented, keys - documented
+
+
+def test_keyframe_backend_writes_corrected_keyframes_and_the_whole_graph(tmp_path):
+    """--backend keyframes: fleet/<robot>.tum holds the pose graph's keyframes (not the odometry
+    moved by one frame) and links.g2o the whole graph, odometry edges included, its vertices
+    named in summary.json."""
+    import contextlib
+    import io
+
+    logs = world_scenario().logs
+    write_plain_layout(tmp_path / "run", logs)
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["replay", str(tmp_path / "run"), "--out", str(tmp_path / "out"),
+                     "--backend", "keyframes"]) == 0
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["backend"] == "keyframes" and summary["placed"] == len(logs)
+    ids = summary["g2o_keyframes"]
+    assert len(ids) == sum(len(g) for g in logs)
+    vertices, edges = read_g2o(tmp_path / "out" / "links.g2o")
+    assert sorted(vertices) == sorted(v for v, _, _ in ids)
+    assert len(edges) >= len(ids) - 1  # an odometry edge per consecutive keyframe pair at least
+    for g in logs:  # the written poses are the session's keyframes, one line each
+        stamps, xyz, quat = read_tum_exact(tmp_path / "out" / "fleet" / f"{g.name}.tum")
+        assert len(stamps) == len(g) and np.isfinite(xyz).all()
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["replay", str(tmp_path / "run"), "--out", str(tmp_path / "bad"),
+                     "--backend", "rigid"]) == 2

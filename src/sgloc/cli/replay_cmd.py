@@ -62,6 +62,9 @@ def replay_cmd(
     preset: str | None = preset_option(),
     config: Path | None = config_option(),
     setting: list[str] = set_option(),
+    backend: str = typer.Option("robots", help="Fleet back-end: robots (one rigid frame per "
+                                "robot) or keyframes (a pose graph over every keyframe, for "
+                                "drifting odometry; docs/online_session.md)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar or table."),
 ) -> None:
     """Stream every robot's keyframes, interleaved by stamp, through one online session and
@@ -71,7 +74,7 @@ def replay_cmd(
     Examples: sgloc replay runs/campus --out results/campus --out-bag results/campus_bag
     |   sgloc replay alpha.mcap beta.mcap --odom-topic /odom --objects-topic /objects
     |   sgloc replay --kitti00 --robots 4 --every 2 --poses refined
-    |   sgloc replay --city --robots 8
+    |   sgloc replay --city --robots 8 --backend keyframes
     """
     from sgloc.online import OnlineConfig, OnlineSession
     from sgloc.replay import replay_logs
@@ -82,11 +85,13 @@ def replay_cmd(
     claim_output(ctx, out_bag, inputs, "--out-bag")
     logs, default_preset = _inputs(sources or [], robot, kitti00, city, robots, scans, every,
                                    seed, classes, odom_topic, objects_topic, poses)
+    if backend not in ("robots", "keyframes"):
+        raise fail(f"--backend {backend!r}: choose robots or keyframes.")
     if root is not None and root not in {g.name for g in logs}:
         raise fail(f"--root {root!r} is not a robot of the input; robots: "
                    f"{', '.join(g.name for g in logs)}.")
     cfg = localizer_config(preset or default_preset, config, setting)
-    session = OnlineSession(cfg, OnlineConfig(seed=seed), root=root)
+    session = OnlineSession(cfg, OnlineConfig(seed=seed, backend=backend), root=root)
     console = Console(quiet=quiet)
     with Progress(TextColumn("[bold]replaying"), BarColumn(), MofNCompleteColumn(),
                   TimeElapsedColumn(), console=console, disable=quiet) as bar:

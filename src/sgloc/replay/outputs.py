@@ -43,12 +43,27 @@ def latency_stats(ms: np.ndarray) -> dict[str, float | None]:
     }
 
 
-def fleet_poses(log: RobotLog, T_fleet_odom: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(xyz (N,3), quat (N,4) x y z w) of the robot's keyframes in the fleet frame."""
+def fleet_poses(
+    log: RobotLog, T_fleet_odom: np.ndarray, corrected: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """(xyz (N,3), quat (N,4) x y z w) of the robot's keyframes in the fleet frame: the
+    `corrected` keyframe poses T_fleet_sensor (N,4,4) when given (the keyframe back-end),
+    else its odometry moved by the one frame T_fleet_odom."""
     from scipy.spatial.transform import Rotation
 
-    T = T_fleet_odom @ log.poses
+    T = T_fleet_odom @ log.poses if corrected is None else corrected
     return T[:, :3, 3], Rotation.from_matrix(T[:, :3, :3]).as_quat()
+
+
+def corrected_keyframes(session: Any, log: RobotLog) -> np.ndarray | None:
+    """T_fleet_sensor (N,4,4) of every keyframe of `log` as the session's keyframe pose graph
+    corrected them; None with the robots back-end (one rigid frame per robot)."""
+    if not session.keyframe_ids():
+        return None
+    traj = session.trajectory(log.name)
+    if traj is None or len(traj[1]) != len(log.poses):
+        return None
+    return traj[1]
 
 
 def unplaced_reason(session: Any, robot: str) -> str:
@@ -84,12 +99,13 @@ def summarize(
     """The summary.json content (robots in the order of `logs`, which is also their vertex
     ids in links.g2o)."""
     robots = {}
+    vertices = session.keyframe_ids()  # the keyframe back-end: a vertex per keyframe
     for k, g in enumerate(logs):
         j = record.joined_ns.get(g.name)
         T = session.T_fleet_robot(g.name) if g.name in session.robots else None
         robots[g.name] = {
             "file": f"{FLEET_DIR}/{stems[g.name]}.tum" if T is not None else None,
-            "g2o_vertex": k,
+            "g2o_vertex": None if vertices else k,
             "keyframes": len(g),
             "first_stamp": format_stamp(g.stamps_ns[0]),
             "last_stamp": format_stamp(g.stamps_ns[-1]),
@@ -112,6 +128,8 @@ def summarize(
         "links_revoked": events["link_revoked"],
         "events": events,
         "latency": latency_stats(np.concatenate([record.latency_ms[g.name] for g in logs])),
+        "backend": "keyframes" if vertices else "robots",
+        "g2o_keyframes": [[int(v), r, int(k)] for v, r, k in vertices],
     }
 
 
@@ -178,13 +196,17 @@ def _write_all(tmp: Path, logs: Sequence[RobotLog], session: Any, record: Replay
             continue
         frames[g.name] = T
         maps[g.name] = session.map(g.name).positions
-        write_tum_exact(tmp / FLEET_DIR / f"{stems[g.name]}.tum", g.stamps_ns, *fleet_poses(g, T))
+        write_tum_exact(tmp / FLEET_DIR / f"{stems[g.name]}.tum", g.stamps_ns,
+                        *fleet_poses(g, T, corrected_keyframes(session, g)))
     summary = summarize(logs, session, record, stems)
     end = max(int(g.stamps_ns[-1]) for g in logs)
     unplaced = [(end, name, r["unplaced_reason"]) for name, r in summary["robots"].items()
                 if not r["placed"]]
     write_events(tmp / EVENTS, session.events, record.event_ns, unplaced)
-    write_links_g2o(tmp / LINKS, session, [g.name for g in logs])
+    if session.keyframe_ids():  # the keyframe pose graph: odometry and link edges
+        session.write_g2o(tmp / LINKS)
+    else:
+        write_links_g2o(tmp / LINKS, session, [g.name for g in logs])
     (tmp / SUMMARY).write_text(json.dumps(summary, indent=2) + "\n")
     plot_timeline(logs, session.events, tmp / "timeline.png")
     plot_fleet(logs, frames, maps, tmp / "fleet.png")
