@@ -23,7 +23,6 @@ LAYERS: dict[str, int] = {
     "sgloc.errors": 0,
     "sgloc.optional": 0,
     "sgloc.validation": 0,
-    "sgloc.keyframe_checks": 0,  # stamps, rigid poses, links: readers and the online session
     "sgloc.registry": 0,
     "sgloc.geometry": 0,
     "sgloc.lie": 0,  # SO(3) / SE(3): skew, exp, log, adjoint

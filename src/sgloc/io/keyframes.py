@@ -15,7 +15,7 @@ from decimal import Decimal, InvalidOperation
 import numpy as np
 
 from sgloc.errors import DatasetError
-from sgloc.keyframe_checks import check_increasing, check_quaternions
+from sgloc.io.keyframe_checks import check_increasing, check_quaternions
 
 
 @dataclass(frozen=True)
@@ -85,7 +85,7 @@ def make_robot_log(
     quat = np.asarray(quat, dtype=np.float64).reshape(-1, 4)
     if len(stamps_ns) == 0:
         raise DatasetError(f"{where}: no keyframes; give at least one odometry pose.")
-    # The same stamp and pose rules as the online session's (sgloc.keyframe_checks).
+    # The same stamp and pose rules as the online session's (sgloc.io.keyframe_checks).
     check_increasing(where, stamps_ns, format_stamp, DatasetError)
     if not np.all(np.isfinite(xyz)):
         raise DatasetError(f"{where}: NaN or infinite odometry values; fix or drop those poses.")

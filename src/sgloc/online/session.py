@@ -12,7 +12,7 @@ from sgloc.config import LocalizerConfig
 from sgloc.errors import SglocError
 from sgloc.geometry import invert
 from sgloc.graph import SemanticGraph
-from sgloc.keyframe_checks import check_keyframe, check_link, check_stamp
+from sgloc.io.keyframe_checks import check_keyframe, check_link, check_stamp
 from sgloc.online.attempts import run_tasks
 from sgloc.online.config import OnlineConfig
 from sgloc.online.consistency import (

@@ -1,6 +1,6 @@
 """Save and resume an OnlineSession: one .npz holding the robots' map arrays and a JSON
 document with everything else. A loaded file is checked by the rules `add_keyframe` and
-`add_link` apply (`sgloc.keyframe_checks`) before a session is built from it."""
+`add_link` apply (`sgloc.io.keyframe_checks`) before a session is built from it."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from sgloc.errors import SglocError
-from sgloc.keyframe_checks import check_increasing, check_link, check_rigid, check_stamp
+from sgloc.io.keyframe_checks import check_increasing, check_link, check_rigid, check_stamp
 from sgloc.validation import check_graph_arrays
 
 FORMAT = "sgloc-online-session-1"
