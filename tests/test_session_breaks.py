@@ -12,8 +12,8 @@ import pytest
 
 from sgloc.errors import DatasetError, SglocError
 from sgloc.evaluation.replay_scenarios import world_scenario
-from sgloc.io.keyframes import make_robot_log
 from sgloc.io.keyframe_checks import ROTATION_TOLERANCE, check_rigid
+from sgloc.io.keyframes import make_robot_log
 from sgloc.online import OnlineConfig, OnlineSession
 from sgloc.replay.stream import keyframe_order
 
