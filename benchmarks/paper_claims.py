@@ -294,11 +294,26 @@ def fill_doc(doc: Path, blocks: dict[str, str]) -> None:
     doc.write_text(text)
 
 
+def made_at(results: Path) -> str:
+    """The sentence saying at which commit (and on which day) the runs in `results` were made:
+    the `git_commit` each run's config.yaml recorded."""
+    import datetime
+
+    commits, days = set(), set()
+    for cfg in sorted(results.glob("*/config.yaml")):
+        m = re.search(r"git_commit: (\S+)", cfg.read_text())
+        commits.add(m.group(1)[:10] if m else "unknown")
+        days.add(datetime.date.fromtimestamp(cfg.stat().st_mtime).isoformat())
+    return (f"Every table and figure of this page was made at commit {', '.join(sorted(commits))}"
+            f" ({', '.join(sorted(days))}).")
+
+
 def main(argv: Sequence[str]) -> None:
     results = Path(argv[0]) if argv else Path("results/paper")
     out = Path(argv[1]) if len(argv) > 1 else Path("docs/figures/paper-claims.md")
     doc = Path(argv[2]) if len(argv) > 2 else Path("docs/reproduction.md")
-    blocks = {"claims": claims_markdown(results), "tau": tau_markdown(results)}
+    blocks = {"claims": claims_markdown(results), "tau": tau_markdown(results),
+              "made": made_at(results)}
     sweeps = sweep_markdowns(results)
     text = (
         "## The paper's claims on Airsim (100 trials each)\n\n"
