@@ -89,17 +89,24 @@ def rigid_defect(T: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(d), d, np.inf)
 
 
+def _finite_matrix(where: str, value: Any, shape: tuple[int, int], rule: str,
+                   error: type[SglocError]) -> np.ndarray:
+    """`value` as a float64 array of `shape`, all finite; else `error`: "where: rule, got ..."."""
+    try:
+        M = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        M = np.zeros(0)
+    if M.shape != shape or not np.all(np.isfinite(M)):
+        raise error(f"{where}: {rule}, got "
+                    f"{'shape ' + str(M.shape) if M.shape != shape else 'NaN or inf'}.")
+    return M
+
+
 def check_rigid(where: str, T: Any, name: str = "pose",
                 error: type[SglocError] = InvalidKeyframeError) -> np.ndarray:
     """`T` as a (4,4) float64 rigid transform (orthonormal rotation with det +1, bottom row
     0 0 0 1, translation within +-MAX_COORDINATE m); else `error` naming `where` and `name`."""
-    try:
-        M = np.array(T, dtype=np.float64)
-    except (TypeError, ValueError):
-        M = np.zeros(0)
-    if M.shape != (4, 4) or not np.all(np.isfinite(M)):
-        raise error(f"{where}: {name} must be a finite 4x4 matrix, got "
-                    f"{'shape ' + str(M.shape) if M.shape != (4, 4) else 'NaN or inf'}.")
+    M = _finite_matrix(where, T, (4, 4), f"{name} must be a finite 4x4 matrix", error)
     defect = float(rigid_defect(M)[0])
     if defect > ROTATION_TOLERANCE:
         det = float(np.linalg.det(M[:3, :3]))
@@ -118,13 +125,8 @@ def check_covariance(where: str, cov: Any,
                      error: type[SglocError] = InvalidKeyframeError) -> np.ndarray:
     """`cov` as a (6,6) float64 covariance: finite, entries within +-MAX_VARIANCE, symmetric
     and positive semi-definite (to 1e-9 relative)."""
-    try:
-        C = np.array(cov, dtype=np.float64)
-    except (TypeError, ValueError):
-        C = np.zeros(0)
-    if C.shape != (6, 6) or not np.all(np.isfinite(C)):
-        raise error(f"{where}: covariance must be a finite 6x6 matrix (rx ry rz tx ty tz), got "
-                    f"{'shape ' + str(C.shape) if C.shape != (6, 6) else 'NaN or inf'}.")
+    C = _finite_matrix(where, cov, (6, 6),
+                       "covariance must be a finite 6x6 matrix (rx ry rz tx ty tz)", error)
     if np.abs(C).max() > MAX_VARIANCE:
         raise error(f"{where}: covariance entries must be within +-{MAX_VARIANCE:g} (rad^2, "
                     "m^2); a larger variance carries no information.")

@@ -20,9 +20,10 @@ caller, its topics the templates with `{robot}` filled in or plain names such as
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -60,6 +61,20 @@ def topic_regex(template: str) -> re.Pattern[str]:
     return re.compile(f"^{re.escape(head)}(?P<robot>.+?){re.escape(tail)}$")
 
 
+@contextlib.contextmanager
+def _open_bag(path: Path) -> Iterator[Any]:
+    """A rosbags reader of the bag at `path`; DatasetError naming the bag when it is missing or
+    cannot be read (also for read errors inside the block)."""
+    _, highlevel, typestore = _rosbags()
+    if not path.exists():
+        raise DatasetError(f"{path}: no such bag; give a rosbag2 folder, .db3 or .mcap file.")
+    try:
+        with highlevel.AnyReader([path], default_typestore=typestore) as reader:
+            yield reader
+    except (highlevel.AnyReaderError, OSError, KeyError, AssertionError) as e:
+        raise DatasetError(f"{path}: cannot read the bag ({e}).") from None
+
+
 def read_bag(
     path: str | Path,
     odom_topic: str = ODOM_TOPIC,
@@ -69,15 +84,9 @@ def read_bag(
 ) -> list[RobotLog]:
     """Every robot of a ROS 2 bag (folder, .db3 or .mcap) in the layout above, sorted by name;
     `robots` selects some. DatasetError naming the bag, topic and fix on any mismatch."""
-    _, highlevel, typestore = _rosbags()
     path = Path(path)
-    if not path.exists():
-        raise DatasetError(f"{path}: no such bag; give a rosbag2 folder, .db3 or .mcap file.")
-    try:
-        with highlevel.AnyReader([path], default_typestore=typestore) as reader:
-            return _read_robots(reader, path, odom_topic, objects_topic, classes, robots)
-    except (highlevel.AnyReaderError, OSError, KeyError, AssertionError) as e:
-        raise DatasetError(f"{path}: cannot read the bag ({e}).") from None
+    with _open_bag(path) as reader:
+        return _read_robots(reader, path, odom_topic, objects_topic, classes, robots)
 
 
 def _read_robots(reader, path, odom_topic, objects_topic, classes, robots) -> list[RobotLog]:
@@ -133,17 +142,11 @@ def read_robot_bag(
     """One robot, `robot`, from a bag of its own (folder, .db3 or .mcap): its odometry and
     object topics are the templates with `{robot}` filled in, or the plain topic names given
     (`/odom`). DatasetError naming the bag, the topic, the bag's topics and the fix."""
-    _, highlevel, typestore = _rosbags()
     path = Path(path)
-    if not path.exists():
-        raise DatasetError(f"{path}: no such bag; give a rosbag2 folder, .db3 or .mcap file.")
-    try:
-        with highlevel.AnyReader([path], default_typestore=typestore) as reader:
-            odom = _topic(reader, path, robot, odom_topic, ODOMETRY)
-            objects = _topic(reader, path, robot, objects_topic, MARKERS)
-            return _read_robot(reader, path, robot, odom, objects, classes)
-    except (highlevel.AnyReaderError, OSError, KeyError, AssertionError) as e:
-        raise DatasetError(f"{path}: cannot read the bag ({e}).") from None
+    with _open_bag(path) as reader:
+        odom = _topic(reader, path, robot, odom_topic, ODOMETRY)
+        objects = _topic(reader, path, robot, objects_topic, MARKERS)
+        return _read_robot(reader, path, robot, odom, objects, classes)
 
 
 def _read_robot(reader, path, name, odom_conns, obj_conns, classes) -> RobotLog:
