@@ -656,7 +656,10 @@ def parse_settings(items: list[str]) -> dict:
             out[name] = json.loads(value)
         except json.JSONDecodeError:
             out[name] = value
-    OnlineConfig(**out)  # a bad name or value fails here, before any run
+    try:  # a bad name or value fails here, before any run
+        OnlineConfig(**out)
+    except TypeError as e:
+        raise SystemExit(f"error: --set: {e}; the settings are OnlineConfig's fields") from None
     return out
 
 
@@ -699,7 +702,7 @@ def fleet_row(key: str, r: dict) -> list:
         f"{len(r['wrong_joins'])}" + (f" ({', '.join(r['wrong_joins'])})" if r["wrong_joins"]
                                       else ""),
         f"{r['accepted']} ({r['wrong_accepted']} wrong) of {r['attempts']}",
-        f"{fmt(e['median'])} / {fmt(e['p95'])}", fmt(r["rmse"]), oracle,
+        f"{fmt(e['median'])} / {fmt(e['p95'])} / {fmt(e['max'], '.1f')}", fmt(r["rmse"]), oracle,
         f"{r['revocations']} / {r['reacceptances']} ({r['most_reaccepted']})",
         f"{lat['median_ms']:.2f} / {lat['p99_ms']:.1f} / {lat['max_ms']:.0f}",
         f"{r['seconds']:.1f}", f"{r['peak_mb']:.0f}",
@@ -708,7 +711,7 @@ def fleet_row(key: str, r: dict) -> list:
 
 FLEET_HEADER = [
     "run", "settings", "robots", "placed / joined / overlapping (oracle)", "mean delay (% of run)",
-    "wrong joins", "accepted attempts (wrong) of all", "encounter error median / p95 (m)",
+    "wrong joins", "accepted attempts (wrong) of all", "encounter error median / p95 / max (m)",
     "fleet RMSE (m)", "oracle: RMSE, encounter median / p95 (m)",
     "revocations / re-acceptances (most for one link)", "latency median / p99 / max (ms)",
     "replay wall time (s)", "peak memory (MB)",

@@ -81,6 +81,8 @@ def test_settings_are_checked_and_the_part_replaced(bench) -> None:
         bench.parse_settings(["confirmations=0"])
     with pytest.raises(SystemExit):
         bench.parse_settings(["confirmations"])
+    with pytest.raises(SystemExit, match="OnlineConfig"):
+        bench.parse_settings(["no_such_setting=1"])
     sec = bench.fleet_section({"c": _timed_out()})
     page = "# t\n\nabove\n"
     once = bench.splice(page, sec)
