@@ -31,16 +31,17 @@ def run_fleet(scenario: Any, config: Any, online: Any, level: float = 0.0,
               oracle: bool = True) -> dict:
     """Replay `scenario` (a replay_scenarios.Scenario) through a fresh OnlineSession with the
     localizer `config` and `online` settings and score it (`score_fleet`); `level`: the drift
-    level of its odometry (the oracle's noise model); `oracle`: solve the oracle too."""
+    level of its odometry (the oracle's noise model); `oracle`: solve the oracle too. Adds the
+    replay's wall time (`seconds`) and the process's CPU time during it (`cpu_seconds`)."""
     from sgloc.online import OnlineSession
     from sgloc.replay import replay_logs
 
     session = OnlineSession(config, online)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     record = replay_logs(scenario.logs, session)
-    seconds = time.perf_counter() - t0
+    seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
     out = score_fleet(scenario, session, record, level, oracle)
-    out["seconds"] = seconds
+    out.update(seconds=seconds, cpu_seconds=cpu)
     return out
 
 
