@@ -814,8 +814,8 @@ def fleet_section(results: dict) -> str:
         "keyframes within 10 m (gtsam): what the odometry itself allows. The fleet's keyframe "
         "poses are the session's own per-keyframe poses when it keeps them, else its fleet "
         "frame applied to the odometry. *Latency*: wall time of each `add_keyframe` call; "
-        "*replay wall time*: the whole replay (the process's CPU time during it in brackets: "
-        "the machine may be shared, and wall time then includes waiting); *peak memory*: the "
+        "*replay wall time*: the whole replay (in brackets the process's CPU time during it: "
+        "wall time also counts any wait for a processor); *peak memory*: the "
         "run's process, library and scenario included.\n\n"
         + "\n".join(fleet_goals(results)) + "\n\n" + tables + f"{FLEET_END}\n"
     )
