@@ -1,6 +1,7 @@
 """Online fleet benchmark: recorded runs cut into robots, replayed keyframe by keyframe.
 
     python benchmarks/online.py [--out docs] [--keep DIR] [--every 1] [--no-batch]
+    python benchmarks/online.py --drift | --big-city | --many [--set NAME=VALUE] [--timeout S]
 
 Scenarios: KITTI 00 scans 0-2999 cut into 4 and into 6 consecutive robots (the tuning range),
 KITTI 00 scans 1500-4540 cut into 4 robots (held out: never tuned on), each KITTI cut twice:
@@ -14,6 +15,15 @@ robot that can already be placed), wrong joins and links (> 3 m at the robot's o
 placed robot's fleet/<robot>.tum after one rigid alignment of the whole fleet). With the batch
 part, the KITTI fleet of docs/fleet.md is placed by `localize_fleet` and scored the same way.
 Writes docs/online.md and docs/online_joins.png.
+
+The fleet groups (`--drift`: the city and KITTI 00 at odometry drift levels 0, 1, 2, 4, scans
+0-2999 for tuning and 3000-4540 held out, and KITTI's raw poses as odometry; `--big-city`: the
+12x12-block city with 2,000 m routes in 8 and 10 robots on 4 seeds, the 22x22-block city with
+8,000 m routes in 8, 10 and 16 robots; `--many`: 64 and 128 robots on the default city) run
+each replay in a child process with a time limit, score it with `sgloc.evaluation.fleet_runs`
+(wrong joins and accepted attempts, encounter error, fleet RMSE, the oracle's, revocations,
+latency, wall time, peak memory), keep the figures in docs/online_fleet.json and rewrite the
+fleet part of docs/online.md from them.
 """
 
 from __future__ import annotations
@@ -354,7 +364,29 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-batch", action="store_true", help="skip the batch KITTI fleet")
     ap.add_argument("--no-variants", action="store_true", help="skip the settings compared")
     ap.add_argument("--only", nargs="*", default=None, help="scenario keys to run")
+    ap.add_argument("--drift", action="store_true",
+                    help="run the drift group (city and KITTI at drift levels) instead")
+    ap.add_argument("--big-city", action="store_true",
+                    help="run the bigger cities (12x12 blocks, 22x22 blocks) instead")
+    ap.add_argument("--many", action="store_true",
+                    help="run 64 and 128 robots on the default city instead")
+    ap.add_argument("--levels", type=float, nargs="+", default=list(LEVELS),
+                    help="drift levels of --drift")
+    ap.add_argument("--drift-seeds", type=int, nargs="+", default=[0], help="seeds of --drift")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3],
+                    help="city seeds of the 12x12-block city (--big-city)")
+    ap.add_argument("--cases", nargs="+", default=None,
+                    help="run only these keys of the chosen groups (shell patterns)")
+    ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                    help="an OnlineConfig setting for the fleet groups (repeatable)")
+    ap.add_argument("--timeout", type=float, default=600.0,
+                    help="seconds one fleet-group run may take (then reported as timed out)")
+    ap.add_argument("--list", action="store_true", help="list the chosen groups' runs and stop")
     args = ap.parse_args(argv)
+    groups = {g for g, on in (("drift", args.drift), ("big-city", args.big_city),
+                              ("many", args.many)) if on}
+    if groups:
+        return main_fleet(args, groups)
     work = args.keep or Path(tempfile.mkdtemp(prefix="sgloc-online-"))
     chosen = [c for c in scenario_list(args.every) if not args.only or c[0] in args.only]
     if any(c[0].endswith("_refined") for c in chosen):
@@ -390,8 +422,35 @@ def main(argv: list[str] | None = None) -> int:
         refined = refinement_figures(kitti_root())
     args.out.mkdir(parents=True, exist_ok=True)
     plot_joins(results, args.out / "online_joins.png")
-    (args.out / "online.md").write_text(
-        page(sums, sections, batch, args.every, variants, refined))
+    text = page(sums, sections, batch, args.every, variants, refined)
+    fleet = load_results(args.out / FLEET_RESULTS)
+    (args.out / "online.md").write_text(splice(text, fleet_section(fleet)) if fleet else text)
+    return 0
+
+
+def main_fleet(args: argparse.Namespace, groups: set[str]) -> int:
+    """Run the chosen fleet groups, store their results and rewrite the page's fleet part."""
+    import fnmatch
+
+    from sgloc.online.solve import gtsam_available
+
+    truth = "refined" if gtsam_available() else "raw"
+    cases = fleet_cases(groups, args.levels, args.seeds, args.drift_seeds, truth)
+    if args.cases:
+        cases = [c for c in cases if any(fnmatch.fnmatch(c.key, p) for p in args.cases)]
+    if args.list:
+        print("\n".join(f"{c.key}: {c.title}" for c in cases))
+        return 0
+    settings = parse_settings(args.set)
+    args.out.mkdir(parents=True, exist_ok=True)
+    store = args.out / FLEET_RESULTS
+    results = load_results(store)
+    for case in cases:  # stored after each run: a stopped benchmark keeps what it measured
+        run_fleet_groups([case], settings, args.timeout, results)
+        save_results(store, results)
+    page_path = args.out / "online.md"
+    text = page_path.read_text() if page_path.is_file() else "# Online fleet localization\n"
+    page_path.write_text(splice(text, fleet_section(results)))
     return 0
 
 
@@ -540,6 +599,249 @@ def page(
         + "\n\n![joins](online_joins.png)\n\n## Per robot\n\n" + "\n".join(sections)
         + "\n" + variant_text(variants, sums) + "\n## Batch fleet\n\n" + batch_text
     )
+
+
+# -- the fleet groups: drift, bigger cities, many robots ----------------------------------------
+#: Where the fleet groups' results accumulate (each run replaces its own entry), next to the page.
+FLEET_RESULTS = "online_fleet.json"
+FLEET_BEGIN, FLEET_END = "<!-- fleet runs: begin -->", "<!-- fleet runs: end -->"
+GOAL_BIG_MEDIAN_MS, GOAL_BIG_P99_MS, GOAL_128_S, GOAL_MB = 5.0, 100.0, 180.0, 1024.0
+LEVELS = (0.0, 1.0, 2.0, 4.0)
+
+
+def fleet_cases(groups: set[str], levels, seeds, drift_seeds, truth: str) -> list:
+    """The runs of the chosen groups ("drift", "big-city", "many")."""
+    from sgloc.evaluation.fleet_cases import Case
+
+    out = []
+    if "drift" in groups:
+        for lv in levels:
+            for sd in drift_seeds:
+                tag = f"d{lv:g}_s{sd}"
+                out += [
+                    Case(f"city8_{tag}", "drift", f"city {sd}, 8 robots, drift {lv:g}", "city",
+                         8, lv, sd),
+                    Case(f"kitti4_{tag}", "drift", f"KITTI 00 scans 0-2999, 4 robots, drift "
+                         f"{lv:g} (seed {sd})", "kitti", 4, lv, sd, truth=truth, part="tuning"),
+                    Case(f"kitti3_after3000_{tag}", "drift held out", f"KITTI 00 scans "
+                         f"3000-4540, 3 robots, drift {lv:g} (seed {sd})", "kitti", 3, lv, sd,
+                         first=3000, last=4540, truth=truth, part="held out"),
+                ]
+        out.append(Case("kitti4_raw_odometry", "drift", "KITTI 00 scans 0-2999, 4 robots, "
+                        f"KITTI's raw poses as odometry ({truth} truth)", "kitti", 4,
+                        truth=truth, odometry="raw", part="tuning"))
+    if "big-city" in groups:
+        for n in (8, 10):
+            out += [Case(f"city12_{n}r_s{sd}", "big city", f"12x12-block city {sd}, 2,000 m "
+                         f"routes, {n} robots", "city", n, 0.0, sd, 2000.0, 12) for sd in seeds]
+        out += [Case(f"city22_{n}r_s0", "big city", f"22x22-block city 0, 8,000 m routes, {n} "
+                     "robots", "city", n, 0.0, 0, 8000.0, 22) for n in (8, 10, 16)]
+    if "many" in groups:
+        out += [Case(f"city{n}", "many", f"default city 0, {n} robots", "city", n)
+                for n in (64, 128)]
+    return out
+
+
+def parse_settings(items: list[str]) -> dict:
+    """`--set name=value` items -> OnlineConfig keyword arguments (values read as JSON when
+    they are: numbers, true/false, null; else as text)."""
+    import json
+
+    out = {}
+    for item in items:
+        name, eq, value = item.partition("=")
+        if not eq or not name:
+            raise SystemExit(f"error: --set {item!r}: give name=value, e.g. --set seed=1")
+        try:
+            out[name] = json.loads(value)
+        except json.JSONDecodeError:
+            out[name] = value
+    try:  # a bad name or value fails here, before any run
+        OnlineConfig(**out)
+    except TypeError as e:
+        raise SystemExit(f"error: --set: {e}; the settings are OnlineConfig's fields") from None
+    return out
+
+
+def run_fleet_groups(cases: list, settings: dict, timeout: float, results: dict) -> dict:
+    """Run every case in a child process (time limit `timeout` s); results[key] replaced."""
+    from sgloc.evaluation.fleet_cases import run_isolated
+
+    suffix = "".join(f" [{k}={v}]" for k, v in sorted(settings.items()))
+    for case in cases:
+        res = run_isolated(case, settings, timeout)
+        results[case.key + suffix] = res
+        print(f"{case.title}{suffix}: {res['status']}, {brief(res)}", file=sys.stderr)
+    return results
+
+
+def brief(res: dict) -> str:
+    """One line of a run's main figures (or its status)."""
+    if res.get("status") != "done":
+        return f"{res.get('child_seconds', 0):.0f} s"
+    e = res["encounter"]
+    return (f"{res['joined']}/{res['overlapping']} joined, {len(res['wrong_joins'])} wrong joins,"
+            f" {res['wrong_accepted']} wrong accepted, encounter {fmt(e['median'])} / "
+            f"{fmt(e['p95'])} m, RMSE {fmt(res['rmse'])} m, {res['seconds']:.0f} s, "
+            f"{res['peak_mb']:.0f} MB")
+
+
+def fleet_row(key: str, r: dict) -> list:
+    """One row of a fleet group's table."""
+    c = r["case"]
+    settings = ", ".join(f"{k}={v}" for k, v in sorted(r.get("settings", {}).items())) or "-"
+    if r.get("status") != "done":
+        return [c["title"], settings, c["robots"], r["status"]] + ["-"] * 10
+    e, o, lat = r["encounter"], r["oracle"], r["latency"]
+    oracle = ("-" if o is None else
+              f"{fmt(o['rmse'])}, {fmt(o['encounter']['median'])} / {fmt(o['encounter']['p95'])}")
+    return [
+        c["title"], settings, c["robots"],
+        f"{r['placed']} / {r['joined']} / {r['overlapping']}",
+        fmt(None if r["mean_delay"] is None else 100 * r["mean_delay"], "+.1f"),
+        f"{len(r['wrong_joins'])}" + (f" ({', '.join(r['wrong_joins'])})" if r["wrong_joins"]
+                                      else ""),
+        f"{r['accepted']} ({r['wrong_accepted']} wrong) of {r['attempts']}",
+        f"{fmt(e['median'])} / {fmt(e['p95'])} / {fmt(e['max'], '.1f')}", fmt(r["rmse"]), oracle,
+        f"{r['revocations']} / {r['reacceptances']} ({r['most_reaccepted']})",
+        f"{lat['median_ms']:.2f} / {lat['p99_ms']:.1f} / {lat['max_ms']:.0f}",
+        f"{r['seconds']:.1f}" + (f" ({r['cpu_seconds']:.1f})" if "cpu_seconds" in r else ""),
+        f"{r['peak_mb']:.0f}",
+    ]
+
+
+FLEET_HEADER = [
+    "run", "settings", "robots", "placed / joined / overlapping (oracle)", "mean delay (% of run)",
+    "wrong joins", "accepted attempts (wrong) of all", "encounter error median / p95 / max (m)",
+    "fleet RMSE (m)", "oracle: RMSE, encounter median / p95 (m)",
+    "revocations / re-acceptances (most for one link)", "latency median / p99 / max (ms)",
+    "replay wall time (CPU time) (s)", "peak memory (MB)",
+]
+
+
+def fleet_goals(results: dict) -> list[str]:
+    """The fleet goals, met or not, on the stored runs (a goal no run measures says so)."""
+    def line(ok: bool | None, text: str) -> str:
+        text = text.replace(" ()", "")
+        return f"- {'not measured' if ok is None else 'met' if ok else '**NOT met**'}: {text}"
+
+    done = {k: r for k, r in results.items() if r.get("status") == "done"}
+    wrong = {k: r["wrong_joins"] for k, r in done.items() if r["wrong_joins"]}
+    wrong_acc = {k: r["wrong_accepted"] for k, r in done.items() if r["wrong_accepted"]}
+    lines = [line(not wrong if done else None, "0 wrong joins in every run" + (
+        " (wrong: " + "; ".join(f"{k}: {len(v)}" for k, v in wrong.items()) + ")" if wrong
+        else "") + (" (wrong accepted attempts: " + ", ".join(
+            f"{k} {v}" for k, v in wrong_acc.items()) + ")" if wrong_acc else ""))]
+    drifting = {k: r for k, r in done.items() if r["case"]["level"] in (1.0, 2.0)}
+    bad_enc, bad_rmse, bad_join = [], [], []
+    for k, r in drifting.items():
+        o = r["oracle"]
+        if o is None or r["encounter"]["p95"] is None:
+            continue
+        enc_limit = max(0.5, 3 * (o["encounter"]["p95"] or 0.0))
+        if r["encounter"]["p95"] > enc_limit:
+            bad_enc.append(f"{k} {r['encounter']['p95']:.2f} > {enc_limit:.2f} m")
+        rmse_limit = 1.25 * (o["rmse"] or 0.0) + 0.25
+        if r["rmse"] is None or r["rmse"] > rmse_limit:
+            bad_rmse.append(f"{k} {fmt(r['rmse'])} > {rmse_limit:.2f} m")
+        delay = None if r["mean_delay"] is None else 100 * r["mean_delay"]
+        if r["joined"] < r["overlapping"] or (delay or 0.0) > 100 * GOAL_DELAY:
+            bad_join.append(f"{k} {r['joined']}/{r['overlapping']}, {fmt(delay, '+.1f')} %")
+    have = bool(drifting) or None
+    lines += [
+        line(have and not bad_enc, "drift 1 and 2: encounter p95 <= max(0.5 m, 3 x the "
+             "oracle's)" + (f" (not met: {'; '.join(bad_enc)})" if bad_enc else "")),
+        line(have and not bad_rmse, "drift 1 and 2: fleet RMSE <= 1.25 x the oracle's + 0.25 m"
+             + (f" (not met: {'; '.join(bad_rmse)})" if bad_rmse else "")),
+        line(have and not bad_join, "drift 1 and 2: every overlapping robot joins, on average "
+             "within 10 % of its run" + (f" (not met: {'; '.join(bad_join)})" if bad_join else "")),
+    ]
+    city0 = {k: r["rmse"] for k, r in done.items()
+             if r["case"]["kind"] == "city" and r["case"]["level"] == 0.0
+             and r["case"]["group"] == "drift"}
+    lines.append(line(bool(city0) and all(v is not None and v <= 0.05 for v in city0.values())
+                      if city0 else None, "drift 0: city fleet RMSE <= 0.05 m ("
+                      + ", ".join(f"{k} {fmt(v, '.3f')} m" for k, v in city0.items()) + ")"))
+    flip = {k: r["most_reaccepted"] for k, r in done.items() if r["most_reaccepted"] > 1}
+    lines.append(line(not flip if done else None, "no link re-accepted more than once after a "
+                      "revocation" + (f" (not met: {flip})" if flip else "")))
+    long8 = {k: r["latency"] for k, r in done.items() if r["case"]["length"] >= 8000}
+    lines.append(line(None if not long8 else all(
+        v["median_ms"] <= GOAL_BIG_MEDIAN_MS and v["p99_ms"] <= GOAL_BIG_P99_MS
+        for v in long8.values()), "latency median <= 5 ms and p99 <= 100 ms on 8,000 m routes ("
+        + ", ".join(f"{k} {v['median_ms']:.2f} / {v['p99_ms']:.1f} ms" for k, v in long8.items())
+        + ")"))
+    many = {k: r for k, r in results.items() if r["case"]["robots"] == 128}
+    lines.append(line(None if not many else all(
+        r.get("status") == "done" and r["seconds"] <= GOAL_128_S for r in many.values()),
+        "128 robots on the default city replayed in <= 3 minutes (" + ", ".join(
+            f"{k} {r['seconds']:.0f} s" if r.get("status") == "done" else f"{k} {r['status']}"
+            for k, r in many.items()) + ")"))
+    heavy = {k: r["peak_mb"] for k, r in done.items() if r["peak_mb"] > GOAL_MB}
+    lines.append(line(not heavy if done else None, "memory under 1 GB in every run (peak of the "
+                      "run's process)" + (f" (not met: {heavy})" if heavy else "")))
+    return lines
+
+
+def fleet_section(results: dict) -> str:
+    """The fleet runs' part of docs/online.md (between FLEET_BEGIN and FLEET_END)."""
+    groups: dict[str, list] = {}
+    for key, r in results.items():
+        groups.setdefault(r["case"]["group"], []).append(fleet_row(key, r))
+    tables = "".join(f"### {g}\n\n" + markdown_table(FLEET_HEADER, rows) + "\n"
+                     for g, rows in groups.items())
+    return (
+        f"{FLEET_BEGIN}\n## Drifting odometry, bigger cities, many robots\n\n"
+        "Regenerate a group with `python benchmarks/online.py --drift`, `--big-city` or "
+        "`--many` (`--set name=value` passes an OnlineConfig setting, `--timeout` the time "
+        "limit of one run); every run replays in a child process of its own after a small "
+        "warm-up replay, and its figures accumulate in "
+        f"[{FLEET_RESULTS}]({FLEET_RESULTS}), from which this part is written.\n\n"
+        "*Drift level L*: each robot's odometry drifts by a scale error of 0.5 L %, a heading "
+        "bias of 0.002 L deg per metre and a heading random walk of 0.002 L deg per sqrt(metre) "
+        "(`sgloc.sim.drift`, seeded); the sightings stay in the sensor frame. The KITTI drift "
+        "runs drift the refined poses (the truth; KITTI's raw poses where gtsam is missing). "
+        "*Wrong join* / *wrong accepted attempt*: the placement (a robot's first fleet frame; "
+        "an attempt's transform) puts the robot's keyframes, where the truth has them within "
+        f"20 m of keyframes of the robots placed by then, more than {MAX_M:g} m (median of "
+        f"their relative position's error) or {MAX_DEG:g} deg off: judged where the robots "
+        "meet, so that right but drifting placements are not called wrong. *Encounter "
+        "error*: for every pair of keyframes of two different robots within 20 m of each other "
+        "(truth), the error of their relative position in the fleet frame. *Fleet RMSE*: every "
+        "placed robot's keyframe positions in the fleet frame against the truth after one rigid "
+        "alignment of the whole fleet. *Oracle*: a pose graph over every robot's keyframes with "
+        "the same drifting odometry and perfect loop closures wherever the truth puts two "
+        "keyframes within 10 m (gtsam): what the odometry itself allows. The fleet's keyframe "
+        "poses are the session's own per-keyframe poses when it keeps them, else its fleet "
+        "frame applied to the odometry. *Latency*: wall time of each `add_keyframe` call; "
+        "*replay wall time*: the whole replay (in brackets the process's CPU time during it: "
+        "wall time also counts any wait for a processor); *peak memory*: the "
+        "run's process, library and scenario included.\n\n"
+        + "\n".join(fleet_goals(results)) + "\n\n" + tables + f"{FLEET_END}\n"
+    )
+
+
+def splice(page_text: str, section: str) -> str:
+    """`page_text` with its fleet part replaced by `section` (added at the end if absent)."""
+    a, b = page_text.find(FLEET_BEGIN), page_text.find(FLEET_END)
+    if a < 0 or b < 0:
+        return page_text.rstrip("\n") + "\n\n" + section
+    return page_text[:a] + section + page_text[b + len(FLEET_END) + 1:]
+
+
+def load_results(path: Path) -> dict:
+    import json
+
+    return json.loads(path.read_text()) if path.is_file() else {}
+
+
+def save_results(path: Path, results: dict) -> None:
+    """Written whole then renamed, so a stopped run leaves the old file."""
+    import json
+
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(results, indent=1, default=float) + "\n")
+    tmp.replace(path)
 
 
 if __name__ == "__main__":

@@ -22,12 +22,35 @@ from sgloc.io.keyframes import RobotLog, make_robot_log
 
 @dataclass
 class Scenario:
-    """Robots to replay and their ground truth (T_gt_odom per robot name)."""
+    """Robots to replay and their ground truth (T_gt_odom per robot name). `truth`: the same
+    robots with their TRUE odometry poses when `logs` carry drifting ones (`drifted`); None
+    when the logs' poses are exact."""
 
     logs: list[RobotLog]
     T_gt_odom: dict[str, np.ndarray]
     class_names: tuple[str, ...] | None = None
     note: str = ""
+    truth: list[RobotLog] | None = None
+
+    @property
+    def true_logs(self) -> list[RobotLog]:
+        """The robots with their true odometry poses."""
+        return self.logs if self.truth is None else self.truth
+
+    def gt_poses(self) -> dict[str, np.ndarray]:
+        """{robot: (k,4,4) true keyframe sensor poses in the ground-truth frame}."""
+        return {g.name: self.T_gt_odom[g.name] @ g.poses for g in self.true_logs}
+
+
+def drifted(scenario: Scenario, level: float, seed: int) -> Scenario:
+    """`scenario` with every robot's odometry drifting at `level` (`sgloc.sim.drift`, robot k
+    seeded with [seed, k]); the true poses kept as `truth`."""
+    from sgloc.sim.drift import drift_log
+
+    true = scenario.true_logs
+    logs = [drift_log(g, level, np.random.default_rng([seed, k])) for k, g in enumerate(true)]
+    return Scenario(logs, scenario.T_gt_odom, scenario.class_names,
+                    f"{scenario.note}, odometry drift level {level:g} (seed {seed})", true)
 
 
 def segments(first: int, last: int, n: int) -> list[tuple[int, int]]:
@@ -112,19 +135,22 @@ def observe(
 
 
 def city_scenario(
-    n_robots: int = 8, seed: int = 0, overlap: float = 0.5, period: float = 0.15
+    n_robots: int = 8, seed: int = 0, overlap: float = 0.5, period: float = 0.15,
+    length: float = 400.0, blocks: int | None = None,
 ) -> Scenario:
     """The synthetic city run `seed` (its two routes, as in the `city` pairs) cut into
     `n_robots` robots (half per route, consecutive segments; robot `city<k>`), one keyframe
     per route frame, `period` seconds apart. Objects only (no rendering): each keyframe sees
     the city's objects (bounding-box centres) all around within 40 m, like a LiDAR, each with
-    probability 0.9 and 0.1 m noise; ground-truth frame = the city frame."""
-    from sgloc.sim.city import CITY_CLASSES
+    probability 0.9 and 0.1 m noise; ground-truth frame = the city frame. `length`: metres
+    of each route; `blocks`: blocks of the city each way (None: the default city)."""
+    from sgloc.sim.city import CITY_CLASSES, CityConfig
     from sgloc.sim.run import make_synthetic_run
 
     if n_robots < 2 or n_robots % 2:
         raise SglocError(f"--robots {n_robots}: the city has two routes; give an even number.")
-    run = make_synthetic_run(seed=seed, overlap=overlap)
+    city = CityConfig() if blocks is None else CityConfig(blocks=blocks)
+    run = make_synthetic_run(seed=seed, overlap=overlap, length=length, city=city)
     rng = np.random.default_rng([seed, 17])
     pos, lab = run.city.object_positions, run.city.object_labels
     logs, gt = [], {}
@@ -136,7 +162,9 @@ def city_scenario(
             name = f"city{len(logs)}"
             logs.append(log_from_frames(name, np.arange(len(T)) * period, T, det, T[0]))
             gt[name] = T[0]
-    note = f"synthetic city {seed} (overlap {overlap:g}) in {n_robots} robots, objects only"
+    size = ("" if blocks is None and length == 400.0
+            else f", {city.blocks} blocks, {length:g} m routes")
+    note = f"synthetic city {seed} (overlap {overlap:g}{size}) in {n_robots} robots, objects only"
     return Scenario(logs, gt, tuple(CITY_CLASSES), note)
 
 

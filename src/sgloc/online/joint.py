@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from sgloc.geometry import apply, invert
+from sgloc.kernels import one_blas_thread
 from sgloc.lie import skew, so3_exp
 from sgloc.online.consistency import loop_error
 from sgloc.spatial import mutual_nearest_pairs
@@ -120,6 +121,15 @@ def refine_fleet(
     frame's z and translation (roll and pitch kept), 6: any motion. Residuals are weighted by
     Huber's function with k = radius / 2. Robots the co-location graph does not connect to
     the root keep their frames. Deterministic."""
+    with one_blas_thread():  # small solves: a second BLAS thread on a busy machine only waits
+        return _refine(frames, objects, root, radius, dof, rounds, steps)
+
+
+def _refine(
+    frames: dict[int, np.ndarray], objects: dict[int, tuple[np.ndarray, np.ndarray]],
+    root: int, radius: float, dof: int, rounds: int, steps: int,
+) -> tuple[dict[int, np.ndarray], int]:
+    """`refine_fleet`'s work."""
     cols = [2, 3, 4, 5] if dof == 4 else [0, 1, 2, 3, 4, 5]
     robots = sorted(frames)
     T = np.stack([np.asarray(frames[r], np.float64) for r in robots])

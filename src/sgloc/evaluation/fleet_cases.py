@@ -1,0 +1,115 @@
+"""The fleet benchmark's runs (`benchmarks/online.py --drift / --big-city / --many`): what to
+replay (`Case`), and one run in a child process with a time limit and its peak memory."""
+
+from __future__ import annotations
+
+import dataclasses
+import resource
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from sgloc.errors import SglocError
+
+
+@dataclass(frozen=True)
+class Case:
+    """One benchmark run. kind "city": the synthetic city `seed` (`blocks` x `blocks`, routes
+    of `length` m) cut into `robots`; kind "kitti": KITTI 00 scans first..last cut into
+    `robots`, every `every` scan a keyframe, truth = `truth` poses ("refined" or "raw") and
+    odometry = the truth drifting at `level`, or KITTI's raw poses (`odometry="raw"`)."""
+
+    key: str
+    group: str
+    title: str
+    kind: str
+    robots: int
+    level: float = 0.0
+    seed: int = 0
+    length: float = 400.0
+    blocks: int | None = None
+    first: int = 0
+    last: int = 2999
+    every: int = 1
+    truth: str = "refined"
+    odometry: str = "drift"
+    part: str = ""
+
+    @property
+    def preset(self) -> str:
+        return "city" if self.kind == "city" else "kitti-objects"
+
+
+def case_scenario(case: Case) -> Any:
+    """The replay_scenarios.Scenario of `case` (odometry drifting as it says)."""
+    from sgloc.evaluation import replay_scenarios as sc
+
+    if case.kind == "city":
+        base = sc.city_scenario(case.robots, case.seed, length=case.length, blocks=case.blocks)
+    elif case.kind == "kitti":
+        base = sc.kitti_scenario(case.robots, case.first, case.last, case.every, case.truth)
+        if case.odometry == "raw":  # KITTI's own poses as the odometry, against the truth
+            raw = sc.kitti_scenario(case.robots, case.first, case.last, case.every, "raw")
+            return sc.Scenario(raw.logs, base.T_gt_odom, base.class_names,
+                               f"{base.note}; odometry: KITTI's raw poses", base.logs)
+    else:
+        raise SglocError(f"case {case.key}: unknown kind {case.kind!r}; use 'city' or 'kitti'.")
+    return sc.drifted(base, case.level, case.seed) if case.level > 0 else base
+
+
+def run_case(case: Case, settings: dict, oracle: bool = True) -> dict:
+    """Warm up (one small replay, so compilation is not counted), build the case's scenario,
+    replay and score it (`fleet_runs.run_fleet`); adds the scenario build time and the
+    process's peak memory (MB)."""
+    import tempfile
+    from pathlib import Path
+
+    from sgloc.evaluation.fleet_runs import run_fleet
+    from sgloc.evaluation.online_replay import run_scenario
+    from sgloc.evaluation.replay_scenarios import world_scenario
+    from sgloc.online import OnlineConfig
+    from sgloc.presets import localizer_preset
+
+    config = localizer_preset(case.preset)
+    with tempfile.TemporaryDirectory() as d:
+        run_scenario(world_scenario(), Path(d) / "warm", config)
+    t0 = time.perf_counter()
+    scenario = case_scenario(case)
+    built = time.perf_counter() - t0
+    out = run_fleet(scenario, config, OnlineConfig(**settings), case.level, oracle)
+    out.update(case=dataclasses.asdict(case), settings=settings, build_seconds=built,
+               peak_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+               status="done")
+    return out
+
+
+def _child(case: Case, settings: dict, oracle: bool, queue: Any) -> None:
+    try:
+        queue.put(run_case(case, settings, oracle))
+    except Exception as e:  # reported as the run's outcome, not lost with the child
+        queue.put({"case": dataclasses.asdict(case), "settings": settings,
+                   "status": f"failed: {type(e).__name__}: {e}"})
+
+
+def run_isolated(case: Case, settings: dict, timeout: float, oracle: bool = True) -> dict:
+    """`run_case` in a fresh child process (its own memory peak), stopped after `timeout`
+    seconds (then status "timed out after ... s")."""
+    import multiprocessing as mp
+    import queue as queue_mod
+
+    ctx = mp.get_context("spawn")
+    q = ctx.Queue()
+    p = ctx.Process(target=_child, args=(case, settings, oracle, q))
+    t0 = time.perf_counter()
+    p.start()
+    try:
+        out = q.get(timeout=timeout)
+    except queue_mod.Empty:
+        out = {"case": dataclasses.asdict(case), "settings": settings,
+               "status": f"timed out after {timeout:g} s"}
+    p.join(5.0)
+    if p.is_alive():
+        p.terminate()
+        p.join()
+    out["child_seconds"] = time.perf_counter() - t0
+    return out
