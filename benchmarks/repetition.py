@@ -29,38 +29,20 @@ import numpy as np
 
 from sgloc.evaluation.online_oracle import robot_error
 from sgloc.evaluation.online_replay import MAX_DEG, MAX_M
-from sgloc.evaluation.replay_scenarios import Scenario, log_from_frames, observe, segments
+from sgloc.evaluation.replay_scenarios import Scenario, city_scenario
 from sgloc.graph import SemanticGraph
 
-#: (name, make_synthetic_run settings) of the two city sizes.
+#: (name, `replay_scenarios.city_scenario` size settings) of the two city sizes.
 CITIES = {
     "default": {},
-    "big": {"length": 2000.0, "city": {"blocks": 12}},
+    "big": {"length": 2000.0, "blocks": 12},
 }
 
 
 def city_cut(seed: int, n_robots: int, settings: dict) -> Scenario:
-    """The synthetic city run `seed` with `settings` cut into `n_robots` robots the way
-    `replay_scenarios.city_scenario` cuts the default one."""
-    from sgloc.sim.city import CITY_CLASSES, CityConfig
-    from sgloc.sim.run import make_synthetic_run
-
-    kw = dict(settings)
-    if "city" in kw:
-        kw["city"] = CityConfig(**kw["city"])
-    run = make_synthetic_run(seed=seed, overlap=0.5, **kw)
-    rng = np.random.default_rng([seed, 17])
-    pos, lab = run.city.object_positions, run.city.object_labels
-    logs, gt = [], {}
-    for route in run.robots:
-        T_all = run.routes.T_world_body[route]
-        for a, b in segments(0, len(T_all) - 1, n_robots // 2):
-            T = T_all[a : b + 1]
-            det = [observe(Ti, pos, lab, rng, (40.0, 180.0, 0.9, 0.1)) for Ti in T]
-            name = f"city{len(logs)}"
-            logs.append(log_from_frames(name, np.arange(len(T)) * 0.15, T, det, T[0]))
-            gt[name] = T[0]
-    return Scenario(logs, gt, tuple(CITY_CLASSES), f"city {seed} {settings}")
+    """The synthetic city run `seed` of the size `settings` cut into `n_robots` robots as the
+    `--city` replay cuts it (`replay_scenarios.city_scenario`)."""
+    return city_scenario(n_robots, seed, **settings)
 
 
 def capture_attempts(scenario: Scenario, seed: int) -> list[dict]:

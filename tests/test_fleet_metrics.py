@@ -177,17 +177,12 @@ def test_oracle_recovers_the_truth_from_drifting_odometry() -> None:
     assert max(np.abs(e - T_fleet_gt @ g).max() for e, g in zip(est, gt, strict=True)) < 1e-3
 
 
-def test_fleet_keyframe_poses_prefers_the_sessions_own() -> None:
+def test_fleet_keyframe_poses_are_the_sessions_trajectory() -> None:
     poses = _line(np.arange(3.0))
 
-    class Rigid:
+    class Session:
         def trajectory(self, robot):
             return (np.arange(3.0), poses) if robot == "a" else None
 
-    class Corrected(Rigid):
-        def keyframe_poses(self, robot):
-            return poses + 1.0
-
-    assert np.array_equal(fleet_keyframe_poses(Rigid(), "a"), poses)
-    assert fleet_keyframe_poses(Rigid(), "b") is None
-    assert np.array_equal(fleet_keyframe_poses(Corrected(), "a"), poses + 1.0)
+    assert np.array_equal(fleet_keyframe_poses(Session(), "a"), poses)
+    assert fleet_keyframe_poses(Session(), "b") is None
