@@ -18,7 +18,8 @@ from sgloc.evaluation.scenes import move_target, pair_rng, route_overlap
 ORDER = (
     "metrics", "scenes", "pairs_kitti", "kitti_refined", "pairs_sim", "pairs",
     "acceptance_pairs", "fleet_scenes", "replay_scenarios", "online_oracle", "fleet_trajectory",
-    "online_replay", "trials", "report", "plots", "experiments",
+    "online_replay", "fleet_metrics", "fleet_oracle", "fleet_runs", "fleet_cases", "trials",
+    "report", "plots", "experiments",
 )  # fmt: skip
 PACKAGE = Path(sgloc.evaluation.__file__).parent
 
