@@ -194,10 +194,10 @@ class LocalizerConfig:
         f = scale_factor(unit)
         out = {"ransac_threshold": RansacConfig().threshold * f,
                "icp_max_distance": _DEFAULT_ICP_DISTANCE * f}  # fmt: skip
-        accept = AcceptanceConfig()  # its length settings: AcceptanceConfig.LENGTHS
+        accept = AcceptanceConfig().scaled(f)  # every length of AcceptanceConfig.LENGTHS
         for group_name, names in AcceptanceConfig.LENGTHS.items():
             stage = getattr(accept, group_name) if group_name else accept
-            out |= {f"acceptance_{n}": getattr(stage, n) * f for n in names
+            out |= {f"acceptance_{n}": getattr(stage, n) for n in names
                     if getattr(stage, n) is not None}  # fmt: skip
         for key, table in (("descriptor", DESCRIPTORS), ("rejection", REJECTORS)):
             name = overrides.get(key, getattr(self, key))
