@@ -56,10 +56,9 @@ def fleet_poses(
 
 
 def corrected_keyframes(session: Any, log: RobotLog) -> np.ndarray | None:
-    """T_fleet_sensor (N,4,4) of every keyframe of `log` as the session's keyframe pose graph
-    corrected them; None with the robots back-end (one rigid frame per robot)."""
-    if not session.keyframe_ids():
-        return None
+    """T_fleet_sensor (N,4,4) of every keyframe of `log` as the session places them
+    (`OnlineSession.trajectory`: the keyframe pose graph's corrected poses, or the robot's one
+    fleet frame applied to its odometry); None when the session does not hold them all."""
     traj = session.trajectory(log.name)
     if traj is None or len(traj[1]) != len(log.poses):
         return None
