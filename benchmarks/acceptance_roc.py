@@ -29,10 +29,10 @@ import numpy as np
 from rich.progress import track
 
 from sgloc.acceptance import AcceptanceConfig
-from sgloc.downloads import present_or_say
+from sgloc.datasets.downloads import present_or_say
 from sgloc.evaluation.acceptance_pairs import NEGATIVE_CUT, default_pair_sets
 from sgloc.geometry import apply, transform_error
-from sgloc.localizer import localize
+from sgloc.pipeline.localizer import localize
 
 INTRO = """# Acceptance test: when not to trust an alignment
 

@@ -31,7 +31,7 @@ from sgloc.estimation import fit_rigid, irls_refine, tilt_deg  # noqa: E402
 from sgloc.evaluation.pairs import AirsimGuoPairs  # noqa: E402
 from sgloc.evaluation.report import markdown_table  # noqa: E402
 from sgloc.geometry import invert, transform_error  # noqa: E402
-from sgloc.graph import SemanticGraph  # noqa: E402
+from sgloc.maps.graph import SemanticGraph  # noqa: E402
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "airsim_fit.md"
 #: True pairs: same-class mutual nearest neighbours within these distances (m) under the GT.

@@ -8,9 +8,10 @@ settings; how often the true error falls inside the covariance's 95 % region.
 Stage 1 (cached in --out/fits-<split>.pkl, redone when the sgloc package's commit changed or
 with --refresh): localize every pair, keep the
 final matched points, the estimate and the ground truth. Stage 2: the covariance of each
-accepted estimate (`sgloc.covariance.transform_covariance`), the true error in its tangent
+accepted estimate (`sgloc.estimation.covariance.transform_covariance`), the true error in its
+tangent
 convention and the coverage; with --fit also the inflation constants chosen on the tuning pairs
-(printed; they are copied into sgloc.covariance by hand). --update-docs writes
+(printed; they are copied into sgloc.estimation.covariance by hand). --update-docs writes
 docs/covariance.md and docs/covariance.png.
 """
 
@@ -35,8 +36,7 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.stats import chi2  # noqa: E402
 
-from sgloc.config import LocalizerConfig  # noqa: E402
-from sgloc.covariance import (  # noqa: E402
+from sgloc.estimation.covariance import (  # noqa: E402
     DEFAULT_INFLATION,
     NO_INFLATION,
     CovarianceInflation,
@@ -46,6 +46,7 @@ from sgloc.covariance import (  # noqa: E402
     tilt_prior,
 )
 from sgloc.lie import skew  # noqa: E402
+from sgloc.pipeline.config import LocalizerConfig  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SPLITS = ("tuning", "heldout")
@@ -71,7 +72,7 @@ def hard_cases() -> Any:
 def fit_pair(spec: Any) -> dict[str, Any]:
     """Localize one KITTI positive pair with the default settings; what the covariance needs."""
     from sgloc.evaluation.trials import limit_blas_threads
-    from sgloc.localizer import localize
+    from sgloc.pipeline.localizer import localize
 
     hc = hard_cases()
     limit_blas_threads()
@@ -373,19 +374,19 @@ GTSAM's `Pose3`:
 - tangent vector xi = [rx, ry, rz, tx, ty, tz], radians and metres;
 - right perturbation: T_true = T_target_query @ Exp(xi), so xi is expressed in the **query**
   frame, at the query frame's origin; `gtsam.Pose3.Expmap` / `Logmap` are Exp / Log
-  (`sgloc.lie.se3_exp`, `sgloc.lie.se3_log` and `sgloc.covariance.pose_error` do the same
+  (`sgloc.lie.se3_exp`, `sgloc.lie.se3_log` and `sgloc.estimation.covariance.pose_error` do the same
   without gtsam);
 - so it is the noise model of a `BetweenFactorPose3(target_key, query_key, T_target_query,
   gtsam.noiseModel.Gaussian.Covariance(covariance))`;
 - the uncertainty of where the transform puts a query point p (metres, query frame) is
-  `sgloc.covariance.point_covariance(covariance, p)` (first order): far from the matched
+  `sgloc.estimation.covariance.point_covariance(covariance, p)` (first order): far from the matched
   objects the rotation uncertainty dominates.
 
 ```python
 import numpy as np
 from sgloc import localize
-from sgloc.covariance import point_covariance
-from sgloc.downloads import airsim_guo
+from sgloc.estimation.covariance import point_covariance
+from sgloc.datasets.downloads import airsim_guo
 
 q, t = airsim_guo()
 res = localize(q, t)
@@ -396,7 +397,8 @@ print(np.sqrt(np.diag(point_covariance(C, p))), "m: standard deviations there")
 ```
 
 ## How it is computed
-`sgloc.covariance.transform_covariance(src, dst, transform, weights, dof, max_tilt)`, on the
+`sgloc.estimation.covariance.transform_covariance(src, dst, transform, weights, dof, max_tilt)`, on
+the
 final matched objects of the localizer:
 
 1. The least-squares fit's covariance: the Jacobian of the point residuals with respect to a
@@ -418,7 +420,7 @@ final matched objects of the localizer:
    per-axis noise, (b) an independent offset of the two maps at the matched objects' centroid,
    a translation of `offset_t` per axis and a rotation of `offset_r` per axis (in the query
    frame this correlates rotation and translation as a rotation about the data does), and
-   (c) an overall scale. The default constants (`sgloc.covariance.DEFAULT_INFLATION`):
+   (c) an overall scale. The default constants (`sgloc.estimation.covariance.DEFAULT_INFLATION`):
    {inflation}.
 
 ## How the constants were chosen
@@ -514,7 +516,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         fitted_text = inflation_text(fitted)
         print(f"chosen on the tuning pairs: {fitted_text}")
         if fitted != DEFAULT_INFLATION:
-            print("  (differs from sgloc.covariance.DEFAULT_INFLATION: copy it there)")
+            print("  (differs from sgloc.estimation.covariance.DEFAULT_INFLATION: copy it there)")
             models["fitted now"] = fitted
     n = {s: counts(rows) for s, rows in fits.items()}
     for s in SPLITS:

@@ -23,14 +23,14 @@ from scipy.spatial.distance import cdist
 
 from sgloc import localize
 from sgloc.datasets import Frame, make_dataset
-from sgloc.downloads import data_path
+from sgloc.datasets.downloads import data_path
 from sgloc.extraction import (
     ExtractionConfig,
     build_graph,
     extraction_preset,
 )
 from sgloc.geometry import transform_error
-from sgloc.presets import localizer_preset
+from sgloc.pipeline.presets import localizer_preset
 
 
 def blocky_frame(rng: np.random.Generator, H: int, W: int, index: int) -> Frame:

@@ -20,8 +20,7 @@ import time
 import warnings
 from pathlib import Path
 
-from sgloc.config import LocalizerConfig
-from sgloc.downloads import present_or_say
+from sgloc.datasets.downloads import present_or_say
 from sgloc.evaluation.fleet_scenes import (
     FleetScene,
     city_fleet,
@@ -30,7 +29,8 @@ from sgloc.evaluation.fleet_scenes import (
     kitti_fleet,
     world_fleet,
 )
-from sgloc.fleet import FleetConfig, localize_fleet
+from sgloc.online.fleet import FleetConfig, localize_fleet
+from sgloc.pipeline.config import LocalizerConfig
 
 MAX_M, MAX_DEG = 3.0, 3.0
 

@@ -64,8 +64,8 @@ def write_seeds(folder: Path, seed: int = 0) -> dict[str, Path]:
     """Valid files to mutate: graphs in every format, plus a tiny Airsim robot folder."""
     from PIL import Image
 
-    from sgloc.classes import AIRSIM_COLORS
     from sgloc.io.pcd import write_pcd
+    from sgloc.maps.classes import AIRSIM_COLORS
     from sgloc.sim.object_world import make_two_robot_scene
 
     scene = make_two_robot_scene(seed=seed, stretch=150)

@@ -48,7 +48,7 @@ from sgloc.evaluation.pairs_kitti import (  # noqa: E402
 )
 from sgloc.evaluation.pairs_sim import CityPairs  # noqa: E402
 from sgloc.evaluation.scenes import Pair, move_target, pair_rng, route_overlap  # noqa: E402
-from sgloc.graph import SemanticGraph  # noqa: E402
+from sgloc.maps.graph import SemanticGraph  # noqa: E402
 
 #: Last scan of the tuning part of KITTI 00; pairs with any scan after it are held out.
 TUNING_LAST_SCAN = 3000
@@ -580,7 +580,7 @@ def gt_check(pair: Pair) -> dict[str, Any]:
 def new_config_keys() -> dict[str, Any]:
     """LocalizerConfig settings that did not exist at commit 5466411, with their current
     defaults (`previous` and `paper` take those; override them with a --variant)."""
-    from sgloc.config import LocalizerConfig
+    from sgloc.pipeline.config import LocalizerConfig
 
     flat: dict[str, Any] = {}
     for key, value in LocalizerConfig().to_dict().items():
@@ -596,7 +596,7 @@ def new_config_keys() -> dict[str, Any]:
 def run_spec(spec: PairSpec, configs: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
     """Localize one pair with every configuration (interleaved); one row per configuration."""
     from sgloc.evaluation.trials import limit_blas_threads
-    from sgloc.localizer import localize
+    from sgloc.pipeline.localizer import localize
 
     limit_blas_threads()
     pair = make_pair(spec)
@@ -1007,8 +1007,8 @@ def configurations(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
     unknown = [n for n in names if n not in configs]
     if unknown:
         usage_error(f"unknown configuration(s) {unknown}; known: {list(configs)}")
-    from sgloc.config import LocalizerConfig
     from sgloc.errors import SglocError
+    from sgloc.pipeline.config import LocalizerConfig
 
     for name in names:  # fail on a bad setting before any work
         try:

@@ -74,9 +74,9 @@ def _matches(m: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
 def check_canonical() -> None:
     import types
 
-    from sgloc.canonical import CanonicalPair, canonical_order, without_duplicates
-    from sgloc.config import LocalizerConfig
-    from sgloc.graph import SemanticGraph
+    from sgloc.maps.canonical import CanonicalPair, canonical_order, without_duplicates
+    from sgloc.maps.graph import SemanticGraph
+    from sgloc.pipeline.config import LocalizerConfig
 
     rng = np.random.default_rng(2)
     pos = rng.uniform(-3, 3, (300, 3)).round(1)  # ties
@@ -100,8 +100,8 @@ def check_canonical() -> None:
 
 
 def check_clique() -> None:
-    from sgloc.consistency import pack_rows
-    from sgloc.kernels import clique
+    from sgloc.consistency.pairwise import pack_rows
+    from sgloc.rejection import clique_kernels as clique
     from sgloc.rejection.clique import core_numbers, greedy_clique
 
     for m, p in [(70, 0.3), (200, 0.8)]:
@@ -116,8 +116,8 @@ def check_clique() -> None:
 
 
 def check_consistency() -> None:
-    from sgloc.consistency import consistency_bool, unpack_rows
-    from sgloc.kernels import consistency
+    from sgloc.consistency import pairwise_kernels as consistency
+    from sgloc.consistency.pairwise import consistency_bool, unpack_rows
 
     src, dst = _matches(150, 1)
     for neighbor in (False, True):
@@ -129,7 +129,7 @@ def check_consistency() -> None:
 
 
 def check_fit() -> None:
-    import sgloc.kernels.fit  # noqa: F401 (loaded first, then called through the estimation)
+    import sgloc.estimation.fit_kernels  # noqa: F401 (loaded first, then called through the estimation)
     from sgloc.estimation import irls_refine, weighted_kabsch
     from sgloc.geometry import apply, random_rigid_transform
 
@@ -147,8 +147,8 @@ def check_fit() -> None:
 
 
 def check_local() -> None:
-    from sgloc.kernels.local import local_counts, local_prune
-    from sgloc.local_consistency import CellGrid, local_counts_reference, prune_local_reference
+    from sgloc.consistency.local import CellGrid, local_counts_reference, prune_local_reference
+    from sgloc.consistency.local_kernels import local_counts, local_prune
 
     src, dst = _matches(400, 11)
     for radius in (20.0, 1e4):
@@ -162,8 +162,8 @@ def check_local() -> None:
 
 
 def check_matching() -> None:
-    import sgloc.kernels.matching  # noqa: F401 (loaded first, then called through matching)
-    from sgloc.matching import MatchingConfig, match_flagged
+    import sgloc.matching.kernels  # noqa: F401 (loaded first, then called through matching)
+    from sgloc.matching.candidates import MatchingConfig, match_flagged
 
     rng = np.random.default_rng(3)
     dq = rng.random((60, 16)) * (rng.random((60, 16)) < 0.5)
@@ -184,8 +184,8 @@ def check_evidence() -> None:
     from sgloc.acceptance.assessment import squared_residuals_of
     from sgloc.acceptance.chance import chance_terms, object_nfa_over_radii
     from sgloc.acceptance.mirror import reflect_across_line
-    from sgloc.graph import SemanticGraph
     from sgloc.kernels import evidence  # noqa: F401 (loaded first, then called as acceptance does)
+    from sgloc.maps.graph import SemanticGraph
 
     rng = np.random.default_rng(9)
     tpos = rng.uniform(-60, 60, (200, 3)) * [1, 1, 0.1]
@@ -219,8 +219,8 @@ def check_evidence() -> None:
 
 def check_neighbors() -> None:
     from sgloc.acceptance import ChanceModel
-    from sgloc.graph import SemanticGraph
-    from sgloc.kernels.neighbors import near_class_counts
+    from sgloc.maps.graph import SemanticGraph
+    from sgloc.maps.neighbor_kernels import near_class_counts
 
     rng = np.random.default_rng(4)
     pts = rng.uniform(-60, 60, (300, 3)) * [1, 1, 0.1]
@@ -235,7 +235,7 @@ def check_neighbors() -> None:
     for a, b in zip(got, ref, strict=True):
         assert np.array_equal(a, b), "near counts"
     from sgloc.descriptors import DistanceHistogramDescriptor
-    from sgloc.kernels.neighbors import distance_histograms
+    from sgloc.maps.neighbor_kernels import distance_histograms
 
     desc = DistanceHistogramDescriptor()
     rows = np.arange(300)
@@ -245,9 +245,9 @@ def check_neighbors() -> None:
 
 
 def check_prune() -> None:
-    from sgloc.consistency import pack_rows
-    from sgloc.kernels.prune import prune_bits
+    from sgloc.consistency.pairwise import pack_rows
     from sgloc.rejection.neighbor import prune_by_support_reference
+    from sgloc.rejection.prune_kernels import prune_bits
 
     for m, p in [(65, 0.3), (300, 0.6)]:
         R = _graph(m, p, m + 1)
@@ -277,7 +277,7 @@ def check_ransac() -> None:
 def check_runner_up() -> None:
     from sgloc.acceptance import AcceptanceConfig, pair_consistency
     from sgloc.acceptance import runner_up as search_runner_up
-    from sgloc.consistency import ConsistentPairs
+    from sgloc.consistency.pairwise import ConsistentPairs
     from sgloc.estimation import rot_z
     from sgloc.geometry import apply, make_transform
     from sgloc.kernels import runner_up  # noqa: F401 (loaded first, then called as acceptance does)
@@ -303,9 +303,9 @@ def check_runner_up() -> None:
 
 
 def check_spectral() -> None:
-    from sgloc.consistency import consistency_bool, pack_rows
-    from sgloc.kernels import spectral
+    from sgloc.consistency.pairwise import consistency_bool, pack_rows
     from sgloc.rejection import SpectralRejector
+    from sgloc.rejection import spectral_kernels as spectral
 
     rej = SpectralRejector()
     src, dst = _matches(300, 8)
@@ -319,8 +319,8 @@ def check_spectral() -> None:
 
 
 def check_triangles() -> None:
-    from sgloc.consistency import pack_rows
-    from sgloc.kernels import triangles
+    from sgloc.consistency import triangle_kernels as triangles
+    from sgloc.consistency.pairwise import pack_rows
 
     for m, p in [(5, 0.5), (130, 0.1), (300, 0.6)]:
         R = _graph(m, p, m + 2)
@@ -343,8 +343,8 @@ def check_triangles() -> None:
 
 def check_walks() -> None:
     from sgloc.descriptors import RandomWalkDescriptor
-    from sgloc.graph import SemanticGraph
     from sgloc.kernels import walks  # noqa: F401 (loaded first, then called as the descriptor does)
+    from sgloc.maps.graph import SemanticGraph
 
     rng = np.random.default_rng(10)
     g = SemanticGraph(rng.uniform(0, 60, (40, 3)), rng.integers(0, 5, 40))

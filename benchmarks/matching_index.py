@@ -18,7 +18,7 @@ import numpy as np
 
 from sgloc import LocalizerConfig, localize
 from sgloc.geometry import transform_error
-from sgloc.matching import MatchingConfig, match_flagged
+from sgloc.matching.candidates import MatchingConfig, match_flagged
 from sgloc.sim.object_world import make_two_robot_scene
 
 
@@ -96,7 +96,7 @@ def main() -> None:
         "(cosine similarity of descriptors). The exhaustive search compares every pair, so "
         "two maps of n objects cost n^2. With `search=\"auto\"` (the default) a class with "
         "more than 4,096 target objects is searched through an index instead "
-        "(`sgloc.matching_index`): the class's unit descriptors grouped into about sqrt(n) "
+        "(`sgloc.matching.index`): the class's unit descriptors grouped into about sqrt(n) "
         "lists by spherical k-means, each query object compared with the objects of its "
         "`probes` (8) most similar lists only, with the same similarity values as the "
         "exhaustive search; every smaller class is searched exhaustively, so smaller maps "

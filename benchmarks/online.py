@@ -40,7 +40,7 @@ from sgloc.evaluation import replay_scenarios as scenarios
 from sgloc.evaluation.online_replay import MAX_DEG, MAX_M, is_wrong, run_scenario
 from sgloc.evaluation.report import markdown_table
 from sgloc.online import OnlineConfig
-from sgloc.presets import localizer_preset
+from sgloc.pipeline.presets import localizer_preset
 
 GOAL_DELAY, GOAL_APE, GOAL_MEDIAN_MS, GOAL_P99_MS = 0.10, 1.0, 5.0, 100.0
 
@@ -327,8 +327,8 @@ def batch_kitti(out: Path) -> dict:
     from sgloc.evaluation.fleet_trajectory import fleet_ape
     from sgloc.evaluation.pairs_kitti import kitti_root, kitti_sequence
     from sgloc.evaluation.replay_scenarios import log_from_frames
-    from sgloc.fleet import localize_fleet
     from sgloc.io.plain_layout import write_tum_exact
+    from sgloc.online.fleet import localize_fleet
     from sgloc.replay.outputs import fleet_poses
 
     scene = kitti_fleet()

@@ -53,7 +53,7 @@ def fresh(g: SemanticGraph) -> SemanticGraph:
 
 def run_airsim(rounds: int) -> list[dict]:
     """ms per call (and median stages) of the three Airsim cases, 5 calls per case per round."""
-    from sgloc.downloads import airsim_guo
+    from sgloc.datasets.downloads import airsim_guo
 
     q, t = airsim_guo()
     prepared = prepare(t)

@@ -30,7 +30,7 @@ import numpy as np
 from sgloc.evaluation.online_oracle import robot_error
 from sgloc.evaluation.online_replay import MAX_DEG, MAX_M
 from sgloc.evaluation.replay_scenarios import Scenario, city_scenario
-from sgloc.graph import SemanticGraph
+from sgloc.maps.graph import SemanticGraph
 
 #: (name, `replay_scenarios.city_scenario` size settings) of the two city sizes.
 CITIES = {
@@ -50,7 +50,7 @@ def capture_attempts(scenario: Scenario, seed: int) -> list[dict]:
     made: query and target graphs (arrays), the seed, and the ground truth of the pair."""
     import sgloc.online.session as session_module
     from sgloc.online import OnlineConfig, OnlineSession
-    from sgloc.presets import localizer_preset
+    from sgloc.pipeline.presets import localizer_preset
     from sgloc.replay import replay_logs
 
     recorded: list[tuple] = []
@@ -93,8 +93,8 @@ def load_or_capture(city: str, seed: int, robots: int, cache: Path) -> tuple[lis
 def score(attempts: list, sc: Scenario, settings: dict) -> dict:
     """Localize every attempt under `settings` (acceptance settings over the city preset):
     counts of right and wrong accepts, refusals, the wrong accepts' errors, and seconds."""
-    from sgloc.localizer import Localizer
-    from sgloc.presets import localizer_preset
+    from sgloc.pipeline.localizer import Localizer
+    from sgloc.pipeline.presets import localizer_preset
 
     cfg = localizer_preset("city").with_overrides(**settings)
     loc = Localizer(cfg)

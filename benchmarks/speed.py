@@ -48,10 +48,10 @@ from threadpoolctl import ThreadpoolController, threadpool_limits
 
 from benchmarks import prepared_speed
 from benchmarks.peers.methods import kiss_matcher_method
-from sgloc.consistency import consistency_bool
+from sgloc.consistency.pairwise import consistency_bool
 from sgloc.estimation import RansacConfig, irls_refine, ransac_reference, weighted_kabsch
 from sgloc.geometry import transform_error
-from sgloc.registration import register
+from sgloc.pipeline.registration import register
 from sgloc.rejection.neighbor import prune_by_support_reference
 from sgloc.sim.correspondences import make_correspondences
 
@@ -148,7 +148,7 @@ _LOAD = "import time\nt = time.time()\nwhile time.time() - t < 600: pass\n"
 
 def airsim_maps():
     from sgloc import SemanticGraph
-    from sgloc.downloads import data_path
+    from sgloc.datasets.downloads import data_path
 
     d = data_path("airsim_guo")
     return SemanticGraph.load(d / "cloud1.pcd"), SemanticGraph.load(d / "cloud2.pcd")
@@ -264,7 +264,7 @@ def run_startup(runs: int) -> dict:
 def run_cli(runs: int) -> list[float]:
     """Wall seconds of `sgloc localize cloud1.pcd cloud2.pcd` (Airsim maps) as a whole process,
     after one untimed run."""
-    from sgloc.downloads import data_path
+    from sgloc.datasets.downloads import data_path
 
     d = data_path("airsim_guo")
     cmd = [sys.executable, "-m", "sgloc", "localize", str(d / "cloud1.pcd"), str(d / "cloud2.pcd")]

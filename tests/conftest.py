@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from sgloc import SemanticGraph
-from sgloc.downloads import ENV_CACHE, airsim_guo, dataset, dataset_dir, is_complete
+from sgloc.datasets.downloads import ENV_CACHE, airsim_guo, dataset, dataset_dir, is_complete
 
 #: Fixtures that need a downloaded data set; tests using them get the `data` marker.
 DATA_FIXTURES = {"data_dir", "kitti_dir"}

@@ -15,7 +15,6 @@ from sgloc.acceptance import (
     log10_nfa,
     per_object_min,
 )
-from sgloc.config import LocalizerConfig
 from sgloc.evaluation.acceptance_pairs import (
     airsim_pairs,
     cut_shared_area,
@@ -23,6 +22,7 @@ from sgloc.evaluation.acceptance_pairs import (
     world_pairs,
 )
 from sgloc.geometry import make_transform, random_rigid_transform, transform_error
+from sgloc.pipeline.config import LocalizerConfig
 
 
 def test_airsim_positive_accepted_with_high_confidence(airsim_graphs, rng):
@@ -216,7 +216,7 @@ def _tested_candidates(monkeypatch, query, target, **settings) -> set:
 def test_localizer_tests_a_small_query_with_the_looser_ratio(monkeypatch, n_query):
     from sgloc.acceptance import spatially_distinctive
     from sgloc.descriptors import DistanceHistogramDescriptor
-    from sgloc.matching import MatchingConfig, match_descriptors
+    from sgloc.matching.candidates import MatchingConfig, match_descriptors
 
     # A repetitive map (one 60 m block of 40 objects tiled 4 x 4, jittered by 1 m): near ties.
     gen = np.random.default_rng(3)
@@ -243,7 +243,7 @@ def test_localizer_tests_a_small_query_with_the_looser_ratio(monkeypatch, n_quer
 def test_the_localizer_makes_one_acceptance_call(monkeypatch, airsim_graphs):
     """`accept` is the stage's one entry point: one call per localization, whose verdict is
     the result."""
-    import sgloc.localizer as loc
+    import sgloc.pipeline.localizer as loc
     from sgloc.acceptance import accept
 
     verdicts = []
@@ -284,7 +284,7 @@ def test_select_evidence_by_query_size(rng):
     """Ratio None: every candidate; exclusion 0: the matching's flags, or without them the
     candidates of the ratio re-match; small query: the spatial ratio test."""
     from sgloc.acceptance import select_evidence
-    from sgloc.matching import MatchingConfig, match_descriptors, match_flagged
+    from sgloc.matching.candidates import MatchingConfig, match_descriptors, match_flagged
 
     target = SemanticGraph(rng.uniform(0, 200, (120, 3)), rng.integers(0, 3, 120))
     query = target.subgraph(np.arange(40))

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sgloc.graph import SemanticGraph
+from sgloc.maps.graph import SemanticGraph
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from sgloc.presets import localizer_preset
+from sgloc.pipeline.presets import localizer_preset
 from sgloc.rejection import NeighborRejector, consistency_matrix, make_rejector, prune_by_support
 
 

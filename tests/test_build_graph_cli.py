@@ -6,8 +6,8 @@ import numpy as np
 from PIL import Image
 
 from sgloc import SemanticGraph
-from sgloc.classes import AIRSIM_COLORS
 from sgloc.cli import main
+from sgloc.maps.classes import AIRSIM_COLORS
 
 
 def test_build_graph_kitti_objects_scan_range_start_frame(kitti_dir, tmp_path, capsys):

@@ -9,8 +9,8 @@ import weakref
 import numpy as np
 
 from sgloc import SemanticGraph, localize
-from sgloc.canonical import CanonicalPair
-from sgloc.config import LocalizerConfig
+from sgloc.maps.canonical import CanonicalPair
+from sgloc.pipeline.config import LocalizerConfig
 
 
 def test_canonical_form_is_built_per_call_and_the_same(airsim_graphs):

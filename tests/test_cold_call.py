@@ -9,11 +9,11 @@ import pytest
 
 from sgloc import SemanticGraph, localize, prepare
 from sgloc.acceptance.mirror import looks_mirrored
-from sgloc.canonical import DUPLICATE_RADIUS, canonical_order, without_duplicates
-from sgloc.config import LocalizerConfig
-from sgloc.covariance import transform_covariance
 from sgloc.errors import InvalidGraphError
+from sgloc.estimation.covariance import transform_covariance
 from sgloc.geometry import apply, random_rigid_transform
+from sgloc.maps.canonical import DUPLICATE_RADIUS, canonical_order, without_duplicates
+from sgloc.pipeline.config import LocalizerConfig
 
 
 def _new(g: SemanticGraph) -> SemanticGraph:
@@ -190,7 +190,7 @@ def test_compiled_restore_equals_its_numpy_form(seed, monkeypatch):
     import types
 
     import sgloc.kernels
-    from sgloc.canonical import CanonicalPair
+    from sgloc.maps.canonical import CanonicalPair
 
     q, t = _synthetic(seed, 60)
     pair = CanonicalPair(q, t, LocalizerConfig())

@@ -10,11 +10,11 @@ import pytest
 
 from sgloc import localize
 from sgloc.cli import main
-from sgloc.config import LocalizerConfig
 from sgloc.errors import UnknownNameError
 from sgloc.estimation import RansacConfig, ransac
 from sgloc.geometry import apply, random_rigid_transform
-from sgloc.presets import LOCALIZER_PRESETS, localizer_preset
+from sgloc.pipeline.config import LocalizerConfig
+from sgloc.pipeline.presets import LOCALIZER_PRESETS, localizer_preset
 from sgloc.validation import InvalidSettingError
 
 

@@ -6,9 +6,9 @@ from __future__ import annotations
 import pytest
 
 from sgloc.cli import main
-from sgloc.config import LocalizerConfig
 from sgloc.descriptors import HistogramDescriptor, RandomWalkDescriptor
 from sgloc.errors import SglocError, UnknownNameError
+from sgloc.pipeline.config import LocalizerConfig
 from sgloc.rejection import NeighborRejector, SpectralRejector
 from sgloc.validation import InvalidSettingError
 
@@ -93,10 +93,10 @@ def test_dicts_written_before_are_read():
 
 def test_one_registry_style_for_names():
     from sgloc.datasets import DATASETS
+    from sgloc.datasets.downloads import DATASETS as DOWNLOADS
     from sgloc.descriptors import DESCRIPTORS
-    from sgloc.downloads import DATASETS as DOWNLOADS
     from sgloc.evaluation.scenes import PAIR_SOURCES
-    from sgloc.presets import EXTRACTION_PRESETS, LOCALIZER_PRESETS
+    from sgloc.pipeline.presets import EXTRACTION_PRESETS, LOCALIZER_PRESETS
     from sgloc.registry import Registry
     from sgloc.rejection import REJECTORS
 
@@ -128,13 +128,13 @@ def test_acceptance_uses_the_consistency_layer_not_rejection():
             for node in ast.walk(tree)
             if isinstance(node, ast.ImportFrom) and node.module
         }
-    assert "sgloc.consistency" in imported
+    assert "sgloc.consistency.pairwise" in imported
     assert not any(m.startswith("sgloc.rejection") for m in imported)
 
 
 @pytest.mark.parametrize("preset", ["paper", "guo", "kitti-objects", "city", "default"])
 def test_flat_settings_round_trip(preset):
-    from sgloc.presets import localizer_preset
+    from sgloc.pipeline.presets import localizer_preset
 
     cfg = localizer_preset(preset).with_overrides(
         descriptor_radius=40.0, class_scale=True, matching_max_ratio=0.9
@@ -150,7 +150,7 @@ def test_descriptor_radius_has_a_qualified_name():
 
 
 def test_saved_preset_config_reaches_the_command_line(tmp_path):
-    from sgloc.presets import localizer_preset
+    from sgloc.pipeline.presets import localizer_preset
 
     path = tmp_path / "paper.yaml"
     localizer_preset("paper").save(path)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from sgloc import kernels
-from sgloc.consistency import ConsistentPairs, consistency_bits, pack_rows
+from sgloc.consistency.pairwise import ConsistentPairs, consistency_bits, pack_rows
 
 
 @pytest.fixture(autouse=True)
@@ -63,7 +63,7 @@ def test_on_consistency_bits():
     bits, degree = consistency_bits(src, dst, 3.0)
     pairs = ConsistentPairs(bits)
     assert pairs.size == degree.sum() // 2
-    from sgloc.consistency import consistent_pairs
+    from sgloc.consistency.pairwise import consistent_pairs
 
     ref = consistent_pairs(bits, degree)
     assert all(np.array_equal(a, b) for a, b in zip(pairs.all(), ref, strict=True))
@@ -71,7 +71,7 @@ def test_on_consistency_bits():
 
 def test_too_many_matches_is_a_clear_error(monkeypatch):
     # The limit lowered so the check runs on a small set; register names the fix in one line.
-    import sgloc.consistency as consistency
+    import sgloc.consistency.pairwise as consistency
     from sgloc import register
     from sgloc.errors import TooManyMatchesError
 

@@ -1,4 +1,5 @@
-"""sgloc.covariance: the covariance of a fitted transform matches the Monte-Carlo spread of the
+"""sgloc.estimation.covariance: the covariance of a fitted transform matches the Monte-Carlo spread
+of the
 fit on exact synthetic data with Gaussian noise, in gtsam Pose3's convention (right
 perturbation, query frame); it is attached to every accepted result and None otherwise."""
 
@@ -11,7 +12,9 @@ import pytest
 from scipy.stats import chi2
 
 import sgloc
-from sgloc.covariance import (
+from sgloc.errors import SglocError
+from sgloc.estimation import fit_rigid, weighted_kabsch
+from sgloc.estimation.covariance import (
     DEFAULT_INFLATION,
     NO_INFLATION,
     CovarianceInflation,
@@ -19,12 +22,10 @@ from sgloc.covariance import (
     pose_error,
     transform_covariance,
 )
-from sgloc.errors import SglocError
-from sgloc.estimation import fit_rigid, weighted_kabsch
 from sgloc.geometry import apply, invert, make_transform, random_rigid_transform
-from sgloc.graph import SemanticGraph
 from sgloc.io.results import render
 from sgloc.lie import se3_exp, se3_log
+from sgloc.maps.graph import SemanticGraph
 
 DRAWS = 300
 SIGMA = 0.3

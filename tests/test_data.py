@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import sgloc.downloads as sd
+import sgloc.datasets.downloads as sd
 from sgloc.cli import main
 from sgloc.errors import DatasetError, UnknownNameError
 
@@ -81,7 +81,7 @@ def test_sgloc_data_wins_over_the_user_folder(tmp_path, monkeypatch, no_data):
 def test_installed_package_points_nowhere_near_the_venv(monkeypatch):
     monkeypatch.delenv("SGLOC_DATA", raising=False)
     site = Path("/opt/venv/lib/python3.11/site-packages")
-    monkeypatch.setattr(sd, "__file__", str(site / "sgloc" / "downloads.py"))
+    monkeypatch.setattr(sd, "__file__", str(site / "sgloc" / "datasets" / "downloads.py"))
     monkeypatch.setattr(sd, "PROJECT_ROOT", site.parent)
     assert sd.checkout_data_dir() is None
     assert all("venv" not in str(r) for r in sd.data_roots())

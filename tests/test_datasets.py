@@ -11,13 +11,13 @@ import pytest
 from PIL import Image
 from scipy.spatial.transform import Rotation
 
-from sgloc.classes import AIRSIM_COLORS
 from sgloc.datasets import DATASETS, make_dataset
 from sgloc.datasets.kitti_objects import TR_KITTI_00
 from sgloc.errors import DatasetError, UnknownNameError
 from sgloc.extraction import ExtractionConfig, build_graph
 from sgloc.geometry import make_transform
 from sgloc.io.poses import read_kitti_poses, read_tum_poses, write_kitti_poses, write_tum_poses
+from sgloc.maps.classes import AIRSIM_COLORS
 
 
 def _save(path, array):

@@ -37,7 +37,7 @@ def test_rivals_are_of_the_candidates_class_and_none_passes():
 
 
 def test_matches_the_plain_ratio_test_without_exclusion():
-    from sgloc.matching import MatchingConfig, match_descriptors, match_flagged
+    from sgloc.matching.candidates import MatchingConfig, match_descriptors, match_flagged
 
     gen = np.random.default_rng(0)
     dq, dt = gen.random((30, 8)), gen.random((80, 8))

@@ -15,8 +15,8 @@ SRC = Path(__file__).resolve().parent.parent / "src"
 
 PRUNE = """
 import numpy as np
-from sgloc.kernels.prune import prune_bits
-from sgloc.consistency import pack_rows
+from sgloc.rejection.prune_kernels import prune_bits
+from sgloc.consistency.pairwise import pack_rows
 m = 5
 M = np.ones((m, m), bool); np.fill_diagonal(M, False)
 print(prune_bits(pack_rows(M), M.sum(1).astype(np.int64), 0.5).tolist())
@@ -71,10 +71,10 @@ REPRO = """
 import hashlib, sys
 import numpy as np
 from sgloc import localize
-from sgloc.downloads import airsim_guo
+from sgloc.datasets.downloads import airsim_guo
 q, t = airsim_guo()
 if sys.argv[1] == "warm":  # a process that worked before: numba loaded, many problems solved
-    import sgloc.kernels.fit  # noqa: F401
+    import sgloc.estimation.fit_kernels  # noqa: F401
     for seed in range(30):
         localize(q.subgraph(np.arange(40)), t, seed=seed)
 r = localize(q, t, seed=7)
@@ -90,7 +90,7 @@ def _fingerprint(seed: int) -> str:
     import numpy as np
 
     from sgloc import localize
-    from sgloc.downloads import airsim_guo
+    from sgloc.datasets.downloads import airsim_guo
 
     q, t = airsim_guo()
     r = localize(q, t, seed=seed)
@@ -112,7 +112,7 @@ def test_same_bits_in_a_process_pool_and_serially(method):
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
-    import sgloc.kernels.fit  # noqa: F401  (this process has the kernels loaded)
+    import sgloc.estimation.fit_kernels  # noqa: F401  (this process has the kernels loaded)
 
     seeds = [1, 2, 3]
     serial = [_fingerprint(s) for s in seeds]
@@ -126,7 +126,7 @@ def test_same_bits_in_threads_and_on_dask():
     from concurrent.futures import ThreadPoolExecutor
 
     distributed = pytest.importorskip("distributed")
-    from sgloc.tasks import run_all
+    from sgloc.runtime.tasks import run_all
 
     seeds = [1, 2, 3, 4]
     serial = [_fingerprint(s) for s in seeds]

@@ -79,7 +79,7 @@ def test_route_overlap_is_the_shared_length_fraction():
 
 
 def test_move_target_draws_the_pairs_motion_from_the_seed(rng):
-    from sgloc.graph import SemanticGraph
+    from sgloc.maps.graph import SemanticGraph
 
     g = SemanticGraph(rng.uniform(-50, 50, (20, 3)), rng.integers(0, 3, 20))
     a, b = move_target(g, g, np.eye(4), pair_rng(3)), move_target(g, g, np.eye(4), pair_rng(3))

@@ -34,7 +34,7 @@ def test_a_kernel_compiles_once_whatever_the_array_flags():
     """A read-only array (a graph's positions) and a writable one, or a literal integer and an
     int64, are one compiled specialisation of a kernel: one compile on first use, one load in
     a fresh process, and no later compile for arguments met in another order."""
-    from sgloc.kernels.matching import class_blocks, inverse_norms
+    from sgloc.matching.kernels import class_blocks, inverse_norms
 
     rng = np.random.default_rng(0)
     D = rng.random((40, 5))
@@ -67,7 +67,7 @@ def test_kernels_hold_one_specialisation_and_return_writable_arrays():
     register(src, src + [1.0, 2.0, 0.0], noise_bound=1.0)
     seen = 0
     for name in kernels.MODULES:
-        module = sys.modules.get(f"sgloc.kernels.{name}")
+        module = sys.modules.get(name)
         for f in vars(module).values() if module else ():
             if not isinstance(f, Dispatcher) or not f.overloads:
                 continue
@@ -89,9 +89,9 @@ def test_import_sgloc_leaves_the_fleet_layer_and_settings_files_alone():
     scipy.stats or scipy.spatial (a localization needs neither);
     `sgloc.localize_fleet` is still the fleet's function."""
     code = (
-        "import sys, sgloc; heavy = [m for m in ('sgloc.fleet', 'sgloc.online', 'yaml', "
+        "import sys, sgloc; heavy = [m for m in ('sgloc.online.fleet', 'sgloc.online', 'yaml', "
         "'scipy.stats', 'scipy.spatial') if m in sys.modules]; "
-        "from sgloc.fleet import localize_fleet; "
+        "from sgloc.online.fleet import localize_fleet; "
         "print(heavy, sgloc.localize_fleet is localize_fleet)"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

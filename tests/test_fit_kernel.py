@@ -1,4 +1,5 @@
-"""The compiled class-scaled robust refit (sgloc.kernels.fit.irls_class_scaled) equals the numpy
+"""The compiled class-scaled robust refit (sgloc.estimation.fit_kernels.irls_class_scaled) equals
+the numpy
 reference of `sgloc.estimation.irls_refine`, under every motion model."""
 
 from __future__ import annotations

@@ -11,10 +11,10 @@ import yaml
 
 from sgloc.cli import main
 from sgloc.evaluation.fleet_scenes import fleet_errors, world_fleet
-from sgloc.fleet import localize_fleet
 from sgloc.io.g2o import read_g2o
 from sgloc.io.names import robot_names
 from sgloc.io.poses import read_kitti_poses, read_tum_poses
+from sgloc.online.fleet import localize_fleet
 
 
 @pytest.fixture(scope="module")
@@ -143,6 +143,6 @@ def _documented_keys() -> set[str]:
 def test_fleet_json_is_versioned_and_every_key_documented(fleet4):
     _, _, out = fleet4
     info = json.loads((out / "fleet.json").read_text())
-    assert info["schema"] == "sgloc.fleet/1"
+    assert info["schema"] == "sgloc.online.fleet/1"
     keys = set(info) | {k for lk in info["links"] for k in lk}
     assert keys <= _documented_keys(), keys - _documented_keys()

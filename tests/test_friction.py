@@ -12,15 +12,15 @@ from pathlib import Path
 import numpy as np
 
 from sgloc.cli import main
-from sgloc.graph import SemanticGraph
 from sgloc.io.keyframes import make_robot_log
+from sgloc.maps.graph import SemanticGraph
 from sgloc.online import Event
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_tests_cache_into_a_temporary_folder_and_show_skip_reasons():
-    from sgloc.downloads import cache_dir
+    from sgloc.datasets.downloads import cache_dir
 
     assert Path(tempfile.gettempdir()) in cache_dir().parents
     assert os.environ["SGLOC_CACHE"] == str(cache_dir())
@@ -81,7 +81,7 @@ def test_robots_on_the_same_path_stay_visible_in_the_fleet_picture():
 
 
 def test_a_small_scan_in_a_large_map_gets_a_zoomed_inset(tmp_path):
-    from sgloc.viz import plot_aligned_maps, scan_zoom
+    from sgloc.io.pictures import plot_aligned_maps, scan_zoom
 
     rng = np.random.default_rng(0)
     big = rng.uniform(-1000, 1000, (400, 3))

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from sgloc import SemanticGraph
-from sgloc.classes import AIRSIM_COLORS, colors_to_labels, pack_rgb, unpack_rgb
 from sgloc.errors import GraphFileError, InvalidGraphError
+from sgloc.maps.classes import AIRSIM_COLORS, colors_to_labels, pack_rgb, unpack_rgb
 
 
 def test_edges_within_radius_and_distance_matrix():

@@ -11,10 +11,10 @@ import pytest
 
 from sgloc.cli import main
 from sgloc.errors import DatasetError, GraphFileError, SglocError
-from sgloc.graph import SemanticGraph
 from sgloc.io.keyframes import make_robot_log, parse_stamp
 from sgloc.io.plain_layout import read_plain_layout, write_plain_layout
 from sgloc.io.table import write_table
+from sgloc.maps.graph import SemanticGraph
 
 BOM = "\ufeff".encode()
 NAMES = ("car", "tree", "pole")
@@ -255,7 +255,7 @@ def test_not_localized_hint_follows_the_settings_used(airsim_graphs):
 
 # -- robot names -----------------------------------------------------------------------------
 def test_localize_fleet_names_robots_by_file_stem(tmp_path, airsim_graphs):
-    from sgloc.fleet import localize_fleet
+    from sgloc.online.fleet import localize_fleet
 
     paths = []
     for name, g in zip(("alpha", "beta"), airsim_graphs, strict=True):

@@ -7,12 +7,12 @@ import pytest
 from plyfile import PlyData, PlyElement
 
 from sgloc import SemanticGraph
-from sgloc.classes import AIRSIM_COLORS
 from sgloc.cli import main
 from sgloc.errors import GraphFileError
 from sgloc.io.colour_table import read_colour_table
 from sgloc.io.inputs import read_graph_with
 from sgloc.io.ply import read_ply, write_ply
+from sgloc.maps.classes import AIRSIM_COLORS
 
 
 @pytest.fixture

@@ -11,7 +11,7 @@ from scipy.spatial.distance import cdist
 
 from sgloc import kernels
 from sgloc.acceptance import ChanceModel
-from sgloc.consistency import (
+from sgloc.consistency.pairwise import (
     common_partner_count,
     consistency_bits,
     consistency_bool,
@@ -21,8 +21,8 @@ from sgloc.consistency import (
     unpack_rows,
 )
 from sgloc.errors import UnknownNameError
-from sgloc.graph import SemanticGraph
-from sgloc.matching import MatchingConfig, match_descriptors, match_flagged
+from sgloc.maps.graph import SemanticGraph
+from sgloc.matching.candidates import MatchingConfig, match_descriptors, match_flagged
 from sgloc.rejection import NeighborRejector
 from sgloc.rejection.neighbor import prune_bits, prune_by_support, prune_by_support_reference
 from sgloc.sim.correspondences import make_correspondences
@@ -119,7 +119,7 @@ def test_neighbor_rejector_same_survivors_as_numpy_pipeline(m, ratio, form):
 
 
 def test_edges_and_triangles_equal_numpy():
-    from sgloc.kernels.triangles import common_counts, upper_edges
+    from sgloc.consistency.triangle_kernels import common_counts, upper_edges
 
     rng = np.random.default_rng(4)
     for m, p in [(1, 0.5), (5, 0.5), (64, 0.3), (130, 0.1), (300, 0.6)]:
@@ -143,8 +143,8 @@ def test_edges_and_triangles_equal_numpy():
 @pytest.mark.parametrize("m, ratio", [(1, 0.0), (3, 0.0), (300, 0.8), (1000, 0.5), (2000, 0.9)])
 @pytest.mark.parametrize("kind", ["random", "structured"])
 def test_spectral_kernels_same_survivors_as_numpy(m, ratio, kind):
-    from sgloc.kernels import spectral as kernels
     from sgloc.rejection import SpectralRejector
+    from sgloc.rejection import spectral_kernels as kernels
     from sgloc.rejection.spectral import affinity_and_consistency
 
     rej = SpectralRejector()
@@ -162,8 +162,8 @@ def test_spectral_kernels_same_survivors_as_numpy(m, ratio, kind):
 
 
 def test_clique_kernels_equal_numpy():
-    from sgloc.kernels import clique as kernels
     from sgloc.rejection import CliqueRejector
+    from sgloc.rejection import clique_kernels as kernels
     from sgloc.rejection.clique import core_numbers, greedy_clique
 
     rng = np.random.default_rng(6)
@@ -212,7 +212,7 @@ def _descriptor_pair(seed: int, n_q: int, n_t: int, d: int = 24):
     ],
 )
 def test_compiled_top_k_equals_reference(monkeypatch, seed, cfg, flag_ratio):
-    """The kernel (`sgloc.kernels.matching`) keeps the same candidates, in the same order, with
+    """The kernel (`sgloc.matching.kernels`) keeps the same candidates, in the same order, with
     the same flags and similarities to rounding, as the numpy blocks (ties included)."""
     dq, dt, lq, lt = _descriptor_pair(seed, 90 + 17 * seed, 120)
     out = {}
@@ -238,7 +238,7 @@ def test_compiled_top_k_handles_empty_and_disjoint_classes(monkeypatch):
 @pytest.mark.parametrize("seed", [0, 1, 2])
 @pytest.mark.parametrize("radius", [0.7, 5.0, 40.0])
 def test_near_counts_equal_kd_tree_reference(seed, radius):
-    """The compiled per-class neighbour counts (`sgloc.kernels.neighbors`) equal scipy's
+    """The compiled per-class neighbour counts (`sgloc.maps.neighbor_kernels`) equal scipy's
     cKDTree ones, also for pairs exactly `radius` apart (counted: distance <= radius), far
     away and coincident points, and a large coordinate offset."""
     rng = np.random.default_rng(seed)
@@ -289,7 +289,7 @@ def test_grid_order_is_the_stable_sort_of_its_cells(radius):
     """A grid's points are in np.argsort(kind="stable")'s order of their cells (a counting
     sort on a small grid, numpy's sort on a sparse one), with their coordinates and labels;
     the runs of `start` (when kept) bound each cell's points."""
-    from sgloc.kernels.neighbors import cell_grid
+    from sgloc.maps.neighbor_kernels import cell_grid
 
     rng = np.random.default_rng(5)
     pos = np.round(rng.uniform(-50, 50, (500, 3)), 0)  # repeated cells and coordinates
@@ -310,8 +310,8 @@ def test_grid_kept_by_a_prepared_graph():
     """A prepared graph builds its neighbour grid once per radius and keeps it (a query then
     costs its neighbourhood, not the map); `cell_grid` itself keeps nothing; the counts are
     the same with the kept grid or without one."""
-    from sgloc.kernels.neighbors import cell_grid, near_class_counts
-    from sgloc.prepared_graph import PreparedGraph
+    from sgloc.maps.neighbor_kernels import cell_grid, near_class_counts
+    from sgloc.maps.prepared_graph import PreparedGraph
 
     rng = np.random.default_rng(3)
     g = SemanticGraph(rng.uniform(-50, 50, (2000, 3)), rng.integers(0, 4, 2000))
@@ -335,10 +335,11 @@ def test_grid_kept_by_a_prepared_graph():
 
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
 def test_yaw_runner_up_equals_reference(monkeypatch, seed):
-    """The compiled 4-dof runner-up search (`sgloc.kernels.runner_up`) finds the alternative
+    """The compiled 4-dof runner-up search (`sgloc.acceptance.runner_up_kernels`) finds the
+    alternative
     the numpy branch finds: the same inlier count and transform (to rounding)."""
     from sgloc.acceptance import AcceptanceConfig, pair_consistency, runner_up
-    from sgloc.consistency import ConsistentPairs
+    from sgloc.consistency.pairwise import ConsistentPairs
     from sgloc.estimation import rot_z
     from sgloc.geometry import apply, make_transform
 
@@ -375,7 +376,7 @@ def test_compiled_top_k_one_tile_and_tiled_classes_equal_reference(monkeypatch, 
     tile by tile) keep the reference's candidates, flags and similarities."""
     dq, dt, lq, lt = _descriptor_pair(5, n_q, n_t)
     sizes = np.unique(lt, return_counts=True)[1]
-    assert (sizes.min() > 256) == (n_t == 900)  # a tile: 256 targets (sgloc.kernels.matching)
+    assert (sizes.min() > 256) == (n_t == 900)  # a tile: 256 targets (sgloc.matching.kernels)
     cfg = MatchingConfig(min_similarity=0.1, top_k=2)
     out = {}
     for path in ("reference", "compiled"):
@@ -392,7 +393,7 @@ def _walk_graph(kind: str) -> tuple[SemanticGraph, int]:
     """(graph, n_classes) for the random-walk kernel tests."""
     rng = np.random.default_rng(len(kind))
     if kind == "airsim":
-        from sgloc.downloads import airsim_guo
+        from sgloc.datasets.downloads import airsim_guo
 
         return airsim_guo()[0], 11
     if kind == "isolated":  # a cluster plus far-apart vertices without neighbours

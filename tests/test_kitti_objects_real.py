@@ -17,7 +17,7 @@ from sgloc.extraction import (
     extraction_preset,
 )
 from sgloc.geometry import transform_error
-from sgloc.presets import localizer_preset
+from sgloc.pipeline.presets import localizer_preset
 
 A_SCANS, B_SCANS = (0, 800), (3900, 4540)
 

@@ -11,17 +11,17 @@ import numpy as np
 import pytest
 
 from sgloc import SemanticGraph, kernels, localize
-from sgloc.consistency import ALL_PAIRS_LIMIT, consistency_bits
-from sgloc.geometry import random_rigid_transform, transform_error
-from sgloc.local_consistency import (
+from sgloc.consistency.local import (
     CellGrid,
     local_counts,
     local_counts_reference,
     prune_local,
     prune_local_reference,
 )
+from sgloc.consistency.pairwise import ALL_PAIRS_LIMIT, consistency_bits
+from sgloc.consistency.sampled import SampledConsistency, distance_consistent
+from sgloc.geometry import random_rigid_transform, transform_error
 from sgloc.rejection import NeighborRejector
-from sgloc.sampled_consistency import SampledConsistency, distance_consistent
 from sgloc.sim.correspondences import make_correspondences
 from sgloc.sim.object_world import make_two_robot_scene
 from sgloc.validation import MAX_VERTICES, InvalidSettingError
@@ -101,8 +101,8 @@ def test_auto_scope_is_all_pairs_up_to_the_limit():
 
 
 def test_paper_preset_keeps_all_pairs():
-    from sgloc.config import LocalizerConfig
-    from sgloc.presets import localizer_settings
+    from sgloc.pipeline.config import LocalizerConfig
+    from sgloc.pipeline.presets import localizer_settings
 
     cfg = LocalizerConfig().with_overrides(**localizer_settings("paper"))
     assert cfg.rejector_config.scope == "all"
@@ -250,7 +250,7 @@ def test_hundred_thousand_candidates_in_bounded_memory():
 def test_dense_distances_refused_for_large_graphs():
     """The n x n distance matrix is for small graphs only: a clear error instead of 80 GB."""
     from sgloc.errors import InvalidGraphError
-    from sgloc.graph import DENSE_LIMIT
+    from sgloc.maps.graph import DENSE_LIMIT
 
     g = SemanticGraph(np.zeros((DENSE_LIMIT + 1, 3)), np.zeros(DENSE_LIMIT + 1, int), name="city")
     with pytest.raises(InvalidGraphError, match="city.*cKDTree"):
@@ -294,8 +294,8 @@ def test_a_long_thin_map_is_not_a_line():
     keeps the maps' relative tilt (by the length ratio alone it counted as collinear, fell back
     to the yaw-only fit and missed the 1 deg tilt by kilometres at the map's far end)."""
     from sgloc.estimation import check_not_degenerate, fit_rigid
+    from sgloc.estimation.fit_kernels import collinear
     from sgloc.geometry import make_transform
-    from sgloc.kernels.fit import collinear
 
     rng = np.random.default_rng(2)
     n = 20_000

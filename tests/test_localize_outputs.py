@@ -9,9 +9,9 @@ import pytest
 import yaml
 
 from sgloc.cli import main
-from sgloc.config import LocalizerConfig
 from sgloc.geometry import transform_error
 from sgloc.io.poses import read_kitti_poses, read_tum_poses
+from sgloc.pipeline.config import LocalizerConfig
 
 
 def test_example_out_folder_holds_every_form_of_one_transform(tmp_path, capsys):

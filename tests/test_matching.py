@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from sgloc.matching import MatchingConfig, cosine_similarity, match_descriptors
+from sgloc.matching.candidates import MatchingConfig, cosine_similarity, match_descriptors
 
 
 def test_cosine_similarity_same_class_only():

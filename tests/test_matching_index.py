@@ -1,4 +1,4 @@
-"""The sub-quadratic candidate search (sgloc.matching_index): exact where it probes the whole
+"""The sub-quadratic candidate search (sgloc.matching.index): exact where it probes the whole
 class, a measured recall on a realistic map otherwise, the auto rule, and a prepared map's
 index kept right by add / save / load."""
 
@@ -9,10 +9,10 @@ import pytest
 
 import sgloc
 from sgloc import LocalizerConfig, PreparedMap, SemanticGraph, localize
-from sgloc import matching_index as mi
 from sgloc.errors import SglocError
-from sgloc.matching import MatchingConfig, match_flagged
-from sgloc.presets import localizer_preset
+from sgloc.matching import index as mi
+from sgloc.matching.candidates import MatchingConfig, match_flagged
+from sgloc.pipeline.presets import localizer_preset
 from sgloc.sim.object_world import make_two_robot_scene
 
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from sgloc.covariance import point_covariance
 from sgloc.estimation import MotionModel
+from sgloc.estimation.covariance import point_covariance
 from sgloc.evaluation.fleet_scenes import world_fleet
 from sgloc.geometry import apply, invert, make_transform, rotation_angle_deg
 from sgloc.online import OnlineConfig, OnlineSession

@@ -7,8 +7,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from sgloc import SemanticGraph, localize
-from sgloc.canonical import CanonicalPair, canonical_order
-from sgloc.config import LocalizerConfig
+from sgloc.maps.canonical import CanonicalPair, canonical_order
+from sgloc.pipeline.config import LocalizerConfig
 
 
 def as_set(pairs, q_index=None, t_index=None):

@@ -187,8 +187,8 @@ def test_an_output_bag_follows_the_same_rule_as_out(proj, capsys):
 
 
 def test_library_writers_follow_the_rule(proj):
-    from sgloc.fleet import localize_fleet
-    from sgloc.graph import SemanticGraph
+    from sgloc.maps.graph import SemanticGraph
+    from sgloc.online.fleet import localize_fleet
 
     graphs = [SemanticGraph.load(proj / "maps" / f) for f in ("B.json", "A.json")]
     with pytest.raises(OutputPathError, match="working folder"):
@@ -342,7 +342,7 @@ def test_a_scheduler_that_is_not_dask_is_one_line_within_seconds(proj, kind, cap
 
 def test_a_real_dask_scheduler_passes_the_check():
     distributed = pytest.importorskip("distributed")
-    from sgloc.tasks import check_scheduler
+    from sgloc.runtime.tasks import check_scheduler
 
     with distributed.LocalCluster(n_workers=0, processes=False, host="127.0.0.1",
                                   scheduler_kwargs={"protocol": "tcp"}) as cluster:

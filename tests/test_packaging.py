@@ -13,7 +13,7 @@ from sgloc.errors import SglocError
 
 
 def test_localize_fleet_is_top_level():
-    from sgloc.fleet import localize_fleet
+    from sgloc.online.fleet import localize_fleet
 
     assert sgloc.localize_fleet is localize_fleet
 
@@ -38,7 +38,7 @@ def test_failed_experiment_leaves_no_folder(tmp_path, capsys):
 
 
 def test_caches_go_to_the_cache_folder(monkeypatch, tmp_path):
-    from sgloc.downloads import cache_dir
+    from sgloc.datasets.downloads import cache_dir
     from sgloc.evaluation.pairs_sim import evaluation_cache_dir
 
     monkeypatch.setenv("SGLOC_CACHE", str(tmp_path / "c"))

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from sgloc.evaluation import plots
-from sgloc.viz import MATCH_COLOUR, plot_aligned_maps
+from sgloc.io.pictures import MATCH_COLOUR, plot_aligned_maps
 
 
 @pytest.fixture

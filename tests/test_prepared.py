@@ -10,10 +10,10 @@ import pytest
 
 import sgloc
 from sgloc import Localizer, LocalizerConfig, PreparedMap, SemanticGraph, kernels, localize
+from sgloc.datasets.downloads import airsim_guo
 from sgloc.descriptors import DistanceHistogramDescriptor
-from sgloc.downloads import airsim_guo
-from sgloc.matching import BLOCKS_MIN_OBJECTS
-from sgloc.prepared import PreparedMapError
+from sgloc.matching.candidates import BLOCKS_MIN_OBJECTS
+from sgloc.pipeline.prepared import PreparedMapError
 from sgloc.sim.object_world import make_two_robot_scene
 
 
@@ -128,7 +128,7 @@ def test_prepared_map_keeps_the_chance_grid(street, tmp_path):
     """Preparing builds the acceptance test's neighbour grid at the config's radius; queries
     use that one (nothing over the whole map per query); add and load build the grown or
     loaded map's."""
-    from sgloc.kernels.neighbors import cell_grid
+    from sgloc.maps.neighbor_kernels import cell_grid
 
     prepared = sgloc.prepare(SemanticGraph(street.positions[:-30], street.labels[:-30]))
     cfg = prepared.config

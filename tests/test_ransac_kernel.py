@@ -74,8 +74,8 @@ def test_gravity_gated_rigid_model_is_refused():
 
 @pytest.mark.parametrize("max_tilt", [15.0, 2.0, None])
 def test_compiled_ground_fits_equal_numpy(max_tilt):
+    from sgloc.estimation import fit_kernels as fit
     from sgloc.estimation import fit_rigid, irls_refine
-    from sgloc.kernels import fit
 
     for seed in range(8):
         src, dst = ground_matches(60, 0.2, seed, tilt_deg=[0.0, 4.0][seed % 2])

@@ -7,7 +7,7 @@ import pytest
 
 import sgloc
 from sgloc import kernels
-from sgloc.consistency import consistency_bool
+from sgloc.consistency.pairwise import consistency_bool
 from sgloc.errors import SglocError, UnknownNameError
 from sgloc.estimation import (
     RansacConfig,
@@ -17,8 +17,8 @@ from sgloc.estimation import (
     ransac_reference,
     weighted_kabsch,
 )
+from sgloc.estimation import fit_kernels as fit
 from sgloc.geometry import transform_error
-from sgloc.kernels import fit
 from sgloc.rejection.neighbor import prune_by_support_reference
 from sgloc.sim.correspondences import make_correspondences
 
@@ -143,7 +143,8 @@ def test_import_sgloc_stays_light():
     import subprocess
     import sys
 
-    code = ("import sys, sgloc; heavy = [m for m in ('numba', 'sgloc.kernels.consistency', "
+    code = ("import sys, sgloc; heavy = [m for m in ('numba', "
+            "'sgloc.consistency.pairwise_kernels', "
             "'scipy.stats', 'matplotlib', 'dask') if m in sys.modules]; print(heavy)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
@@ -153,8 +154,8 @@ def test_covariance_is_computed_when_asked_and_settings_are_reused():
     """A registration loop pays neither for a covariance it never reads nor for re-checking
     the same settings; the covariance is the one `transform_covariance` gives."""
     from sgloc import register
-    from sgloc.covariance import transform_covariance
-    from sgloc.registration import settings_cache_info
+    from sgloc.estimation.covariance import transform_covariance
+    from sgloc.pipeline.registration import settings_cache_info
 
     rng = np.random.default_rng(3)
     src = rng.uniform(-50, 50, (200, 3))

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
 
-from sgloc import consistency as pairwise
+from sgloc.consistency import pairwise
 from sgloc.rejection import NeighborRejector, consistency_matrix, prune_by_support
 from sgloc.rejection.clique import core_numbers, exact_clique
 from sgloc.rejection.spectral import leading_eigenvector

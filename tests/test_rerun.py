@@ -22,7 +22,7 @@ def test_recording_holds_both_maps_the_transform_and_the_matches(tmp_path, capsy
     pytest.importorskip("rerun", reason="optional: pip install 'sgloc[rerun]'")
     from rerun.chunk import RrdReader
 
-    from sgloc.downloads import airsim_guo
+    from sgloc.datasets.downloads import airsim_guo
 
     out = tmp_path / "res"
     path = tmp_path / "loc.rrd"

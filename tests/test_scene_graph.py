@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sgloc import SemanticGraph, localize
-from sgloc.downloads import airsim_guo
+from sgloc.datasets.downloads import airsim_guo
 from sgloc.errors import GraphFileError
 
 dsg = pytest.importorskip("spark_dsg", reason="the extra sgloc[dsg] (spark-dsg) is not installed")

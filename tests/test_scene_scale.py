@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from sgloc import localize
-from sgloc.config import LocalizerConfig
 from sgloc.errors import SglocError
 from sgloc.geometry import transform_error
-from sgloc.presets import localizer_preset
-from sgloc.scale import SCENES, STREET_UNIT, edge_radius, scene_hint
+from sgloc.maps.scale import SCENES, STREET_UNIT, edge_radius, scene_hint
+from sgloc.pipeline.config import LocalizerConfig
+from sgloc.pipeline.presets import localizer_preset
 from sgloc.sim.forest import forest_pair
 from sgloc.sim.rooms import room_pair
 
@@ -94,7 +94,7 @@ def test_forest_preset_localizes_a_one_class_pair():
 
 def test_no_hint_for_street_spacing():
     rng = np.random.default_rng(0)
-    from sgloc.graph import SemanticGraph
+    from sgloc.maps.graph import SemanticGraph
 
     street = SemanticGraph(rng.uniform(0, 300, (200, 3)) * [1, 1, 0.01], rng.integers(0, 4, 200))
     assert scene_hint(street, street, STREET_UNIT) == ""

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from sgloc import kernels, localize
-from sgloc.consistency import ConsistentPairs, common_partner_count, consistency_bits
+from sgloc.consistency.pairwise import ConsistentPairs, common_partner_count, consistency_bits
 
 
 def test_rule(monkeypatch):

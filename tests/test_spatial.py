@@ -1,10 +1,10 @@
-"""sgloc.spatial.ClassKDTree: the nearest same-class point, never one of another class."""
+"""sgloc.maps.spatial.ClassKDTree: the nearest same-class point, never one of another class."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from sgloc.spatial import ClassKDTree
+from sgloc.maps.spatial import ClassKDTree
 
 
 def _brute(points, labels, tpos, tlab, scale, upper):

@@ -1,4 +1,4 @@
-"""sgloc.tasks.run_all, the one task runner: results in task order, progress ticks, in this
+"""sgloc.runtime.tasks.run_all, the one task runner: results in task order, progress ticks, in this
 process for 0 or 1 workers, on worker processes otherwise."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import os
 import pytest
 
 from sgloc.errors import SglocError
-from sgloc.tasks import run_all
+from sgloc.runtime.tasks import run_all
 
 
 def _square_and_pid(x: int) -> tuple[int, int]:

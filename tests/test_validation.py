@@ -8,10 +8,10 @@ import pytest
 
 from sgloc import SemanticGraph, localize
 from sgloc.acceptance import AcceptanceConfig
-from sgloc.config import LocalizerConfig
 from sgloc.errors import InvalidGraphError, SglocError, UnknownNameError
 from sgloc.estimation import RansacConfig
-from sgloc.matching import MatchingConfig
+from sgloc.matching.candidates import MatchingConfig
+from sgloc.pipeline.config import LocalizerConfig
 from sgloc.rejection import make_rejector
 from sgloc.validation import MAX_VERTICES, InvalidSettingError
 
@@ -129,10 +129,10 @@ def test_vertex_limit_is_a_clear_error():
 
 def _stage_configs() -> list[type]:
     from sgloc.acceptance import AcceptanceConfig, EvidenceConfig, VerificationConfig
-    from sgloc.covariance import CovarianceInflation
     from sgloc.descriptors import DESCRIPTORS
     from sgloc.estimation import RansacConfig
-    from sgloc.matching import MatchingConfig
+    from sgloc.estimation.covariance import CovarianceInflation
+    from sgloc.matching.candidates import MatchingConfig
     from sgloc.online import OnlineConfig
     from sgloc.online.config import OdometryNoise
     from sgloc.rejection import REJECTORS

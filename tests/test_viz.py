@@ -7,8 +7,8 @@ import itertools
 import numpy as np
 from matplotlib.colors import to_rgb
 
-from sgloc.classes import AIRSIM_COLORS
-from sgloc.viz import CLASS_PALETTE, plot_aligned_maps
+from sgloc.io.pictures import CLASS_PALETTE, plot_aligned_maps
+from sgloc.maps.classes import AIRSIM_COLORS
 
 
 def _lab(rgb: np.ndarray) -> np.ndarray:

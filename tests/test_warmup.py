@@ -14,7 +14,7 @@ from sgloc.cli import main
 #: Compiles one small kernel (the pruning of neighbor rejection) and nothing else.
 _ONE_KERNEL = """
 import numpy as np
-from sgloc.kernels.prune import prune_bits
+from sgloc.rejection.prune_kernels import prune_bits
 print(prune_bits(np.zeros((3, 1), np.uint64), np.zeros(3, np.int64), 0.5).tolist())
 """
 

@@ -14,10 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sgloc.config import LocalizerConfig
 from sgloc.estimation import weighted_kabsch
 from sgloc.geometry import make_transform
-from sgloc.registration import register
+from sgloc.pipeline.config import LocalizerConfig
+from sgloc.pipeline.registration import register
 
 Solver = Callable[[np.ndarray, np.ndarray, float, float, np.random.Generator], np.ndarray | None]
 

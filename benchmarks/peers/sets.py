@@ -19,11 +19,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sgloc.datasets.downloads import data_path
 from sgloc.descriptors import make_descriptor
-from sgloc.downloads import data_path
 from sgloc.geometry import apply, random_rigid_transform
-from sgloc.graph import SemanticGraph
-from sgloc.matching import MatchingConfig, match_descriptors
+from sgloc.maps.graph import SemanticGraph
+from sgloc.matching.candidates import MatchingConfig, match_descriptors
 from sgloc.sim.correspondences import make_correspondences
 
 
@@ -113,7 +113,7 @@ def kitti_sets(seeds: int) -> Iterator[BenchSet]:
         build_graph,
         extraction_preset,
     )
-    from sgloc.presets import localizer_preset
+    from sgloc.pipeline.presets import localizer_preset
 
     root = data_path("kitti00")
     a = make_dataset("kitti_objects", root, scans="0-800", start_frame=True)

@@ -9,12 +9,12 @@ reg = register(src, dst, rejection="neighbor", noise_bound=2.5)  # matched point
 reg.transform  # T_dst_src (4x4) or None when reg.success is False
 """
 
-from sgloc.config import LocalizerConfig
 from sgloc.errors import SglocError
-from sgloc.graph import SemanticGraph
-from sgloc.localizer import LocalizationResult, Localizer, NotLocalizedError, localize
-from sgloc.prepared import PreparedMap, prepare
-from sgloc.registration import RegistrationResult, register
+from sgloc.maps.graph import SemanticGraph
+from sgloc.pipeline.config import LocalizerConfig
+from sgloc.pipeline.localizer import LocalizationResult, Localizer, NotLocalizedError, localize
+from sgloc.pipeline.prepared import PreparedMap, prepare
+from sgloc.pipeline.registration import RegistrationResult, register
 
 __version__ = "0.1.0"
 
@@ -39,7 +39,7 @@ def __getattr__(name: str):
     """`sgloc.localize_fleet`, re-exported beside localize: the fleet layer (online session,
     pose graph) is imported on first use, not by `import sgloc`."""
     if name == "localize_fleet":
-        from sgloc.fleet import localize_fleet
+        from sgloc.online.fleet import localize_fleet
 
         return localize_fleet
     raise AttributeError(f"module 'sgloc' has no attribute {name!r}")

@@ -17,7 +17,8 @@ from sgloc.errors import InvalidGraphError, SglocError
 #: Most objects in one graph (a city's object map). Memory is linear in the objects: the
 #: descriptors are n x L x bins floats per graph (distance_histogram: 16 bins, 1 KB per object
 #: for 8 classes), candidate matching works class by class in blocks, and above
-#: `sgloc.consistency.ALL_PAIRS_LIMIT` candidates rejection checks pairs only within a radius
+#: `sgloc.consistency.pairwise.ALL_PAIRS_LIMIT` candidates rejection checks pairs only within a
+# radius
 #: and acceptance samples pairs; no n x n array is built on the default path. Time is
 #: dominated by the descriptor comparison, which compares every query object with every
 #: target object of its class.

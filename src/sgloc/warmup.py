@@ -40,7 +40,7 @@ def warm_up() -> WarmupReport:
         _registrations()
     finally:
         kernels.FORCE = old
-    loaded = [m for m in kernels.MODULES if f"sgloc.kernels.{m}" in sys.modules]
+    loaded = [m for m in kernels.MODULES if m in sys.modules]
     wall, cpu = kernels.compile_seconds()
     return WarmupReport(time.perf_counter() - t0, wall, cpu, kernels.cache_dir(), loaded)
 
@@ -48,7 +48,7 @@ def warm_up() -> WarmupReport:
 def _localizations() -> None:
     """localize with each rejection and motion model, and against a prepared map (grown once)."""
     from sgloc import SemanticGraph, localize, prepare
-    from sgloc.downloads import airsim_guo
+    from sgloc.datasets.downloads import airsim_guo
     from sgloc.rejection import REJECTORS
     from sgloc.sim.object_world import make_two_robot_scene
 

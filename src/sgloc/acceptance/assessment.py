@@ -84,13 +84,13 @@ from sgloc.acceptance.chance import (
 from sgloc.acceptance.config import AcceptanceConfig
 from sgloc.acceptance.repetition import Repetition, check_repetition
 from sgloc.acceptance.rivals import runner_up
-from sgloc.consistency import ALL_PAIRS_LIMIT, ConsistentPairs
+from sgloc.consistency.pairwise import ALL_PAIRS_LIMIT, ConsistentPairs
+from sgloc.consistency.sampled import SampledConsistency
 from sgloc.estimation import ANY_RIGID, MotionModel
 from sgloc.geometry import apply
-from sgloc.graph import SemanticGraph
 from sgloc.kernels import use_compiled
-from sgloc.prepared_graph import PreparedGraph
-from sgloc.sampled_consistency import SampledConsistency
+from sgloc.maps.graph import SemanticGraph
+from sgloc.maps.prepared_graph import PreparedGraph
 
 #: With dof=4, inliers must extend this many times `min_spread` along their first xy axis
 #: (measured: at 1 x, clusters of a few exact coincidences in the rendered city's regular
@@ -120,7 +120,7 @@ def inlier_spread(points: np.ndarray, dof: int = 6) -> float:
     if len(points) < 3:
         return 0.0
     if dof == 4 and use_compiled(len(points)):  # closed form (equal to rounding)
-        from sgloc.kernels.evidence import xy_axis
+        from sgloc.acceptance.evidence_kernels import xy_axis
 
         return float(xy_axis(np.ascontiguousarray(points, dtype=np.float64))[4]
                      / np.sqrt(len(points)))  # fmt: skip
@@ -142,7 +142,7 @@ def squared_residuals_of(T: np.ndarray, src: np.ndarray, dst: np.ndarray) -> np.
     one pass, or in numpy (the reference; equal to rounding)."""
     if not use_compiled(len(src)):
         return np.sum((apply(T, src) - dst) ** 2, axis=1)
-    from sgloc.kernels.evidence import moved_residuals
+    from sgloc.acceptance.evidence_kernels import moved_residuals
 
     return moved_residuals(np.ascontiguousarray(T, dtype=np.float64), src, dst)
 
@@ -185,7 +185,7 @@ class _Tests:
     @classmethod
     def of(cls, c: _Candidates, radius: float, dof: int, rng: np.random.Generator) -> _Tests:
         """Up to ALL_PAIRS_LIMIT candidates from all pairs; above, estimated from a sample of
-        pairs (`sgloc.sampled_consistency`: memory linear in the candidates)."""
+        pairs (`sgloc.consistency.sampled`: memory linear in the candidates)."""
         m = len(c.cand)
         if m > ALL_PAIRS_LIMIT:
             sampled = SampledConsistency(c.src, c.dst, 2.0 * radius, rng)

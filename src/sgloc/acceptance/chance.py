@@ -13,10 +13,10 @@ from functools import cached_property
 
 import numpy as np
 
-from sgloc.consistency import ConsistentPairs, common_partner_count, consistency_bits
-from sgloc.graph import SemanticGraph
+from sgloc.consistency.pairwise import ConsistentPairs, common_partner_count, consistency_bits
 from sgloc.kernels import use_compiled
-from sgloc.prepared_graph import PreparedGraph
+from sgloc.maps.graph import SemanticGraph
+from sgloc.maps.prepared_graph import PreparedGraph
 
 _LN10 = np.log(10.0)
 _TRIANGLE_EDGES = 2048
@@ -77,7 +77,7 @@ class ChanceModel:
         class-c target objects within the radius (distance <= radius) of each point of `moved`
         (n,3)."""
         if self.compiled and len(weights) <= 2 and weights[0] is None:
-            from sgloc.kernels.neighbors import near_class_counts
+            from sgloc.maps.neighbor_kernels import near_class_counts
 
             w = weights[1] if len(weights) == 2 else None
             counts, summed = near_class_counts(
@@ -101,7 +101,7 @@ class ChanceModel:
         if not self.compiled:
             usage = np.bincount(targets, minlength=len(self.labels)).astype(np.float64)
             return self.near_counts_reference(moved, (usage,))[0]
-        from sgloc.kernels.neighbors import near_class_counts
+        from sgloc.maps.neighbor_kernels import near_class_counts
 
         return near_class_counts(
             np.ascontiguousarray(moved, dtype=np.float64),
@@ -232,7 +232,7 @@ def chance_terms(
     and mean (the query's classes `labels`; `counts`, `used`: `near_counts_and_targets`).
     Compiled in one pass (sums in candidate order), or in numpy (the reference)."""
     if use_compiled(len(qi)):
-        from sgloc.kernels.evidence import chance_sums
+        from sgloc.acceptance.evidence_kernels import chance_sums
 
         k, lam, lam_p, C, mu = chance_sums(qi, tlab, inlier, counts, used, chance.class_count,
                                            labels)  # fmt: skip
@@ -307,7 +307,7 @@ def object_nfa_over_radii(
     if not use_compiled(len(res2)):
         return nfa_over_radii_each(per_object_min(res2[rows], qi[rows]), radius, lams, m,
                                    n_tests, sample)  # fmt: skip
-    from sgloc.kernels.evidence import object_fits
+    from sgloc.acceptance.evidence_kernels import object_fits
 
     limits = np.array([(f * radius) ** 2 for f in RADIUS_FRACTIONS])
     k, top = object_fits(res2, qi, rows, n_objects, limits)
@@ -343,7 +343,7 @@ def _nfa_of_fits(
 
 
 def pair_consistency(src: np.ndarray, dst: np.ndarray, radius: float) -> tuple[np.ndarray, ...]:
-    """Bit-packed rows and degrees (`sgloc.consistency.consistency_bits`) of the pairs of
+    """Bit-packed rows and degrees (`sgloc.consistency.pairwise.consistency_bits`) of the pairs of
     candidates (src, dst (m,3)) whose distances agree within 2 * radius in both graphs (no
     diagonal): the pairs that can both be inliers of one transform."""
     return consistency_bits(src, dst, 2.0 * radius, "distance")

@@ -19,9 +19,9 @@ import dataclasses
 import numpy as np
 
 from sgloc.acceptance.config import EvidenceConfig
-from sgloc.graph import SemanticGraph
-from sgloc.matching import BLOCK_ENTRIES, MatchingConfig, match_descriptors, unit_rows
-from sgloc.prepared_graph import PreparedGraph
+from sgloc.maps.graph import SemanticGraph
+from sgloc.maps.prepared_graph import PreparedGraph
+from sgloc.matching.candidates import BLOCK_ENTRIES, MatchingConfig, match_descriptors, unit_rows
 
 
 def spatially_distinctive(
@@ -76,7 +76,8 @@ def select_evidence(
     """The candidates (m,2) (query index, target index) that count as evidence for a query of
     this size: all of them when its ratio (`config.ratio_for`) is None; else those passing the
     ratio test against rivals farther than `config.exclusion_for` metres when that is > 0
-    (`spatially_distinctive`), else those `flags` marks (`sgloc.matching.match_flagged` at that
+    (`spatially_distinctive`), else those `flags` marks (`sgloc.matching.candidates.match_flagged`
+    at that
     ratio); without flags, the candidates of `matching` with `max_ratio` at that ratio.
     desc_q, desc_t: the graphs' vertex descriptors (dense or CSR); prepared: the target's
     `PreparedGraph` (of desc_t) for that matching, or None."""

@@ -13,9 +13,9 @@ import numpy as np
 
 from sgloc.acceptance.chance import ChanceModel
 from sgloc.geometry import apply
-from sgloc.graph import SemanticGraph
 from sgloc.kernels import use_compiled
-from sgloc.prepared_graph import PreparedGraph
+from sgloc.maps.graph import SemanticGraph
+from sgloc.maps.prepared_graph import PreparedGraph
 
 #: The reflected query must land this fraction of the query's objects more than the
 #: alignment does (on Guo's Airsim maps, crops of 4-120 objects: true pairs land 14 % or more
@@ -37,7 +37,7 @@ def reflect_across_line(points: np.ndarray, on_line: np.ndarray) -> np.ndarray:
     """`points` (n,3) reflected across the vertical plane through the xy principal line of
     `on_line` (k,3), in the same frame."""
     if use_compiled(len(on_line)):  # the principal axis in closed form (equal to rounding)
-        from sgloc.kernels.evidence import reflect_xy
+        from sgloc.acceptance.evidence_kernels import reflect_xy
 
         return reflect_xy(*(np.ascontiguousarray(p, dtype=np.float64) for p in (points, on_line)))
     xy = on_line[:, :2]

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sgloc.acceptance.chance import ChanceModel, colocation_tail
-from sgloc.graph import SemanticGraph
+from sgloc.maps.graph import SemanticGraph
 
 #: At most this many anchors vote for the shifts (evenly spaced among the inliers' targets).
 MAX_ANCHORS = 32

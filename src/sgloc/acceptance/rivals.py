@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from sgloc.acceptance.config import AcceptanceConfig
-from sgloc.consistency import ConsistentPairs, unpack_rows
+from sgloc.consistency.pairwise import ConsistentPairs, unpack_rows
+from sgloc.consistency.sampled import SampledConsistency
 from sgloc.estimation import (
     non_collinear,
     rigid_from_triplets,
@@ -20,7 +21,6 @@ from sgloc.estimation import (
     yaw_from_pairs,
 )
 from sgloc.kernels import use_compiled
-from sgloc.sampled_consistency import SampledConsistency
 
 
 def distinct_from(
@@ -97,9 +97,10 @@ def _compiled_yaw_runner_up(
     src, dst, T, exclude, i, j, radius, cfg
 ) -> tuple[int, np.ndarray | None]:
     """`runner_up`'s dof=4 branch from the drawn pairs (i, j) on, in one compiled pass
-    (`sgloc.kernels.runner_up`): the same alternative, its residuals and the centre of T's
+    (`sgloc.acceptance.runner_up_kernels`): the same alternative, its residuals and the centre of
+    T's
     support equal to rounding."""
-    from sgloc.kernels.runner_up import best_yaw_alternative
+    from sgloc.acceptance.runner_up_kernels import best_yaw_alternative
 
     count, T2, found = best_yaw_alternative(
         np.ascontiguousarray(src, dtype=np.float64),

@@ -22,9 +22,9 @@ from sgloc.acceptance.evidence import select_evidence
 from sgloc.acceptance.mirror import looks_mirrored
 from sgloc.acceptance.verification import Verification, verify_small_query
 from sgloc.estimation import GROUND_VEHICLE, MotionModel
-from sgloc.graph import SemanticGraph
-from sgloc.matching import MatchingConfig
-from sgloc.prepared_graph import PreparedGraph
+from sgloc.maps.graph import SemanticGraph
+from sgloc.maps.prepared_graph import PreparedGraph
+from sgloc.matching.candidates import MatchingConfig
 
 #: Fewer candidate matches than this fix no transform (a triple).
 MIN_CANDIDATES = 3
@@ -95,7 +95,8 @@ def accept(
         desc_q, desc_t: their vertex descriptors (dense or CSR).
         candidates: (m,2) the descriptor matches (query index, target index) before rejection;
             `distinct_flags` (m,) bool: which pass the evidence's ratio test
-            (`sgloc.matching.match_flagged` at `config.evidence.ratio_for(len(query))`), or None.
+            (`sgloc.matching.candidates.match_flagged` at `config.evidence.ratio_for(len(query))`),
+            or None.
         radius: the RANSAC inlier threshold (metres): the test's radius unless config.radius.
         matching: the matching settings (min_similarity; the ratio re-match without flags).
         motion: the motion model (`sgloc.estimation.MotionModel`) of the estimate.

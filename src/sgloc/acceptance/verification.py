@@ -46,10 +46,10 @@ from sgloc.acceptance.config import AcceptanceConfig
 from sgloc.acceptance.evidence import select_evidence
 from sgloc.acceptance.rivals import distinct_from
 from sgloc.estimation import GROUND_VEHICLE, MotionModel, fit_rigid, yaw_from_pairs
-from sgloc.graph import SemanticGraph
-from sgloc.matching import MatchingConfig, match_descriptors, match_flagged
-from sgloc.prepared_graph import PreparedGraph
-from sgloc.spatial import ClassKDTree
+from sgloc.maps.graph import SemanticGraph
+from sgloc.maps.prepared_graph import PreparedGraph
+from sgloc.maps.spatial import ClassKDTree
+from sgloc.matching.candidates import MatchingConfig, match_descriptors, match_flagged
 
 #: Rounds of nearest-neighbour re-association and refit of the best hypothesis.
 REFINE_ROUNDS = 3
@@ -85,7 +85,7 @@ class Verification:
 
 class ClassTree(ClassKDTree):
     """Nearest same-class target object of many points at once, within `radius` (metres),
-    heights scaled by Z_SCALE (`sgloc.spatial.ClassKDTree` over the target's objects)."""
+    heights scaled by Z_SCALE (`sgloc.maps.spatial.ClassKDTree` over the target's objects)."""
 
     def __init__(self, target: SemanticGraph, radius: float) -> None:
         super().__init__(target.positions, target.labels, radius, scale=(1.0, 1.0, Z_SCALE))

@@ -66,7 +66,8 @@ def build_graph_cmd(
     max_range: float | None = typer.Option(None, help="Ignore detections farther (m)."),
     edge_radius: float | None = typer.Option(None, help="Graph edge radius (m)."),
     preset: str | None = typer.Option(
-        None, help="Extraction preset (sgloc.presets; default: the one named like DATASET)."
+        None,
+        help="Extraction preset (sgloc.pipeline.presets; default: the one named like DATASET)."
     ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
@@ -87,7 +88,7 @@ def build_graph_cmd(
         "max_range": max_range,
         "edge_radius": edge_radius,
     }
-    from sgloc.presets import EXTRACTION_PRESETS
+    from sgloc.pipeline.presets import EXTRACTION_PRESETS
 
     if preset is not None and EXTRACTION_PRESETS.find(preset) is None:
         raise fail(EXTRACTION_PRESETS.unknown_message(preset))

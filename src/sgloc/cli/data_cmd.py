@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from sgloc.cli.app import app
-from sgloc.downloads import (
+from sgloc.datasets.downloads import (
     DATASETS,
     dataset,
     fetch,
@@ -70,6 +70,6 @@ def path_cmd(name: str = typer.Argument(..., help=f"Data set: {' | '.join(DATASE
 
     Example: sgloc data path airsim_guo
     """
-    from sgloc.downloads import dataset_dir
+    from sgloc.datasets.downloads import dataset_dir
 
     typer.echo(str(dataset_dir(name)))

@@ -30,9 +30,9 @@ from rich.table import Table
 from sgloc.cli.app import app, compile_note, fail, not_localized
 from sgloc.cli.outputs import claim_output
 from sgloc.geometry import transform_error
-from sgloc.graph import SemanticGraph
 from sgloc.io.files import is_sgloc_picture, staged_file
-from sgloc.localizer import LocalizationResult, localize
+from sgloc.maps.graph import SemanticGraph
+from sgloc.pipeline.localizer import LocalizationResult, localize
 
 #: Where `sgloc demo` saves its picture unless told otherwise (relative to the current folder).
 DEFAULT_OUT = Path("results") / "demo" / "aligned_maps.png"
@@ -40,7 +40,7 @@ DEFAULT_OUT = Path("results") / "demo" / "aligned_maps.png"
 
 def default_cache_dir() -> Path:
     """$SGLOC_CACHE, else the per-user cache folder (~/.cache/sgloc on Linux)."""
-    from sgloc.downloads import cache_dir
+    from sgloc.datasets.downloads import cache_dir
 
     return cache_dir()
 
@@ -85,7 +85,8 @@ def demo_cmd(
         False, "--objects-only", help="Use the tiny object world (no rendering, instant)."
     ),
     preset: str | None = typer.Option(
-        None, "--preset", help="Named localizer settings (default: city; see sgloc.presets)."
+        None, "--preset",
+        help="Named localizer settings (default: city; see sgloc.pipeline.presets)."
     ),
     setting: list[str] = typer.Option(
         [], "--set", metavar="NAME=VALUE", help="A setting NAME=VALUE (repeatable)."
@@ -106,7 +107,7 @@ def demo_cmd(
         config = localizer_config(preset, None, setting)  # the object world's own: the defaults
         _objects_only(console, seed, overlap, descriptor, rejection, config, out)
         return
-    from sgloc.config import LocalizerConfig
+    from sgloc.pipeline.config import LocalizerConfig
 
     LocalizerConfig().with_overrides(descriptor=descriptor, rejection=rejection)  # fail early
     from sgloc.datasets import make_dataset
@@ -202,9 +203,9 @@ def plot_aligned_maps(
 ) -> Path:
     """Top-down view (x right, y up) of robot A's map and robot B's map placed by
     `T_target_query`, classes coloured, final matches as lines, and the two routes when
-    `run_dir` is given (sgloc.viz.plot_aligned_maps)."""
+    `run_dir` is given (sgloc.io.pictures.plot_aligned_maps)."""
+    from sgloc.io.pictures import plot_aligned_maps as plot
     from sgloc.sim.city import CITY_CLASSES
-    from sgloc.viz import plot_aligned_maps as plot
 
     routes = None
     if run_dir is not None:
@@ -224,8 +225,8 @@ def _objects_only(
     console: Console, seed: int, overlap: float, descriptor: str, rejection: str, config, out: Path
 ) -> None:
     """The demo on the tiny object world: localize, report, draw the picture to `out`."""
+    from sgloc.io.pictures import plot_aligned_maps as plot
     from sgloc.sim import make_two_robot_scene
-    from sgloc.viz import plot_aligned_maps as plot
 
     scene = make_two_robot_scene(seed=seed, overlap=overlap)
     console.print(f"robot A (target): {scene.target}\nrobot B (query):  {scene.query}")

@@ -21,9 +21,9 @@ from sgloc.cli.options import (
     set_option,
 )
 from sgloc.cli.outputs import claim_output
-from sgloc.fleet import FleetConfig, localize_fleet
 from sgloc.io.inputs import check_reader_options
 from sgloc.io.names import robot_names
+from sgloc.online.fleet import FleetConfig, localize_fleet
 
 
 @app.command("fleet")

@@ -31,7 +31,7 @@ from sgloc.io.results import (
     render,
     write_results,
 )
-from sgloc.localizer import Localizer
+from sgloc.pipeline.localizer import Localizer
 
 
 @app.command("localize")
@@ -92,7 +92,7 @@ def localize_cmd(
     if example:
         if query is not None or target is not None:
             ctx.fail("give either two graph files (QUERY TARGET) or --example, not both.")
-        from sgloc.downloads import airsim_guo_paths
+        from sgloc.datasets.downloads import airsim_guo_paths
 
         query, target = airsim_guo_paths()
     elif query is None or target is None:
@@ -182,7 +182,7 @@ def _class_names(class_table: Path | None, colour_table: Path | None) -> list[st
 
 
 def _picture(path: Path, q, t, res, example: bool, names: list[str] | None = None) -> Path:
-    from sgloc.viz import plot_aligned_maps
+    from sgloc.io.pictures import plot_aligned_maps
 
     if res.success:
         conf = "" if res.confidence is None else f", confidence {res.confidence:.3f}"

@@ -8,13 +8,13 @@ from typing import Any
 
 import typer
 
-from sgloc.config import LocalizerConfig
 from sgloc.errors import SglocError
-from sgloc.graph import SemanticGraph
 from sgloc.io.settings_file import read_settings_data
-from sgloc.presets import LOCALIZER_PRESETS
+from sgloc.maps.graph import SemanticGraph
+from sgloc.pipeline.config import LocalizerConfig
+from sgloc.pipeline.presets import LOCALIZER_PRESETS
 
-PRESET_HELP = f"Named settings: {' | '.join(LOCALIZER_PRESETS)} (see sgloc.presets)."
+PRESET_HELP = f"Named settings: {' | '.join(LOCALIZER_PRESETS)} (see sgloc.pipeline.presets)."
 CONFIG_HELP = "Localizer settings from a YAML file (as written by --out DIR/config.yaml)."
 SET_HELP = "A localizer setting NAME=VALUE (repeatable), e.g. --set tau=3 --set top_k=2."
 LABEL_HELP = "Class column of .ply/.csv/.txt graphs: a field name or a 0-based column index."
@@ -95,7 +95,7 @@ def merged_settings(
 ) -> dict[str, Any]:
     """Flat settings in the order they apply: the YAML file, the preset, every --set, then the
     named options that were given (not None)."""
-    from sgloc.presets import localizer_settings
+    from sgloc.pipeline.presets import localizer_settings
 
     out = read_settings_file(config_file) if config_file else {}
     out |= localizer_settings(preset) if preset else {}

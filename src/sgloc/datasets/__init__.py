@@ -1,6 +1,6 @@
 """Dataset loaders, one per file, and a factory by name (as KISS-ICP does).
 
-from sgloc.downloads import dataset_dir
+from sgloc.datasets.downloads import dataset_dir
 ds = make_dataset("kitti_objects", dataset_dir("kitti00"), scans="0-800", start_frame=True)
 for frame in ds:  # frames are read lazily
     ...

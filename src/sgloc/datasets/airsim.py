@@ -6,7 +6,7 @@ One folder per robot:
     intrinsics.txt                  optional, one line `fx fy cx cy [width height]`;
                                     absent = Guo's 1024x576, fx = fy = 512, cx = 512, cy = 288
     depth/depth_{i}.png             8-bit planar depth, metres = px / 255 * 100
-    segmentation/segmentation_{i}.png   RGB; class k = sgloc.classes.AIRSIM_COLORS[k],
+    segmentation/segmentation_{i}.png   RGB; class k = sgloc.maps.classes.AIRSIM_COLORS[k],
                                     any other colour = no class (-1)
 The optical frame (x right, y down, z forward) is the body frame with axes reordered: an
 optical point (X, Y, Z) is (Z, X, Y) in the body frame.
@@ -19,7 +19,6 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from sgloc.classes import AIRSIM_COLORS, colors_to_labels
 from sgloc.datasets.base import (
     Dataset,
     Frame,
@@ -29,6 +28,7 @@ from sgloc.datasets.base import (
 )
 from sgloc.errors import DatasetError
 from sgloc.io.text import read_numbers, read_text_file
+from sgloc.maps.classes import AIRSIM_COLORS, colors_to_labels
 
 #: Columns of R_body_optical are the optical axes in body coordinates.
 R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])

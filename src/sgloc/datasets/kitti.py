@@ -18,12 +18,12 @@ from pathlib import Path
 
 import numpy as np
 
-from sgloc.classes import colors_to_labels
 from sgloc.datasets.base import Dataset, Frame, parse_range, read_image
 from sgloc.errors import DatasetError
 from sgloc.geometry import invert
 from sgloc.io.poses import read_kitti_poses
 from sgloc.io.text import read_text_file
+from sgloc.maps.classes import colors_to_labels
 
 
 def read_kitti_calib(path: Path) -> dict[str, np.ndarray]:

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 
-from sgloc.graph import SemanticGraph
+from sgloc.maps.graph import SemanticGraph
 from sgloc.validation import validate_settings
 
 DescriptorMatrix = np.ndarray | sparse.csr_array

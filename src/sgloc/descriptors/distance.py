@@ -8,11 +8,11 @@ import numpy as np
 from scipy import sparse
 
 from sgloc.descriptors.base import Descriptor
-from sgloc.graph import SemanticGraph
 from sgloc.kernels import use_compiled
+from sgloc.maps.graph import SemanticGraph
 from sgloc.validation import MAX_COORDINATE, integer, real, setting
 
-#: Descriptor weights are multiples of this (`sgloc.kernels.neighbors.WEIGHT_QUANTUM`).
+#: Descriptor weights are multiples of this (`sgloc.maps.neighbor_kernels.WEIGHT_QUANTUM`).
 WEIGHT_QUANTUM = 2.0**-24
 
 def neighbour_pairs(positions: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
@@ -65,7 +65,7 @@ class DistanceHistogramDescriptor(Descriptor):
 
     def __call__(self, graph: SemanticGraph, n_classes: int, rng: np.random.Generator):
         # Deterministic (rng unused): a map described once is kept by the caller (a prepared
-        # map, `sgloc.prepared`). Read-only, as the rows a prepared map holds.
+        # map, `sgloc.pipeline.prepared`). Read-only, as the rows a prepared map holds.
         H = self.rows(graph.positions, graph.labels, n_classes)
         H.flags.writeable = False
         return H
@@ -83,7 +83,7 @@ class DistanceHistogramDescriptor(Descriptor):
         every = rows is None
         rows = np.arange(len(positions)) if every else np.asarray(rows, dtype=np.int64)
         if use_compiled(len(positions)):
-            from sgloc.kernels.neighbors import distance_histograms
+            from sgloc.maps.neighbor_kernels import distance_histograms
 
             positions = np.ascontiguousarray(positions, dtype=np.float64)
             return distance_histograms(

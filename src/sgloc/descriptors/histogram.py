@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sgloc.descriptors.base import Descriptor, one_hot
-from sgloc.graph import SemanticGraph
+from sgloc.maps.graph import SemanticGraph
 
 
 @dataclass

@@ -8,8 +8,8 @@ import numpy as np
 from scipy import sparse
 
 from sgloc.descriptors.base import Descriptor
-from sgloc.graph import SemanticGraph
 from sgloc.kernels import use_compiled
+from sgloc.maps.graph import SemanticGraph
 from sgloc.validation import MAX_WALK_LENGTH, integer, setting
 
 
@@ -21,7 +21,7 @@ class RandomWalkDescriptor(Descriptor):
     X-View keeps the multiset of label sequences; we embed it as a histogram over the
     L**walk_length possible sequences (the start vertex's own label is implied, as only
     same-class vertices are compared), so the paper's cosine similarity applies. A compiled
-    kernel walks and counts (`sgloc.kernels.walks`); `reference` is its numpy twin.
+    kernel walks and counts (`sgloc.descriptors.walk_kernels`); `reference` is its numpy twin.
     """
 
     #: 1000: a walk of 3 steps over L = 11 classes falls in one of 1331 sequences; 200 walks
@@ -41,7 +41,7 @@ class RandomWalkDescriptor(Descriptor):
         n = len(graph)
         if not use_compiled(n):
             return self.reference(graph, n_classes, rng)
-        from sgloc.kernels.walks import walk_histograms
+        from sgloc.descriptors.walk_kernels import walk_histograms
 
         A = graph.adjacency
         # One draw of all the uniforms consumes the stream as the reference's one per step.

@@ -13,7 +13,7 @@ from sgloc.estimation.fits import check_not_degenerate, fit_rigid, tilt_deg, wei
 from sgloc.estimation.motion import MotionModel
 from sgloc.estimation.ransac import RansacConfig, ransac
 from sgloc.estimation.refine import irls_refine
-from sgloc.timing import StageTimer
+from sgloc.runtime.timing import StageTimer
 
 #: Final fits on RANSAC's inliers: "irls" (weighted least squares, then the Tukey IRLS),
 #: "kabsch" (weighted least squares, paper Eq. 4), "none" (RANSAC's own refit).

@@ -1,5 +1,5 @@
 """RANSAC over correspondences: one adaptive loop over blocks of hypotheses, scored in numpy
-(`ransac_reference`, every setting) or by the compiled kernels of `sgloc.kernels.ransac`
+(`ransac_reference`, every setting) or by the compiled kernels of `sgloc.estimation.ransac_kernels`
 (`ransac_compiled`: minimal samples, dof=4 or no gravity gate), then refits on the inliers."""
 
 from __future__ import annotations
@@ -163,7 +163,8 @@ def ransac_compiled(
     weights: np.ndarray | None = None,
 ) -> RansacResult:
     """`ransac_reference` with each block of hypotheses fitted and scored in one compiled call
-    (`sgloc.kernels.ransac`: no (B,m) residual matrix) and compiled refits (`sgloc.kernels.fit`),
+    (`sgloc.estimation.ransac_kernels`: no (B,m) residual matrix) and compiled refits
+    (`sgloc.estimation.fit_kernels`),
     for dof=4 (any max_tilt) and for dof=6 without max_tilt: same arguments, samples and result."""
     cfg = config or RansacConfig()
     if cfg.dof == 6 and cfg.max_tilt is not None:
@@ -198,8 +199,8 @@ def _run(
         return RansacResult(None, reason=no_hypothesis_reason(cfg.motion))
     if not compiled:
         return finish(best_T, src, src_c, dst_c, cs, cd, weights, cfg)
-    from sgloc.kernels.fit import fit_model
-    from sgloc.kernels.ransac import inliers
+    from sgloc.estimation.fit_kernels import fit_model
+    from sgloc.estimation.ransac_kernels import inliers
 
     w_all = np.ones(m) if weights is None else np.asarray(weights, dtype=np.float64)
     max_tilt = float(cfg.max_tilt or 0.0)
@@ -299,7 +300,7 @@ def _compiled_scorer(
     src: np.ndarray, dst: np.ndarray, cfg: RansacConfig, rng: np.random.Generator
 ) -> Scorer:
     """Blocks drawn as `_numpy_scorer` draws them, fitted and scored in one compiled call."""
-    from sgloc.kernels.ransac import score_block, score_pair_block
+    from sgloc.estimation.ransac_kernels import score_block, score_pair_block
 
     m, thr2, msac = len(src), cfg.threshold**2, cfg.scoring == "msac"
 

@@ -10,7 +10,7 @@ from sgloc.estimation.fits import fit_rigid, tilt_deg, weighted_kabsch
 from sgloc.geometry import make_transform
 from sgloc.kernels.constants import MAD_SCALE, TUKEY_C
 from sgloc.lie import skew, so3_exp
-from sgloc.spatial import ClassKDTree
+from sgloc.maps.spatial import ClassKDTree
 
 
 def irls_refine(
@@ -51,8 +51,8 @@ def irls_refine(
 
 
 def _irls_compiled(src, dst, T, prior, iterations, dof, max_tilt, classes, class_axes):
-    """`irls_refine` by the compiled kernels of `sgloc.kernels.fit` (same decisions)."""
-    from sgloc.kernels.fit import irls_class_scaled, irls_model
+    """`irls_refine` by the compiled kernels of `sgloc.estimation.fit_kernels` (same decisions)."""
+    from sgloc.estimation.fit_kernels import irls_class_scaled, irls_model
 
     src, dst = (np.ascontiguousarray(a, dtype=np.float64) for a in (src, dst))
     T = np.ascontiguousarray(T, dtype=np.float64)

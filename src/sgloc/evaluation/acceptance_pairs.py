@@ -19,7 +19,7 @@ from sgloc.evaluation.pairs_kitti import kitti_graph, kitti_ground_truth, kitti_
 from sgloc.evaluation.pairs_sim import city_graphs
 from sgloc.evaluation.scenes import Pair, move_target, route_overlap
 from sgloc.geometry import apply
-from sgloc.graph import SemanticGraph
+from sgloc.maps.graph import SemanticGraph
 
 #: Metres: a negative's query keeps only objects farther than this from every target object.
 NEGATIVE_CUT = 25.0

@@ -21,7 +21,6 @@ from typing import Any
 
 import numpy as np
 
-from sgloc.config import LocalizerConfig
 from sgloc.errors import UnknownNameError
 from sgloc.evaluation.metrics import FAILURE_M, T_P, correct_matches
 from sgloc.evaluation.pairs import make_pair_source
@@ -43,7 +42,8 @@ from sgloc.evaluation.trials import (
     run_tasks,
 )
 from sgloc.io.files import naming, staged_folder
-from sgloc.localizer import Localizer
+from sgloc.pipeline.config import LocalizerConfig
+from sgloc.pipeline.localizer import Localizer
 
 EXPERIMENTS = ("table", "threshold", "pr", "overlap", "matches")
 DESCRIPTOR_NAMES = ("histogram", "fast", "random_walk")

@@ -68,7 +68,7 @@ def run_case(case: Case, settings: dict, oracle: bool = True) -> dict:
     from sgloc.evaluation.online_replay import run_scenario
     from sgloc.evaluation.replay_scenarios import world_scenario
     from sgloc.online import OnlineConfig
-    from sgloc.presets import localizer_preset
+    from sgloc.pipeline.presets import localizer_preset
 
     config = localizer_preset(case.preset)
     with tempfile.TemporaryDirectory() as d:

@@ -11,7 +11,7 @@ import numpy as np
 from sgloc.evaluation.pairs_kitti import kitti_graph, kitti_root, kitti_sequence
 from sgloc.evaluation.pairs_sim import city_graphs
 from sgloc.geometry import apply, invert, random_rigid_transform, transform_error
-from sgloc.graph import SemanticGraph
+from sgloc.maps.graph import SemanticGraph
 
 
 @dataclass

@@ -33,7 +33,7 @@ from sgloc.evaluation.scenes import (
     window_overlaps,
 )
 from sgloc.geometry import invert
-from sgloc.graph import DEFAULT_EDGE_RADIUS, SemanticGraph
+from sgloc.maps.graph import DEFAULT_EDGE_RADIUS, SemanticGraph
 
 GRAPH_SUFFIXES = (".pcd", ".json", ".npz")
 

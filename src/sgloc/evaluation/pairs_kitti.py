@@ -22,8 +22,8 @@ from sgloc.evaluation.scenes import (
 )
 from sgloc.extraction import extraction_preset
 from sgloc.geometry import invert
-from sgloc.graph import DEFAULT_EDGE_RADIUS, SemanticGraph
-from sgloc.presets import localizer_settings as preset_settings
+from sgloc.maps.graph import DEFAULT_EDGE_RADIUS, SemanticGraph
+from sgloc.pipeline.presets import localizer_settings as preset_settings
 
 KITTI_LC_FILES = ("kitti_lc_test_0_10.txt", "kitti_lc_test_10_20.txt", "kitti_lc_test_20_30.txt")
 

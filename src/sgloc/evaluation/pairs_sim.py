@@ -11,13 +11,14 @@ from typing import Any, ClassVar
 import numpy as np
 
 from sgloc.evaluation.scenes import MovedTargetSource, extracted_graph, register_pair_source
-from sgloc.graph import SemanticGraph
-from sgloc.presets import localizer_settings as preset_settings
+from sgloc.maps.graph import SemanticGraph
+from sgloc.pipeline.presets import localizer_settings as preset_settings
 
 
 def evaluation_cache_dir() -> Path:
-    """Where extracted city graphs are cached: `<sgloc.downloads.cache_dir()>/evaluation`."""
-    from sgloc.downloads import cache_dir
+    """Where extracted city graphs are cached:
+    `<sgloc.datasets.downloads.cache_dir()>/evaluation`."""
+    from sgloc.datasets.downloads import cache_dir
 
     return cache_dir() / "evaluation"
 
@@ -86,7 +87,8 @@ class CityPairs(MovedTargetSource):
     """The rendered synthetic city (`sgloc.sim`): two robots drive opposite ways sharing
     `overlap` of their routes; each map is extracted from its rendered semantic + depth frames
     and lies in the robot's own start frame. Trial seed s uses city `s % n_worlds` (rendering
-    is the expensive part; graphs are cached on disk under sgloc.downloads.cache_dir()), and the
+    is the expensive part; graphs are cached on disk under sgloc.datasets.downloads.cache_dir()),
+    and the
     target is moved by a random rigid transform per trial."""
 
     #: Recommended localizer settings (the `city` preset: buildings weigh less).

@@ -23,7 +23,7 @@ import numpy as np
 import yaml
 
 from sgloc import __version__
-from sgloc.downloads import PROJECT_ROOT
+from sgloc.datasets.downloads import PROJECT_ROOT
 from sgloc.io.files import naming
 
 #: The paper's Table 1 (Airsim, T_error = 5 m; i7-9700, C++): descriptor, rejection -> values.

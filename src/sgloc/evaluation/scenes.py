@@ -22,7 +22,7 @@ import numpy as np
 from sgloc.evaluation.metrics import pose_errors
 from sgloc.extraction import extraction_preset
 from sgloc.geometry import invert, random_rigid_transform
-from sgloc.graph import DEFAULT_EDGE_RADIUS, SemanticGraph
+from sgloc.maps.graph import DEFAULT_EDGE_RADIUS, SemanticGraph
 from sgloc.registry import Registry
 
 #: Stream index of the pair's random numbers within a trial seed.
@@ -146,7 +146,7 @@ def data_root(root: str | None, data_set: str | None) -> str:
     remote workers need no SGLOC_DATA)."""
     from pathlib import Path
 
-    from sgloc.downloads import data_path
+    from sgloc.datasets.downloads import data_path
 
     return str((Path(root) if root else data_path(data_set)).resolve())
 

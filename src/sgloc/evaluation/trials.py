@@ -16,11 +16,11 @@ from typing import Any
 
 import numpy as np
 
-from sgloc.config import LocalizerConfig
 from sgloc.evaluation.metrics import FAILURE_M, T_P, is_failure, match_stats, pose_errors
 from sgloc.evaluation.pairs import make_pair_source
-from sgloc.localizer import Localizer
-from sgloc.tasks import Progress, run_all
+from sgloc.pipeline.config import LocalizerConfig
+from sgloc.pipeline.localizer import Localizer
+from sgloc.runtime.tasks import Progress, run_all
 
 #: Stream index of the localizer's random numbers (RANSAC, random walks) within a trial seed.
 LOCALIZER_STREAM = 1
@@ -144,7 +144,7 @@ def run_tasks(
     fn: Callable[[TrialTask], Any] = run_task,
 ) -> list[Any]:
     """Run trials (`fn` of each task, default `run_task`) and return the results in the order
-    of `tasks`, by the one task runner `sgloc.tasks.run_tasks`.
+    of `tasks`, by the one task runner `sgloc.runtime.tasks.run_tasks`.
 
     workers: local processes (None: the number of CPUs; 0 or 1: in this process).
     scheduler: a Dask scheduler address ("tcp://host:8786") or a `distributed.Client`; when

@@ -1,4 +1,4 @@
-"""Frames -> SemanticGraph: the same back end (`sgloc.association`: an observation with the
+"""Frames -> SemanticGraph: the same back end (`sgloc.maps.association`: an observation with the
 same class within `merge_distance` of an existing vertex is that vertex, the running mean of
 its observations) serves image frames (regions back-projected) and detection frames (LiDAR
 objects)."""
@@ -9,17 +9,17 @@ from collections.abc import Callable, Iterable
 
 import numpy as np
 
-from sgloc.association import ObjectAssociation
 from sgloc.datasets.base import Frame
 from sgloc.errors import DatasetError
 from sgloc.extraction.backprojection import region_positions, to_map
 from sgloc.extraction.config import ExtractionConfig
 from sgloc.extraction.segmentation import segment
-from sgloc.graph import SemanticGraph
+from sgloc.maps.association import ObjectAssociation
+from sgloc.maps.graph import SemanticGraph
 
 
 class GraphBuilder(ObjectAssociation):
-    """Accumulates frames' observations into vertices (`sgloc.association`), with the
+    """Accumulates frames' observations into vertices (`sgloc.maps.association`), with the
     settings of an ExtractionConfig."""
 
     def __init__(self, config: ExtractionConfig | None = None) -> None:

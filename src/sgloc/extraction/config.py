@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from sgloc.errors import SglocError
-from sgloc.presets import extraction_settings
+from sgloc.pipeline.presets import extraction_settings
 
 #: Image size at which Guo's `min_pixels` = 5000 holds (width, height).
 REFERENCE_RESOLUTION = (1024, 576)
@@ -87,6 +87,7 @@ class ExtractionConfig:
 
 
 def extraction_preset(name: str) -> ExtractionConfig:
-    """The ExtractionConfig of the preset (or dataset) `name` in `sgloc.presets` (the paper's
+    """The ExtractionConfig of the preset (or dataset) `name` in `sgloc.pipeline.presets` (the
+    paper's
     defaults when none is tuned), e.g. "kitti-objects" for LiDAR object detections."""
     return ExtractionConfig(**extraction_settings(name))

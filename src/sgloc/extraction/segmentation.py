@@ -45,7 +45,7 @@ def _check_images(semantic: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, 
     if sem.size and not np.issubdtype(sem.dtype, np.integer):
         raise SglocError(
             f"semantic image must hold integer class ids, got dtype {sem.dtype}; convert "
-            "colour images with sgloc.classes.colors_to_labels."
+            "colour images with sgloc.maps.classes.colors_to_labels."
         )
     return sem.astype(np.int64, copy=False), dep
 

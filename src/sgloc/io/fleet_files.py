@@ -12,7 +12,7 @@ from sgloc.io.poses import write_kitti_poses, write_tum_poses
 
 #: Version of fleet.json (docs/fleet_outputs.md lists its keys); a change of meaning of any key
 #: gets a new number.
-SCHEMA = "sgloc.fleet/1"
+SCHEMA = "sgloc.online.fleet/1"
 
 
 def write_fleet_poses(result, folder: str | Path) -> list[Path]:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sgloc.classes import AIRSIM_COLORS
+from sgloc.maps.classes import AIRSIM_COLORS
 
 
 def read_graph_with(

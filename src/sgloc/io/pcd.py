@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from sgloc.classes import AIRSIM_COLORS, colors_to_labels, pack_rgb, unpack_rgb
 from sgloc.errors import GraphFileError
 from sgloc.io.files import read_regular_file
 from sgloc.io.lzf import LZFError, lzf_compress, lzf_decompress
+from sgloc.maps.classes import AIRSIM_COLORS, colors_to_labels, pack_rgb, unpack_rgb
 
 _NP_TYPES = {
     ("F", 4): "<f4",

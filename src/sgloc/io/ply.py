@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sgloc.classes import AIRSIM_COLORS, colors_to_labels
 from sgloc.errors import GraphFileError
+from sgloc.maps.classes import AIRSIM_COLORS, colors_to_labels
 
 #: Class fields tried in order when none is named.
 LABEL_FIELDS = ("label", "class", "class_id", "semantic", "category", "scalar_label")

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from sgloc.classes import class_colours
 from sgloc.geometry import apply
-from sgloc.graph import SemanticGraph
+from sgloc.maps.classes import class_colours
+from sgloc.maps.graph import SemanticGraph
 from sgloc.optional import require
 
 

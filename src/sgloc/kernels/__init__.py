@@ -1,8 +1,10 @@
-"""Compiled (numba) kernels of the hot loops, each with a plain numpy reference in its caller.
+"""The compiled (numba) kernels' runtime: which path runs, where the kernels are cached, the
+first-compile notice. The kernels themselves live beside the stage code they serve (`MODULES`),
+each with a plain numpy reference in its caller.
 
 Importing this package is cheap: numba is imported, and each kernel compiled, only when a
 kernel module is first imported (callers import them inside functions). Compiled code is cached
-on disk (`cache=True`): next to the sources when that directory is writable, otherwise in numba's
+on disk (`cache=True`): next to their sources when that directory is writable, otherwise in numba's
 per-user cache directory; `NUMBA_CACHE_DIR` overrides both. When none of them is writable (a
 read-only install and home), the kernels are cached in a folder of the temporary directory, or,
 failing that, compiled in every process without a cache; either is said once on stderr.
@@ -53,9 +55,15 @@ def use_compiled(size: int) -> bool:
 _BLAS_CONTROLLER = None
 
 #: The kernel modules (each compiled on first use, `cache=True`).
+#: Each lives beside the stage code it serves.
 MODULES = (
-    "canonical", "clique", "consistency", "evidence", "fit", "matching", "neighbors",
-    "local", "prune", "ransac", "runner_up", "spectral", "triangles", "walks",
+    "sgloc.maps.canonical_kernels", "sgloc.rejection.clique_kernels",
+    "sgloc.consistency.pairwise_kernels", "sgloc.acceptance.evidence_kernels",
+    "sgloc.estimation.fit_kernels", "sgloc.matching.kernels", "sgloc.maps.neighbor_kernels",
+    "sgloc.consistency.local_kernels", "sgloc.rejection.prune_kernels",
+    "sgloc.estimation.ransac_kernels", "sgloc.acceptance.runner_up_kernels",
+    "sgloc.rejection.spectral_kernels", "sgloc.consistency.triangle_kernels",
+    "sgloc.descriptors.walk_kernels",
 )  # fmt: skip
 
 
@@ -80,13 +88,14 @@ def compiled_marker() -> Path:
     (named after the kernel sources' paths, sizes and times, numba's and Python's versions: a
     new install or an upgrade compiles, and is said, anew)."""
     import hashlib
+    from importlib.util import find_spec
 
     import numba
 
     here = Path(__file__).resolve().parent
     parts = [numba.__version__, sys.version, str(here)]
     for name in MODULES:
-        st = (here / f"{name}.py").stat()
+        st = Path(find_spec(name).origin).stat()
         parts.append(f"{name}:{st.st_size}:{st.st_mtime_ns}")
     digest = hashlib.sha1("|".join(parts).encode()).hexdigest()[:16]
     return cache_dir() / f"sgloc-kernels-{digest}.compiled"

@@ -63,7 +63,9 @@ def _run_uncached() -> None:
         return
 
     def enable_caching(self):
-        if not getattr(self.py_func, "__module__", "").startswith("sgloc.kernels"):
+        from sgloc.kernels import MODULES
+
+        if getattr(self.py_func, "__module__", "") not in MODULES:
             enable(self)
 
     enable_caching.sgloc_uncached = True

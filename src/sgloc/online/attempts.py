@@ -8,17 +8,17 @@ from typing import Any
 
 import numpy as np
 
-from sgloc.config import LocalizerConfig
 from sgloc.errors import SglocError
-from sgloc.graph import SemanticGraph
-from sgloc.tasks import run_all
+from sgloc.maps.graph import SemanticGraph
+from sgloc.pipeline.config import LocalizerConfig
+from sgloc.runtime.tasks import run_all
 
 
 def localize_pair(
     localizer, query: SemanticGraph, target: SemanticGraph, seed: Any
 ) -> dict[str, Any]:
     """Localize `query` in `target` with `localizer` (a `sgloc.Localizer`) and the random seed
-    `seed`: accepted, transform (T_target_query), covariance (6,6, `sgloc.covariance`),
+    `seed`: accepted, transform (T_target_query), covariance (6,6, `sgloc.estimation.covariance`),
     confidence, n_matches, reason, seconds. The localizer keeps nothing between calls; a
     `sgloc.PreparedMap` as `target` carries what its preparation computed to every call."""
     t0 = time.perf_counter()
@@ -40,7 +40,7 @@ def localize_pair(
 def localize_task(task: tuple) -> dict[str, Any]:
     """Worker: `localize_pair` on graphs passed as arrays (so any process or Dask worker can).
     task = (key, qpos, qlab, qr, tpos, tlab, tr, cfg_dict, seed)."""
-    from sgloc.localizer import Localizer
+    from sgloc.pipeline.localizer import Localizer
 
     key, qpos, qlab, qr, tpos, tlab, tr, cfg_dict, seed = task
     q = SemanticGraph(qpos, qlab, qr, name="query")
@@ -52,7 +52,7 @@ def localize_task(task: tuple) -> dict[str, Any]:
 def run_tasks(
     tasks: list[tuple], scheduler: str | None = None, workers: int | None = 0
 ) -> list[dict]:
-    """Run `localize_task` over `tasks` (`sgloc.tasks.run_all`): on the Dask scheduler at
+    """Run `localize_task` over `tasks` (`sgloc.runtime.tasks.run_all`): on the Dask scheduler at
     `scheduler`, else on `workers` local processes (None: CPU count; 0 or 1: in this process).
     Results in order."""
     return run_all(tasks, localize_task, workers, scheduler or None)

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from sgloc.graph import DEFAULT_EDGE_RADIUS
+from sgloc.maps.graph import DEFAULT_EDGE_RADIUS
 from sgloc.validation import (
     MAX_COORDINATE,
     MAX_ITERATIONS,

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sgloc import lie
-from sgloc.graph import SemanticGraph
+from sgloc.maps.graph import SemanticGraph
 from sgloc.online.config import OnlineConfig
 from sgloc.online.keyframe_graph import KeyframeGraph, keyframe_link
 from sgloc.online.keyframe_links import select_links

@@ -7,7 +7,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from sgloc.covariance import point_covariance
+from sgloc.estimation.covariance import point_covariance
 from sgloc.geometry import invert
 from sgloc.lie import adjoint
 from sgloc.online.consistency import Edge, invert_with_covariance

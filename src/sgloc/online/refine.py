@@ -1,7 +1,8 @@
 """Refine a link on everything two grown maps share: pair the objects the link puts on top of
 each other (mutual nearest same-class neighbours within a radius), refit by the robust fit of
 the motion model, repeat until the pairing stops changing, and give the covariance of the fit
-over all those pairs (`sgloc.covariance`): the more co-located objects, the smaller it is."""
+over all those pairs (`sgloc.estimation.covariance`): the more co-located objects, the smaller
+it is."""
 
 from __future__ import annotations
 
@@ -9,10 +10,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sgloc.covariance import transform_covariance
 from sgloc.errors import SglocError
 from sgloc.estimation import MotionModel, irls_refine
-from sgloc.spatial import mutual_nearest_pairs
+from sgloc.estimation.covariance import transform_covariance
+from sgloc.maps.spatial import mutual_nearest_pairs
 
 
 @dataclass(frozen=True)

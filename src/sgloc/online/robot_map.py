@@ -1,5 +1,5 @@
 """One robot's growing object map in its odometry frame: sightings associated and averaged by
-the same association as offline map building (`sgloc.association`). Every sighting is kept
+the same association as offline map building (`sgloc.maps.association`). Every sighting is kept
 with the keyframe that saw it and its position in that keyframe's sensor frame, so that the map
 follows a corrected trajectory (`RobotMap.reanchor`)."""
 
@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from sgloc.association import AssociationSettings, ObjectAssociation
 from sgloc.errors import SglocError
 from sgloc.geometry import apply
-from sgloc.graph import SemanticGraph
+from sgloc.maps.association import AssociationSettings, ObjectAssociation
+from sgloc.maps.graph import SemanticGraph
 from sgloc.validation import check_graph_arrays
 
 

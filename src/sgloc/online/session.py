@@ -8,11 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
-from sgloc.config import LocalizerConfig
 from sgloc.errors import SglocError
 from sgloc.geometry import invert
-from sgloc.graph import SemanticGraph
 from sgloc.io.keyframe_checks import check_keyframe, check_link, check_stamp
+from sgloc.maps.graph import SemanticGraph
 from sgloc.online.attempts import run_tasks
 from sgloc.online.config import OnlineConfig
 from sgloc.online.consistency import (
@@ -37,6 +36,7 @@ from sgloc.online.records import (
 from sgloc.online.refine import refine_link
 from sgloc.online.robot_map import RobotMap
 from sgloc.online.schedule import due_pairs
+from sgloc.pipeline.config import LocalizerConfig
 
 
 class OnlineSession:

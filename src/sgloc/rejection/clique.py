@@ -1,7 +1,7 @@
 """Maximum-clique outlier rejection, as TEASER++ and CLIPPER do.
 
 Matches are vertices of a consistency graph (an edge when the two matches agree on their pair's
-distance within tau, `sgloc.consistency`); correct matches agree with each other, so they
+distance within tau, `sgloc.consistency.pairwise`); correct matches agree with each other, so they
 form a clique, and the largest clique is kept. Finding it is NP-hard, so:
 1. a fast heuristic (greedy growth from the best-connected seeds, in core-number order) gives a
    clique of size LB;
@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sgloc.consistency import consistency_bits, unpack_rows
+from sgloc.consistency.pairwise import consistency_bits, unpack_rows
 from sgloc.rejection.base import Rejector
 from sgloc.validation import MAX_COORDINATE, MAX_ITERATIONS, MAX_VERTICES, integer, real, setting
 
@@ -146,12 +146,13 @@ class CliqueRejector(Rejector):
     name = "clique"
 
     def __call__(self, src, dst, scores=None):
-        """Compiled on packed rows (`sgloc.kernels.clique`); the exact search unpacks only the
+        """Compiled on packed rows (`sgloc.rejection.clique_kernels`); the exact search unpacks
+        only the
         k-core pool. `max_clique(consistency_matrix(...))` is the numpy reference."""
         m = len(src)
         if m == 0:
             return np.zeros(0, dtype=np.int64)
-        from sgloc.kernels import clique as kernels
+        from sgloc.rejection import clique_kernels as kernels
 
         bits, degree = consistency_bits(src, dst, self.tau, "distance")
         core = kernels.core_numbers(bits, degree)

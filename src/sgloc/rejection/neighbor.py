@@ -7,8 +7,13 @@ from typing import Literal
 
 import numpy as np
 
-from sgloc.consistency import ALL_PAIRS_LIMIT, consistency_bits, consistency_matrix, pack_rows
-from sgloc.local_consistency import prune_local
+from sgloc.consistency.local import prune_local
+from sgloc.consistency.pairwise import (
+    ALL_PAIRS_LIMIT,
+    consistency_bits,
+    consistency_matrix,
+    pack_rows,
+)
 from sgloc.rejection.base import Rejector
 from sgloc.validation import MAX_COORDINATE, choice, real, setting
 
@@ -40,7 +45,8 @@ SCOPES = ("auto", "all", "local")
 
 def prune_by_support(M: np.ndarray, eta: float, bound: str = "remaining") -> np.ndarray:
     """Alg. 1 step 2 on a consistency matrix M (m,m) bool with a False diagonal: the sorted
-    indices of the survivors (compiled, `sgloc.kernels.prune`; the rule of bound="remaining" is
+    indices of the survivors (compiled, `sgloc.rejection.prune_kernels`; the rule of
+    bound="remaining" is
     that of `prune_by_support_reference`, bound="literal" is described in NeighborRejector)."""
     M = np.asarray(M)
     if M.shape[0] == 0:
@@ -79,10 +85,10 @@ def _prune_remaining(bits: np.ndarray, degree: np.ndarray, eta: float) -> np.nda
     from sgloc.kernels import use_compiled
 
     if not use_compiled(len(bits)):
-        from sgloc.consistency import unpack_rows
+        from sgloc.consistency.pairwise import unpack_rows
 
         return prune_by_support_reference(unpack_rows(bits, len(bits)), eta)
-    from sgloc.kernels.prune import prune_bits as kernel
+    from sgloc.rejection.prune_kernels import prune_bits as kernel
 
     return kernel(bits, degree, float(eta))
 
@@ -160,14 +166,14 @@ class NeighborRejector(Rejector):
         V_i = r/2 - 1: "remaining" removes that match, "literal" stops there.
     scope: which pairs of candidates are checked.
         - "all": every pair (Alg. 1 as published; m^2 work, m^2 / 8 bytes; at most
-          `sgloc.consistency.MAX_MATCHES` candidates).
+          `sgloc.consistency.pairwise.MAX_MATCHES` candidates).
         - "local": only candidates whose query objects lie closer than `local_radius`
-          (`sgloc.local_consistency`): r_i and V_i count the remaining candidates within the
+          (`sgloc.consistency.local`): r_i and V_i count the remaining candidates within the
           radius of i and those consistent with i; the least supported fraction V_i / r_i is
           removed first, while V_i < eta * r_i ("literal": 1 + V_i < eta * (1 + r_i)). Work
           grows with the candidates times those within the radius, memory with the
           candidates. A radius covering the whole query map gives the result of "all".
-        - "auto" (the default): "all" up to `sgloc.consistency.ALL_PAIRS_LIMIT` (10,000)
+        - "auto" (the default): "all" up to `sgloc.consistency.pairwise.ALL_PAIRS_LIMIT` (10,000)
           candidates, "local" above (small problems keep the published form exactly).
     local_radius: metres, the neighbourhood of the "local" scope in the query map (the
         default descriptor's radius).

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 
-from sgloc.consistency import consistency_bits, consistent_blocks
+from sgloc.consistency.pairwise import consistency_bits, consistent_blocks
 from sgloc.rejection.base import Rejector
 from sgloc.validation import MAX_COORDINATE, real, setting
 
@@ -123,10 +123,10 @@ class SpectralRejector(Rejector):
     name = "spectral"
 
     def __call__(self, src, dst, scores=None):
-        """Compiled (`sgloc.kernels.spectral`); `reference` is the plain numpy version."""
+        """Compiled (`sgloc.rejection.spectral_kernels`); `reference` is the plain numpy version."""
         if len(src) == 0:
             return np.zeros(0, dtype=np.int64)
-        from sgloc.kernels import spectral as kernels
+        from sgloc.rejection import spectral_kernels as kernels
 
         src = np.ascontiguousarray(src, dtype=np.float64)
         dst = np.ascontiguousarray(dst, dtype=np.float64)

@@ -82,7 +82,7 @@ def fleet_figure(
     legend; unplaced robots are listed."""
     import matplotlib.pyplot as plt
 
-    from sgloc.viz import ROBOT_MARKERS, top_down
+    from sgloc.io.pictures import ROBOT_MARKERS, top_down
 
     fig, ax = plt.subplots(figsize=(8, 7))
     widths = path_widths(len(logs))

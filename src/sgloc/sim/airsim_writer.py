@@ -21,9 +21,9 @@ import numpy as np
 from PIL import Image
 from scipy.spatial.transform import Rotation
 
-from sgloc.classes import AIRSIM_COLORS
 from sgloc.datasets.base import Frame
 from sgloc.errors import DatasetError
+from sgloc.maps.classes import AIRSIM_COLORS
 from sgloc.sim.render import T_BODY_OPTICAL
 
 #: Metres per 8-bit depth step range: metres = px / 255 * DEPTH_SCALE (Guo's Airsim data).

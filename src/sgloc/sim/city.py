@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: Class names of the synthetic city; class k is drawn with sgloc.classes.AIRSIM_COLORS[k].
+#: Class names of the synthetic city; class k is drawn with sgloc.maps.classes.AIRSIM_COLORS[k].
 CITY_CLASSES: tuple[str, ...] = (
     "building",
     "tree",

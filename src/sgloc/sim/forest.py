@@ -15,7 +15,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from sgloc.geometry import invert
-from sgloc.graph import SemanticGraph
+from sgloc.maps.graph import SemanticGraph
 from sgloc.sim.scene_maps import MapPair, planar_transform, shared_count
 
 #: Height of a trunk's mapped centre above the ground (metres): breast height.

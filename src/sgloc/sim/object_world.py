@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sgloc.geometry import apply, invert, random_rigid_transform
-from sgloc.graph import SemanticGraph
+from sgloc.maps.graph import SemanticGraph
 
 #: Relative frequency of the 8 object classes (building, tree, pole, car, sign, fence, bush,
 #: bench): repeated enough to be ambiguous, as in real cities.

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sgloc.geometry import random_rigid_transform
-from sgloc.graph import SemanticGraph
+from sgloc.maps.graph import SemanticGraph
 from sgloc.sim.scene_maps import MapPair, shared_count
 
 #: Class names of the furniture; class k of a room map is FURNITURE_CLASSES[k].

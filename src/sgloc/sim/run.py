@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from sgloc.config import LocalizerConfig
 from sgloc.datasets.base import Frame
-from sgloc.presets import localizer_preset, localizer_settings
+from sgloc.pipeline.config import LocalizerConfig
+from sgloc.pipeline.presets import localizer_preset, localizer_settings
 from sgloc.sim.airsim_writer import write_ground_truth, write_robot, write_run_metadata
 from sgloc.sim.city import City, CityConfig, make_city
 from sgloc.sim.render import Camera, render_frames
@@ -23,7 +23,8 @@ from sgloc.sim.trajectory import ROBOT_NAMES, TrajectoryConfig, TwoRobotRoutes, 
 #: Robot A (the target map) and robot B (the query), as in Guo's Airsim data.
 TARGET, QUERY = ROBOT_NAMES
 
-#: Localizer settings for graphs extracted from the city (the `city` preset of sgloc.presets).
+#: Localizer settings for graphs extracted from the city (the `city` preset of
+# sgloc.pipeline.presets).
 CITY_LOCALIZER_SETTINGS: dict = localizer_settings("city")
 
 

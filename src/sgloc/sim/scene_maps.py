@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from sgloc.graph import SemanticGraph
+from sgloc.maps.graph import SemanticGraph
 
 
 @dataclass

@@ -5,7 +5,8 @@ vertex order of either graph, and no array is sized by a large class id. `restor
 result's vertex indices back to the caller's order.
 
 Built for every call; a target localized against again and again is prepared once instead
-(`sgloc.prepared.PreparedMap` keeps its canonical form, `CanonicalPair.with_canonical_target`).
+(`sgloc.pipeline.prepared.PreparedMap` keeps its canonical form,
+`CanonicalPair.with_canonical_target`).
 """
 
 from __future__ import annotations
@@ -16,8 +17,8 @@ from typing import Any
 import numpy as np
 from scipy import sparse
 
-from sgloc.graph import SemanticGraph
 from sgloc.kernels import use_compiled
+from sgloc.maps.graph import SemanticGraph
 
 #: Objects of one class closer than this (metres) are one object listed twice: kept once (the
 #: first in canonical order), else every copy would be a rival of its twin in the ratio tests.
@@ -28,7 +29,7 @@ def canonical_order(graph: SemanticGraph) -> np.ndarray:
     """Vertex indices sorted by (label, x, y, z); ties (duplicate objects) keep input order."""
     p = graph.positions
     if use_compiled(len(p)):
-        from sgloc.kernels.canonical import canonical_order_kernel
+        from sgloc.maps.canonical_kernels import canonical_order_kernel
 
         return canonical_order_kernel(*_kernel_arrays(graph))
     return np.lexsort((p[:, 2], p[:, 1], p[:, 0], graph.labels))
@@ -72,7 +73,7 @@ def without_duplicates(graph: SemanticGraph, order: np.ndarray) -> np.ndarray:
     (same class, closer than DUPLICATE_RADIUS); without duplicates it comes back unchanged
     (or equal)."""
     if use_compiled(len(order)):
-        from sgloc.kernels.canonical import first_of_duplicates
+        from sgloc.maps.canonical_kernels import first_of_duplicates
 
         kept, long = first_of_duplicates(order, *_kernel_arrays(graph), DUPLICATE_RADIUS,
                                          _RUN_SEARCH)  # fmt: skip
@@ -112,7 +113,7 @@ class CanonicalPair:
     and the maps back to the caller's vertex indices and class ids."""
 
     #: The canonical target's `PreparedGraph` (descriptors, matching blocks, grids) when the
-    #: target comes prepared (`sgloc.prepared.PreparedMap.pair`), else None.
+    #: target comes prepared (`sgloc.pipeline.prepared.PreparedMap.pair`), else None.
     prepared_target = None
 
     def __init__(self, query: SemanticGraph, target: SemanticGraph, config: Any) -> None:
@@ -160,7 +161,7 @@ class CanonicalPair:
         """(order, labels): `without_duplicates(graph, canonical_order(graph))` and the class
         ids of those vertices renumbered by this pair's class table (one compiled pass)."""
         if use_compiled(len(graph)):
-            from sgloc.kernels.canonical import canonical_form
+            from sgloc.maps.canonical_kernels import canonical_form
 
             classes = np.ascontiguousarray(self.classes, dtype=np.int64)
             order, labels, long = canonical_form(*_kernel_arrays(graph), classes,
@@ -194,7 +195,7 @@ class CanonicalPair:
         qo, to = self.query_order, self.target_order
         scores = np.asarray(result.scores)
         if use_compiled(len(scores)):
-            from sgloc.kernels.canonical import restored_pairs
+            from sgloc.maps.canonical_kernels import restored_pairs
 
             def back(pairs: np.ndarray, scores: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
                 pairs = np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2)
@@ -209,7 +210,7 @@ class CanonicalPair:
 
 
 def _restored_pairs(qo: np.ndarray, to: np.ndarray):
-    """`sgloc.kernels.canonical.restored_pairs` in numpy (the kernel's reference), for the
+    """`sgloc.maps.canonical_kernels.restored_pairs` in numpy (the kernel's reference), for the
     orders qo, to."""
 
     def back(pairs: np.ndarray, scores: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

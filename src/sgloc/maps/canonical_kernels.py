@@ -1,5 +1,5 @@
 """The canonical vertex order of a graph and its duplicate search in one compiled pass
-(`sgloc.canonical`): the same order as numpy's `lexsort` of (class, x, y, z) (stable: ties
+(`sgloc.maps.canonical`): the same order as numpy's `lexsort` of (class, x, y, z) (stable: ties
 keep input order) and the same duplicate groups as its numpy form, without a dozen small
 numpy calls per graph.
 
@@ -13,7 +13,7 @@ from numba import njit
 
 from sgloc.kernels import watch_compiles
 from sgloc.kernels.dispatch import kernel
-from sgloc.kernels.neighbors import first_at_least
+from sgloc.maps.neighbor_kernels import first_at_least
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -96,7 +96,7 @@ def first_of_duplicates(
 ) -> tuple[np.ndarray, bool]:
     """(kept, long): `order` (canonical) without the vertices that repeat an earlier one of
     it (same class, squared distance <= radius**2, groups joined through any chain of such
-    pairs, the first of each kept), searched as `sgloc.canonical`'s numpy form does: pairs
+    pairs, the first of each kept), searched as `sgloc.maps.canonical`'s numpy form does: pairs
     only along runs of consecutive same-class steps of at most `radius` in x, compared up to
     `run` places apart. `long`: a run of `run` steps was met; then `kept` is empty, not
     computed (the caller searches that map by a KD-tree, as the numpy form)."""

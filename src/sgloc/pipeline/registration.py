@@ -18,7 +18,6 @@ from typing import Any
 
 import numpy as np
 
-from sgloc.covariance import FittedPoints
 from sgloc.errors import SglocError, UnknownNameError
 from sgloc.estimation import (
     ANY_RIGID,
@@ -28,8 +27,9 @@ from sgloc.estimation import (
     RansacConfig,
     estimate_pose,
 )
+from sgloc.estimation.covariance import FittedPoints
 from sgloc.rejection import REJECTORS, Rejector, make_rejector
-from sgloc.timing import StageTimer
+from sgloc.runtime.timing import StageTimer
 from sgloc.validation import random_generator
 
 
@@ -45,7 +45,7 @@ class RegistrationResult:
     reason: why it failed ("" on success).
     covariance: (6,6) covariance of `transform` (None when not successful): tangent order
         [rx, ry, rz, tx, ty, tz] (rad, m), T_true = transform @ Exp(xi), xi in the src frame;
-        the inflation measured on object maps (`sgloc.covariance`; for other data call
+        the inflation measured on object maps (`sgloc.estimation.covariance`; for other data call
         `transform_covariance(..., inflation=NO_INFLATION)` for the plain least-squares one).
     """
 

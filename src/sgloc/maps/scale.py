@@ -26,9 +26,9 @@ from __future__ import annotations
 
 import math
 
-from sgloc.graph import SemanticGraph
+from sgloc.maps.graph import SemanticGraph
+from sgloc.maps.units import median_spacing
 from sgloc.registry import Registry
-from sgloc.units import median_spacing
 
 #: The unit length (m) of a street map: the lengths of the code's defaults are the street's.
 STREET_UNIT = 5.0

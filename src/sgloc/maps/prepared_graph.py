@@ -9,7 +9,7 @@ cache. So a result never depends on what ran before in the process, and the stat
 exactly as long as the object the caller holds.
 
     prepared = PreparedGraph(graph)
-    prepared.grid(5.0)         # built on first use, then kept (`sgloc.kernels.neighbors`)
+    prepared.grid(5.0)         # built on first use, then kept (`sgloc.maps.neighbor_kernels`)
     prepared.class_indexes     # {class: (rows, index)}, filled by `matching_index.class_index`
 """
 
@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from sgloc.graph import SemanticGraph
+from sgloc.maps.graph import SemanticGraph
 
 
 class PreparedGraph:
@@ -28,9 +28,9 @@ class PreparedGraph:
     graph: the SemanticGraph; positions (n,3) float64 and labels (n,) int64: its arrays as
         the kernels take them; descriptors: its descriptor rows when computed (dense (n, d)
         or CSR), else None; blocks: the matching kernel's class blocks when kept
-        (`sgloc.matching.TargetBlocks`, a prepared map's), else None; class_indexes: the
+        (`sgloc.matching.candidates.TargetBlocks`, a prepared map's), else None; class_indexes: the
         candidate-search index of each class of `descriptors` built so far
-        (`sgloc.matching_index.class_index` fills it).
+        (`sgloc.matching.index.class_index` fills it).
     """
 
     def __init__(self, graph: SemanticGraph, descriptors: Any = None, blocks: Any = None) -> None:
@@ -47,12 +47,12 @@ class PreparedGraph:
         return len(self.graph)
 
     def grid(self, radius: float):
-        """The neighbour grid (`sgloc.kernels.neighbors.CellGrid`) of the graph's objects for
+        """The neighbour grid (`sgloc.maps.neighbor_kernels.CellGrid`) of the graph's objects for
         searches within `radius` metres: built on first use, kept for later ones."""
         radius = float(radius)
         grid = self._grids.get(radius)
         if grid is None:
-            from sgloc.kernels.neighbors import cell_grid
+            from sgloc.maps.neighbor_kernels import cell_grid
 
             grid = self._grids[radius] = cell_grid(self.positions, self.labels, radius)
         return grid

@@ -13,7 +13,7 @@ from concurrent.futures import as_completed
 from typing import Any, TypeVar
 
 from sgloc.errors import SglocError
-from sgloc.workers import process_pool
+from sgloc.runtime.workers import process_pool
 
 Task = TypeVar("Task")
 #: Called with the number of tasks just finished (for a progress bar).

@@ -1,7 +1,7 @@
 """Localizer / localize(): run the stages graph pair -> transform, timing each one.
 
-A call puts both graphs in canonical form (`sgloc.canonical`) and holds each in a
-`PreparedGraph` (`sgloc.prepared_graph`: its descriptors, neighbour grids, class counts and
+A call puts both graphs in canonical form (`sgloc.maps.canonical`) and holds each in a
+`PreparedGraph` (`sgloc.maps.prepared_graph`: its descriptors, neighbour grids, class counts and
 matching indexes), which it hands to the stages: the prepared query and target live for the
 call, unless the target comes as a `PreparedMap`, whose own prepared graph serves every query.
 Nothing is kept between calls anywhere else, so a result does not depend on what ran before."""
@@ -17,20 +17,20 @@ from typing import Any
 import numpy as np
 
 from sgloc.acceptance import Verdict, accept
-from sgloc.canonical import CanonicalPair
-from sgloc.config import LocalizerConfig
-from sgloc.covariance import FittedPoints
 from sgloc.descriptors import make_descriptor
 from sgloc.errors import InvalidGraphError, SglocError
 from sgloc.estimation import FinalFit, PoseEstimate, estimate_pose, final_fit, icp_refine
-from sgloc.graph import SemanticGraph
-from sgloc.matching import match_flagged
-from sgloc.prepared import PreparedMap, prepare
-from sgloc.prepared_graph import PreparedGraph
+from sgloc.estimation.covariance import FittedPoints
+from sgloc.maps.canonical import CanonicalPair
+from sgloc.maps.graph import SemanticGraph
+from sgloc.maps.prepared_graph import PreparedGraph
+from sgloc.maps.scale import scene_hint
+from sgloc.maps.units import units_hint
+from sgloc.matching.candidates import match_flagged
+from sgloc.pipeline.config import LocalizerConfig
+from sgloc.pipeline.prepared import PreparedMap, prepare
 from sgloc.rejection import make_rejector
-from sgloc.scale import scene_hint
-from sgloc.timing import StageTimer
-from sgloc.units import units_hint
+from sgloc.runtime.timing import StageTimer
 from sgloc.validation import check_seed
 
 MIN_VERTICES = 3
@@ -53,7 +53,8 @@ class LocalizationResult:
     confidence: in [0, 1], how far the result is to be trusted (None when not assessed).
     covariance: (6,6) covariance of `transform` (None when not localized): tangent order
         [rx, ry, rz, tx, ty, tz] (rad, m), T_true = transform @ Exp(xi), xi in the QUERY frame
-        (gtsam.Pose3's convention); measured on real data (`sgloc.covariance`). Computed when
+        (gtsam.Pose3's convention); measured on real data (`sgloc.estimation.covariance`). Computed
+        when
         first read, from `fitted`.
     config: the call's settings as a nested dict (`LocalizerConfig.to_dict` of `settings`),
         built when first read.
@@ -144,7 +145,8 @@ class Localizer:
         self.rejector = make_rejector(self.config.rejection, **self.config.rejection_params)
 
     def prepare(self, target: SemanticGraph) -> PreparedMap:
-        """`target` prepared for this localizer's calls (`sgloc.prepared`): its canonical form,
+        """`target` prepared for this localizer's calls (`sgloc.pipeline.prepared`): its canonical
+        form,
         descriptors and matching blocks built once; pass it where a target graph goes."""
         return prepare(target, self.config)
 
@@ -159,7 +161,7 @@ class Localizer:
         per random stage (`stage_streams`); `clock` (seconds) times the stages (e.g.
         time.thread_time for CPU time). `target` may be a PreparedMap (the same result)."""
         _check_graph(query, "query")
-        # Canonical vertex order and class ids 0..L-1 (sgloc.canonical); undone by restore().
+        # Canonical vertex order and class ids 0..L-1 (sgloc.maps.canonical); undone by restore().
         canonical = target.pair(query, self.config) if isinstance(target, PreparedMap) else None
         if canonical is None:  # a graph, or a query with a class the prepared map lacks
             target = target.graph if isinstance(target, PreparedMap) else target
@@ -258,7 +260,8 @@ def _fitted(
     weights: np.ndarray | None,
     cfg: LocalizerConfig,
 ) -> FittedPoints | None:
-    """The points an accepted transform was fitted on, for its covariance (sgloc.covariance):
+    """The points an accepted transform was fitted on, for its covariance
+    (sgloc.estimation.covariance):
     RANSAC's inliers with their class weights, or the verification's matches, unweighted."""
     if not verdict.accepted:
         return None
@@ -337,7 +340,8 @@ def localize(
         seed: seed of the random generators, one stream per random stage (random walks,
             RANSAC, acceptance: `stage_streams`); ignored when `rng` is given.
         config: a full LocalizerConfig to start from; arguments given here override it.
-        preset: named settings applied over `config` (sgloc.presets: "paper" = the paper's own
+        preset: named settings applied over `config` (sgloc.pipeline.presets: "paper" = the paper's
+        own
             pipeline, "guo" = its baseline, "default", dataset presets).
         **settings: any stage setting by name, e.g. tau=3.0, eta=0.5, min_similarity=0.6,
             top_k=2, mutual=True, strategy="all", iterations=2000, dof=6, max_tilt=None,
@@ -347,7 +351,7 @@ def localize(
     named = {"descriptor": descriptor, "rejection": rejection, "ransac_threshold": ransac_threshold}
     overrides = {k: v for k, v in named.items() if v is not None} | settings
     if preset is not None:
-        from sgloc.presets import localizer_settings
+        from sgloc.pipeline.presets import localizer_settings
 
         overrides = localizer_settings(preset) | overrides
     if config is None and not overrides:

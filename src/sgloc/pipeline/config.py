@@ -12,12 +12,12 @@ from sgloc.descriptors import DESCRIPTORS, Descriptor, make_descriptor
 from sgloc.errors import SglocError, UnknownNameError
 from sgloc.estimation import MotionModel, RansacConfig
 from sgloc.io.settings_file import read_settings_data, write_settings_data
-from sgloc.matching import MatchingConfig
+from sgloc.maps.scale import STREET_UNIT
+from sgloc.maps.scale import edge_radius as scene_edge_radius
+from sgloc.maps.scale import factor as scale_factor
+from sgloc.matching.candidates import MatchingConfig
 from sgloc.registry import Registry
 from sgloc.rejection import REJECTORS, Rejector, make_rejector
-from sgloc.scale import STREET_UNIT
-from sgloc.scale import edge_radius as scene_edge_radius
-from sgloc.scale import factor as scale_factor
 from sgloc.validation import (
     MAX_COORDINATE,
     InvalidSettingError,
@@ -62,7 +62,7 @@ class LocalizerConfig:
     icp_max_distance: ICP pairing radius (metres).
     acceptance: the test behind `success` (sgloc.acceptance; strictness = min_confidence),
         with its `evidence` and `verification` groups (their fields keep their flat names).
-    scale: metres, the scene's unit length (`sgloc.scale`; street maps 5 m, the default).
+    scale: metres, the scene's unit length (`sgloc.maps.scale`; street maps 5 m, the default).
         Setting it through `with_overrides` (`localize(..., scale=...)`, the `forest` and
         `room` presets) sets every absolute length of the stages to its street default times
         scale / 5 m, except the lengths given explicitly; the config records the scale used.
@@ -182,7 +182,7 @@ class LocalizerConfig:
         return out
 
     def _scaled_lengths(self, overrides: dict[str, Any]) -> dict[str, Any]:
-        """The flat length settings of the scene scale overrides["scale"] (`sgloc.scale`): each
+        """The flat length settings of the scene scale overrides["scale"] (`sgloc.maps.scale`): each
         length's street default times scale / 5 m, for the descriptor and rejector these
         overrides (or this config) name."""
         unit = overrides["scale"]

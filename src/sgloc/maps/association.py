@@ -17,7 +17,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from sgloc.errors import SglocError
-from sgloc.graph import SemanticGraph
+from sgloc.maps.graph import SemanticGraph
 
 #: How many nearest objects are searched per observation for one of its class.
 K_NEAREST = 16

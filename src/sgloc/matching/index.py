@@ -9,7 +9,8 @@ best match is missed when it lies in an unprobed list (recall measured in
 docs/speed_benchmark.md). Deterministic: the sample comes from a Generator seeded by the class
 size, and the matrix products run on one BLAS thread.
 
-Used by `sgloc.matching` (`MatchingConfig.search`) per class: see `uses_index` for the rule.
+Used by `sgloc.matching.candidates` (`MatchingConfig.search`) per class: see `uses_index` for the
+rule.
 """
 
 from __future__ import annotations
@@ -82,7 +83,7 @@ def _kmeans(X: np.ndarray, n_centres: int) -> np.ndarray:
 
 def build_class_index(desc: np.ndarray, rows: np.ndarray) -> ClassIndex:
     """The index of the target rows `rows` (one class, ascending) of descriptors desc (n, d)."""
-    from sgloc.kernels.matching import class_blocks
+    from sgloc.matching.kernels import class_blocks
 
     X = np.ascontiguousarray(desc[rows], dtype=np.float64)
     with one_blas_thread():  # the same bits in every process
@@ -143,8 +144,8 @@ def probe_lists(index: ClassIndex, Q: np.ndarray, rows: np.ndarray, probes: int)
 
 def search_class(index: ClassIndex, Q: np.ndarray, rows: np.ndarray, probes: int, tests: tuple):
     """(query idx, target idx, score, flag) of the query rows `rows` of Q in this class
-    (`sgloc.kernels.matching.top_k_in_lists`; tests: k, min_sim, max_ratio, flag_ratio)."""
-    from sgloc.kernels.matching import top_k_in_lists
+    (`sgloc.matching.kernels.top_k_in_lists`; tests: k, min_sim, max_ratio, flag_ratio)."""
+    from sgloc.matching.kernels import top_k_in_lists
 
     lists = probe_lists(index, Q, rows, probes)
     return top_k_in_lists(Q, np.asarray(rows, np.int64), lists, index.blocks, index.list_start,

@@ -29,13 +29,13 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse.csgraph import connected_components
 
-from sgloc.config import LocalizerConfig
 from sgloc.errors import SglocError
-from sgloc.graph import SemanticGraph
 from sgloc.io.names import unique_names
-from sgloc.merge import merge_graphs
+from sgloc.maps.graph import SemanticGraph
 from sgloc.online import OnlineConfig, OnlineSession
 from sgloc.online.consistency import Edge, spanning_forest
+from sgloc.online.merge import merge_graphs
+from sgloc.pipeline.config import LocalizerConfig
 
 __all__ = ["FleetConfig", "FleetResult", "PairLink", "localize_fleet", "merge_graphs"]
 
@@ -303,7 +303,7 @@ def localize_fleet(
     if out is not None:
         from sgloc.io.files import staged_folder
         from sgloc.io.fleet_files import write_fleet_outputs
-        from sgloc.viz import plot_fleet
+        from sgloc.io.pictures import plot_fleet
 
         with staged_folder(out) as stage:  # the folder appears complete or not at all
             write_fleet_outputs(result, cfg.localizer, stage)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sgloc.graph import SemanticGraph
+from sgloc.maps.graph import SemanticGraph
 
 #: Median distance (m) from an object to its nearest neighbour above which a map is suspected
 #: to be in other units (object maps of streets and rooms: a few metres).

@@ -7,7 +7,8 @@ maps one graph onto the other could preserve their relation:
 Every decision equals the dense float64 computation (`scipy.spatial.distance.cdist`).
 
 `consistency_bits` / `consistency_matrix` run the compiled one-pass kernel
-(`sgloc.kernels.consistency`): bit-packed rows, m^2 / 8 bytes. `consistent_blocks` is the plain
+(`sgloc.consistency.pairwise_kernels`): bit-packed rows, m^2 / 8 bytes. `consistent_blocks` is the
+plain
 numpy computation, tile by tile (float32 Gram products with an exact float64 recheck near tau);
 it also yields the distance differences (the spectral rejector's affinities) and serves as the
 reference in tests.
@@ -24,12 +25,12 @@ from sgloc.kernels import one_blas_thread, use_compiled
 
 #: Most matches the all-pairs consistency pass takes: its packed rows hold m^2 / 8 bytes
 #: (2.8 GB here), beside the two graphs. The default settings never reach it: above
-#: ALL_PAIRS_LIMIT candidates they check pairs within a radius (`sgloc.local_consistency`).
+#: ALL_PAIRS_LIMIT candidates they check pairs within a radius (`sgloc.consistency.local`).
 MAX_MATCHES = 150_000
 
 #: Candidate counts up to which the default settings check all pairs (the neighbor rejector's
 #: scope "auto", the acceptance test's hypothesis count); above, only pairs within a radius
-#: (`sgloc.local_consistency`) or a random sample of pairs: 12.5 MB of packed rows at this size.
+#: (`sgloc.consistency.local`) or a random sample of pairs: 12.5 MB of packed rows at this size.
 ALL_PAIRS_LIMIT = 10_000
 
 #: Side of the square tiles computed at once: 512 x 512 float32 = 1 MB per temporary (L2-sized).
@@ -175,7 +176,7 @@ def consistency_bits(
     if not use_compiled(len(src)):
         M = consistency_bool(src, dst, tau, form)
         return pack_rows(M), M.sum(axis=1, dtype=np.int64)
-    from sgloc.kernels.consistency import consistency_bits as kernel
+    from sgloc.consistency.pairwise_kernels import consistency_bits as kernel
 
     src = np.ascontiguousarray(src, dtype=np.float64)
     dst = np.ascontiguousarray(dst, dtype=np.float64)
@@ -236,7 +237,7 @@ def consistent_pairs(bits: np.ndarray, degree: np.ndarray) -> tuple[np.ndarray, 
     from packed rows and degrees (`consistency_bits`). Compiled."""
     if not use_compiled(len(bits)):
         return _upper_pairs(bits, np.ones(len(bits), dtype=bool))
-    from sgloc.kernels.triangles import upper_edges
+    from sgloc.consistency.triangle_kernels import upper_edges
 
     return upper_edges(bits, np.asarray(degree, dtype=np.int64))
 
@@ -247,7 +248,7 @@ def common_partner_count(bits: np.ndarray, ii: np.ndarray, jj: np.ndarray) -> in
     if not use_compiled(len(bits)):
         M = unpack_rows(bits, bits.shape[1] * 64)
         return int(np.count_nonzero(M[np.asarray(ii)] & M[np.asarray(jj)]))
-    from sgloc.kernels.triangles import common_counts
+    from sgloc.consistency.triangle_kernels import common_counts
 
     return int(common_counts(bits, np.asarray(ii, dtype=np.int64), np.asarray(jj, dtype=np.int64)))
 
@@ -268,7 +269,7 @@ class ConsistentPairs:
         if self._listed is not None:  # small: the pairs themselves, in numpy
             self.size = int(self._listed[0].size)
             return
-        from sgloc.kernels.triangles import kept_starts
+        from sgloc.consistency.triangle_kernels import kept_starts
 
         # The kept columns as one packed row, and the row-major position of each row's first
         # pair.
@@ -283,7 +284,7 @@ class ConsistentPairs:
             raise IndexError(f"pair positions must lie in [0, {self.size})")
         if self._listed is not None:
             return self._listed[0][k], self._listed[1][k]
-        from sgloc.kernels.triangles import edges_at
+        from sgloc.consistency.triangle_kernels import edges_at
 
         order = np.argsort(k, kind="stable")
         ii, jj = edges_at(self.bits, self._keep_words, self.row_start, k[order])

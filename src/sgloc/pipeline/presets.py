@@ -19,7 +19,7 @@ Localizer presets (flat `LocalizerConfig.with_overrides` settings):
   robots see opposite ends), so every other class weighs 10x a building in the final fit.
 - `kitti-objects`: GOSMatch LiDAR object centroids; precise to well under a metre, so a 2 m
   RANSAC threshold and tau = 2 m suit them better than the image-based 5 m defaults.
-- `street`, `forest`, `room`: the scene scales of `sgloc.scale` (docs/scenes.md): `street` is
+- `street`, `forest`, `room`: the scene scales of `sgloc.maps.scale` (docs/scenes.md): `street` is
   the defaults; `forest` (unit 1.25 m: one-class trunk maps, trunks a few metres apart, good
   to 0.2-0.5 m) and `room` (unit 0.5 m: furniture under a metre apart, good to ~5 cm) set
   every absolute length of the pipeline to its street value times unit / 5 m. `forest` also
@@ -41,11 +41,11 @@ from __future__ import annotations
 import copy
 from typing import TYPE_CHECKING, Any
 
+from sgloc.maps.scale import SCENES
 from sgloc.registry import Registry
-from sgloc.scale import SCENES
 
 if TYPE_CHECKING:
-    from sgloc.config import LocalizerConfig
+    from sgloc.pipeline.config import LocalizerConfig
 
 #: Guo et al.'s pipeline (the paper's baseline), every sgloc addition switched off.
 _GUO: dict[str, Any] = {
@@ -111,7 +111,7 @@ def localizer_settings(name: str) -> dict[str, Any]:
 
 def localizer_preset(name: str) -> LocalizerConfig:
     """The LocalizerConfig of preset `name` (the paper's defaults plus the preset's settings)."""
-    from sgloc.config import LocalizerConfig
+    from sgloc.pipeline.config import LocalizerConfig
 
     return LocalizerConfig().with_overrides(**localizer_settings(name))
 

@@ -14,8 +14,8 @@ import numpy as np
 from scipy import sparse
 
 from sgloc.kernels import one_blas_thread, use_compiled
-from sgloc.matching_index import build_index, class_index, search_class, uses_index
-from sgloc.prepared_graph import PreparedGraph
+from sgloc.maps.prepared_graph import PreparedGraph
+from sgloc.matching.index import build_index, class_index, search_class, uses_index
 from sgloc.validation import (
     MAX_ITERATIONS,
     MAX_VERTICES,
@@ -49,7 +49,7 @@ class MatchingConfig:
         ratio test on cosine distances; a repetitive place gives near ties). None: no test.
     search: strategy "top_k", how a query object's most similar targets are found: "exact"
         (every same-class target), "index" (only the targets of the `probes` lists of an
-        inverted file over the class, `sgloc.matching_index`: sub-quadratic, may miss a best
+        inverted file over the class, `sgloc.matching.index`: sub-quadratic, may miss a best
         match), or "auto": the index for a class of more than 4,096 target objects, exact
         otherwise (so every problem whose classes are all smaller keeps its exact result).
         Dense descriptors and the compiled kernels only; otherwise exact.
@@ -182,7 +182,7 @@ def _use_kernel(desc_q, desc_t) -> bool:
 class TargetBlocks:
     """A target's descriptors as the matching kernel reads them, built once for many queries
     (`target_blocks`): per class searched exhaustively, its unit rows transposed
-    (`sgloc.kernels.matching`: blocks, block_class, block_start, order: those classes' target
+    (`sgloc.matching.kernels`: blocks, block_class, block_start, order: those classes' target
     indices sorted by class); `index`: the candidate-search index of the other classes;
     classes, counts: every class of the target and its number of rows."""
 
@@ -202,7 +202,8 @@ class TargetBlocks:
         return bool(np.all(np.isin(held, self.block_class)))
 
 
-#: Targets of more objects than this keep their matching blocks when prepared (sgloc.prepared).
+#: Targets of more objects than this keep their matching blocks when prepared
+# (sgloc.pipeline.prepared).
 BLOCKS_MIN_OBJECTS = 1500
 
 
@@ -210,11 +211,11 @@ def target_blocks(desc_t, labels_t: np.ndarray, search: str = "auto") -> TargetB
     """The kernel's class blocks of a target's descriptors (n,d) and labels (n,), or None when
     they are not worth keeping: sparse descriptors, or at most BLOCKS_MIN_OBJECTS rows (blocks
     that cheap are built per call). With `search` other than "exact", the classes it sends to
-    the index (`sgloc.matching_index`: more than INDEX_MIN_CLASS objects under "auto") get
+    the index (`sgloc.matching.index`: more than INDEX_MIN_CLASS objects under "auto") get
     their index and no block. Memory: another n x d floats (blocks and index together)."""
     if sparse.issparse(desc_t) or len(labels_t) <= BLOCKS_MIN_OBJECTS:
         return None
-    from sgloc.kernels.matching import class_blocks
+    from sgloc.matching.kernels import class_blocks
 
     labels_t = np.asarray(labels_t, dtype=np.int64)
     classes, counts = np.unique(labels_t, return_counts=True)
@@ -231,11 +232,11 @@ def target_blocks(desc_t, labels_t: np.ndarray, search: str = "auto") -> TargetB
 def _compiled_top_k(desc_q, desc_t, labels_q, labels_t, k, min_sim, max_ratio, flag_ratio,
                     target: PreparedGraph | None = None, search: str = "exact",
                     probes: int = 8):  # fmt: skip
-    """`_top_k` by `sgloc.kernels.matching.top_k_same_class` (same candidates; similarities
+    """`_top_k` by `sgloc.matching.kernels.top_k_same_class` (same candidates; similarities
     equal to rounding), on the `target`'s kept blocks when it has them (the same bits); the
-    classes `search` sends to an index (`sgloc.matching_index.uses_index`) by their index
+    classes `search` sends to an index (`sgloc.matching.index.uses_index`) by their index
     (the one of the target's blocks, else one kept in `target.class_indexes`, else built)."""
-    from sgloc.kernels.matching import top_k_in_blocks, top_k_same_class
+    from sgloc.matching.kernels import top_k_in_blocks, top_k_same_class
 
     blocks = None if target is None else target.blocks
 

@@ -24,7 +24,7 @@ AIRSIM_COLORS: np.ndarray = np.array(
 
 
 #: 11 distinct class colours (hex) of every picture, class k -> CLASS_PALETTE[k % 11] (chosen in
-#: sgloc.viz's docstring).
+#: sgloc.io.pictures's docstring).
 CLASS_PALETTE: tuple[str, ...] = (
     "#0072B2", "#F38400", "#2CA02C", "#D62728", "#6A3D9A", "#654522",
     "#E68FAC", "#F0E442", "#000000", "#17BECF", "#C2B280",

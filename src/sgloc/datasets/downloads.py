@@ -25,9 +25,10 @@ from pathlib import Path
 from sgloc.errors import DatasetError
 from sgloc.registry import Registry
 
-#: The source tree's root when running from a checkout (src/sgloc/downloads.py); after an install
+#: The source tree's root when running from a checkout (src/sgloc/datasets/downloads.py); after an
+# install
 #: this points into site-packages and `checkout_data_dir()` returns None.
-PROJECT_ROOT = Path(__file__).resolve().parents[2]
+PROJECT_ROOT = Path(__file__).resolve().parents[3]
 
 #: Environment variables: the data folder, the cache folder, a mirror for `sgloc data fetch`
 #: laid out like the data folder (`<url>/<set>/<file>`; used by the tests' local server).
@@ -151,7 +152,7 @@ def cache_dir() -> Path:
 
 def checkout_data_dir() -> Path | None:
     """`../shared/data` beside a source checkout (the developers' copy); None once installed."""
-    if (PROJECT_ROOT / "pyproject.toml").is_file() and Path(__file__).parents[1].name == "src":
+    if (PROJECT_ROOT / "pyproject.toml").is_file() and Path(__file__).parents[2].name == "src":
         return PROJECT_ROOT.parent / "shared" / "data"
     return None
 
@@ -230,7 +231,7 @@ def data_path(*parts: str) -> Path:
 def airsim_guo(edge_radius: float = 20.0):
     """(cloud1, cloud2): Guo et al.'s Airsim object maps as SemanticGraphs (shipped with sgloc;
     both in one world frame, so the ground truth between them is the identity)."""
-    from sgloc.graph import SemanticGraph
+    from sgloc.maps.graph import SemanticGraph
 
     d = dataset_dir("airsim_guo")
     return tuple(SemanticGraph.load(d / f, edge_radius=edge_radius)

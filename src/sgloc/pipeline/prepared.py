@@ -10,15 +10,16 @@ map, a fleet localizing new keyframes against a growing one).
 
 A localization against a prepared map gives the same result, bit for bit, as against the graph
 it holds (`prepared.graph`). Preparing costs memory linear in the map: the descriptors
-(objects x classes x bins floats), and for maps larger than `sgloc.matching.BLOCKS_MIN_OBJECTS`
+(objects x classes x bins floats), and for maps larger than
+`sgloc.matching.candidates.BLOCKS_MIN_OBJECTS`
 objects a second, normalised copy for the matching kernel: grouped by class for the classes
 searched exhaustively, by the lists of the candidate-search index for the classes of more than
-`sgloc.matching_index.INDEX_MIN_CLASS` objects (`MatchingConfig.search`; rebuilt by `add` and
+`sgloc.matching.index.INDEX_MIN_CLASS` objects (`MatchingConfig.search`; rebuilt by `add` and
 on `load`). The acceptance test's neighbour grid of the map (`chance_grid`, at most 64 bytes
 per object) and its class counts are built with it, so a query's chance model costs its own
 neighbourhood, not the map.
 
-All of it is held by the map's `canonical` (`sgloc.prepared_graph.PreparedGraph`), which the
+All of it is held by the map's `canonical` (`sgloc.maps.prepared_graph.PreparedGraph`), which the
 localizer hands to the stages; what a query builds on it for later ones (grids at other radii,
 the candidate-search index of a class a localizer searches by index) is kept there too, and
 goes with the map. Nothing is kept anywhere else: a localization against the graph itself
@@ -34,19 +35,19 @@ from typing import Any
 
 import numpy as np
 
-from sgloc.canonical import CanonicalPair, canonical_order
-from sgloc.config import LocalizerConfig
 from sgloc.descriptors import DistanceHistogramDescriptor, RandomWalkDescriptor
 from sgloc.errors import SglocError
-from sgloc.graph import SemanticGraph
 from sgloc.kernels import use_compiled
-from sgloc.prepared_graph import PreparedGraph
+from sgloc.maps.canonical import CanonicalPair, canonical_order
+from sgloc.maps.graph import SemanticGraph
+from sgloc.maps.prepared_graph import PreparedGraph
+from sgloc.pipeline.config import LocalizerConfig
 from sgloc.validation import check_graph_arrays
 
 #: The file format's name and version (`PreparedMap.save`).
 FORMAT = "sgloc.PreparedMap"
 VERSION = 1
-#: A localization needs at least this many target objects (as `sgloc.localizer`).
+#: A localization needs at least this many target objects (as `sgloc.pipeline.localizer`).
 MIN_VERTICES = 3
 
 
@@ -63,9 +64,10 @@ class PreparedMap:
     config: the LocalizerConfig it was prepared for; only its descriptor binds: a localizer
         with another descriptor or descriptor parameters refuses the map.
     classes: (L,) the map's class ids, sorted; order: (n,) its canonical vertex order
-        (`sgloc.canonical`); target: the canonical graph (classes renumbered 0..L-1);
+        (`sgloc.maps.canonical`); target: the canonical graph (classes renumbered 0..L-1);
         descriptors: (n, d) the canonical graph's descriptor rows (read-only);
-        blocks: the matching kernel's class blocks (`sgloc.matching.TargetBlocks`) or None;
+        blocks: the matching kernel's class blocks (`sgloc.matching.candidates.TargetBlocks`) or
+        None;
         canonical: the `PreparedGraph` of `target` holding descriptors, blocks, neighbour
         grids and class indexes, handed to the stages of every query;
         chance_grid: the acceptance test's neighbour grid of `target` at the config's
@@ -177,7 +179,7 @@ class PreparedMap:
         new class table, the new objects' contributions added to the old rows within the
         radius, the new objects' rows computed, all put in the new canonical order. Sums of
         the descriptor's weights are exact, so this equals computing them anew."""
-        from sgloc.kernels.neighbors import distance_histograms, near_class_counts
+        from sgloc.maps.neighbor_kernels import distance_histograms, near_class_counts
 
         desc, L = self.descriptor, len(self.classes)
         nb, radius, taper = int(desc.n_bins), float(desc.radius), float(desc.taper)
@@ -345,18 +347,19 @@ def _read(path: Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
 
 
 def _matching_blocks(descriptors, labels: np.ndarray, config: LocalizerConfig):
-    """The matching kernel's class blocks of the map (`sgloc.matching.TargetBlocks`), with the
+    """The matching kernel's class blocks of the map (`sgloc.matching.candidates.TargetBlocks`),
+    with the
     candidate-search index of its large classes unless the config's matching search is
     "exact", or None when matching runs without them (sparse descriptors, or a map small
     enough to build them per call)."""
-    from sgloc.matching import target_blocks
+    from sgloc.matching.candidates import target_blocks
 
     return target_blocks(descriptors, labels, config.matching.search)
 
 
 def prepare(target: SemanticGraph, config: LocalizerConfig | None = None) -> PreparedMap:
     """`target` prepared for repeated localization under `config` (default settings): its
-    canonical form, descriptors and matching blocks computed once (sgloc.prepared)."""
+    canonical form, descriptors and matching blocks computed once (sgloc.pipeline.prepared)."""
     return PreparedMap(target, config)
 
 

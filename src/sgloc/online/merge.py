@@ -9,7 +9,7 @@ from scipy import sparse
 from scipy.sparse.csgraph import connected_components
 
 from sgloc.geometry import apply
-from sgloc.graph import SemanticGraph
+from sgloc.maps.graph import SemanticGraph
 
 
 def merge_graphs(

@@ -1,6 +1,7 @@
 """Consistency within a radius: the neighbour constraint at a cost linear in the candidates.
 
-The all-pairs form (`sgloc.consistency`) checks every pair of candidate matches: m^2 work and
+The all-pairs form (`sgloc.consistency.pairwise`) checks every pair of candidate matches: m^2 work
+and
 m^2 / 8 bytes. Here two candidates are compared only when their query objects lie closer than
 `radius` metres (the paper's neighbours), so work grows with m x the candidates within the
 radius and memory with m. A candidate's support is the count of its spatial neighbours it is
@@ -8,7 +9,8 @@ consistent with; Alg. 1 removes the least supported fraction first (`prune_local
 radius that covers the whole query map every candidate neighbours every other and the result
 equals Alg. 1 on all pairs (`sgloc.rejection.neighbor.prune_bits`).
 
-`prune_local` runs the compiled kernel (`sgloc.kernels.local`); `local_counts_reference` and
+`prune_local` runs the compiled kernel (`sgloc.consistency.local_kernels`);
+`local_counts_reference` and
 `prune_local_reference` are the numpy references (dense, m^2: small problems and tests).
 """
 
@@ -18,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sgloc.consistency import check_form, consistency_bool
+from sgloc.consistency.pairwise import check_form, consistency_bool
 from sgloc.kernels import use_compiled
 
 #: Cells per axis at most: cells are widened beyond the radius when a map is wider than this
@@ -82,11 +84,11 @@ def local_counts(
 ) -> tuple[np.ndarray, np.ndarray]:
     """(r, V) int64 (m,): per candidate match i (src_i (m,3) query, dst_i target, metres), the
     other candidates whose query points lie closer than `radius` to src_i, and those of them
-    consistent with i (`sgloc.consistency` forms). Compiled; memory linear in m."""
+    consistent with i (`sgloc.consistency.pairwise` forms). Compiled; memory linear in m."""
     check_form(form)
     if not use_compiled(len(src)):
         return local_counts_reference(src, dst, tau, radius, form)
-    from sgloc.kernels.local import local_counts as kernel
+    from sgloc.consistency.local_kernels import local_counts as kernel
 
     return kernel(*_kernel_args(src, dst, radius), float(tau), form == "neighbor")
 
@@ -110,7 +112,7 @@ def prune_local(
         return np.zeros(0, dtype=np.int64)
     if not use_compiled(len(src)):
         return prune_local_reference(src, dst, tau, eta, radius, form, self_vote)
-    from sgloc.kernels.local import local_prune
+    from sgloc.consistency.local_kernels import local_prune
 
     args = _kernel_args(src, dst, radius)
     return local_prune(*args, float(tau), form == "neighbor", float(eta), int(self_vote))

@@ -11,10 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
-from sgloc.classes import CLASS_PALETTE, class_colours
 from sgloc.geometry import apply
-from sgloc.graph import SemanticGraph
 from sgloc.io.files import PNG_SOFTWARE
+from sgloc.maps.classes import CLASS_PALETTE, class_colours
+from sgloc.maps.graph import SemanticGraph
 
 ROBOT_MARKERS: tuple[str, ...] = ("o", "^", "s", "D", "v", "P", "X", "*")
 

@@ -1,11 +1,11 @@
 """Alg. 1 within a radius: supports counted among spatial neighbours only (numba).
 
-Candidates are bucketed on a grid of the query positions (`sgloc.local_consistency.CellGrid`,
+Candidates are bucketed on a grid of the query positions (`sgloc.consistency.local.CellGrid`,
 cells at least the radius wide: every neighbour lies in one of the 27 cells around a
 candidate's). Nothing of size neighbours x candidates is stored: a candidate's neighbours are
 found again from the grid when it is removed, so memory is linear in the candidates and time
 grows with candidates x neighbourhood. Distances and consistency decisions are float64
-sqrt(dx*dx + dy*dy + dz*dz), as in `sgloc.kernels.consistency` (scipy cdist's values).
+sqrt(dx*dx + dy*dy + dz*dz), as in `sgloc.consistency.pairwise_kernels` (scipy cdist's values).
 """
 
 from __future__ import annotations

@@ -46,7 +46,7 @@ def near_class_counts(
     the sum of their `weights` (n,) (an empty `weights`: the second array stays zero).
 
     grid: the points' `cell_grid` at this radius when the caller keeps it (a prepared graph's,
-    `sgloc.prepared_graph`: searched by every query, so a search then costs O(n_query x the
+    `sgloc.maps.prepared_graph`: searched by every query, so a search then costs O(n_query x the
     points around them), not O(n)); None: built for this call."""
     if len(points) == 0 or len(query) == 0:
         return np.zeros((len(query), n_classes)), np.zeros((len(query), n_classes))
@@ -77,7 +77,8 @@ class CellGrid:
 
 def cell_grid(points: np.ndarray, labels: np.ndarray, radius: float) -> CellGrid:
     """The `CellGrid` of points (n,3) with labels (n,) int64 for `radius` metres (a caller
-    that searches the same points again keeps it: `sgloc.prepared_graph.PreparedGraph.grid`)."""
+    that searches the same points again keeps it:
+    `sgloc.maps.prepared_graph.PreparedGraph.grid`)."""
     keys, x0, y0, cell, n_y = _cell_keys(points, radius)
     n_cells = (int(keys.max()) // n_y + 3) * n_y
     # A table of runs when it costs at most a few entries per point, else binary searches.
