@@ -48,7 +48,7 @@ def test_read_only_install_caches_kernels_in_the_temporary_directory(tmp_path):
     tmp = tmp_path / "tmp"
     tmp.mkdir()
     env["TMPDIR"] = str(tmp)
-    run = _run(PRUNE + "from sgloc.kernels import fit\n", env)
+    run = _run(PRUNE + "from sgloc.estimation import fit_kernels\n", env)
     assert run.returncode == 0, run.stderr
     assert run.stdout.strip() == "[0, 1, 2, 3, 4]"
     assert "no locator" not in run.stderr and "Traceback" not in run.stderr
