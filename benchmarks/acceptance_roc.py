@@ -57,11 +57,10 @@ same-class target object (against the query's class frequencies): independent co
 the rest of the map. Both are evaluated at 1/4, 1/2 and all of the threshold (the smallest NFA,
 times 3), each lambda scaled by (r_fit / threshold)^2, r_fit = the largest residual of the
 inliers within that radius (at least 10 % of the threshold), as AC-RANSAC adapts its radius to
-the precision of the fit.
-The runner-up is the best *distinct* alignment (> 10 m or > 10 deg away, supported by
-candidates the best does not explain). So confidence is the weight of the best alignment when
-it, the runner-up and chance are weighed by 1/NFA; under the nulls, a non-overlapping pair
-reaches confidence >= c with probability about (1 - c) / c at most (if the nulls held exactly:
+the precision of the fit. The runner-up is the best *distinct* alignment (> 10 m or > 10 deg away,
+supported by candidates the best does not explain). So confidence is the weight of the best
+alignment when it, the runner-up and chance are weighed by 1/NFA; under the nulls, a non-overlapping
+pair reaches confidence >= c with probability about (1 - c) / c at most (if the nulls held exactly:
 the real negatives below show they are optimistic for repeated street furniture and for the
 repeated game assets of the Airsim city, hence the strict default).
 Only distinctive candidates are evidence (`EvidenceConfig.distinct_ratio` = 0.8): those of

@@ -9,9 +9,8 @@ Stage 1 (cached in --out/fits-<split>.pkl, redone when the sgloc package's commi
 with --refresh): localize every pair, keep the
 final matched points, the estimate and the ground truth. Stage 2: the covariance of each
 accepted estimate (`sgloc.estimation.covariance.transform_covariance`), the true error in its
-tangent
-convention and the coverage; with --fit also the inflation constants chosen on the tuning pairs
-(printed; they are copied into sgloc.estimation.covariance by hand). --update-docs writes
+tangent convention and the coverage; with --fit also the inflation constants chosen on the tuning
+pairs (printed; they are copied into sgloc.estimation.covariance by hand). --update-docs writes
 docs/covariance.md and docs/covariance.png.
 """
 
@@ -398,8 +397,7 @@ print(np.sqrt(np.diag(point_covariance(C, p))), "m: standard deviations there")
 
 ## How it is computed
 `sgloc.estimation.covariance.transform_covariance(src, dst, transform, weights, dof, max_tilt)`, on
-the
-final matched objects of the localizer:
+the final matched objects of the localizer:
 
 1. The least-squares fit's covariance: the Jacobian of the point residuals with respect to a
    right perturbation, (J^T W J)^-1 times the residual variance per axis, estimated from the

@@ -7,9 +7,8 @@ For each image size (320x180 and 1024x576) robot A ("forwardCar") of a synthetic
 route; its frames are rendered (sgloc.sim.render, in memory) and then extracted into a graph
 (sgloc.extraction.build_graph, paper defaults). Reported: frames/s of each stage (wall clock
 and CPU time of this process: other processes may run at the same time; CPU time shows what
-the code costs),
-the whole run's time, and the graph size. Goal: a 300-frame run at 320x180 rendered and
-extracted in under 30 s. Also times writing the run in the Airsim layout (PNG encoding).
+the code costs), the whole run's time, and the graph size. Goal: a 300-frame run at 320x180 rendered
+and extracted in under 30 s. Also times writing the run in the Airsim layout (PNG encoding).
 """
 
 from __future__ import annotations

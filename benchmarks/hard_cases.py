@@ -804,9 +804,8 @@ together, 250 m paths, one class; the goals count those sharing >= 50 trunks), f
 room_pairs (two parts of one room; goals: those sharing >= 8 objects), floor_pairs (two maps
 of an 8-room floor sharing two facing rooms), repeated_rooms (one office of a floor of
 identical offices against the floor: must be refused). Forest targets move up to 200 m, room
-targets up to 20 m.
-Every target map is moved by a random rigid transform (any yaw, roll/pitch <= 5 deg, up to
-200 m), so no method profits from the identity.
+targets up to 20 m. Every target map is moved by a random rigid transform (any yaw, roll/pitch <= 5
+deg, up to 200 m), so no method profits from the identity.
 
 ## Scoring
 Error = T_est @ inv(T_gt) in the target map's own (unmoved) frame. localized = accepted and

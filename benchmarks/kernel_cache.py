@@ -15,7 +15,8 @@ then gives wrong results or crashes in the load orders).
 
     python benchmarks/kernel_cache.py                   # forward, reverse, 4 random orders
     python benchmarks/kernel_cache.py --pairs           # also every ordered pair, one process each
-    python benchmarks/kernel_cache.py --probe clique triangles   # one process, this order
+    python benchmarks/kernel_cache.py --probe sgloc.rejection.clique_kernels \
+        sgloc.consistency.triangle_kernels   # one process, this order
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ import numpy as np
 import sgloc
 from sgloc import kernels
 
-#: The kernel modules under `sgloc.kernels` with compiled (cached) code.
+#: The kernel modules with compiled (cached) code, each beside its stage.
 MODULES = kernels.MODULES
 
 
@@ -115,7 +116,7 @@ def check_clique() -> None:
         assert np.array_equal(got, greedy_clique(R, rank, seeds)), "greedy clique"
 
 
-def check_consistency() -> None:
+def check_pairwise() -> None:
     from sgloc.consistency import pairwise_kernels as consistency
     from sgloc.consistency.pairwise import consistency_bool, unpack_rows
 
@@ -161,8 +162,8 @@ def check_local() -> None:
         assert np.array_equal(kept, prune_local_reference(src, dst, 5.0, 0.5, radius)), "local"
 
 
-def check_matching() -> None:
-    import sgloc.matching.kernels  # noqa: F401 (loaded first, then called through matching)
+def check_similarity() -> None:
+    import sgloc.matching.similarity_kernels  # noqa: F401 (loaded first, then called through matching)
     from sgloc.matching.candidates import MatchingConfig, match_flagged
 
     rng = np.random.default_rng(3)
@@ -184,7 +185,7 @@ def check_evidence() -> None:
     from sgloc.acceptance.assessment import squared_residuals_of
     from sgloc.acceptance.chance import chance_terms, object_nfa_over_radii
     from sgloc.acceptance.mirror import reflect_across_line
-    from sgloc.kernels import evidence  # noqa: F401 (loaded first, then called as acceptance does)
+    from sgloc.acceptance import evidence_kernels  # noqa: F401 (loaded first, then called)
     from sgloc.maps.graph import SemanticGraph
 
     rng = np.random.default_rng(9)
@@ -217,7 +218,7 @@ def check_evidence() -> None:
     assert np.allclose(got[4], ref[4], rtol=1e-12), "residuals"
 
 
-def check_neighbors() -> None:
+def check_neighbor() -> None:
     from sgloc.acceptance import ChanceModel
     from sgloc.maps.graph import SemanticGraph
     from sgloc.maps.neighbor_kernels import near_class_counts
@@ -280,7 +281,7 @@ def check_runner_up() -> None:
     from sgloc.consistency.pairwise import ConsistentPairs
     from sgloc.estimation import rot_z
     from sgloc.geometry import apply, make_transform
-    from sgloc.kernels import runner_up  # noqa: F401 (loaded first, then called as acceptance does)
+    from sgloc.acceptance import runner_up_kernels  # noqa: F401 (loaded first, then called)
 
     rng = np.random.default_rng(6)
     src = rng.uniform(-80, 80, (120, 3)) * [1, 1, 0.05]
@@ -318,7 +319,7 @@ def check_spectral() -> None:
     assert len(got) > 50 and np.array_equal(got, rej.reference(src, dst)), "spectral"
 
 
-def check_triangles() -> None:
+def check_triangle() -> None:
     from sgloc.consistency import triangle_kernels as triangles
     from sgloc.consistency.pairwise import pack_rows
 
@@ -341,9 +342,9 @@ def check_triangles() -> None:
         assert np.array_equal(ki, ref_i[ks]) and np.array_equal(kj, ref_j[ks]), "edges at"
 
 
-def check_walks() -> None:
+def check_walk() -> None:
     from sgloc.descriptors import RandomWalkDescriptor
-    from sgloc.kernels import walks  # noqa: F401 (loaded first, then called as the descriptor does)
+    from sgloc.descriptors import walk_kernels  # noqa: F401 (loaded first, then called)
     from sgloc.maps.graph import SemanticGraph
 
     rng = np.random.default_rng(10)
@@ -357,7 +358,14 @@ def check_walks() -> None:
             assert np.array_equal(getattr(got, field), getattr(ref, field)), f"walks {field}"
 
 
-CHECKS: dict[str, Callable[[], None]] = {name: globals()[f"check_{name}"] for name in MODULES}
+def short_name(module: str) -> str:
+    """`sgloc.maps.neighbor_kernels` -> `neighbor`: the name of a kernel module's check."""
+    return module.rsplit(".", 1)[1].removesuffix("_kernels")
+
+
+CHECKS: dict[str, Callable[[], None]] = {
+    name: globals()[f"check_{short_name(name)}"] for name in MODULES
+}
 
 #: numba's generated sort and search helpers: their symbol names hold the element types and a
 #: per-process counter, not what the code does (sort or argsort, left or right side), so two
@@ -402,7 +410,7 @@ def numba_helpers(names: list[str]) -> dict[str, dict[str, str]]:
 
     out = {}
     for name in names:
-        found = vars(sys.modules[f"sgloc.kernels.{name}"]).values()
+        found = vars(sys.modules[name]).values()
         out[name] = defined_numba_functions(v for v in found if isinstance(v, Dispatcher))
     return out
 
@@ -424,7 +432,7 @@ def cache_misses() -> dict[str, int]:
 
     out = {}
     for name in MODULES:
-        module = sys.modules.get(f"sgloc.kernels.{name}")
+        module = sys.modules.get(name)
         if module is None:
             continue
         found = [v for v in vars(module).values() if isinstance(v, Dispatcher)]

@@ -4,8 +4,8 @@ sgloc's defaults, from the trials of `benchmarks/reproduce_paper.sh`; plus the t
 Usage: python -m benchmarks.paper_claims [RESULTS_DIR] [OUT_MD] [DOC]
 (defaults results/paper, docs/figures/paper-claims.md, docs/reproduction.md): writes OUT_MD and
 refills DOC's generated blocks (claims, tau, fig4/fig5-paper/default, and figures/*.md tables).
-Reads, under RESULTS_DIR:
-table1-airsim{,-paper}/trials.csv (T_error 5 m), threshold-airsim{,-paper}/trials.csv
+Reads, under RESULTS_DIR: table1-airsim{,-paper}/trials.csv (T_error 5 m),
+threshold-airsim{,-paper}/trials.csv
 (T_error sweep) and tau{T}-airsim-paper/trials.csv (the tau sweep, histogram + neighbor).
 """
 

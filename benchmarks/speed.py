@@ -356,13 +356,11 @@ def peak_mb():
 n, reps = int(sys.argv[1]), int(sys.argv[2])
 small = scene(2000)
 localize(small.query, small.target, seed=0, scope="local")  # loads the kernels (not timed)
-s = scene(n)
-out = {"n_query": len(s.query), "n_target": len(s.target), "base_mb": peak_mb(), "s": []}
-for _ in range(reps):
+s = scene(n) out = {"n_query": len(s.query), "n_target": len(s.target), "base_mb": peak_mb(), "s":
+[]} for _ in range(reps):
     # New graph objects every call: nothing computed for the last call is reused.
     q, t = s.query.subgraph(np.arange(len(s.query))), s.target.subgraph(np.arange(len(s.target)))
-    t0 = time.perf_counter()
-    res = localize(q, t, seed=0)
+    t0 = time.perf_counter() res = localize(q, t, seed=0)
     out["s"].append(time.perf_counter() - t0)
     out["timings"] = res.timings
 out["success"] = bool(res.success)

@@ -34,7 +34,7 @@ def test_a_kernel_compiles_once_whatever_the_array_flags():
     """A read-only array (a graph's positions) and a writable one, or a literal integer and an
     int64, are one compiled specialisation of a kernel: one compile on first use, one load in
     a fresh process, and no later compile for arguments met in another order."""
-    from sgloc.matching.kernels import class_blocks, inverse_norms
+    from sgloc.matching.similarity_kernels import class_blocks, inverse_norms
 
     rng = np.random.default_rng(0)
     D = rng.random((40, 5))

@@ -30,11 +30,12 @@ def test_cached_kernels_loaded_together_in_any_order_equal_references(tmp_path, 
 
 
 def test_every_cached_kernel_module_is_checked(kernel_cache):
-    import sgloc.kernels
+    import sgloc
 
-    folder = Path(sgloc.kernels.__file__).parent
+    root = Path(sgloc.__file__).parent
     compiled = re.compile(r"^@(kernel\b|njit\(cache=True)", re.MULTILINE)
-    cached = {p.stem for p in folder.glob("*.py") if compiled.search(p.read_text())}
+    cached = {".".join(("sgloc", *p.relative_to(root).with_suffix("").parts))
+              for p in root.rglob("*.py") if compiled.search(p.read_text())}
     assert cached == set(kernel_cache.MODULES)
 
 

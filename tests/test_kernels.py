@@ -212,7 +212,8 @@ def _descriptor_pair(seed: int, n_q: int, n_t: int, d: int = 24):
     ],
 )
 def test_compiled_top_k_equals_reference(monkeypatch, seed, cfg, flag_ratio):
-    """The kernel (`sgloc.matching.kernels`) keeps the same candidates, in the same order, with
+    """The kernel (`sgloc.matching.similarity_kernels`) keeps the same candidates, in the same
+    order, with
     the same flags and similarities to rounding, as the numpy blocks (ties included)."""
     dq, dt, lq, lt = _descriptor_pair(seed, 90 + 17 * seed, 120)
     out = {}
@@ -376,7 +377,8 @@ def test_compiled_top_k_one_tile_and_tiled_classes_equal_reference(monkeypatch, 
     tile by tile) keep the reference's candidates, flags and similarities."""
     dq, dt, lq, lt = _descriptor_pair(5, n_q, n_t)
     sizes = np.unique(lt, return_counts=True)[1]
-    assert (sizes.min() > 256) == (n_t == 900)  # a tile: 256 targets (sgloc.matching.kernels)
+    # a tile: 256 targets (sgloc.matching.similarity_kernels)
+    assert (sizes.min() > 256) == (n_t == 900)
     cfg = MatchingConfig(min_similarity=0.1, top_k=2)
     out = {}
     for path in ("reference", "compiled"):

@@ -77,8 +77,7 @@ def select_evidence(
     this size: all of them when its ratio (`config.ratio_for`) is None; else those passing the
     ratio test against rivals farther than `config.exclusion_for` metres when that is > 0
     (`spatially_distinctive`), else those `flags` marks (`sgloc.matching.candidates.match_flagged`
-    at that
-    ratio); without flags, the candidates of `matching` with `max_ratio` at that ratio.
+    at that ratio); without flags, the candidates of `matching` with `max_ratio` at that ratio.
     desc_q, desc_t: the graphs' vertex descriptors (dense or CSR); prepared: the target's
     `PreparedGraph` (of desc_t) for that matching, or None."""
     ratio = config.ratio_for(len(query))

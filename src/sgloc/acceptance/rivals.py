@@ -98,8 +98,7 @@ def _compiled_yaw_runner_up(
 ) -> tuple[int, np.ndarray | None]:
     """`runner_up`'s dof=4 branch from the drawn pairs (i, j) on, in one compiled pass
     (`sgloc.acceptance.runner_up_kernels`): the same alternative, its residuals and the centre of
-    T's
-    support equal to rounding."""
+    T's support equal to rounding."""
     from sgloc.acceptance.runner_up_kernels import best_yaw_alternative
 
     count, T2, found = best_yaw_alternative(

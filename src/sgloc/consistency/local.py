@@ -1,8 +1,7 @@
 """Consistency within a radius: the neighbour constraint at a cost linear in the candidates.
 
 The all-pairs form (`sgloc.consistency.pairwise`) checks every pair of candidate matches: m^2 work
-and
-m^2 / 8 bytes. Here two candidates are compared only when their query objects lie closer than
+and m^2 / 8 bytes. Here two candidates are compared only when their query objects lie closer than
 `radius` metres (the paper's neighbours), so work grows with m x the candidates within the
 radius and memory with m. A candidate's support is the count of its spatial neighbours it is
 consistent with; Alg. 1 removes the least supported fraction first (`prune_local`). With a

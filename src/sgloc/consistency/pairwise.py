@@ -8,11 +8,9 @@ Every decision equals the dense float64 computation (`scipy.spatial.distance.cdi
 
 `consistency_bits` / `consistency_matrix` run the compiled one-pass kernel
 (`sgloc.consistency.pairwise_kernels`): bit-packed rows, m^2 / 8 bytes. `consistent_blocks` is the
-plain
-numpy computation, tile by tile (float32 Gram products with an exact float64 recheck near tau);
-it also yields the distance differences (the spectral rejector's affinities) and serves as the
-reference in tests.
-"""
+plain numpy computation, tile by tile (float32 Gram products with an exact float64 recheck near
+tau); it also yields the distance differences (the spectral rejector's affinities) and serves as the
+reference in tests. """
 
 from __future__ import annotations
 
@@ -71,9 +69,8 @@ def consistent_blocks(
 
     ok (len(rows), len(cols)) bool: the pair is consistent, exact up to float64 rounding (equal
     to the dense float64 computation); diagonal entries i == j come as computed, callers clear
-    them.
-    diff (same shape) float32: |D(src_i,src_j) - D(dst_i,dst_j)| in metres, approximate (within
-    ~2e-3 of the point sets' extent), for soft affinities; None for form "neighbor".
+    them. diff (same shape) float32: |D(src_i,src_j) - D(dst_i,dst_j)| in metres, approximate
+    (within ~2e-3 of the point sets' extent), for soft affinities; None for form "neighbor".
     form "distance": ok = diff < tau (Alg. 1); "neighbor": ok = (D_src < tau) == (D_dst < tau).
     """
     check_form(form)

@@ -4,8 +4,7 @@ The acceptance test needs two things of the consistency graph of its candidates 
 "distance", `sgloc.consistency.pairwise`): how many hypotheses it holds (consistent pairs for 4 dof,
 consistent triples for 6 dof; only their log10 matters) and random consistent pairs to seed the
 search for a rival alignment. Above `sgloc.consistency.pairwise.ALL_PAIRS_LIMIT` candidates the
-packed
-rows (m^2 / 8 bytes) are replaced by a uniform sample of pairs: counts are estimated with an
+packed rows (m^2 / 8 bytes) are replaced by a uniform sample of pairs: counts are estimated with an
 upper confidence margin (more tests make the test stricter, never looser) and the consistent
 sampled pairs are drawn in sample order. Memory and time are linear in the sample and in m.
 """

@@ -152,8 +152,7 @@ def squared_residuals(R: np.ndarray, t: np.ndarray, src: np.ndarray, dst: np.nda
 
     Expanded into matrix products (|s|^2 + |t - d|^2 + 2 (R s).(t - d)), so the work is a
     single (B,17) @ (17,m) product instead of a (B,m,3) temporary. Inputs should be roughly
-    centred for precision.
-    """
+    centred for precision. """
     B = len(R)
     left = np.empty((B, 17))
     left[:, 0] = 1.0

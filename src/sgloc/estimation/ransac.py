@@ -129,8 +129,7 @@ def ransac(
     The ground vehicle's model (dof=4) and any rigid motion without a gravity gate (dof=6,
     max_tilt=None) score with the compiled kernels (`ransac_compiled`: same samples, same
     result as `ransac_reference`); dof=6 with max_tilt, Guo's sampler and "first" scoring run
-    `ransac_reference`.
-    """
+    `ransac_reference`. """
     cfg = config or RansacConfig()
     kernel_model = cfg.dof == 4 or cfg.max_tilt is None
     if kernel_model and cfg.sampler == "minimal" and cfg.scoring != "first":

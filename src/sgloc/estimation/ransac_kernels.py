@@ -4,8 +4,7 @@ The compiled scorer of `sgloc.estimation.ransac_compiled` (whose adaptive loop, 
 refits are those of `ransac_reference`): each block of hypotheses is fitted and scored in one
 compiled call (no (B,m) residual matrix, no BLAS), for any rigid motion without a gravity gate
 (dof=6, max_tilt=None: triplets) and for the ground vehicle's model (dof=4: x, y, z, yaw from
-pairs).
-"""
+pairs). """
 
 from __future__ import annotations
 

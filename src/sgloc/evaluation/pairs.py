@@ -5,8 +5,7 @@ Sources register by name in `sgloc.evaluation.scenes.PAIR_SOURCES`: the file-bas
 (`graph-files`, `airsim-guo`, `synthia`) and the code-generated `object-world` here, `kitti00`
 (pairs_kitti), `city` and `airsim-run` (pairs_sim). Everything random in a pair comes from the
 seed, so a trial is a pure function of (source, parameters, seed) and gives the same pair on any
-process or Dask worker.
-"""
+process or Dask worker. """
 
 from __future__ import annotations
 

@@ -88,8 +88,7 @@ class CityPairs(MovedTargetSource):
     `overlap` of their routes; each map is extracted from its rendered semantic + depth frames
     and lies in the robot's own start frame. Trial seed s uses city `s % n_worlds` (rendering
     is the expensive part; graphs are cached on disk under sgloc.datasets.downloads.cache_dir()),
-    and the
-    target is moved by a random rigid transform per trial."""
+    and the target is moved by a random rigid transform per trial."""
 
     #: Recommended localizer settings (the `city` preset: buildings weigh less).
     localizer_settings: ClassVar[dict[str, Any]] = preset_settings("city")

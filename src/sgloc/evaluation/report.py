@@ -5,8 +5,7 @@ mean recall and precision, and per-stage times. Times are medians (robust on a s
 "total" is rejection + RANSAC (incl. the final fit) as in the paper, "pipeline" adds
 descriptors and matching. Pose errors and precision average over the localized trials; failures
 (not localized, or localized with translation error > 20 m: "wrong") are counted in their own
-column.
-"""
+column. """
 
 from __future__ import annotations
 

@@ -2,8 +2,7 @@
 
 File format: one class a line, `class_id r g b [name]` (spaces or commas; `#` comments), r g b
 in 0-255. Class ids need not be contiguous; colours must be distinct. A UTF-8 byte-order mark
-is ignored (`sgloc.io.text`).
-"""
+is ignored (`sgloc.io.text`). """
 
 from __future__ import annotations
 

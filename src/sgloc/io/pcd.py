@@ -4,8 +4,7 @@ The class comes from a `label` field when present, else from a packed `rgb` fiel
 a colour table (Guo et al.'s Airsim table by default). DATA ascii, binary and
 binary_compressed (LZF). The reader is strict: every header line is checked against the others
 and against the data (counts, sizes, trailing bytes), so a damaged file is an error, never a
-silently shorter map.
-"""
+silently shorter map. """
 
 from __future__ import annotations
 

@@ -1,8 +1,7 @@
 """Text files (poses, calibration, tables, class tables) read with clear errors.
 
 Every text file is UTF-8; a leading byte-order mark (what spreadsheet programs write for "CSV
-UTF-8") is dropped.
-"""
+UTF-8") is dropped. """
 
 from __future__ import annotations
 

@@ -59,7 +59,8 @@ _BLAS_CONTROLLER = None
 MODULES = (
     "sgloc.maps.canonical_kernels", "sgloc.rejection.clique_kernels",
     "sgloc.consistency.pairwise_kernels", "sgloc.acceptance.evidence_kernels",
-    "sgloc.estimation.fit_kernels", "sgloc.matching.kernels", "sgloc.maps.neighbor_kernels",
+    "sgloc.estimation.fit_kernels", "sgloc.matching.similarity_kernels",
+    "sgloc.maps.neighbor_kernels",
     "sgloc.consistency.local_kernels", "sgloc.rejection.prune_kernels",
     "sgloc.estimation.ransac_kernels", "sgloc.acceptance.runner_up_kernels",
     "sgloc.rejection.spectral_kernels", "sgloc.consistency.triangle_kernels",

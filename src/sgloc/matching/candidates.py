@@ -182,9 +182,9 @@ def _use_kernel(desc_q, desc_t) -> bool:
 class TargetBlocks:
     """A target's descriptors as the matching kernel reads them, built once for many queries
     (`target_blocks`): per class searched exhaustively, its unit rows transposed
-    (`sgloc.matching.kernels`: blocks, block_class, block_start, order: those classes' target
-    indices sorted by class); `index`: the candidate-search index of the other classes;
-    classes, counts: every class of the target and its number of rows."""
+    (`sgloc.matching.similarity_kernels`: blocks, block_class, block_start, order: those
+    classes' target indices sorted by class); `index`: the candidate-search index of the other
+    classes; classes, counts: every class of the target and its number of rows."""
 
     n_rows: int
     blocks: np.ndarray
@@ -215,7 +215,7 @@ def target_blocks(desc_t, labels_t: np.ndarray, search: str = "auto") -> TargetB
     their index and no block. Memory: another n x d floats (blocks and index together)."""
     if sparse.issparse(desc_t) or len(labels_t) <= BLOCKS_MIN_OBJECTS:
         return None
-    from sgloc.matching.kernels import class_blocks
+    from sgloc.matching.similarity_kernels import class_blocks
 
     labels_t = np.asarray(labels_t, dtype=np.int64)
     classes, counts = np.unique(labels_t, return_counts=True)
@@ -232,11 +232,11 @@ def target_blocks(desc_t, labels_t: np.ndarray, search: str = "auto") -> TargetB
 def _compiled_top_k(desc_q, desc_t, labels_q, labels_t, k, min_sim, max_ratio, flag_ratio,
                     target: PreparedGraph | None = None, search: str = "exact",
                     probes: int = 8):  # fmt: skip
-    """`_top_k` by `sgloc.matching.kernels.top_k_same_class` (same candidates; similarities
-    equal to rounding), on the `target`'s kept blocks when it has them (the same bits); the
-    classes `search` sends to an index (`sgloc.matching.index.uses_index`) by their index
-    (the one of the target's blocks, else one kept in `target.class_indexes`, else built)."""
-    from sgloc.matching.kernels import top_k_in_blocks, top_k_same_class
+    """`_top_k` by `sgloc.matching.similarity_kernels.top_k_same_class` (same candidates;
+    similarities equal to rounding), on the `target`'s kept blocks when it has them (the same
+    bits); the classes `search` sends to an index (`sgloc.matching.index.uses_index`) by their
+    index (the one of the target's blocks, else one kept in `target.class_indexes`, else built)."""
+    from sgloc.matching.similarity_kernels import top_k_in_blocks, top_k_same_class
 
     blocks = None if target is None else target.blocks
 

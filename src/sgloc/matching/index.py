@@ -10,8 +10,7 @@ docs/speed_benchmark.md). Deterministic: the sample comes from a Generator seede
 size, and the matrix products run on one BLAS thread.
 
 Used by `sgloc.matching.candidates` (`MatchingConfig.search`) per class: see `uses_index` for the
-rule.
-"""
+rule. """
 
 from __future__ import annotations
 
@@ -83,7 +82,7 @@ def _kmeans(X: np.ndarray, n_centres: int) -> np.ndarray:
 
 def build_class_index(desc: np.ndarray, rows: np.ndarray) -> ClassIndex:
     """The index of the target rows `rows` (one class, ascending) of descriptors desc (n, d)."""
-    from sgloc.matching.kernels import class_blocks
+    from sgloc.matching.similarity_kernels import class_blocks
 
     X = np.ascontiguousarray(desc[rows], dtype=np.float64)
     with one_blas_thread():  # the same bits in every process
@@ -144,8 +143,9 @@ def probe_lists(index: ClassIndex, Q: np.ndarray, rows: np.ndarray, probes: int)
 
 def search_class(index: ClassIndex, Q: np.ndarray, rows: np.ndarray, probes: int, tests: tuple):
     """(query idx, target idx, score, flag) of the query rows `rows` of Q in this class
-    (`sgloc.matching.kernels.top_k_in_lists`; tests: k, min_sim, max_ratio, flag_ratio)."""
-    from sgloc.matching.kernels import top_k_in_lists
+    (`sgloc.matching.similarity_kernels.top_k_in_lists`; tests: k, min_sim, max_ratio,
+    flag_ratio)."""
+    from sgloc.matching.similarity_kernels import top_k_in_lists
 
     lists = probe_lists(index, Q, rows, probes)
     return top_k_in_lists(Q, np.asarray(rows, np.int64), lists, index.blocks, index.list_start,

@@ -54,8 +54,7 @@ class KeyframeGraph:
 
     noise: the odometry's noise model; solver: "auto", "gtsam" (ISAM2) or "scipy" (the
     sparse Levenberg-Marquardt fallback); root: the robot whose odometry frame is the fleet
-    frame.
-    """
+    frame. """
 
     def __init__(self, noise: OdometryNoise | None = None, solver: str = "auto",
                  root: int = 0) -> None:

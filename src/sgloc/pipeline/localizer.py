@@ -54,8 +54,7 @@ class LocalizationResult:
     covariance: (6,6) covariance of `transform` (None when not localized): tangent order
         [rx, ry, rz, tx, ty, tz] (rad, m), T_true = transform @ Exp(xi), xi in the QUERY frame
         (gtsam.Pose3's convention); measured on real data (`sgloc.estimation.covariance`). Computed
-        when
-        first read, from `fitted`.
+        when first read, from `fitted`.
     config: the call's settings as a nested dict (`LocalizerConfig.to_dict` of `settings`),
         built when first read.
     """

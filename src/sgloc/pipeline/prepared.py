@@ -67,8 +67,7 @@ class PreparedMap:
         (`sgloc.maps.canonical`); target: the canonical graph (classes renumbered 0..L-1);
         descriptors: (n, d) the canonical graph's descriptor rows (read-only);
         blocks: the matching kernel's class blocks (`sgloc.matching.candidates.TargetBlocks`) or
-        None;
-        canonical: the `PreparedGraph` of `target` holding descriptors, blocks, neighbour
+        None; canonical: the `PreparedGraph` of `target` holding descriptors, blocks, neighbour
         grids and class indexes, handed to the stages of every query;
         chance_grid: the acceptance test's neighbour grid of `target` at the config's
         acceptance radius (None without compiled kernels), built when the map is.

@@ -162,8 +162,7 @@ def register(
         as correspondences may come in any orientation. The flat settings dof= and max_tilt=
         override its fields.
     settings: rejector parameters (tau, eta, form, scope, local_radius, ...) and RansacConfig
-        fields (threshold,
-        iterations, confidence, min_inliers, ...).
+        fields (threshold, iterations, confidence, min_inliers, ...).
 
     Rejection, RANSAC and the final fit are `sgloc.estimation.estimate_pose`, as in `localize`.
     """

@@ -6,8 +6,7 @@ level L multiplies all three by L (level 0: no drift, the poses unchanged bit fo
 signs of the scale error and of the bias are drawn once per robot. The heading error turns
 about the odometry frame's up axis (`DriftModel.up`); the first keyframe keeps its pose, so the
 odometry frame stays where it was. Only the keyframe poses drift: what each keyframe saw stays
-in its sensor frame.
-"""
+in its sensor frame. """
 
 from __future__ import annotations
 

@@ -9,8 +9,7 @@ seq_dir/CameraParams/Stereo_Left/<cam>/NNNNNN.txt    16 values: T_world_camera, 
                                                      the optical frame
 seq_dir/Depth/Stereo_Left/<cam>/NNNNNN.png           16-bit depth in centimetres (0 = none)
 seq_dir/GT/LABELS/Stereo_Left/<cam>/NNNNNN.png       class id (SYNTHIA's 13 classes, 0 = void)
-```
-Unlike the Airsim layout, both cameras share one world frame (as SYNTHIA's cameras do: they sit
+``` Unlike the Airsim layout, both cameras share one world frame (as SYNTHIA's cameras do: they sit
 on one car), so the ground truth between the two maps in the world frame is the identity.
 """
 

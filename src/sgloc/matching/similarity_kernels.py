@@ -1,8 +1,7 @@
 """Per-query top-k of same-class cosine similarities in one pass (numba).
 
 The compiled `sgloc.matching.candidates._top_k` for dense descriptors: no similarity block leaves
-the
-kernel, only the kept candidates. Classes are walked on label-sorted index lists, so any class
+the kernel, only the kept candidates. Classes are walked on label-sorted index lists, so any class
 ids work; a class's target descriptors are normalised into one transposed buffer, and each
 query row's similarities are accumulated feature by feature over it (vectorised across the
 targets, four features per pass; zero features skipped). Similarities equal the numpy blocks'
