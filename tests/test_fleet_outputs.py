@@ -67,7 +67,7 @@ def test_same_named_files_do_not_overwrite_each_other(tmp_path):
         paths.append(str(g.save(tmp_path / f"r{k + 1}" / "map.json")))
     assert robot_names(paths) == ["r1-map", "r2-map"]
     assert robot_names(["a/Map.pcd", "b/map.ply", "c.json"]) == ["a-Map", "b-map", "c"]
-    assert robot_names(["x/r 1.pcd", "x/r 1.ply"]) == ["x-r-1-0", "x-r-1-1"]
+    assert robot_names(["x/r 1.pcd", "x/r 1.ply"]) == ["x-r-1", "x-r-1-2"]
     out = tmp_path / "out"
     assert main(["fleet", *paths, "--out", str(out), "--workers", "0"]) == 0
     info = json.loads((out / "fleet.json").read_text())

@@ -12,8 +12,9 @@ import pytest
 from sgloc.cli import main
 from sgloc.evaluation.online_oracle import oracle_join_stamps, robot_error
 from sgloc.evaluation.replay_scenarios import world_scenario
-from sgloc.io.plain_layout import read_tum_exact, write_plain_layout
-from sgloc.replay.names import robot_file_stems
+from sgloc.io.names import robot_file_stems
+from sgloc.io.plain_layout import write_plain_layout
+from sgloc.io.poses import read_tum
 from sgloc.replay.stream import check_names, keyframe_order
 
 OUTPUTS = ("events.csv", "links.g2o", "summary.json", "timeline.png", "fleet.png")
@@ -42,7 +43,7 @@ def test_replay_writes_every_output(replayed, world):
         r = summary["robots"][g.name]
         assert r["keyframes"] == len(g) and r["file"] == f"fleet/{g.name}.tum"
         assert r["latency"]["max_ms"] >= r["latency"]["p99_ms"] >= r["latency"]["median_ms"] > 0
-        stamps, _, _ = read_tum_exact(out / r["file"])
+        stamps, _, _ = read_tum(out / r["file"])
         assert np.array_equal(stamps, g.stamps_ns)  # real stamps, every keyframe
     joined = float(summary["robots"]["world1"]["joined_stamp"])
     assert 0 < joined < world.logs[1].stamps[-1]
@@ -56,8 +57,8 @@ def test_replay_writes_every_output(replayed, world):
 
 def test_replayed_fleet_frame_is_right(replayed, world):
     """world1's fleet trajectory lands on the ground truth (relative to the root)."""
-    _, xyz0, _ = read_tum_exact(replayed / "out" / "fleet" / "world0.tum")
-    _, xyz1, _ = read_tum_exact(replayed / "out" / "fleet" / "world1.tum")
+    _, xyz0, _ = read_tum(replayed / "out" / "fleet" / "world0.tum")
+    _, xyz1, _ = read_tum(replayed / "out" / "fleet" / "world1.tum")
     G0, G1 = world.T_gt_odom["world0"], world.T_gt_odom["world1"]
     gt1 = np.linalg.inv(G0) @ G1 @ world.logs[1].poses
     assert np.abs(xyz1 - gt1[:, :3, 3]).max() < 1.0
@@ -80,7 +81,7 @@ def test_bag_replay_equals_plain_replay(replayed, world, tmp_path):
     msgs = read_fleet_bag(tmp_path / "fleet_bag")
     last = {r: T for _, r, T in msgs}
     assert set(last) == {"world0", "world1"}
-    _, xyz1, _ = read_tum_exact(tmp_path / "out" / "fleet" / "world1.tum")
+    _, xyz1, _ = read_tum(tmp_path / "out" / "fleet" / "world1.tum")
     T1 = last["world1"]
     np.testing.assert_allclose(xyz1[0], T1[:3, :3] @ world.logs[1].xyz[0] + T1[:3, 3], atol=1e-6)
 

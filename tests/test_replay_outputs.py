@@ -16,7 +16,8 @@ from sgloc.evaluation.replay_scenarios import world_scenario
 from sgloc.geometry import invert
 from sgloc.io.g2o import read_g2o
 from sgloc.io.keyframes import format_stamp, make_robot_log
-from sgloc.io.plain_layout import read_tum_exact, write_plain_layout
+from sgloc.io.plain_layout import write_plain_layout
+from sgloc.io.poses import read_tum
 from sgloc.online import OnlineSession
 from sgloc.replay import outputs
 from sgloc.replay.stream import ReplayRecord
@@ -110,7 +111,7 @@ def test_g2o_vertex_ids_are_named_in_the_summary(replayed):
     assert sorted(vertices) == sorted(v["g2o_vertex"] for v in placed.values())
     by_name = {g.name: g for g in logs}
     for name, v in placed.items():
-        _, xyz, quat = read_tum_exact(d / "out" / v["file"])
+        _, xyz, quat = read_tum(d / "out" / v["file"])
         T_fleet_sensor = dataclasses.replace(by_name[name], xyz=xyz, quat=quat).poses[0]
         T_fleet_odom = T_fleet_sensor @ invert(by_name[name].poses[0])
         np.testing.assert_allclose(vertices[v["g2o_vertex"]], T_fleet_odom, atol=1e-6)
@@ -181,7 +182,7 @@ def test_keyframe_backend_writes_corrected_keyframes_and_the_whole_graph(tmp_pat
     assert sorted(vertices) == sorted(v for v, _, _ in ids)
     assert len(edges) >= len(ids) - 1  # an odometry edge per consecutive keyframe pair at least
     for g in logs:  # the written poses are the session's keyframes, one line each
-        stamps, xyz, quat = read_tum_exact(tmp_path / "out" / "fleet" / f"{g.name}.tum")
+        stamps, xyz, quat = read_tum(tmp_path / "out" / "fleet" / f"{g.name}.tum")
         assert len(stamps) == len(g) and np.isfinite(xyz).all()
     with contextlib.redirect_stdout(io.StringIO()):
         assert main(["replay", str(tmp_path / "run"), "--out", str(tmp_path / "bad"),

@@ -10,7 +10,7 @@ import typer
 
 from sgloc.errors import SglocError
 from sgloc.io.settings_file import read_settings_data
-from sgloc.maps.graph import SemanticGraph
+from sgloc.maps.graph import DEFAULT_EDGE_RADIUS, SemanticGraph
 from sgloc.pipeline.config import LocalizerConfig
 from sgloc.pipeline.presets import LOCALIZER_PRESETS
 
@@ -126,7 +126,7 @@ def localizer_config(
 
 def load_graph(
     path: Path,
-    edge_radius: float = 20.0,
+    edge_radius: float = DEFAULT_EDGE_RADIUS,
     label_field: str | None = None,
     colour_table: Path | None = None,
     class_table: Path | None = None,

@@ -23,6 +23,7 @@ from importlib import resources
 from pathlib import Path
 
 from sgloc.errors import DatasetError
+from sgloc.maps.graph import DEFAULT_EDGE_RADIUS
 from sgloc.registry import Registry
 
 #: The source tree's root when running from a checkout (src/sgloc/datasets/downloads.py); after an
@@ -228,7 +229,7 @@ def data_path(*parts: str) -> Path:
     return p
 
 
-def airsim_guo(edge_radius: float = 20.0):
+def airsim_guo(edge_radius: float = DEFAULT_EDGE_RADIUS):
     """(cloud1, cloud2): Guo et al.'s Airsim object maps as SemanticGraphs (shipped with sgloc;
     both in one world frame, so the ground truth between them is the identity)."""
     from sgloc.maps.graph import SemanticGraph

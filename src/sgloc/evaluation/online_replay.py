@@ -26,10 +26,10 @@ def run_scenario(scenario: Any, out: Path, config: Any = None, online: Any = Non
 def _run_into(scenario: Any, out: Path, config: Any, online: Any) -> dict:
     """run_scenario's work, written into the existing folder `out`."""
     from sgloc.evaluation.fleet_trajectory import fleet_ape
-    from sgloc.io.plain_layout import write_tum_exact
+    from sgloc.io.names import robot_file_stems
+    from sgloc.io.poses import write_tum
     from sgloc.online import OnlineSession
     from sgloc.replay import replay_logs
-    from sgloc.replay.names import robot_file_stems
     from sgloc.replay.outputs import fleet_poses, write_replay_into
 
     session = OnlineSession(config, online)
@@ -40,12 +40,12 @@ def _run_into(scenario: Any, out: Path, config: Any, online: Any) -> dict:
     pairs, oracle_pairs = [], []
     for g in scenario.logs:
         gt = out / "gt" / f"{stems[g.name]}.tum"
-        write_tum_exact(gt, g.stamps_ns, *fleet_poses(g, scenario.T_gt_odom[g.name]))
+        write_tum(gt, g.stamps_ns, *fleet_poses(g, scenario.T_gt_odom[g.name]))
         if summary["robots"][g.name]["placed"]:
             pairs.append((out / summary["robots"][g.name]["file"], gt))
         if g.name in T_oracle:
             est = out / "oracle" / f"{stems[g.name]}.tum"
-            write_tum_exact(est, g.stamps_ns, *fleet_poses(g, T_oracle[g.name]))
+            write_tum(est, g.stamps_ns, *fleet_poses(g, T_oracle[g.name]))
             oracle_pairs.append((est, gt))
     rows = robot_rows(scenario, session, record, T_oracle)
     result = {

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from sgloc.errors import SglocError
+from sgloc.maps.graph import DEFAULT_EDGE_RADIUS
 from sgloc.pipeline.presets import extraction_settings
 
 #: Image size at which Guo's `min_pixels` = 5000 holds (width, height).
@@ -43,7 +44,7 @@ class ExtractionConfig:
     max_range: float | None = None
     merge_distance: float = 5.0
     min_observations: int = 1
-    edge_radius: float = 20.0
+    edge_radius: float = DEFAULT_EDGE_RADIUS
 
     def __post_init__(self) -> None:
         self.ignore_classes = tuple(int(c) for c in self.ignore_classes)

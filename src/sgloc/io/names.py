@@ -14,11 +14,25 @@ def safe_name(name: str) -> str:
 
 
 def unique_names(names: Sequence[str]) -> list[str]:
-    """File-safe names, a repeated one (ignoring case: some file systems do) suffixed with its
-    position ('map-1', 'Map-2')."""
-    safe = [safe_name(n) for n in names]
-    low = [s.lower() for s in safe]
-    return [f"{s}-{i}" if low.count(s.lower()) > 1 else s for i, s in enumerate(safe)]
+    """`safe_name` of each name, and names that would collide (ignoring case: some file systems
+    do, and with a suffix given earlier) suffixed `-2`, `-3`, ... in the order given: the one
+    name scheme of output files ('map', 'Map-2')."""
+    out: list[str] = []
+    used: set[str] = set()
+    for name in names:
+        base = safe_name(name)
+        stem, k = base, 1
+        while stem.lower() in used:
+            k += 1
+            stem = f"{base}-{k}"
+        used.add(stem.lower())
+        out.append(stem)
+    return out
+
+
+def robot_file_stems(names: Sequence[str]) -> dict[str, str]:
+    """{robot: file stem} of distinct robot names (`unique_names`)."""
+    return dict(zip(names, unique_names(names), strict=True))
 
 
 def robot_names(paths: Sequence[str | Path]) -> list[str]:

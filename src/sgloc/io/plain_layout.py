@@ -25,6 +25,7 @@ import numpy as np
 from sgloc.errors import DatasetError
 from sgloc.io.class_table import read_class_table, resolve_class, write_class_table
 from sgloc.io.keyframes import RobotLog, float_text, format_stamp, make_robot_log, parse_stamp
+from sgloc.io.poses import read_tum, write_tum
 from sgloc.io.text import read_text_file
 
 ODOMETRY_FILE, OBJECTS_FILE, CLASSES_FILE = "odometry.tum", "objects.csv", "classes.txt"
@@ -63,51 +64,9 @@ def read_robot_folder(path: Path, table: dict[str, int] | None = None) -> RobotL
             f"{path}: no {OBJECTS_FILE}; write one (header `stamp,x,y,z,class`; header only if "
             "the robot saw nothing)."
         )
-    stamps, xyz, quat = read_tum_exact(path / ODOMETRY_FILE)
+    stamps, xyz, quat = read_tum(path / ODOMETRY_FILE)
     kf, pos, lab = read_objects_csv(path / OBJECTS_FILE, stamps, table)
     return make_robot_log(path.name, stamps, xyz, quat, kf, pos, lab, where=str(path))
-
-
-def read_tum_exact(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(stamps_ns (N,), xyz (N,3), quat (N,4)) of a TUM file, stamps exact."""
-    stamps, vals = [], []
-    for n, line in enumerate(read_text_file(path, "TUM odometry file").splitlines(), 1):
-        s = line.split("#", 1)[0].split()
-        if not s:
-            continue
-        if len(s) != 8:
-            raise DatasetError(
-                f"{path}:{n}: expected 8 values `stamp tx ty tz qx qy qz qw`, got {len(s)}."
-            )
-        try:
-            stamps.append(parse_stamp(s[0], f"{path}:{n}"))
-            vals.append([float(v) for v in s[1:]])
-        except DatasetError:  # a stamp out of range: its own message
-            raise
-        except ValueError:
-            raise DatasetError(f"{path}:{n}: non-numeric value in {line.strip()[:60]!r}.") from None
-        if not np.all(np.isfinite(vals[-1])):
-            raise DatasetError(f"{path}:{n}: NaN or infinite value; fix or drop the line.")
-        if len(vals) == 1:
-            check_quaternion_order(vals[0][3:], f"{path}:{n}")
-    if not stamps:
-        raise DatasetError(f"{path}: no poses; give `stamp tx ty tz qx qy qz qw` lines.")
-    v = np.array(vals, dtype=np.float64)
-    return np.array(stamps, dtype=np.int64), v[:, :3], v[:, 3:]
-
-
-def check_quaternion_order(quat: Sequence[float], where: str) -> None:
-    """DatasetError naming `where` when a first pose's quaternion, read x-first (qx qy qz qw),
-    is exactly a half turn about x, `1 0 0 0`: the identity written w-first (qw qx qy qz), the
-    usual start of an odometry file whose columns are in the wrong order."""
-    qx, qy, qz, qw = (float(v) for v in quat)
-    if abs(qx) == 1.0 and qy == qz == qw == 0.0:
-        raise DatasetError(
-            f"{where}: the first pose's quaternion reads, in the TUM order qx qy qz qw, as a half "
-            "turn about x, and as the identity if written w-first: the quaternions look written "
-            "`qw qx qy qz`; write each line `stamp tx ty tz qx qy qz qw` (qw last). A first "
-            "pose that really is a half turn about x: write its qw as 1e-12, not 0."
-        )
 
 
 def read_objects_csv(
@@ -168,25 +127,10 @@ def write_plain_layout(
     for log in logs:
         d = folder / log.name
         d.mkdir(parents=True, exist_ok=True)
-        write_tum_exact(d / ODOMETRY_FILE, log.stamps_ns, log.xyz, log.quat)
+        write_tum(d / ODOMETRY_FILE, log.stamps_ns, log.xyz, log.quat)
         objs = [",".join(OBJECT_COLUMNS)]
         for k, p, c in zip(log.keyframe, log.positions, log.labels, strict=True):
             cls = class_names[c] if class_names is not None else str(int(c))
             objs.append(",".join([format_stamp(log.stamps_ns[k]), *map(float_text, p), cls]))
         (d / OBJECTS_FILE).write_text("".join(f"{r}\n" for r in objs))
     return folder
-
-
-def write_tum_exact(
-    path: str | Path, stamps_ns: np.ndarray, xyz: np.ndarray, quat: np.ndarray
-) -> Path:
-    """Write TUM rows `stamp tx ty tz qx qy qz qw`, stamps and values exactly (read_tum_exact
-    gives back the same numbers)."""
-    rows = [
-        " ".join([format_stamp(s), *map(float_text, (*p, *q))])
-        for s, p, q in zip(stamps_ns, xyz, quat, strict=True)
-    ]
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("".join(f"{r}\n" for r in rows))
-    return path

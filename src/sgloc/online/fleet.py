@@ -6,8 +6,8 @@ processes, or an existing Dask cluster).
 
 1. Only pairs that pass the acceptance test (`sgloc.acceptance`) become links.
 2. Loop check (`sgloc.online.consistency`): links that close a loop must compose to the
-   identity within `cycle_translation` metres (at the centroid of the robot's objects) and
-   `cycle_rotation` degrees per link (a loop of k links: sqrt(k) times that); the link in the
+   identity within `loop_translation` metres (at the centroid of the robot's objects) and
+   `loop_rotation` degrees per link (a loop of k links: sqrt(k) times that); the link in the
    most disagreeing loops is dropped until every loop agrees.
 3. The robots connected to the root by the remaining links are placed: along the
    maximum-confidence spanning tree, then by a pose graph over every kept link weighted by its
@@ -36,6 +36,15 @@ from sgloc.online import OnlineConfig, OnlineSession
 from sgloc.online.consistency import Edge, spanning_forest
 from sgloc.online.merge import merge_graphs
 from sgloc.pipeline.config import LocalizerConfig
+from sgloc.validation import (
+    MAX_COORDINATE,
+    choice,
+    flag,
+    integer,
+    real,
+    setting,
+    validate_settings,
+)
 
 __all__ = ["FleetConfig", "FleetResult", "PairLink", "localize_fleet", "merge_graphs"]
 
@@ -45,23 +54,28 @@ class FleetConfig:
     """Settings of `localize_fleet`.
 
     localizer: the pairwise pipeline (its `acceptance` decides which pairs are kept).
-    cycle_translation, cycle_rotation: metres / degrees a loop may disagree by.
+    loop_translation, loop_rotation: metres / degrees a loop may disagree by (the names of
+        `OnlineConfig`).
     fuse_radius: metres; same-class objects of the merged map closer than this are fused.
-    refine, refine_distance: after the pose graph, refine the placed robots' frames together on
-        every object pair their maps co-locate (mutual nearest same-class neighbours within
-        refine_distance metres): the session's joint refinement (`OnlineConfig.refine_fleet`).
+    refine_fleet, refine_radius: after the pose graph, refine the placed robots' frames
+        together on every object pair their maps co-locate (mutual nearest same-class
+        neighbours within refine_radius metres): the session's joint refinement
+        (`OnlineConfig.refine_fleet`).
     seed: pair (i, j), i < j, is localized with the seed [seed, i, j].
     solver: the pose graph's ("auto": gtsam when installed, else scipy; "gtsam"; "scipy").
     """
 
     localizer: LocalizerConfig = field(default_factory=LocalizerConfig)
-    cycle_translation: float = 3.0
-    cycle_rotation: float = 3.0
-    fuse_radius: float = 2.0
-    refine: bool = True
-    refine_distance: float = 3.0
-    seed: int = 0
-    solver: str = "auto"
+    loop_translation: float = setting(3.0, check=real(0.0, MAX_COORDINATE, unit="m"))
+    loop_rotation: float = setting(3.0, check=real(0.0, 180.0, unit="degrees"))
+    fuse_radius: float = setting(2.0, check=real(0.0, MAX_COORDINATE, unit="m"))
+    refine_fleet: bool = setting(True, check=flag())
+    refine_radius: float = setting(3.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+    seed: int = setting(0, check=integer(0))
+    solver: str = setting("auto", check=choice("auto", "gtsam", "scipy", what="the solver"))
+
+    def __post_init__(self) -> None:
+        validate_settings(self, "FleetConfig")
 
 
 @dataclass
@@ -157,14 +171,14 @@ def fleet_session(
     online = OnlineConfig(
         association_radius=0.0, min_observations=1, min_objects=3,
         edge_radius=graphs[0].edge_radius, max_attempts=0,
-        loop_translation=config.cycle_translation, loop_rotation=config.cycle_rotation,
+        loop_translation=config.loop_translation, loop_rotation=config.loop_rotation,
         solver=config.solver, seed=config.seed,
         # Whole maps: every link is localized on the complete maps already and the fleet has
-        # the joint refinement (`FleetConfig.refine`). Link refits on top left the default
+        # the joint refinement (`FleetConfig.refine_fleet`). Link refits on top left the default
         # fleets of docs/fleet.md all placed and none wrong (KITTI a little more precise) but
         # placed more robots wrongly in its Guo's-rule-only comparison (city: 5 instead of 1).
         refine_links=False,
-        refine_fleet=config.refine, refine_radius=config.refine_distance,
+        refine_fleet=config.refine_fleet, refine_radius=config.refine_radius,
     )
     s = OnlineSession(config.localizer, online, root=root)
     for g, nm in zip(graphs, names, strict=True):

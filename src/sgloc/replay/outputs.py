@@ -21,8 +21,8 @@ import numpy as np
 
 from sgloc.io.files import staged_folder
 from sgloc.io.keyframes import RobotLog, format_stamp
-from sgloc.io.plain_layout import write_tum_exact
-from sgloc.replay.names import robot_file_stems
+from sgloc.io.names import robot_file_stems
+from sgloc.io.poses import write_tum
 from sgloc.replay.stream import ReplayRecord
 
 SUMMARY, EVENTS, LINKS, FLEET_DIR = "summary.json", "events.csv", "links.g2o", "fleet"
@@ -195,7 +195,7 @@ def _write_all(tmp: Path, logs: Sequence[RobotLog], session: Any, record: Replay
             continue
         frames[g.name] = T
         maps[g.name] = session.map(g.name).positions
-        write_tum_exact(tmp / FLEET_DIR / f"{stems[g.name]}.tum", g.stamps_ns,
+        write_tum(tmp / FLEET_DIR / f"{stems[g.name]}.tum", g.stamps_ns,
                         *fleet_poses(g, T, corrected_keyframes(session, g)))
     summary = summarize(logs, session, record, stems)
     end = max(int(g.stamps_ns[-1]) for g in logs)
