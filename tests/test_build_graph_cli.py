@@ -14,7 +14,7 @@ def test_build_graph_kitti_objects_scan_range_start_frame(kitti_dir, tmp_path, c
     out = tmp_path / "a.json"
     rc = main(
         ["build-graph", "kitti_objects", str(kitti_dir), "--scans", "100-200",
-         "--start-frame", "--merge-distance", "3", "-o", str(out), "-q"]
+         "--start-frame", "--association-radius", "3", "-o", str(out), "-q"]
     )  # fmt: skip
     assert rc == 0, capsys.readouterr().err
     g = SemanticGraph.load(out)

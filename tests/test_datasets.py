@@ -228,7 +228,7 @@ def test_kitti_objects_loader_labels_poses_start_frame(tmp_path, packed):
     assert labels.tolist() == [0, 0, 2]
     np.testing.assert_allclose(f1.T_map_sensor, P[1] @ Tr)
     # the same object seen from every scan lands in one place of the sequence frame
-    g = build_graph(ds, ExtractionConfig(merge_distance=1.0))
+    g = build_graph(ds, ExtractionConfig(association_radius=1.0))
     assert sorted(g.labels.tolist()) == [0, 0, 1, 2]
     for obj, label in ((car, 0), (car2, 0), (tree, 1), (pole, 2)):
         d = np.linalg.norm(g.positions - obj, axis=1)

@@ -131,8 +131,8 @@ def test_bad_images_raise():
         segment(np.zeros((3, 4), int), np.zeros((4, 3)))
     with pytest.raises(SglocError, match="integer class ids"):
         segment(np.zeros((3, 3)), np.ones((3, 3)))
-    with pytest.raises(SglocError, match="merge_distance"):
-        ExtractionConfig(merge_distance=-1)
+    with pytest.raises(SglocError, match="association_radius"):
+        ExtractionConfig(association_radius=-1)
 
 
 # -- back-projection --------------------------------------------------------------------------
@@ -171,7 +171,7 @@ def test_centre_position_uses_2d_centroid_and_median_depth():
 
 # -- association ------------------------------------------------------------------------------
 def test_association_merges_repeats_with_running_mean_and_keeps_objects_apart(rng):
-    cfg = ExtractionConfig(merge_distance=5.0)
+    cfg = ExtractionConfig(association_radius=5.0)
     b = GraphBuilder(cfg)
     pole = np.array([10.0, 0.0, 0.0])
     noise = rng.normal(scale=0.3, size=(6, 3))
@@ -188,7 +188,7 @@ def test_association_merges_repeats_with_running_mean_and_keeps_objects_apart(rn
 
 
 def test_same_frame_observations_never_merge_and_nearest_same_class_wins():
-    b = GraphBuilder(ExtractionConfig(merge_distance=5.0))
+    b = GraphBuilder(ExtractionConfig(association_radius=5.0))
     b.add_observations([[0, 0, 0], [2, 0, 0]], [1, 1])  # two objects 2 m apart, one frame
     assert len(b.graph()) == 2
     ids = b.add_observations([[1.8, 0, 0], [0.1, 0, 0]], [1, 1])
@@ -210,7 +210,7 @@ def test_build_graph_from_detection_frames_uses_poses_and_max_range():
     T1 = make_transform(np.eye(3), [3.0, 0, 0])  # the sensor moved 3 m forward
     f0 = Frame(0, T0, detections=(np.array([[10.0, 0, 0], [60.0, 0, 0]]), np.array([0, 1])))
     f1 = Frame(1, T1, detections=(np.array([[7.2, 0, 0]]), np.array([0])))
-    g = build_graph([f0, f1], ExtractionConfig(max_range=50.0, merge_distance=1.0))
+    g = build_graph([f0, f1], ExtractionConfig(max_range=50.0, association_radius=1.0))
     assert len(g) == 1
     np.testing.assert_allclose(g.positions, [[10.1, 0, 0]])
     with pytest.raises(DatasetError, match="neither detections nor"):

@@ -264,6 +264,22 @@ def flag() -> Check:
     return check_bool
 
 
+def class_ids(name: str, value: Any) -> tuple[int, ...]:
+    """A sequence of class ids (whole numbers), as a tuple of ints."""
+    try:
+        items = tuple(value)
+    except TypeError:
+        raise InvalidSettingError(
+            f"setting {name}={value!r}: must be a list of class ids (whole numbers)."
+        ) from None
+    bad = [c for c in items if isinstance(c, bool) or not _is_number(c) or float(c) != int(c)]
+    if bad:
+        raise InvalidSettingError(
+            f"setting {name}={value!r}: {bad[0]!r} is not a class id (a whole number)."
+        )
+    return tuple(int(c) for c in items)
+
+
 def group(klass: type) -> Check:
     """An instance of the settings group `klass` (which checks its own fields)."""
 

@@ -58,7 +58,9 @@ def build_graph_cmd(
         "--start-frame/--world-frame",
         help="Express the map in the first frame's sensor frame (robot-local) or the dataset's.",
     ),
-    merge_distance: float | None = typer.Option(None, help="Association radius (m)."),
+    association_radius: float | None = typer.Option(
+        None, "--association-radius", "--merge-distance", help="Association radius (m)."
+    ),
     min_observations: int | None = typer.Option(None, help="Drop vertices seen fewer times."),
     max_depth: float | None = typer.Option(None, help="Ignore pixels deeper than this (m)."),
     min_pixels: int | None = typer.Option(None, help="Smallest region at 1024x576 (scaled)."),
@@ -80,7 +82,7 @@ def build_graph_cmd(
         dataset, {"robot": robot, "frames": frames, "start_frame": start_frame}
     )
     overrides = {
-        "merge_distance": merge_distance,
+        "association_radius": association_radius,
         "min_observations": min_observations,
         "max_depth": max_depth,
         "min_pixels": min_pixels,

@@ -1,5 +1,5 @@
 """Frames -> SemanticGraph: the same back end (`sgloc.maps.association`: an observation with the
-same class within `merge_distance` of an existing vertex is that vertex, the running mean of
+same class within `association_radius` of an existing vertex is that vertex, the running mean of
 its observations) serves image frames (regions back-projected) and detection frames (LiDAR
 objects)."""
 

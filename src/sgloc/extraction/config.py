@@ -9,6 +9,15 @@ from typing import Any, Literal
 from sgloc.errors import SglocError
 from sgloc.maps.graph import DEFAULT_EDGE_RADIUS
 from sgloc.pipeline.presets import extraction_settings
+from sgloc.validation import (
+    MAX_COORDINATE,
+    choice,
+    class_ids,
+    integer,
+    real,
+    setting,
+    validate_settings,
+)
 
 #: Image size at which Guo's `min_pixels` = 5000 holds (width, height).
 REFERENCE_RESOLUTION = (1024, 576)
@@ -30,43 +39,28 @@ class ExtractionConfig:
     Detections (LiDAR objects):
         max_range: detections farther than this from the sensor (metres) are ignored; None = all.
     Association (both):
-        merge_distance: an observation within this distance (metres) of an existing vertex of
-            the same class is that vertex (Guo 5 m); the vertex keeps the running mean.
+        association_radius: an observation within this distance (metres) of an existing vertex
+            of the same class is that vertex (Guo 5 m); the vertex keeps the running mean.
         min_observations: vertices seen fewer times are dropped at the end (1 keeps all).
         edge_radius: graph edges join vertices closer than this (metres; Guo 20 m).
     """
 
-    max_depth: float = 30.0
-    depth_jump: float = 1.0
-    min_pixels: int = 5000
-    position: Literal["mean", "centre"] = "mean"
-    ignore_classes: tuple[int, ...] = ()
-    max_range: float | None = None
-    merge_distance: float = 5.0
-    min_observations: int = 1
-    edge_radius: float = DEFAULT_EDGE_RADIUS
+    max_depth: float = setting(30.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+    depth_jump: float = setting(1.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+    min_pixels: int = setting(5000, check=integer(1))
+    position: Literal["mean", "centre"] = setting("mean", check=choice("mean", "centre"))
+    ignore_classes: tuple[int, ...] = setting((), check=class_ids)
+    max_range: float | None = setting(
+        None, check=real(0.0, MAX_COORDINATE, low_open=True, none_ok=True, unit="m")
+    )
+    association_radius: float = setting(5.0, check=real(0.0, MAX_COORDINATE, unit="m"))
+    min_observations: int = setting(1, check=integer(1))
+    edge_radius: float = setting(
+        DEFAULT_EDGE_RADIUS, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m")
+    )
 
     def __post_init__(self) -> None:
-        self.ignore_classes = tuple(int(c) for c in self.ignore_classes)
-        checks = {
-            "max_depth": self.max_depth > 0,
-            "depth_jump": self.depth_jump > 0,
-            "min_pixels": self.min_pixels >= 1,
-            "merge_distance": self.merge_distance >= 0,
-            "min_observations": self.min_observations >= 1,
-            "edge_radius": self.edge_radius > 0,
-            "max_range": self.max_range is None or self.max_range > 0,
-        }
-        for name, ok in checks.items():
-            if not ok:
-                raise SglocError(
-                    f"ExtractionConfig.{name} = {getattr(self, name)!r} is out of range "
-                    "(distances and counts must be positive)."
-                )
-        if self.position not in ("mean", "centre"):
-            raise SglocError(
-                f"ExtractionConfig.position = {self.position!r}; use 'mean' or 'centre'."
-            )
+        validate_settings(self, "ExtractionConfig")
 
     def min_pixels_for(self, height: int, width: int) -> int:
         """`min_pixels` scaled from 1024x576 to an image of height x width (at least 1)."""

@@ -1,6 +1,6 @@
 """Cross-frame association of object sightings (class + map-frame position) into objects.
 
-An observation with the same class within `merge_distance` of an existing object is that
+An observation with the same class within `association_radius` of an existing object is that
 object, whose position becomes the running mean of its observations; otherwise it starts a new
 object. Observations of one frame are distinct objects (they never merge with each other), and
 each frame is associated at once with a KD-tree over the objects. Offline map building
@@ -17,7 +17,15 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from sgloc.errors import SglocError
-from sgloc.maps.graph import SemanticGraph
+from sgloc.maps.graph import DEFAULT_EDGE_RADIUS, SemanticGraph
+from sgloc.validation import (
+    MAX_COORDINATE,
+    class_ids,
+    integer,
+    real,
+    setting,
+    validate_settings,
+)
 
 #: How many nearest objects are searched per observation for one of its class.
 K_NEAREST = 16
@@ -25,15 +33,20 @@ K_NEAREST = 16
 
 @dataclass(frozen=True)
 class AssociationSettings:
-    """merge_distance: metres, an observation this close to an object of its class is that
+    """association_radius: metres, an observation this close to an object of its class is that
     object (0: never merge); min_observations: objects seen fewer times are left out of
     `graph()`; edge_radius: metres, the graph's edges; ignore_classes: class ids never
     turned into objects. (`sgloc.extraction.ExtractionConfig` has the same fields.)"""
 
-    merge_distance: float = 5.0
-    min_observations: int = 1
-    edge_radius: float = 20.0
-    ignore_classes: tuple[int, ...] = ()
+    association_radius: float = setting(5.0, check=real(0.0, MAX_COORDINATE, unit="m"))
+    min_observations: int = setting(1, check=integer(1))
+    edge_radius: float = setting(
+        DEFAULT_EDGE_RADIUS, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m")
+    )
+    ignore_classes: tuple[int, ...] = setting((), check=class_ids)
+
+    def __post_init__(self) -> None:
+        validate_settings(self, "AssociationSettings")
 
 
 class ObjectAssociation:
@@ -125,9 +138,9 @@ class ObjectAssociation:
 
     def _nearest_same_class(self, pos: np.ndarray, lab: np.ndarray) -> np.ndarray:
         """(k,) the nearest existing object of each observation's class closer than
-        merge_distance, -1 where there is none."""
+        association_radius, -1 where there is none."""
         target = np.full(len(pos), -1, dtype=np.int64)
-        n, radius = len(self._counts), self.config.merge_distance
+        n, radius = len(self._counts), self.config.association_radius
         if n and len(pos) and radius > 0:
             k = min(K_NEAREST, n)
             tree = cKDTree(self.positions)

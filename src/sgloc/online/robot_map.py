@@ -29,7 +29,7 @@ class RobotMap:
         self.name = name
         self.min_observations = int(min_observations)
         self.builder = ObjectAssociation(AssociationSettings(
-            merge_distance=float(radius), min_observations=int(min_observations),
+            association_radius=float(radius), min_observations=int(min_observations),
             edge_radius=float(edge_radius),
         ))  # fmt: skip
         self._graph: SemanticGraph | None = None

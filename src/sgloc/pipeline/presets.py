@@ -99,7 +99,7 @@ EXTRACTION_PRESETS: Registry[dict[str, Any]] = Registry("extraction preset", {
     "default": {},
     "paper": {},
     "guo": {},
-    "kitti-objects": {"merge_distance": 3.0, "min_observations": 2},
+    "kitti-objects": {"association_radius": 3.0, "min_observations": 2},
     "synthia": {"ignore_classes": (1, 3, 4, 12)},
 })
 
