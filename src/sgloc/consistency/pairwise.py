@@ -8,10 +8,9 @@ Every decision equals the dense float64 computation (`scipy.spatial.distance.cdi
 
 `consistency_bits` / `consistency_matrix` run the compiled one-pass kernel
 (`sgloc.consistency.pairwise_kernels`): bit-packed rows, m^2 / 8 bytes. `consistent_blocks` is the
-plain
-numpy computation, tile by tile (float32 Gram products with an exact float64 recheck near tau);
-it also yields the distance differences (the spectral rejector's affinities) and serves as the
-reference in tests.
+plain numpy computation, tile by tile (float32 Gram products with an exact float64 recheck near
+tau): it yields the distance differences (the spectral rejector's affinities). The dense numpy
+references the kernels are checked against live with the tests (`tests/references/`).
 """
 
 from __future__ import annotations
@@ -21,7 +20,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from sgloc.errors import TooManyMatchesError, UnknownNameError
-from sgloc.kernels import one_blas_thread, use_compiled
+from sgloc.kernels import one_blas_thread
 
 #: Most matches the all-pairs consistency pass takes: its packed rows hold m^2 / 8 bytes
 #: (2.8 GB here), beside the two graphs. The default settings never reach it: above
@@ -169,13 +168,11 @@ def consistency_bits(
 ) -> tuple[np.ndarray, np.ndarray]:
     """(bits, degree): bit-packed consistency rows (m, ceil(m/64)) uint64 (bit j % 64 of word
     j // 64 of row i: matches i != j consistent) and each match's count of consistent partners
-    (m,) int64. src, dst: (m,3) metres. Compiled, one pass over the pairs (the numpy tiles
-    when `sgloc.kernels.use_compiled` says so: tests)."""
+    (m,) int64. src, dst: (m,3) metres. Compiled, one pass over the pairs."""
     check_form(form)
     check_match_count(len(src))
-    if not use_compiled(len(src)):
-        M = consistency_bool(src, dst, tau, form)
-        return pack_rows(M), M.sum(axis=1, dtype=np.int64)
+    if len(src) == 0:
+        return np.zeros((0, 0), dtype=np.uint64), np.zeros(0, dtype=np.int64)
     from sgloc.consistency.pairwise_kernels import consistency_bits as kernel
 
     src = np.ascontiguousarray(src, dtype=np.float64)
@@ -218,25 +215,11 @@ def consistency_matrix(
     return unpack_rows(bits, len(src))
 
 
-def consistency_bool(
-    src: np.ndarray, dst: np.ndarray, tau: float, form: str = "distance"
-) -> np.ndarray:
-    """(m,m) bool consistency matrix (symmetric, diagonal False), filled tile by tile in numpy
-    (the reference of `consistency_matrix`)."""
-    m = len(src)
-    M = np.empty((m, m), dtype=bool)
-    for rows, cols, ok, _ in consistent_blocks(src, dst, tau, form):
-        M[rows, cols] = ok
-        M[cols, rows] = ok.T
-    np.fill_diagonal(M, False)
-    return M
-
-
 def consistent_pairs(bits: np.ndarray, degree: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(ii, jj) int64: every consistent pair with ii < jj, row-major (np.nonzero(np.triu(M)))
     from packed rows and degrees (`consistency_bits`). Compiled."""
-    if not use_compiled(len(bits)):
-        return _upper_pairs(bits, np.ones(len(bits), dtype=bool))
+    if len(bits) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
     from sgloc.consistency.triangle_kernels import upper_edges
 
     return upper_edges(bits, np.asarray(degree, dtype=np.int64))
@@ -245,9 +228,8 @@ def consistent_pairs(bits: np.ndarray, degree: np.ndarray) -> tuple[np.ndarray, 
 def common_partner_count(bits: np.ndarray, ii: np.ndarray, jj: np.ndarray) -> int:
     """Sum over the pairs (ii[k], jj[k]) of the number of matches consistent with both; over all
     consistent pairs i < j it is 3 x the number of triangles of the consistency graph."""
-    if not use_compiled(len(bits)):
-        M = unpack_rows(bits, bits.shape[1] * 64)
-        return int(np.count_nonzero(M[np.asarray(ii)] & M[np.asarray(jj)]))
+    if len(bits) == 0:
+        return 0
     from sgloc.consistency.triangle_kernels import common_counts
 
     return int(common_counts(bits, np.asarray(ii, dtype=np.int64), np.asarray(jj, dtype=np.int64)))
@@ -265,9 +247,8 @@ class ConsistentPairs:
         m = bits.shape[0]
         self.bits = bits
         self.keep = np.ones(m, dtype=bool) if keep is None else np.asarray(keep, dtype=bool)
-        self._listed = None if use_compiled(m) else _upper_pairs(bits, self.keep)
-        if self._listed is not None:  # small: the pairs themselves, in numpy
-            self.size = int(self._listed[0].size)
+        if m == 0:  # no matches, no pairs
+            self.size = 0
             return
         from sgloc.consistency.triangle_kernels import kept_starts
 
@@ -282,8 +263,8 @@ class ConsistentPairs:
         k = np.asarray(k, dtype=np.int64).ravel()
         if k.size and (k.min() < 0 or k.max() >= self.size):
             raise IndexError(f"pair positions must lie in [0, {self.size})")
-        if self._listed is not None:
-            return self._listed[0][k], self._listed[1][k]
+        if self.size == 0:
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
         from sgloc.consistency.triangle_kernels import edges_at
 
         order = np.argsort(k, kind="stable")
@@ -300,9 +281,3 @@ class ConsistentPairs:
         """Every pair: `consistent_pairs` (16 bytes per pair)."""
         return self.at(np.arange(self.size))
 
-
-def _upper_pairs(bits: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """np.nonzero(np.triu(M)) of the unpacked rows, both ends in `keep` (the numpy reference)."""
-    M = unpack_rows(bits, len(bits)) & keep[None, :] & keep[:, None]
-    ii, jj = np.nonzero(np.triu(M, 1))
-    return ii.astype(np.int64), jj.astype(np.int64)
