@@ -1,7 +1,8 @@
 """The house plan's counts, read from the source with `ast`: loose top-level modules, module-level
-caches keyed by object identity, stage modules whose compiled twin lives in another folder and
-those that branch on `use_compiled`, command functions
-over 40 lines, and the length of docs/architecture.md. Usage: python benchmarks/house.py"""
+caches keyed by object identity, stage modules that choose between a compiled kernel and a numpy
+twin (`use_compiled` / `FORCE`) and those whose twin lives in another folder, stage modules
+calling another package's kernel module, command functions over 40 lines, and the length of
+docs/architecture.md. Usage: python benchmarks/house.py"""
 
 from __future__ import annotations
 
@@ -70,12 +71,19 @@ def _id_named(node: ast.AST, tree: ast.Module) -> bool:
 
 
 def compiled_branches() -> list[str]:
-    """Modules that branch on `use_compiled` (a compiled kernel and its numpy reference)."""
+    """Modules that choose between a compiled kernel and its numpy twin: a branch on
+    `use_compiled`, or any use of `use_compiled` / `FORCE` (the switch between the two)."""
     out = []
     for path in sorted(PKG.rglob("*.py")):
         tree = ast.parse(path.read_text())
-        if any(isinstance(n, ast.If) and "use_compiled" in ast.unparse(n.test)
-               for n in ast.walk(tree)):
+        branch = any(isinstance(n, ast.If) and "use_compiled" in ast.unparse(n.test)
+                     for n in ast.walk(tree))
+        switch = any(isinstance(n, ast.Name | ast.Attribute | ast.alias)
+                     and {"use_compiled", "FORCE"} & {getattr(n, "id", None),
+                                                      getattr(n, "attr", None),
+                                                      getattr(n, "name", None)}
+                     for n in ast.walk(tree))
+        if branch or switch:
             out.append(str(path.relative_to(PKG.parent)))
     return out
 
@@ -103,6 +111,22 @@ def kernels_elsewhere() -> list[str]:
     return out
 
 
+def foreign_kernels() -> list[str]:
+    """Stage modules (outside `sgloc.kernels` and the kernel modules themselves) that call a
+    kernel module of another package (a kernel shared by several stages)."""
+    out = []
+    for path in sorted(PKG.rglob("*.py")):
+        rel = path.relative_to(PKG)
+        if rel.parts[0] == "kernels" or path.stem.endswith("kernels"):
+            continue
+        folder = ".".join(("sgloc", *rel.parts[:-1]))
+        away = [k for k in _kernel_imports(ast.parse(path.read_text()))
+                if k.rsplit(".", 1)[0] != folder]
+        if away:
+            out.append(f"{path.relative_to(PKG.parent)} ({', '.join(sorted(away))})")
+    return out
+
+
 def long_commands(limit: int = 40) -> list[str]:
     """Functions of `sgloc.cli` longer than `limit` lines (decorators and docstring included)."""
     out = []
@@ -122,8 +146,10 @@ def main() -> int:
         ("identity-keyed module caches (goal 0)", identity_caches()),
         ("stage modules whose compiled twin lives in another folder (goal 0)",
          kernels_elsewhere()),
-        ("modules branching on use_compiled (a numpy reference beside the kernel)",
+        ("modules choosing between a kernel and a numpy twin (use_compiled / FORCE; goal 0)",
          compiled_branches()),
+        ("stage modules calling another package's kernel module (shared kernels)",
+         foreign_kernels()),
         ("command functions over 40 lines (goal 0)", long_commands()),
     ]
     print("| count | now | which |\n|---|---|---|")

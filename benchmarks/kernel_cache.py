@@ -4,8 +4,9 @@ process, each still equal its numpy reference (no wrong result, no crash).
 Each kernel module is first compiled in a fresh process of its own, with a fresh
 NUMBA_CACHE_DIR (as happens when a user's runs touch the kernels one by one). Then fresh
 processes load the modules from that cache in the given orders, calling each module's kernels
-right after its import and comparing them with the numpy references; a process that loaded
-anything by compiling instead of from the cache fails too (the check would prove nothing).
+right after its import and comparing them with the numpy references (tests/references, which
+load no kernel module); a process that loaded anything by compiling instead of from the cache
+fails too (the check would prove nothing).
 
 Whether two cached modules clash depends on numba's per-process function counter lining up in
 the processes that compiled them, so two order-free checks come first: no cached kernel holds a
@@ -16,13 +17,12 @@ then gives wrong results or crashes in the load orders).
     python benchmarks/kernel_cache.py                   # forward, reverse, 4 random orders
     python benchmarks/kernel_cache.py --pairs           # also every ordered pair, one process each
     python benchmarks/kernel_cache.py --probe sgloc.rejection.clique_kernels \
-        sgloc.consistency.triangle_kernels   # one process, this order
+        sgloc.consistency.triangle_kernels                  # one process, this order
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import hashlib
 import itertools
 import json
@@ -32,7 +32,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,20 +43,26 @@ import numpy as np
 import sgloc
 from sgloc import kernels
 
-#: The kernel modules with compiled (cached) code, each beside its stage.
+#: The kernel modules with compiled (cached) code, each beside the stage it serves.
 MODULES = kernels.MODULES
+#: The numpy references of the kernels live with the tests.
+TESTS = Path(__file__).resolve().parents[1] / "tests"
 
 
-@contextlib.contextmanager
-def _forced(path: str) -> Iterator[None]:
-    """Every `sgloc.kernels.use_compiled` answers for `path` ("compiled" or "reference")."""
-    from sgloc import kernels
+def _references():
+    """The `references` package of the tests (tests/references)."""
+    if str(TESTS) not in sys.path:
+        sys.path.insert(0, str(TESTS))
+    import references
+    import references.acceptance
+    import references.consistency
+    import references.descriptors
+    import references.estimation
+    import references.maps
+    import references.matching
+    import references.rejection
 
-    old, kernels.FORCE = kernels.FORCE, path
-    try:
-        yield
-    finally:
-        kernels.FORCE = old
+    return references
 
 
 def _graph(m: int, p: float, seed: int) -> np.ndarray:
@@ -79,31 +85,33 @@ def check_canonical() -> None:
     from sgloc.maps.graph import SemanticGraph
     from sgloc.pipeline.config import LocalizerConfig
 
+    ref = _references().maps
     rng = np.random.default_rng(2)
     pos = rng.uniform(-3, 3, (300, 3)).round(1)  # ties
     pos[::5] = pos[1::5] + 1e-4  # duplicates
     g = SemanticGraph(pos, np.repeat(np.arange(2), 150))
-    out = {}
-    for path in ("compiled", "reference"):
-        with _forced(path):
-            order = canonical_order(g)
-            pair = CanonicalPair(g, g, LocalizerConfig())
-            cand = rng.integers(0, len(pair.query), (200, 2))
-            r = types.SimpleNamespace(candidates=cand, scores=rng.integers(0, 3, 200) / 3.0,
-                                      survivors=cand[:50], matches=cand[:20])  # fmt: skip
-            pair.restore(r)
-            out[path] = (order, without_duplicates(g, order), *vars(r).values())
-            rng = np.random.default_rng(2)
-            rng.uniform(-3, 3, (300, 3))  # the same draws again
-    assert len(out["compiled"][1]) < 300, "duplicates"
-    for a, b in zip(out["compiled"], out["reference"], strict=True):
+    pair = CanonicalPair(g, g, LocalizerConfig())
+    cand = rng.integers(0, len(pair.query), (200, 2))
+    r = types.SimpleNamespace(candidates=cand, scores=rng.integers(0, 3, 200) / 3.0,
+                              survivors=cand[:50], matches=cand[:20])  # fmt: skip
+    plain = types.SimpleNamespace(**{k: np.copy(v) for k, v in vars(r).items()})
+    pair.restore(r)
+    ref.restore(pair, plain)
+    order = canonical_order(g)
+    got = (order, without_duplicates(g, order), pair.query_order, *vars(r).values())
+    want = (ref.canonical_order(g), ref.without_duplicates(g, order),
+            ref.canonical_form(g, pair.classes)[0], *vars(plain).values())  # fmt: skip
+    assert len(got[1]) < 300, "duplicates"
+    for a, b in zip(got, want, strict=True):
         assert np.array_equal(a, b), "canonical form"
 
 
 def check_clique() -> None:
     from sgloc.consistency.pairwise import pack_rows
     from sgloc.rejection import clique_kernels as clique
-    from sgloc.rejection.clique import core_numbers, greedy_clique
+
+    core_numbers, greedy_clique = (getattr(_references().rejection, name)
+                                   for name in ("core_numbers", "greedy_clique"))  # fmt: skip
 
     for m, p in [(70, 0.3), (200, 0.8)]:
         R = _graph(m, p, m)
@@ -118,7 +126,9 @@ def check_clique() -> None:
 
 def check_pairwise() -> None:
     from sgloc.consistency import pairwise_kernels as consistency
-    from sgloc.consistency.pairwise import consistency_bool, unpack_rows
+    from sgloc.consistency.pairwise import unpack_rows
+
+    consistency_bool = _references().consistency.consistency_bool
 
     src, dst = _matches(150, 1)
     for neighbor in (False, True):
@@ -139,17 +149,18 @@ def check_fit() -> None:
     dst = apply(random_rigid_transform(rng, 50.0, 5.0), src) + rng.normal(0, 0.5, (60, 3))
     dst[:10] += rng.normal(0, 10, (10, 3))
     T0, w, classes = weighted_kabsch(src, dst), rng.uniform(0.5, 2, 60), rng.integers(0, 4, 60)
+    reference = _references().estimation.irls_refine
     for kw in ({"dof": 6}, {"dof": 4, "max_tilt": 15.0}, {"dof": 6, "classes": classes}):
-        out = {}
-        for path in ("compiled", "reference"):
-            with _forced(path):
-                out[path] = irls_refine(src, dst, T0, w, **kw)
-        assert np.abs(out["compiled"] - out["reference"]).max() < 1e-9, f"irls {kw}"
+        got, want = irls_refine(src, dst, T0, w, **kw), reference(src, dst, T0, w, **kw)
+        assert np.abs(got - want).max() < 1e-9, f"irls {kw}"
 
 
 def check_local() -> None:
-    from sgloc.consistency.local import CellGrid, local_counts_reference, prune_local_reference
+    from sgloc.consistency.local import CellGrid
     from sgloc.consistency.local_kernels import local_counts, local_prune
+
+    ref = _references().consistency
+    local_counts_reference, prune_local_reference = ref.local_counts, ref.prune_local
 
     src, dst = _matches(400, 11)
     for radius in (20.0, 1e4):
@@ -171,22 +182,24 @@ def check_similarity() -> None:
     dt = rng.random((80, 16)) * (rng.random((80, 16)) < 0.5)
     lq, lt = rng.integers(0, 3, 60) * 7, rng.integers(0, 3, 80) * 7
     cfg = MatchingConfig(min_similarity=0.1, top_k=3)
-    out = {}
-    for path in ("compiled", "reference"):
-        with _forced(path):
-            out[path] = match_flagged(dq, dt, lq, lt, cfg, 0.8)
-    (ma, sa, fa), (mb, sb, fb) = out["compiled"], out["reference"]
+    ma, sa, fa = match_flagged(dq, dt, lq, lt, cfg, 0.8)
+    mb, sb, fb = _references().matching.match_flagged(dq, dt, lq, lt, cfg, 0.8)
     assert len(ma) > 20 and np.array_equal(ma, mb) and np.array_equal(fa, fb), "candidates"
     assert np.abs(sa - sb).max() < 1e-12, "similarities"
 
 
 def check_evidence() -> None:
-    from sgloc.acceptance import ChanceModel, inlier_spread
+    from sgloc.acceptance import (
+        ChanceModel,
+        evidence_kernels,  # noqa: F401 (loaded first, then as acceptance)
+        inlier_spread,
+    )
     from sgloc.acceptance.assessment import squared_residuals_of
     from sgloc.acceptance.chance import chance_terms, object_nfa_over_radii
     from sgloc.acceptance.mirror import reflect_across_line
-    from sgloc.acceptance import evidence_kernels  # noqa: F401 (loaded first, then called)
     from sgloc.maps.graph import SemanticGraph
+
+    reference = _references().acceptance
 
     rng = np.random.default_rng(9)
     tpos = rng.uniform(-60, 60, (200, 3)) * [1, 1, 0.1]
@@ -200,15 +213,17 @@ def check_evidence() -> None:
     counts, used = model.near_counts_and_targets(qpos, cand[:, 1])
     tlab = model.labels[cand[:, 1]].astype(np.int64)
     out = {}
-    for path in ("reference", "compiled"):
-        with _forced(path):
-            out[path] = (
-                object_nfa_over_radii(res2, qi, rows, 120, 5.0, (2.0, 0.5), 150, 1e4, 2),
-                chance_terms(qlab, counts, used, qi, tlab, res2 < 25.0, model),
-                inlier_spread(qpos[:40], 4),
-                reflect_across_line(qpos, qpos[:30]),
-                squared_residuals_of(np.eye(4), qpos, tpos[:120]),
-            )
+    for path, stage in (("reference", reference), ("compiled", None)):
+        out[path] = (
+            (stage.object_nfa_over_radii if stage else object_nfa_over_radii)(
+                res2, qi, rows, 120, 5.0, (2.0, 0.5), 150, 1e4, 2),
+            (stage.chance_terms if stage else chance_terms)(
+                qlab, counts, used, qi, tlab, res2 < 25.0, model),
+            (stage.inlier_spread if stage else inlier_spread)(qpos[:40], 4),
+            (stage.reflect_across_line if stage else reflect_across_line)(qpos, qpos[:30]),
+            (stage.squared_residuals_of if stage else squared_residuals_of)(
+                np.eye(4), qpos, tpos[:120]),
+        )  # fmt: skip
     ref, got = out["reference"], out["compiled"]
     assert got[0] == ref[0], "per-object fits"
     assert got[1][0] == ref[1][0] > 0 and got[1][3] == ref[1][3], "chance counts"
@@ -228,10 +243,10 @@ def check_neighbor() -> None:
     labels = rng.integers(0, 5, 300)
     moved = np.concatenate([pts[:100] + [3.0, 4.0, 0.0], rng.uniform(-90, 90, (100, 3))])
     usage = rng.integers(0, 4, 300).astype(np.float64)
-    with _forced("reference"):
-        model = ChanceModel(SemanticGraph(pts, labels), 5.0, 5)
+    references = _references()
+    model = ChanceModel(SemanticGraph(pts, labels), 5.0, 5)
     got = near_class_counts(moved, model.positions, labels.astype(np.int64), 5, 5.0, usage)
-    ref = model.near_counts_reference(moved, (None, usage))
+    ref = references.acceptance.near_counts(model, moved, (None, usage))
     assert got[0].sum() > 100
     for a, b in zip(got, ref, strict=True):
         assert np.array_equal(a, b), "near counts"
@@ -242,13 +257,15 @@ def check_neighbor() -> None:
     rows = np.arange(300)
     got = distance_histograms(pts, rows, pts, labels.astype(np.int64), 5, 40.0, 16, 0.8)
     assert got.sum() > 300
-    assert np.array_equal(got, desc.histogram_reference(pts, labels, 5)), "distance histograms"
+    want = references.descriptors.distance_histograms(desc, pts, labels, 5)
+    assert np.array_equal(got, want), "distance histograms"
 
 
 def check_prune() -> None:
     from sgloc.consistency.pairwise import pack_rows
-    from sgloc.rejection.neighbor import prune_by_support_reference
     from sgloc.rejection.prune_kernels import prune_bits
+
+    prune_by_support_reference = _references().rejection.prune_by_support
 
     for m, p in [(65, 0.3), (300, 0.6)]:
         R = _graph(m, p, m + 1)
@@ -276,12 +293,16 @@ def check_ransac() -> None:
 
 
 def check_runner_up() -> None:
-    from sgloc.acceptance import AcceptanceConfig, pair_consistency
+    from sgloc.acceptance import (
+        AcceptanceConfig,
+        pair_consistency,
+        rivals,
+        runner_up_kernels,  # noqa: F401 (loaded first, then called as acceptance does)
+    )
     from sgloc.acceptance import runner_up as search_runner_up
     from sgloc.consistency.pairwise import ConsistentPairs
     from sgloc.estimation import rot_z
     from sgloc.geometry import apply, make_transform
-    from sgloc.acceptance import runner_up_kernels  # noqa: F401 (loaded first, then called)
 
     rng = np.random.default_rng(6)
     src = rng.uniform(-80, 80, (120, 3)) * [1, 1, 0.05]
@@ -293,30 +314,36 @@ def check_runner_up() -> None:
     cfg = AcceptanceConfig()
     bits, _ = pair_consistency(src, dst, 5.0)
     out = {}
+    compiled = rivals._compiled_yaw_runner_up
     for path in ("reference", "compiled"):  # the same draws, searched in numpy or compiled
-        with _forced(path):
+        if path == "reference":
+            rivals._compiled_yaw_runner_up = _references().acceptance.yaw_runner_up
+        try:
             edges = ConsistentPairs(bits)
             rng = np.random.default_rng(7)
             out[path] = search_runner_up(src, dst, T, exclude, bits, edges, 5.0, cfg, rng, 4)
+        finally:
+            rivals._compiled_yaw_runner_up = compiled
     ref, got = out["reference"], out["compiled"]
     assert got[0] == ref[0] >= 30, "runner-up inliers"
     assert np.abs(got[1] - ref[1]).max() < 1e-9, "runner-up transform"
 
 
 def check_spectral() -> None:
-    from sgloc.consistency.pairwise import consistency_bool, pack_rows
+    from sgloc.consistency.pairwise import pack_rows
     from sgloc.rejection import SpectralRejector
     from sgloc.rejection import spectral_kernels as spectral
 
     rej = SpectralRejector()
     src, dst = _matches(300, 8)
-    M = consistency_bool(src, dst, rej.tau, "distance")
+    M = _references().consistency.consistency_bool(src, dst, rej.tau, "distance")
     bits, degree = pack_rows(M), M.sum(axis=1)
     csr = spectral.affinity_csr(src, dst, bits, degree, float(rej.sigma))
     x = spectral.leading_eigenvector(*csr, 200, 1e-6)
     order = np.argsort(-x, kind="stable")
     got = spectral.greedy_select(x, order, bits, rej.min_ratio, rej.min_agreement)
-    assert len(got) > 50 and np.array_equal(got, rej.reference(src, dst)), "spectral"
+    want = _references().rejection.spectral(rej, src, dst)
+    assert len(got) > 50 and np.array_equal(got, want), "spectral"
 
 
 def check_triangle() -> None:
@@ -343,17 +370,20 @@ def check_triangle() -> None:
 
 
 def check_walk() -> None:
-    from sgloc.descriptors import RandomWalkDescriptor
-    from sgloc.descriptors import walk_kernels  # noqa: F401 (loaded first, then called)
+    from sgloc.descriptors import (
+        RandomWalkDescriptor,
+        walk_kernels,  # noqa: F401 (loaded first, then by the descriptor)
+    )
     from sgloc.maps.graph import SemanticGraph
+
+    random_walks = _references().descriptors.random_walks
 
     rng = np.random.default_rng(10)
     g = SemanticGraph(rng.uniform(0, 60, (40, 3)), rng.integers(0, 5, 40))
     for length, n_classes in [(3, 5), (4, 50)]:  # dense and sorted counting
         rw = RandomWalkDescriptor(n_walks=200, walk_length=length)
-        with _forced("compiled"):
-            got = rw(g, n_classes, np.random.default_rng(11))
-        ref = rw.reference(g, n_classes, np.random.default_rng(11))
+        got = rw(g, n_classes, np.random.default_rng(11))
+        ref = random_walks(rw, g, n_classes, np.random.default_rng(11))
         for field in ("indptr", "indices", "data"):
             assert np.array_equal(getattr(got, field), getattr(ref, field)), f"walks {field}"
 
@@ -363,6 +393,7 @@ def short_name(module: str) -> str:
     return module.rsplit(".", 1)[1].removesuffix("_kernels")
 
 
+#: Each kernel module's check (`check_<short name>`).
 CHECKS: dict[str, Callable[[], None]] = {
     name: globals()[f"check_{short_name(name)}"] for name in MODULES
 }
@@ -443,10 +474,10 @@ def cache_misses() -> dict[str, int]:
 def probe(names: list[str], expect_cached: bool) -> None:
     """In this process: import each kernel module in turn and check it at once. Compiling
     (not expect_cached): then print the numba functions each module defines (`numba_helpers`)."""
-    with _forced("reference"):  # the references stay numpy: no kernel module loads unasked
-        for name in names:
-            CHECKS[name]()
-            print(f"ok {name}", flush=True)
+    _references()  # the references load no kernel module: none loads unasked
+    for name in names:
+        CHECKS[name]()
+        print(f"ok {name}", flush=True)
     if expect_cached:
         compiled = {k: v for k, v in cache_misses().items() if v}
         assert not compiled, f"compiled instead of loaded from the cache: {compiled}"

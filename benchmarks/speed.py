@@ -48,12 +48,16 @@ from threadpoolctl import ThreadpoolController, threadpool_limits
 
 from benchmarks import prepared_speed
 from benchmarks.peers.methods import kiss_matcher_method
-from sgloc.consistency.pairwise import consistency_bool
 from sgloc.estimation import RansacConfig, irls_refine, ransac_reference, weighted_kabsch
 from sgloc.geometry import transform_error
 from sgloc.pipeline.registration import register
-from sgloc.rejection.neighbor import prune_by_support_reference
 from sgloc.sim.correspondences import make_correspondences
+
+#: The numpy references of the kernels live with the tests (tests/references).
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from references.consistency import consistency_bool  # noqa: E402
+from references.paths import on_references  # noqa: E402
+from references.rejection import prune_by_support as prune_by_support_reference  # noqa: E402
 
 #: (m, outlier ratio, goal ms for register).
 GOALS = [(300, 0.8, 0.5), (2000, 0.9, 5.0), (10000, 0.95, 200.0)]
@@ -157,20 +161,16 @@ def airsim_maps():
 #: Rounds of the threads part per --reps: every case and thread setting takes a turn of 5
 #: calls per round, so a burst of load from other jobs falls on all of them alike.
 THREAD_ROUNDS = 10
-#: The localize case also run on the numpy references (`sgloc.kernels.FORCE`).
+#: The localize case also run on the numpy references (tests/references: `on_references`).
 REFERENCE_CASE = "localize, Airsim maps, numpy references"
 
 
 def _on_references(call):
     """`call` with every kernel replaced by its numpy reference."""
-    from sgloc import kernels
 
     def run():
-        kernels.FORCE = "reference"
-        try:
+        with on_references():
             return call()
-        finally:
-            kernels.FORCE = "compiled"
 
     return run
 
@@ -227,24 +227,18 @@ _FIRST_CALL = """
 import time; t0 = time.perf_counter()
 import numpy as np, sgloc
 t1 = time.perf_counter()
-from sgloc import kernels
 from sgloc.sim.correspondences import make_correspondences
 cs = make_correspondences(300, 0.8, np.random.default_rng(0))
-kernels.FORCE = "reference"
 t2 = time.perf_counter(); sgloc.register(cs.src, cs.dst); t3 = time.perf_counter()
-kernels.FORCE = "compiled"
 sgloc.register(cs.src, cs.dst); t4 = time.perf_counter()
-sgloc.register(cs.src, cs.dst); t5 = time.perf_counter()
-print(t1 - t0, t3 - t2, t4 - t3, t5 - t4)
+print(t1 - t0, t3 - t2, t4 - t3)
 """
 
 
 def run_startup(runs: int) -> dict:
-    """Seconds: import sgloc; the first register call (m = 300) on the numpy references (as
-    the tests run them: no numba loaded); the first call on the compiled kernels with a fresh
-    numba cache and in later processes (cache loaded); a call after that."""
-    out = {"import sgloc": [], "first call (m = 300, numpy references)": [],
-           "first compiled call, empty cache (compiles)": [],
+    """Seconds: import sgloc; the first register call (m = 300) with a fresh numba cache
+    (compiles) and in later processes (cache loaded); a call after that."""
+    out = {"import sgloc": [], "first compiled call, empty cache (compiles)": [],
            "first compiled call, cached (loads)": [], "compiled call after that": []}  # fmt: skip
     for _ in range(runs):
         with tempfile.TemporaryDirectory() as cache:
@@ -252,9 +246,8 @@ def run_startup(runs: int) -> dict:
             for k in range(2):
                 res = subprocess.run([sys.executable, "-c", _FIRST_CALL], env=env,
                                      capture_output=True, text=True, check=True)  # fmt: skip
-                imp, small, first, after = map(float, res.stdout.split())
+                imp, first, after = map(float, res.stdout.split())
                 out["import sgloc"].append(imp)
-                out["first call (m = 300, numpy references)"].append(small)
                 key = "empty cache (compiles)" if k == 0 else "cached (loads)"
                 out[f"first compiled call, {key}"].append(first)
                 out["compiled call after that"].append(after)
@@ -463,8 +456,7 @@ def report_register(reg, args) -> list[str]:
         f"Methods take turns (the order rotates) in bursts of {BURST} calls on the same set, "
         f"each burst after an untimed {COOL_DOWN_S * 1e3:g} ms pause (threads left spinning by "
         "one method must not slow down the next); every call counts. In-process timings run "
-        "the compiled kernels (`sgloc.kernels.FORCE = 'compiled'`, as every non-empty "
-        "problem does by default; see Start-up). "
+        "the compiled kernels (as every non-empty problem does; see Start-up). "
         "register runs neighbor rejection (tau = 5 m), RANSAC (threshold 5 m) and the IRLS fit; "
         "KISS-Matcher runs `prune_and_solve` with noise bounds tau / 2 (the same consistency "
         "graph), with its default OpenMP threads and with one; the numpy reference is the same "
@@ -639,9 +631,6 @@ def main() -> None:
                     help="of part `prepared`, only these (e.g. `cold`: the fresh process and "
                          "first use; never written to docs/)")  # fmt: skip
     args = ap.parse_args()
-    from sgloc import kernels
-
-    kernels.FORCE = "compiled"  # in-process timings: the kernels (see the Start-up section)
     parts = set(args.only)
     args.loads = [os.getloadavg()[0]]
     reg = run_register(args.seeds, args.reps) if "register" in parts else []

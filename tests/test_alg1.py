@@ -124,13 +124,16 @@ def test_paper_preset_rejection_is_alg1_as_written(seed):
 
 
 @pytest.fixture(params=["compiled", "reference"])
-def kernel_path(request, monkeypatch):
-    """Each bound on both paths: the compiled kernel and the numpy reference that small
-    problems run."""
-    from sgloc import kernels
+def kernel_path(request):
+    """Each bound on both paths: the compiled kernel and the numpy reference
+    (`references.paths.on_references`)."""
+    if request.param == "compiled":
+        yield request.param
+        return
+    from references.paths import on_references
 
-    monkeypatch.setattr(kernels, "FORCE", request.param)
-    return request.param
+    with on_references():
+        yield request.param
 
 
 def test_literal_and_remaining_bounds_differ_on_an_even_count(kernel_path):

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from references import acceptance as acceptance_reference
+from references import maps as maps_reference
 
 from sgloc import SemanticGraph, localize, prepare
 from sgloc.acceptance.mirror import looks_mirrored
@@ -186,10 +188,9 @@ def test_compiled_canonical_order_equals_lexsort(seed):
 
 
 @pytest.mark.parametrize("seed", range(6))
-def test_compiled_restore_equals_its_numpy_form(seed, monkeypatch):
+def test_compiled_restore_equals_its_numpy_form(seed):
     import types
 
-    import sgloc.kernels
     from sgloc.maps.canonical import CanonicalPair
 
     q, t = _synthetic(seed, 60)
@@ -211,9 +212,7 @@ def test_compiled_restore_equals_its_numpy_form(seed, monkeypatch):
         r = result()
         plain = types.SimpleNamespace(**{k: np.copy(v) for k, v in vars(r).items()})
         pair.restore(r)
-        monkeypatch.setattr(sgloc.kernels, "FORCE", "reference")
-        pair.restore(plain)
-        monkeypatch.setattr(sgloc.kernels, "FORCE", None)
+        maps_reference.restore(pair, plain)
         for name in ("candidates", "scores", "survivors", "matches"):
             assert np.array_equal(getattr(r, name), getattr(plain, name)), name
 
@@ -265,10 +264,9 @@ def test_nfa_over_radii_of_several_chance_levels_equals_the_plain_form(seed):
 
 
 @pytest.mark.parametrize("seed", range(20))
-def test_compiled_per_object_fits_equal_the_sorted_form(seed, monkeypatch):
+def test_compiled_per_object_fits_equal_the_sorted_form(seed):
     """The compiled per-object fits (one pass, no sort) give the sorted numpy form's bits:
     repeated query objects, a subset of rows, residuals exactly at the radii."""
-    import sgloc.kernels
     from sgloc.acceptance.chance import object_nfa_over_radii
 
     rng = np.random.default_rng(seed)
@@ -280,16 +278,14 @@ def test_compiled_per_object_fits_equal_the_sorted_form(seed, monkeypatch):
     rows = rng.random(m) < (0.6 if seed % 4 else 1.0)
     args = (res2, qi, rows, int(qi.max()) + 1, radius, (0.7, 3.0), m + 5, 1e5, 2)
     got = object_nfa_over_radii(*args)
-    monkeypatch.setattr(sgloc.kernels, "FORCE", "reference")
-    assert got == object_nfa_over_radii(*args)
+    assert got == acceptance_reference.object_nfa_over_radii(*args)
 
 
 @pytest.mark.parametrize("seed", range(10))
-def test_compiled_chance_terms_and_axis_equal_numpy(seed, monkeypatch):
+def test_compiled_chance_terms_and_axis_equal_numpy(seed):
     """The compiled chance sums (counts equal, sums to rounding), inlier spread along the xy
     axis and the reflection across it (closed form), residuals under a transform equal the
     numpy forms (SVDs)."""
-    import sgloc.kernels
     from sgloc.acceptance import ChanceModel, inlier_spread
     from sgloc.acceptance.assessment import squared_residuals_of
     from sgloc.acceptance.chance import chance_terms
@@ -308,12 +304,13 @@ def test_compiled_chance_terms_and_axis_equal_numpy(seed, monkeypatch):
     tlab = model.labels[cand[:, 1]].astype(np.int64)
     line = tpos[:30] * [1.0, 0.05 * seed, 1.0]  # from a nearly straight line to a blob
     T = random_rigid_transform(rng)
-    out = []
-    for force in (None, "reference"):
-        monkeypatch.setattr(sgloc.kernels, "FORCE", force)
-        out.append((chance_terms(qlab, counts, used, qi, tlab, inlier, model),
-                    inlier_spread(line, 4), reflect_across_line(qpos, line),
-                    squared_residuals_of(T, qpos, tpos[:90])))  # fmt: skip
+    ref = acceptance_reference
+    out = [(chance_terms(qlab, counts, used, qi, tlab, inlier, model),
+            inlier_spread(line, 4), reflect_across_line(qpos, line),
+            squared_residuals_of(T, qpos, tpos[:90])),
+           (ref.chance_terms(qlab, counts, used, qi, tlab, inlier, model),
+            ref.inlier_spread(line, 4), ref.reflect_across_line(qpos, line),
+            ref.squared_residuals_of(T, qpos, tpos[:90]))]  # fmt: skip
     (got, spread, flipped, res2), (ref, ref_spread, ref_flipped, ref_res2) = out
     np.testing.assert_allclose(res2, ref_res2, rtol=1e-12)
     assert got[0] == ref[0] > 0 and got[3] == ref[3]  # inlier objects, co-located count

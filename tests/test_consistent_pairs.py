@@ -5,16 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from references.consistency import upper_pairs
 
-from sgloc import kernels
 from sgloc.consistency.pairwise import ConsistentPairs, consistency_bits, pack_rows
-
-
-@pytest.fixture(autouse=True)
-def compiled_kernels(monkeypatch):
-    """The kernels themselves, whatever the size (small early problems may run the references:
-    `sgloc.kernels.use_compiled`)."""
-    monkeypatch.setattr(kernels, "FORCE", "compiled")
 
 
 def random_graph(m: int, p: float, rng: np.random.Generator) -> np.ndarray:
@@ -67,6 +60,7 @@ def test_on_consistency_bits():
 
     ref = consistent_pairs(bits, degree)
     assert all(np.array_equal(a, b) for a, b in zip(pairs.all(), ref, strict=True))
+    assert all(np.array_equal(a, b) for a, b in zip(upper_pairs(bits), ref, strict=True))
 
 
 def test_too_many_matches_is_a_clear_error(monkeypatch):

@@ -11,7 +11,6 @@ import pytest
 
 import sgloc
 import sgloc.estimation.pose as pose_module
-from sgloc import kernels
 from sgloc.estimation import (
     ANY_RIGID,
     GROUND_VEHICLE,
@@ -41,9 +40,8 @@ def test_motion_model_is_frozen_and_checked():
 
 
 @pytest.mark.parametrize("refine", ["irls", "kabsch", "none"])
-def test_register_is_estimate_pose(refine, monkeypatch):
+def test_register_is_estimate_pose(refine):
     """register = estimate_pose with the rejector and RANSAC settings it derives."""
-    monkeypatch.setattr(kernels, "FORCE", "compiled")  # both calls on the same path
     cs = make_correspondences(200, 0.7, np.random.default_rng(4), noise=0.3)
     got = sgloc.register(cs.src, cs.dst, noise_bound=1.0, seed=5, refine=refine)
     pose = estimate_pose(

@@ -18,8 +18,7 @@ def _sweep(name, dataset, **options):
 
 
 def _same(rows_a, rows_b):
-    """Equal rows: the same keys and values, floats to 1e-9 (small problems
-    run the numpy references of the compiled kernels, equal to rounding), NaN equal to NaN."""
+    """Equal rows: the same keys and values, floats to 1e-9, NaN equal to NaN."""
     a = [reproducible_part(r) for r in rows_a]
     b = [reproducible_part(r) for r in rows_b]
     assert [sorted(x) for x in a] == [sorted(x) for x in b]

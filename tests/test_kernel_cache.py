@@ -32,11 +32,11 @@ def test_cached_kernels_loaded_together_in_any_order_equal_references(tmp_path, 
 def test_every_cached_kernel_module_is_checked(kernel_cache):
     import sgloc
 
-    root = Path(sgloc.__file__).parent
+    package = Path(sgloc.__file__).parent
     compiled = re.compile(r"^@(kernel\b|njit\(cache=True)", re.MULTILINE)
-    cached = {".".join(("sgloc", *p.relative_to(root).with_suffix("").parts))
-              for p in root.rglob("*.py") if compiled.search(p.read_text())}
-    assert cached == set(kernel_cache.MODULES)
+    cached = {".".join(("sgloc", *p.relative_to(package).with_suffix("").parts))
+              for p in package.rglob("*.py") if compiled.search(p.read_text())}  # fmt: skip
+    assert cached == set(kernel_cache.MODULES) == set(kernel_cache.CHECKS)
 
 
 def test_sort_and_argsort_helpers_are_one_name_with_two_bodies(kernel_cache):

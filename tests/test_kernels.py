@@ -1,4 +1,4 @@
-"""Compiled kernels equal their plain numpy references exactly."""
+"""Compiled kernels equal their plain numpy references (tests/references) exactly."""
 
 from __future__ import annotations
 
@@ -7,14 +7,18 @@ import weakref
 
 import numpy as np
 import pytest
+from references import acceptance as acceptance_reference
+from references import consistency as consistency_reference
+from references import matching as matching_reference
+from references.consistency import consistency_bool
+from references.descriptors import random_walks
+from references.rejection import prune_by_support as prune_by_support_reference
 from scipy.spatial.distance import cdist
 
-from sgloc import kernels
 from sgloc.acceptance import ChanceModel
 from sgloc.consistency.pairwise import (
     common_partner_count,
     consistency_bits,
-    consistency_bool,
     consistency_matrix,
     consistent_pairs,
     pack_rows,
@@ -24,15 +28,8 @@ from sgloc.errors import UnknownNameError
 from sgloc.maps.graph import SemanticGraph
 from sgloc.matching.candidates import MatchingConfig, match_descriptors, match_flagged
 from sgloc.rejection import NeighborRejector
-from sgloc.rejection.neighbor import prune_bits, prune_by_support, prune_by_support_reference
+from sgloc.rejection.neighbor import prune_bits, prune_by_support
 from sgloc.sim.correspondences import make_correspondences
-
-
-@pytest.fixture(autouse=True)
-def compiled_kernels(monkeypatch):
-    """The kernels themselves, whatever the size (small early problems may run the references:
-    `sgloc.kernels.use_compiled`)."""
-    monkeypatch.setattr(kernels, "FORCE", "compiled")
 
 
 def dense_reference(src, dst, tau, form):
@@ -134,6 +131,9 @@ def test_edges_and_triangles_equal_numpy():
         pi, pj = consistent_pairs(bits, R.sum(axis=1))
         assert np.array_equal(pi, ref_i) and np.array_equal(pj, ref_j)
         assert common_partner_count(bits, pi, pj) == common
+        assert consistency_reference.common_partner_count(bits, pi, pj) == common
+        ref_pairs = consistency_reference.upper_pairs(bits)
+        assert np.array_equal(ref_pairs[0], ref_i) and np.array_equal(ref_pairs[1], ref_j)
         assert (
             common % 3 == 0
             and common // 3 == np.trace(np.linalg.matrix_power(R.astype(np.int64), 3)) // 6
@@ -143,14 +143,15 @@ def test_edges_and_triangles_equal_numpy():
 @pytest.mark.parametrize("m, ratio", [(1, 0.0), (3, 0.0), (300, 0.8), (1000, 0.5), (2000, 0.9)])
 @pytest.mark.parametrize("kind", ["random", "structured"])
 def test_spectral_kernels_same_survivors_as_numpy(m, ratio, kind):
+    from references.rejection import affinity_and_consistency, spectral
+
     from sgloc.rejection import SpectralRejector
     from sgloc.rejection import spectral_kernels as kernels
-    from sgloc.rejection.spectral import affinity_and_consistency
 
     rej = SpectralRejector()
     for seed in range(2):
         cs = make_correspondences(m, ratio, np.random.default_rng([m, seed]), kind)
-        assert np.array_equal(rej(cs.src, cs.dst), rej.reference(cs.src, cs.dst))
+        assert np.array_equal(rej(cs.src, cs.dst), spectral(rej, cs.src, cs.dst))
     if m >= 300:  # affinities: float64 here, float32 tiles in the reference
         A_ref, _ = affinity_and_consistency(cs.src, cs.dst, rej.tau, rej.sigma)
         bits, degree = consistency_bits(cs.src, cs.dst, rej.tau, "distance")
@@ -162,9 +163,10 @@ def test_spectral_kernels_same_survivors_as_numpy(m, ratio, kind):
 
 
 def test_clique_kernels_equal_numpy():
+    from references.rejection import core_numbers, greedy_clique, max_clique
+
     from sgloc.rejection import CliqueRejector
     from sgloc.rejection import clique_kernels as kernels
-    from sgloc.rejection.clique import core_numbers, greedy_clique
 
     rng = np.random.default_rng(6)
     for m, p in [(1, 0.5), (5, 0.5), (70, 0.3), (300, 0.05), (300, 0.9)]:
@@ -180,7 +182,7 @@ def test_clique_kernels_equal_numpy():
     rej = CliqueRejector()
     for m, ratio, kind in [(300, 0.8, "random"), (1000, 0.5, "structured"), (2000, 0.9, "random")]:
         cs = make_correspondences(m, ratio, np.random.default_rng(m), kind)
-        ref = rej.max_clique(consistency_bool(cs.src, cs.dst, rej.tau, "distance"))
+        ref = max_clique(rej, consistency_bool(cs.src, cs.dst, rej.tau, "distance"))
         assert np.array_equal(rej(cs.src, cs.dst), ref)
 
 
@@ -211,24 +213,19 @@ def _descriptor_pair(seed: int, n_q: int, n_t: int, d: int = 24):
         (MatchingConfig(min_similarity=0.0, max_ratio=0.95), None),
     ],
 )
-def test_compiled_top_k_equals_reference(monkeypatch, seed, cfg, flag_ratio):
+def test_compiled_top_k_equals_reference(seed, cfg, flag_ratio):
     """The kernel (`sgloc.matching.similarity_kernels`) keeps the same candidates, in the same
-    order, with
-    the same flags and similarities to rounding, as the numpy blocks (ties included)."""
+    order, with the same flags and similarities to rounding, as the numpy blocks (ties included)."""
     dq, dt, lq, lt = _descriptor_pair(seed, 90 + 17 * seed, 120)
-    out = {}
-    for path in ("reference", "compiled"):
-        monkeypatch.setattr(kernels, "FORCE", path)
-        out[path] = match_flagged(dq, dt, lq, lt, cfg, flag_ratio)
-    (ma, sa, fa), (mb, sb, fb) = out["reference"], out["compiled"]
+    ma, sa, fa = matching_reference.match_flagged(dq, dt, lq, lt, cfg, flag_ratio)
+    mb, sb, fb = match_flagged(dq, dt, lq, lt, cfg, flag_ratio)
     assert len(ma) > 20
     np.testing.assert_array_equal(ma, mb)
     np.testing.assert_allclose(sa, sb, rtol=0, atol=1e-12)
     np.testing.assert_array_equal(fa, fb)
 
 
-def test_compiled_top_k_handles_empty_and_disjoint_classes(monkeypatch):
-    monkeypatch.setattr(kernels, "FORCE", "compiled")
+def test_compiled_top_k_handles_empty_and_disjoint_classes():
     d = np.ones((3, 4))
     m, s = match_descriptors(d, d, np.array([0, 0, 0]), np.array([1, 1, 1]))
     assert m.shape == (0, 2) and s.shape == (0,)
@@ -251,9 +248,8 @@ def test_near_counts_equal_kd_tree_reference(seed, radius):
                             [[1e6, 1e6, 0.0], [-1e6, 3e5, 5.0]]])  # fmt: skip
     usage = rng.integers(0, 4, len(pts)).astype(np.float64)
     model = ChanceModel(SemanticGraph(pts, labels), radius, 6)
-    assert model.compiled
     got = model.near_counts(moved, (None, usage))
-    ref = model.near_counts_reference(moved, (None, usage))
+    ref = acceptance_reference.near_counts(model, moved, (None, usage))
     assert got[0][40:60].sum() >= 20  # coincident points
     if radius == 5.0:
         assert got[0][:40].sum() >= 40  # exactly the radius apart: counted
@@ -266,11 +262,10 @@ def test_near_counts_equal_kd_tree_reference(seed, radius):
 
 
 @pytest.mark.parametrize("path", ["compiled", "reference"])
-def test_near_targets_equal_usage_weighted_counts(monkeypatch, path):
+def test_near_targets_equal_usage_weighted_counts(path):
     """`ChanceModel.near_targets` (a search among the candidates' targets only) gives the
     usage-weighted counts of the whole map's search, for repeated targets too; the class
     counts are the map's."""
-    monkeypatch.setattr(kernels, "FORCE", path)
     rng = np.random.default_rng(7)
     pts = rng.uniform(-100, 100, (3000, 3)) * [1, 1, 0.05]
     labels = rng.integers(0, 6, len(pts))
@@ -278,8 +273,10 @@ def test_near_targets_equal_usage_weighted_counts(monkeypatch, path):
     moved = pts[rng.integers(0, len(pts), 200)] + rng.normal(0, 2.0, (200, 3))
     model = ChanceModel(SemanticGraph(pts, labels), 4.0, 7)
     usage = np.bincount(targets, minlength=len(pts)).astype(np.float64)
-    got = model.near_targets(moved, targets)
-    want = model.near_counts_reference(moved, (usage,))[0]
+    near_targets = model.near_targets if path == "compiled" else (
+        lambda moved, targets: acceptance_reference.near_targets(model, moved, targets))
+    got = near_targets(moved, targets)
+    want = acceptance_reference.near_counts(model, moved, (usage,))[0]
     assert got.shape == (200, 7) and got.sum() > 50
     np.testing.assert_array_equal(got, want)
     np.testing.assert_array_equal(model.class_count, np.bincount(labels, minlength=7))
@@ -337,8 +334,8 @@ def test_grid_kept_by_a_prepared_graph():
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
 def test_yaw_runner_up_equals_reference(monkeypatch, seed):
     """The compiled 4-dof runner-up search (`sgloc.acceptance.runner_up_kernels`) finds the
-    alternative
-    the numpy branch finds: the same inlier count and transform (to rounding)."""
+    alternative the numpy reference finds: the same inlier count and transform (to rounding)."""
+    import sgloc.acceptance.rivals as rivals
     from sgloc.acceptance import AcceptanceConfig, pair_consistency, runner_up
     from sgloc.consistency.pairwise import ConsistentPairs
     from sgloc.estimation import rot_z
@@ -358,10 +355,13 @@ def test_yaw_runner_up_equals_reference(monkeypatch, seed):
     cfg = AcceptanceConfig(distinct_rotation=5.0 + 10 * seed)
     out = {}
     for path in ("reference", "compiled"):
-        monkeypatch.setattr(kernels, "FORCE", path)
+        if path == "reference":  # the same pairs drawn, then the numpy search
+            monkeypatch.setattr(rivals, "_compiled_yaw_runner_up",
+                                acceptance_reference.yaw_runner_up)  # fmt: skip
         edges = ConsistentPairs(bits)
         out[path] = runner_up(src, dst, T, exclude, bits, edges, radius, cfg,
                                np.random.default_rng(seed), dof=4)  # fmt: skip
+        monkeypatch.undo()
     (ka, Ta), (kb, Tb) = out["reference"], out["compiled"]
     assert ka == kb
     assert (Ta is None) == (Tb is None)
@@ -372,7 +372,7 @@ def test_yaw_runner_up_equals_reference(monkeypatch, seed):
 
 
 @pytest.mark.parametrize("n_q, n_t", [(90, 120), (150, 900)])
-def test_compiled_top_k_one_tile_and_tiled_classes_equal_reference(monkeypatch, n_q, n_t):
+def test_compiled_top_k_one_tile_and_tiled_classes_equal_reference(n_q, n_t):
     """Classes of at most one tile of targets (scored row by row) and of several tiles (scored
     tile by tile) keep the reference's candidates, flags and similarities."""
     dq, dt, lq, lt = _descriptor_pair(5, n_q, n_t)
@@ -380,11 +380,8 @@ def test_compiled_top_k_one_tile_and_tiled_classes_equal_reference(monkeypatch, 
     # a tile: 256 targets (sgloc.matching.similarity_kernels)
     assert (sizes.min() > 256) == (n_t == 900)
     cfg = MatchingConfig(min_similarity=0.1, top_k=2)
-    out = {}
-    for path in ("reference", "compiled"):
-        monkeypatch.setattr(kernels, "FORCE", path)
-        out[path] = match_flagged(dq, dt, lq, lt, cfg, 0.8)
-    (ma, sa, fa), (mb, sb, fb) = out["reference"], out["compiled"]
+    ma, sa, fa = matching_reference.match_flagged(dq, dt, lq, lt, cfg, 0.8)
+    mb, sb, fb = match_flagged(dq, dt, lq, lt, cfg, 0.8)
     assert len(ma) > 20
     np.testing.assert_array_equal(ma, mb)
     np.testing.assert_allclose(sa, sb, rtol=0, atol=1e-12)
@@ -421,7 +418,7 @@ def test_random_walk_kernel_equals_reference_bit_for_bit(kind, walk_length, bit_
     g, n_classes = _walk_graph(kind)
     rw = RandomWalkDescriptor(n_walks=300 if kind != "airsim" else 1000, walk_length=walk_length)
     rng_a, rng_b = np.random.Generator(bit_generator(5)), np.random.Generator(bit_generator(5))
-    got, ref = rw(g, n_classes, rng_a), rw.reference(g, n_classes, rng_b)
+    got, ref = rw(g, n_classes, rng_a), random_walks(rw, g, n_classes, rng_b)
     assert got.shape == ref.shape == (len(g), n_classes**walk_length)
     for field in ("indptr", "indices", "data"):
         a, b = getattr(got, field), getattr(ref, field)

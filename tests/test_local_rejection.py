@@ -9,15 +9,12 @@ import sys
 
 import numpy as np
 import pytest
+from references.consistency import local_counts as local_counts_reference
+from references.consistency import prune_local as prune_local_reference
+from references.paths import on_references
 
-from sgloc import SemanticGraph, kernels, localize
-from sgloc.consistency.local import (
-    CellGrid,
-    local_counts,
-    local_counts_reference,
-    prune_local,
-    prune_local_reference,
-)
+from sgloc import SemanticGraph, localize
+from sgloc.consistency.local import CellGrid, local_counts, prune_local
 from sgloc.consistency.pairwise import ALL_PAIRS_LIMIT, consistency_bits
 from sgloc.consistency.sampled import SampledConsistency, distance_consistent
 from sgloc.geometry import random_rigid_transform, transform_error
@@ -28,10 +25,13 @@ from sgloc.validation import MAX_VERTICES, InvalidSettingError
 
 
 @pytest.fixture(params=["compiled", "reference"])
-def path(request, monkeypatch):
+def path(request):
     """Run a test on the compiled kernels and on the numpy references."""
-    monkeypatch.setattr(kernels, "FORCE", request.param)
-    return request.param
+    if request.param == "compiled":
+        yield request.param
+        return
+    with on_references():
+        yield request.param
 
 
 @pytest.mark.parametrize("seed", range(6))
@@ -51,10 +51,9 @@ def test_local_scope_covering_everything_equals_all_pairs(seed, path):
 
 
 @pytest.mark.parametrize("seed", range(4))
-def test_local_kernel_equals_reference(seed, monkeypatch):
+def test_local_kernel_equals_reference(seed):
     """Counts and survivors of the compiled grid kernel equal the dense numpy reference, for
     radii smaller than the map (duplicated query objects included: top-k candidates)."""
-    monkeypatch.setattr(kernels, "FORCE", "compiled")
     rng = np.random.default_rng(10 + seed)
     cs = make_correspondences(600, 0.8, rng, "structured", extent=400.0)
     src, dst = cs.src.copy(), cs.dst.copy()
@@ -150,10 +149,9 @@ def test_local_scope_keeps_the_true_matches_of_an_outlier_heavy_large_problem():
     assert inlier[wide].sum() == inlier.sum()
 
 
-def test_sampled_consistency_estimates_and_draws(monkeypatch):
+def test_sampled_consistency_estimates_and_draws():
     """The sampled graph's pair count is an upper estimate close to the exact count; its drawn
     pairs are consistent and within the subset asked for; a third partner agrees with both."""
-    monkeypatch.setattr(kernels, "FORCE", "compiled")
     rng = np.random.default_rng(6)
     cs = make_correspondences(3000, 0.7, rng, "structured", extent=300.0)
     _, degree = consistency_bits(cs.src, cs.dst, 6.0)

@@ -7,9 +7,11 @@ import json
 
 import numpy as np
 import pytest
+from references.descriptors import distance_histograms, histograms_at
+from references.paths import on_references
 
 import sgloc
-from sgloc import Localizer, LocalizerConfig, PreparedMap, SemanticGraph, kernels, localize
+from sgloc import Localizer, LocalizerConfig, PreparedMap, SemanticGraph, localize
 from sgloc.datasets.downloads import airsim_guo
 from sgloc.descriptors import DistanceHistogramDescriptor
 from sgloc.matching.candidates import BLOCKS_MIN_OBJECTS
@@ -18,9 +20,13 @@ from sgloc.sim.object_world import make_two_robot_scene
 
 
 @pytest.fixture(params=["compiled", "reference"])
-def path(request, monkeypatch) -> str:
-    monkeypatch.setattr(kernels, "FORCE", request.param)
-    return request.param
+def path(request):
+    """Run a test on the compiled kernels and on the numpy references."""
+    if request.param == "compiled":
+        yield request.param
+        return
+    with on_references():
+        yield request.param
 
 
 @pytest.fixture(scope="module")
@@ -199,7 +205,7 @@ def test_refusals(airsim):
 
 
 @pytest.mark.parametrize("n", [2, 3, 40, 700, 2500])
-def test_distance_histogram_kernel_equals_reference(monkeypatch, n):
+def test_distance_histogram_kernel_equals_reference(n):
     """The same bits by the grid kernel and by KD-tree pairs (weights on a 2**-24 grid: every
     bin's sum is exact in any order), duplicates and any subset of rows included."""
     rng = np.random.default_rng(n)
@@ -207,16 +213,32 @@ def test_distance_histogram_kernel_equals_reference(monkeypatch, n):
     pos[n // 2 :: 7] = pos[0]  # duplicate objects
     labels = rng.integers(0, 6, n)
     d = DistanceHistogramDescriptor(radius=30.0, n_bins=12, taper=0.5)
-    ref = d.histogram_reference(pos, labels, 6)
-    monkeypatch.setattr(kernels, "FORCE", "compiled")
+    ref = distance_histograms(d, pos, labels, 6)
     got = d.rows(pos, labels, 6)
     assert ref.sum() > 0 and np.array_equal(got, ref)
     rows = rng.choice(n, min(n, 5), replace=False)
     assert np.array_equal(d.rows(pos, labels, 6, rows), ref[rows])
+    assert np.array_equal(histograms_at(pos, np.arange(n), pos, labels, 6, 30.0, 12, 0.5), ref)
+
+
+@pytest.mark.parametrize("n", [3, 300])
+def test_histograms_at_other_centres_equal_reference(n):
+    """Histograms at centres that are not the points (a grown map's update, `self_index` -1)
+    or leave one point out: the kernel's bits equal the KD-tree reference's."""
+    from sgloc.maps.neighbor_kernels import distance_histograms as kernel
+
+    rng = np.random.default_rng(n)
+    pts = rng.uniform(-60, 60, (n, 3)) * [1, 1, 0.05]
+    labels = rng.integers(0, 5, n)
+    centres = np.concatenate([rng.uniform(-60, 60, (40, 3)) * [1, 1, 0.05], pts[:2]])
+    self_index = np.concatenate([np.full(40, -1), [0, 1]])
+    args = (centres, self_index, pts, labels, 5, 25.0, 10, 0.3)
+    ref = histograms_at(*args)
+    assert ref.sum() > 0 and np.array_equal(kernel(*args), ref)
 
 
 @pytest.mark.parametrize("n", [30, 400])
-def test_distance_histogram_kernel_equals_reference_on_a_sparse_grid(monkeypatch, n):
+def test_distance_histogram_kernel_equals_reference_on_a_sparse_grid(n):
     """Clusters far apart (more grid cells than the table of runs holds: binary searches)
     give the reference's bits too."""
     rng = np.random.default_rng(n)
@@ -224,6 +246,5 @@ def test_distance_histogram_kernel_equals_reference_on_a_sparse_grid(monkeypatch
     pos[::2] += [3e5, 2e5, 0.0]
     labels = rng.integers(0, 4, n)
     d = DistanceHistogramDescriptor(radius=15.0, n_bins=8, taper=0.8)
-    ref = d.histogram_reference(pos, labels, 4)
-    monkeypatch.setattr(kernels, "FORCE", "compiled")
+    ref = distance_histograms(d, pos, labels, 4)
     assert ref.sum() > 0 and np.array_equal(d.rows(pos, labels, 4), ref)

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from references.consistency import consistency_bool
+from references.rejection import prune_by_support
 
 import sgloc
-from sgloc import kernels
-from sgloc.consistency.pairwise import consistency_bool
 from sgloc.errors import SglocError, UnknownNameError
 from sgloc.estimation import (
     RansacConfig,
@@ -19,19 +19,12 @@ from sgloc.estimation import (
 )
 from sgloc.estimation import fit_kernels as fit
 from sgloc.geometry import transform_error
-from sgloc.rejection.neighbor import prune_by_support_reference
 from sgloc.sim.correspondences import make_correspondences
 
 
-@pytest.fixture(autouse=True)
-def compiled_kernels(monkeypatch):
-    """The kernels themselves, whatever the size (small early problems may run the references:
-    `sgloc.kernels.use_compiled`)."""
-    monkeypatch.setattr(kernels, "FORCE", "compiled")
-
-
 def numpy_pipeline(src, dst, tau, threshold, seed):
-    kept = prune_by_support_reference(consistency_bool(src, dst, tau, "distance"), 0.5)
+    """Rejection by the numpy references (tests/references), then RANSAC and the refit."""
+    kept = prune_by_support(consistency_bool(src, dst, tau, "distance"), 0.5)
     rs = ransac(src[kept], dst[kept], RansacConfig(threshold=threshold, dof=6, max_tilt=None),
                 np.random.default_rng(seed))  # fmt: skip
     if rs.transform is None:

@@ -88,7 +88,6 @@ from sgloc.consistency.pairwise import ALL_PAIRS_LIMIT, ConsistentPairs
 from sgloc.consistency.sampled import SampledConsistency
 from sgloc.estimation import ANY_RIGID, MotionModel
 from sgloc.geometry import apply
-from sgloc.kernels import use_compiled
 from sgloc.maps.graph import SemanticGraph
 from sgloc.maps.prepared_graph import PreparedGraph
 
@@ -119,14 +118,11 @@ def inlier_spread(points: np.ndarray, dof: int = 6) -> float:
     line of objects fixes the yaw: only its length matters)."""
     if len(points) < 3:
         return 0.0
-    if dof == 4 and use_compiled(len(points)):  # closed form (equal to rounding)
+    if dof == 4:  # the xy principal axis in closed form (compiled)
         from sgloc.acceptance.evidence_kernels import xy_axis
 
         return float(xy_axis(np.ascontiguousarray(points, dtype=np.float64))[4]
                      / np.sqrt(len(points)))  # fmt: skip
-    if dof == 4:
-        s = np.linalg.svd(points[:, :2] - points[:, :2].mean(axis=0), compute_uv=False)
-        return float(s[0] / np.sqrt(len(points)))
     s = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
     return float(s[1] / np.sqrt(len(points)))
 
@@ -139,9 +135,9 @@ def required_spread(min_spread: float, dof: int) -> float:
 
 def squared_residuals_of(T: np.ndarray, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     """(m,) squared distances (m^2) of src (m,3) moved by T (4x4) from dst (m,3): compiled in
-    one pass, or in numpy (the reference; equal to rounding)."""
-    if not use_compiled(len(src)):
-        return np.sum((apply(T, src) - dst) ** 2, axis=1)
+    one pass."""
+    if len(src) == 0:
+        return np.zeros(0)
     from sgloc.acceptance.evidence_kernels import moved_residuals
 
     return moved_residuals(np.ascontiguousarray(T, dtype=np.float64), src, dst)

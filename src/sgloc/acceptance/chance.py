@@ -1,9 +1,10 @@
 """The chance model of the acceptance stage: how often chance alone explains an alignment.
 
-`ChanceModel` counts the same-class target objects near moved query objects (one neighbour
-search, compiled or by KD-trees); `log10_nfa` / `nfa_over_radii` turn inlier counts and the
-expected chance inliers into a number of false alarms (NFA, a-contrario); `confidence` is the
-one formula that weighs the best hypothesis against its rival and chance. Used by the test
+`ChanceModel` counts the same-class target objects near moved query objects (one compiled
+neighbour search on a grid of cells, `sgloc.maps.neighbor_kernels`); `log10_nfa` /
+`nfa_over_radii` turn inlier counts and the expected chance inliers into a number of false
+alarms (NFA, a-contrario); `confidence` is the one formula that weighs the best hypothesis
+against its rival and chance. Used by the test
 (`assessment`) and by the whole-map verification (`verification`).
 """
 
@@ -14,7 +15,6 @@ from functools import cached_property
 import numpy as np
 
 from sgloc.consistency.pairwise import ConsistentPairs, common_partner_count, consistency_bits
-from sgloc.kernels import use_compiled
 from sgloc.maps.graph import SemanticGraph
 from sgloc.maps.prepared_graph import PreparedGraph
 
@@ -60,10 +60,6 @@ class ChanceModel:
         self.labels = target.labels
         self.n_classes = n_classes
         self.radius = radius
-        # The neighbour search: compiled (on the prepared graph's grid) or by KD-trees (the
-        # reference).
-        self.compiled = use_compiled(len(target))
-        self.tree = None
 
     @cached_property
     def class_count(self) -> np.ndarray:
@@ -75,22 +71,25 @@ class ChanceModel:
     ) -> list[np.ndarray]:
         """For each entry of `weights`: (n, n_classes) number (None) or summed weights of the
         class-c target objects within the radius (distance <= radius) of each point of `moved`
-        (n,3)."""
-        if self.compiled and len(weights) <= 2 and weights[0] is None:
-            from sgloc.maps.neighbor_kernels import near_class_counts
+        (n,3). `weights`: (None,) or (None, w) with w (n_target,) (one compiled search)."""
+        if len(weights) > 2 or weights[0] is not None:
+            raise ValueError("near_counts takes weights (None,) or (None, w)")
+        if len(self.labels) == 0:  # an empty map: nothing near (integer zeros, as np.bincount)
+            n, k = len(moved), self.n_classes
+            return [np.zeros((n, k), np.int64 if n else np.float64) for _ in weights]
+        from sgloc.maps.neighbor_kernels import near_class_counts
 
-            w = weights[1] if len(weights) == 2 else None
-            counts, summed = near_class_counts(
-                np.ascontiguousarray(moved, dtype=np.float64),
-                self.positions,
-                np.asarray(self.labels, dtype=np.int64),
-                self.n_classes,
-                float(self.radius),
-                np.zeros(0) if w is None else np.asarray(w, dtype=np.float64),
-                self.prepared.grid(self.radius),
-            )
-            return [counts, summed][: len(weights)]
-        return self.near_counts_reference(moved, weights)
+        w = weights[1] if len(weights) == 2 else None
+        counts, summed = near_class_counts(
+            np.ascontiguousarray(moved, dtype=np.float64),
+            self.positions,
+            np.asarray(self.labels, dtype=np.int64),
+            self.n_classes,
+            float(self.radius),
+            np.zeros(0) if w is None else np.asarray(w, dtype=np.float64),
+            self.prepared.grid(self.radius),
+        )
+        return [counts, summed][: len(weights)]
 
     def near_targets(self, moved: np.ndarray, targets: np.ndarray) -> np.ndarray:
         """(n, n_classes): per point of `moved` (n,3) and class c, how many entries of
@@ -98,9 +97,8 @@ class ChanceModel:
         `near_counts` weighted by each object's count in `targets`, searched among those
         objects only (the same integers, without a pass over the whole map)."""
         targets = np.asarray(targets, dtype=np.int64)
-        if not self.compiled:
-            usage = np.bincount(targets, minlength=len(self.labels)).astype(np.float64)
-            return self.near_counts_reference(moved, (usage,))[0]
+        if len(self.labels) == 0:
+            return self.near_counts(moved)[0]
         from sgloc.maps.neighbor_kernels import near_class_counts
 
         return near_class_counts(
@@ -119,30 +117,11 @@ class ChanceModel:
         each object's count in `targets` when the map is small next to them (the same
         integers), else from two searches (no pass over a large map per query)."""
         targets = np.asarray(targets, dtype=np.int64)
-        if not self.compiled or len(self.labels) > _ONE_SEARCH * max(len(targets), len(moved)):
+        if len(self.labels) > _ONE_SEARCH * max(len(targets), len(moved)):
             return self.near_counts(moved)[0], self.near_targets(moved, targets)
         usage = np.bincount(targets, minlength=len(self.labels)).astype(np.float64)
         counts, used = self.near_counts(moved, (None, usage))
         return counts, used
-
-    def near_counts_reference(
-        self, moved: np.ndarray, weights: tuple[np.ndarray | None, ...] = (None,)
-    ) -> list[np.ndarray]:
-        """`near_counts` by KD-trees (scipy), the reference of the compiled search."""
-        n, k = len(moved), self.n_classes
-        if n == 0:
-            return [np.zeros((0, k)) for _ in weights]
-        from scipy.spatial import cKDTree
-
-        if self.tree is None:
-            self.tree = cKDTree(self.positions)
-        pairs = cKDTree(moved).sparse_distance_matrix(self.tree, self.radius, output_type="ndarray")
-        i, j = pairs["i"], pairs["j"]
-        cell = i * k + self.labels[j]
-        return [
-            np.bincount(cell, None if w is None else w[j], minlength=n * k).reshape(n, k)
-            for w in weights
-        ]
 
     def expected_inliers(self, counts: np.ndarray, qi: np.ndarray, tlab: np.ndarray) -> float:
         """lambda = sum over candidates (query qi, target class tlab) of N_c / n_c, with
@@ -230,18 +209,15 @@ def chance_terms(
     `tlab`, `inlier` (m,) bool; int64, contiguous) under one transform: the distinct inlier
     query objects, `expected_inliers`, `permutation_lambda` and `log10_colocation_p`'s count
     and mean (the query's classes `labels`; `counts`, `used`: `near_counts_and_targets`).
-    Compiled in one pass (sums in candidate order), or in numpy (the reference)."""
-    if use_compiled(len(qi)):
-        from sgloc.acceptance.evidence_kernels import chance_sums
+    Compiled in one pass (sums in candidate order)."""
+    if len(qi) == 0:  # no candidate: no inlier, no chance inlier; every object co-located
+        C, mu = _colocation_counts(labels, counts > 0, qi)
+        return 0, 0.0, 0.0, C, mu
+    from sgloc.acceptance.evidence_kernels import chance_sums
 
-        k, lam, lam_p, C, mu = chance_sums(qi, tlab, inlier, counts, used, chance.class_count,
-                                           labels)  # fmt: skip
-        return int(k), float(lam), float(lam_p), int(C), float(mu)
-    k = int(np.count_nonzero(np.bincount(qi[inlier])))
-    lam = chance.expected_inliers(counts, qi, tlab)
-    lam_p = permutation_lambda(used[qi, tlab], inlier, tlab, counts[qi, tlab], chance)
-    C, mu = _colocation_counts(labels, counts > 0, qi[inlier])
-    return k, lam, lam_p, C, mu
+    k, lam, lam_p, C, mu = chance_sums(qi, tlab, inlier, counts, used, chance.class_count,
+                                       labels)  # fmt: skip
+    return int(k), float(lam), float(lam_p), int(C), float(mu)
 
 
 def log10_nfa(k: int, m: int, lam: float, n_tests: float | None = None, sample: int = 3) -> float:
@@ -303,10 +279,9 @@ def object_nfa_over_radii(
 ) -> list[tuple[float, int, float]]:  # fmt: skip
     """`nfa_over_radii_each` of the smallest squared residual per query object (`qi` (m,)
     int64, of `n_objects`) of the candidates in `rows` (m,) bool (`per_object_min`): compiled
-    in one pass without a sort (the same bits), or in numpy (the reference)."""
-    if not use_compiled(len(res2)):
-        return nfa_over_radii_each(per_object_min(res2[rows], qi[rows]), radius, lams, m,
-                                   n_tests, sample)  # fmt: skip
+    in one pass without a sort (the same bits as sorting)."""
+    if len(res2) == 0:
+        return nfa_over_radii_each(res2, radius, lams, m, n_tests, sample)
     from sgloc.acceptance.evidence_kernels import object_fits
 
     limits = np.array([(f * radius) ** 2 for f in RADIUS_FRACTIONS])

@@ -13,7 +13,6 @@ import numpy as np
 
 from sgloc.acceptance.chance import ChanceModel
 from sgloc.geometry import apply
-from sgloc.kernels import use_compiled
 from sgloc.maps.graph import SemanticGraph
 from sgloc.maps.prepared_graph import PreparedGraph
 
@@ -35,18 +34,10 @@ def landed(moved: np.ndarray, labels: np.ndarray, chance: ChanceModel) -> np.nda
 
 def reflect_across_line(points: np.ndarray, on_line: np.ndarray) -> np.ndarray:
     """`points` (n,3) reflected across the vertical plane through the xy principal line of
-    `on_line` (k,3), in the same frame."""
-    if use_compiled(len(on_line)):  # the principal axis in closed form (equal to rounding)
-        from sgloc.acceptance.evidence_kernels import reflect_xy
+    `on_line` (k >= 1,3), in the same frame (the principal axis in closed form, compiled)."""
+    from sgloc.acceptance.evidence_kernels import reflect_xy
 
-        return reflect_xy(*(np.ascontiguousarray(p, dtype=np.float64) for p in (points, on_line)))
-    xy = on_line[:, :2]
-    centre = xy.mean(axis=0)
-    _, _, vt = np.linalg.svd(xy - centre, full_matrices=False)
-    normal = np.array([-vt[0, 1], vt[0, 0]])  # across the line, horizontal
-    out = points.copy()
-    out[:, :2] -= 2.0 * ((points[:, :2] - centre) @ normal)[:, None] * normal
-    return out
+    return reflect_xy(*(np.ascontiguousarray(p, dtype=np.float64) for p in (points, on_line)))
 
 
 def looks_mirrored(

@@ -18,9 +18,7 @@ from sgloc.estimation import (
     rigid_from_triplets,
     squared_residuals,
     tilt_deg,
-    yaw_from_pairs,
 )
-from sgloc.kernels import use_compiled
 
 
 def distinct_from(
@@ -70,13 +68,10 @@ def runner_up(
         if kept.size == 0:
             return 0, None
         i, j = kept.at(rng.integers(0, kept.size, cfg.runner_up_samples))
-    if dof == 4 and use_compiled(len(src)):
-        return _compiled_yaw_runner_up(src, dst, T, exclude, i, j, radius, cfg)
     if dof == 4:
-        hyp = _yaw_hypotheses(src, dst, *_first_draws(i, j, len(src)))
-    else:
-        rows = edges if isinstance(edges, SampledConsistency) else consistency
-        hyp = _triplet_hypotheses(src, dst, i, j, rows, free, rng, max_tilt)
+        return _compiled_yaw_runner_up(src, dst, T, exclude, i, j, radius, cfg)
+    rows = edges if isinstance(edges, SampledConsistency) else consistency
+    hyp = _triplet_hypotheses(src, dst, i, j, rows, free, rng, max_tilt)
     if hyp is None:
         return 0, None
     R, t = hyp
@@ -97,8 +92,9 @@ def _compiled_yaw_runner_up(
     src, dst, T, exclude, i, j, radius, cfg
 ) -> tuple[int, np.ndarray | None]:
     """`runner_up`'s dof=4 branch from the drawn pairs (i, j) on, in one compiled pass
-    (`sgloc.acceptance.runner_up_kernels`): the same alternative, its residuals and the centre of
-    T's support equal to rounding."""
+    (`sgloc.acceptance.runner_up_kernels`): 4-dof hypotheses from the pairs apart in xy (each
+    distinct pair at its first draw), those distinct from T at the centre of T's support, the
+    one with the most inliers among the free candidates."""
     from sgloc.acceptance.runner_up_kernels import best_yaw_alternative
 
     count, T2, found = best_yaw_alternative(
@@ -113,28 +109,6 @@ def _compiled_yaw_runner_up(
         float(radius),
     )
     return (int(count), T2) if found else (0, None)
-
-
-def _first_draws(i: np.ndarray, j: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:
-    """The pairs (i, j) without repeats, each at its first draw, in draw order: a pair drawn
-    again gives the same 4-dof hypothesis, and the best (first) one stays the same."""
-    _, first = np.unique(i * m + j, return_index=True)
-    first.sort()
-    return i[first], j[first]
-
-
-def _yaw_hypotheses(src, dst, i, j) -> tuple[np.ndarray, np.ndarray] | None:
-    """4-dof hypotheses from consistent candidate pairs (i, j) apart in xy."""
-    pair = np.stack([i, j], axis=1)
-    S, D = src[pair], dst[pair]
-    ok = (
-        np.minimum(
-            np.linalg.norm(S[:, 1, :2] - S[:, 0, :2], axis=1),
-            np.linalg.norm(D[:, 1, :2] - D[:, 0, :2], axis=1),
-        )
-        > 1e-6
-    )
-    return yaw_from_pairs(S[ok], D[ok]) if ok.any() else None
 
 
 def _triplet_hypotheses(

@@ -4,7 +4,8 @@ The compiled dof=4 branch of `sgloc.acceptance.runner_up`: each drawn pair of ca
 a rotation about z and a translation (as `sgloc.estimation.yaw_from_pairs`); hypotheses within
 the distinctness bounds of the estimate are skipped, the others are scored by their inliers
 among the free candidates, and the first best one is kept. Residuals are computed directly
-(the numpy branch expands them into one matrix product): equal to rounding.
+(the numpy reference, kept with the tests, expands them into one matrix product): equal to
+rounding.
 """
 
 from __future__ import annotations

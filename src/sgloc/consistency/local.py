@@ -8,9 +8,8 @@ consistent with; Alg. 1 removes the least supported fraction first (`prune_local
 radius that covers the whole query map every candidate neighbours every other and the result
 equals Alg. 1 on all pairs (`sgloc.rejection.neighbor.prune_bits`).
 
-`prune_local` runs the compiled kernel (`sgloc.consistency.local_kernels`);
-`local_counts_reference` and
-`prune_local_reference` are the numpy references (dense, m^2: small problems and tests).
+`local_counts` and `prune_local` run the compiled kernels (`sgloc.consistency.local_kernels`);
+their dense numpy references live with the tests (`tests/references/`).
 """
 
 from __future__ import annotations
@@ -19,8 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sgloc.consistency.pairwise import check_form, consistency_bool
-from sgloc.kernels import use_compiled
+from sgloc.consistency.pairwise import check_form
 
 #: Cells per axis at most: cells are widened beyond the radius when a map is wider than this
 #: many radii, so that a cell's integer key (x, y, z) fits in an int64.
@@ -85,8 +83,8 @@ def local_counts(
     other candidates whose query points lie closer than `radius` to src_i, and those of them
     consistent with i (`sgloc.consistency.pairwise` forms). Compiled; memory linear in m."""
     check_form(form)
-    if not use_compiled(len(src)):
-        return local_counts_reference(src, dst, tau, radius, form)
+    if len(src) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
     from sgloc.consistency.local_kernels import local_counts as kernel
 
     return kernel(*_kernel_args(src, dst, radius), float(tau), form == "neighbor")
@@ -104,64 +102,12 @@ def prune_local(
     """Sorted indices of the candidates that survive Alg. 1 on local supports: while the
     remaining candidate with the least support fraction (V_i + s) / (r_i + s) (ties: the lowest
     index) has V_i + s < eta * (r_i + s), remove it (r_i, V_i: `local_counts` among the
-    remaining candidates; s = self_vote, 1 for the literal bound). Compiled (the numpy
-    reference when `sgloc.kernels.use_compiled` says so: tests)."""
+    remaining candidates; s = self_vote, 1 for the literal bound). Compiled."""
     check_form(form)
     if len(src) == 0:
         return np.zeros(0, dtype=np.int64)
-    if not use_compiled(len(src)):
-        return prune_local_reference(src, dst, tau, eta, radius, form, self_vote)
     from sgloc.consistency.local_kernels import local_prune
 
     args = _kernel_args(src, dst, radius)
     return local_prune(*args, float(tau), form == "neighbor", float(eta), int(self_vote))
 
-
-def _neighbours_reference(src: np.ndarray, radius: float) -> np.ndarray:
-    """(m,m) bool: query points closer than `radius` (float64 as cdist), no diagonal."""
-    from scipy.spatial.distance import cdist
-
-    near = cdist(src, src) < radius
-    np.fill_diagonal(near, False)
-    return near
-
-
-def local_counts_reference(
-    src: np.ndarray, dst: np.ndarray, tau: float, radius: float, form: str = "distance"
-) -> tuple[np.ndarray, np.ndarray]:
-    """`local_counts` in numpy (dense m x m: the reference)."""
-    src = np.asarray(src, dtype=np.float64)
-    near = _neighbours_reference(src, radius)
-    ok = consistency_bool(src, dst, tau, form) & near
-    return near.sum(axis=1, dtype=np.int64), ok.sum(axis=1, dtype=np.int64)
-
-
-def prune_local_reference(
-    src: np.ndarray,
-    dst: np.ndarray,
-    tau: float,
-    eta: float,
-    radius: float,
-    form: str = "distance",
-    self_vote: int = 0,
-) -> np.ndarray:
-    """`prune_local` in numpy (dense m x m, one removal per step: the reference)."""
-    src = np.asarray(src, dtype=np.float64)
-    near = _neighbours_reference(src, radius)
-    ok = consistency_bool(src, dst, tau, form) & near
-    r = near.sum(axis=1).astype(np.int64)
-    V = ok.sum(axis=1).astype(np.int64)
-    alive = np.ones(len(src), dtype=bool)
-    s = int(self_vote)
-    while alive.any():
-        with np.errstate(divide="ignore", invalid="ignore"):
-            frac = np.where(r + s > 0, (V + s) / (r + s), np.inf)
-        frac[~alive] = np.nan
-        i = int(np.nanargmin(frac))  # the first of equal minima: the lowest index
-        if not V[i] + s < eta * (r[i] + s):
-            break
-        alive[i] = False
-        hit = near[i] & alive
-        r[hit] -= 1
-        V[ok[i] & alive] -= 1
-    return np.flatnonzero(alive).astype(np.int64)

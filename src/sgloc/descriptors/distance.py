@@ -8,39 +8,8 @@ import numpy as np
 from scipy import sparse
 
 from sgloc.descriptors.base import Descriptor
-from sgloc.kernels import use_compiled
 from sgloc.maps.graph import SemanticGraph
 from sgloc.validation import MAX_COORDINATE, integer, real, setting
-
-#: Descriptor weights are multiples of this (`sgloc.maps.neighbor_kernels.WEIGHT_QUANTUM`).
-WEIGHT_QUANTUM = 2.0**-24
-
-def neighbour_pairs(positions: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
-    """(pairs (e,2) int i<j, distances (e,) m) of the vertices closer than `radius` metres
-    (KD-tree; memory linear in the number of pairs)."""
-    if len(positions) < 2:
-        return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
-    from scipy.spatial import cKDTree  # deferred: scipy.spatial loads in ~0.2 s
-
-    pairs = cKDTree(positions).query_pairs(radius, output_type="ndarray")
-    if pairs.size == 0:
-        return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
-    v = positions[pairs[:, 0]] - positions[pairs[:, 1]]
-    # Summed as x, y, z in turn: the rounding of the compiled descriptor kernel.
-    d = np.sqrt(v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1] + v[:, 2] * v[:, 2])
-    keep = d < radius
-    return pairs[keep].astype(np.int64), d[keep]
-
-
-def soft_bins(values: np.ndarray, per_bin: float, n_bins: int) -> tuple[np.ndarray, np.ndarray]:
-    """Linear (tent) soft binning of `values` >= 0 into `n_bins` bins of width 1 / per_bin,
-    bin b centred at (b + 0.5) / per_bin: (bins (v,2) int, weights (v,2)), weights summing to 1
-    per value. Values below the first centre or beyond the last fall wholly in the end bin."""
-    u = np.clip(values * per_bin - 0.5, 0.0, n_bins - 1.0)
-    lo = u.astype(np.int64)  # u >= 0: truncation is floor
-    frac = u - lo
-    hi = np.minimum(lo + 1, n_bins - 1)
-    return np.stack([lo, hi], axis=1), np.stack([1.0 - frac, frac], axis=1)
 
 
 @dataclass
@@ -55,7 +24,10 @@ class DistanceHistogramDescriptor(Descriptor):
 
     Depends only on distances, so it is invariant to any rotation, translation and to the
     direction the robot drove through the place. Uses the weighted graph (metric distances),
-    not only the adjacency; built from KD-tree pairs, memory linear in the pairs.
+    not only the adjacency; built by a compiled search on a grid of cells
+    (`sgloc.maps.neighbor_kernels.distance_histograms`), memory linear in the objects. Each
+    weight is rounded to a multiple of `sgloc.maps.neighbor_kernels.WEIGHT_QUANTUM`, so every
+    bin's sum is exact in any order (an update of a few rows gives the same bits).
     """
 
     radius: float = setting(40.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
@@ -78,39 +50,20 @@ class DistanceHistogramDescriptor(Descriptor):
         rows: np.ndarray | None = None,
     ) -> np.ndarray:
         """The descriptors of the objects `rows` (default all) of the map (positions (n,3) m,
-        labels (n,) class ids < n_classes): (len(rows), n_classes * n_bins). The same bits by
-        the compiled kernel and the numpy reference (`histogram_reference`)."""
+        labels (n,) class ids < n_classes): (len(rows), n_classes * n_bins). Compiled
+        (`sgloc.maps.neighbor_kernels.distance_histograms`)."""
         every = rows is None
         rows = np.arange(len(positions)) if every else np.asarray(rows, dtype=np.int64)
-        if use_compiled(len(positions)):
-            from sgloc.maps.neighbor_kernels import distance_histograms
+        if len(positions) == 0:
+            return np.zeros((len(rows), n_classes * int(self.n_bins)))
+        from sgloc.maps.neighbor_kernels import distance_histograms
 
-            positions = np.ascontiguousarray(positions, dtype=np.float64)
-            return distance_histograms(
-                positions if every else positions[rows], rows, positions,
-                np.asarray(labels, dtype=np.int64), n_classes, float(self.radius),
-                int(self.n_bins), float(self.taper),
-            )  # fmt: skip
-        return self.histogram_reference(positions, labels, n_classes)[rows]
-
-    def histogram_reference(
-        self, positions: np.ndarray, labels: np.ndarray, n_classes: int
-    ) -> np.ndarray:
-        """All rows by KD-tree pairs in numpy (the compiled kernel's reference)."""
-        n, nb, R = len(positions), int(self.n_bins), float(self.radius)
-        pairs, d = neighbour_pairs(positions, R)
-        bins, w = soft_bins(d, nb / R, nb)
-        w = w * (1.0 - d * (float(self.taper) / R))[:, None]
-        # Multiples of WEIGHT_QUANTUM: every bin's sum is exact, in any order of its terms.
-        w = np.floor(w * (1.0 / WEIGHT_QUANTUM) + 0.5) * WEIGHT_QUANTUM
-        i, j, lab = pairs[:, 0], pairs[:, 1], labels
-        # Each pair counts in both endpoints' histograms, under the other endpoint's class.
-        # Dense: n x (classes x bins) floats, linear in the vertices (cheaper than CSR here).
-        row_i = (i * n_classes + lab[j]) * nb
-        row_j = (j * n_classes + lab[i]) * nb
-        flat = np.concatenate([row_i[:, None] + bins, row_j[:, None] + bins]).ravel()
-        H = np.bincount(flat, np.concatenate([w, w]).ravel(), minlength=n * n_classes * nb)
-        return H.reshape(n, n_classes * nb)
+        positions = np.ascontiguousarray(positions, dtype=np.float64)
+        return distance_histograms(
+            positions if every else positions[rows], rows, positions,
+            np.asarray(labels, dtype=np.int64), n_classes, float(self.radius),
+            int(self.n_bins), float(self.taper),
+        )  # fmt: skip
 
 
 @dataclass

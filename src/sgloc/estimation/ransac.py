@@ -133,10 +133,7 @@ def ransac(
     cfg = config or RansacConfig()
     kernel_model = cfg.dof == 4 or cfg.max_tilt is None
     if kernel_model and cfg.sampler == "minimal" and cfg.scoring != "first":
-        from sgloc.kernels import use_compiled
-
-        if use_compiled(len(src)):
-            return ransac_compiled(src, dst, cfg, rng, weights)
+        return ransac_compiled(src, dst, cfg, rng, weights)
     return ransac_reference(src, dst, cfg, rng, weights)
 
 

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 
 from sgloc.errors import DegenerateGeometryError
-from sgloc.estimation.fits import fit_rigid, tilt_deg, weighted_kabsch
+from sgloc.estimation.fits import tilt_deg, weighted_kabsch
 from sgloc.geometry import make_transform
-from sgloc.kernels.constants import MAD_SCALE, TUKEY_C
+from sgloc.kernels.constants import MAD_SCALE
 from sgloc.lie import skew, so3_exp
 from sgloc.maps.spatial import ClassKDTree
 
@@ -41,17 +41,11 @@ def irls_refine(
         the scales apart, those fix roll and pitch and the others count less.
     class_axes: with `classes`, "full" (per class, horizontal and vertical scales) or
         "height" (per class vertical scales; one horizontal scale shared by all matches).
+    Compiled (`sgloc.estimation.fit_kernels`). Without matches, T comes back unchanged.
     """
+    if len(src) == 0:
+        return T
     prior = np.ones(len(src)) if weights is None else np.asarray(weights, dtype=np.float64)
-    from sgloc.kernels import use_compiled
-
-    if use_compiled(len(src)):
-        return _irls_compiled(src, dst, T, prior, iterations, dof, max_tilt, classes, class_axes)
-    return _irls_numpy(src, dst, T, prior, iterations, dof, max_tilt, classes, class_axes)
-
-
-def _irls_compiled(src, dst, T, prior, iterations, dof, max_tilt, classes, class_axes):
-    """`irls_refine` by the compiled kernels of `sgloc.estimation.fit_kernels` (same decisions)."""
     from sgloc.estimation.fit_kernels import irls_class_scaled, irls_model
 
     src, dst = (np.ascontiguousarray(a, dtype=np.float64) for a in (src, dst))
@@ -65,38 +59,6 @@ def _irls_compiled(src, dst, T, prior, iterations, dof, max_tilt, classes, class
         src, dst, T, prior, cls.astype(np.int64), len(uniq), class_axes == "height",
         iterations, dof, float(max_tilt or 0.0), MIN_CLASS_MATCHES, MIN_SCALE_RATIO,
     )  # fmt: skip
-
-
-def _irls_numpy(src, dst, T, prior, iterations, dof, max_tilt, classes, class_axes):
-    """`irls_refine` in numpy (the reference of the compiled kernels)."""
-    w_prev = None
-    for _ in range(iterations):
-        d = src @ T[:3, :3].T + T[:3, 3] - dst
-        r = np.linalg.norm(d, axis=1)
-        sigma = MAD_SCALE * np.median(r)
-        if sigma <= 1e-12:
-            break
-        if classes is not None:
-            s_xy, s_z = class_scales(d, classes, sigma, class_axes)
-            u = np.sqrt((d[:, 0] ** 2 + d[:, 1] ** 2) / s_xy**2 + d[:, 2] ** 2 / s_z**2) / TUKEY_C
-        else:
-            u = r / (TUKEY_C * sigma)
-        w = prior * np.where(u < 1.0, (1.0 - u**2) ** 2, 0.0)
-        if np.count_nonzero(w) < 3:
-            break
-        # The fit is a function of the weights alone: unchanged weights, unchanged fit.
-        if w_prev is not None and np.allclose(w, w_prev, rtol=0.0, atol=1e-6):
-            break
-        w_prev = w
-        if classes is not None:
-            T_new = anisotropic_fit(src, dst, T, w / s_xy**2, w / s_z**2, dof, max_tilt)
-        else:
-            T_new = fit_rigid(src, dst, w, dof, max_tilt)
-        done = np.abs(T_new - T).max() < 1e-9
-        T = T_new
-        if done:
-            break
-    return T
 
 
 #: Matches of a class needed to estimate its own residual scales.

@@ -1,6 +1,7 @@
-"""The compiled (numba) kernels' runtime: which path runs, where the kernels are cached, the
-first-compile notice. The kernels themselves live beside the stage code they serve (`MODULES`),
-each with a plain numpy reference in its caller.
+"""The compiled (numba) kernels' runtime: where the kernels are cached, the first-compile
+notice. The kernels themselves live beside the stage code they serve (`MODULES`), which calls
+them directly; the plain numpy references they are checked against live with the tests
+(`tests/references/`).
 
 Importing this package is cheap: numba is imported, and each kernel compiled, only when a
 kernel module is first imported (callers import them inside functions). Compiled code is cached
@@ -9,10 +10,10 @@ per-user cache directory; `NUMBA_CACHE_DIR` overrides both. When none of them is
 read-only install and home), the kernels are cached in a folder of the temporary directory, or,
 failing that, compiled in every process without a cache; either is said once on stderr.
 
-Every problem runs the compiled kernels (`use_compiled`; the numpy references are kept for the
-tests, `FORCE = "reference"`), so the same inputs give the same bits in every process whatever
-it ran before (the references and the kernels agree to rounding, not bit for bit). Loading
-numba and the cached kernels costs a process about 0.3 s once. Every kernel is declared with
+Every problem runs the compiled kernels (a stage handles an empty problem itself), so the same
+inputs give the same bits in every process whatever it ran before (the references and the
+kernels agree to rounding, not always bit for bit). Loading numba and the cached kernels costs
+a process about 0.3 s once. Every kernel is declared with
 `sgloc.kernels.dispatch.kernel`: one compiled specialisation, whatever flags (read-only or
 writable) its array arguments carry.
 
@@ -38,19 +39,6 @@ from pathlib import Path
 from sgloc.kernels.cache import ensure_cache_dir
 
 ensure_cache_dir()
-
-#: "compiled" or "reference" forces that path (tests); None: the compiled kernels.
-FORCE: str | None = None
-
-
-def use_compiled(size: int) -> bool:
-    """Whether a problem of `size` matches runs the compiled kernel (else the numpy reference,
-    equal to rounding): every non-empty one, unless FORCE says otherwise. Never depends on
-    what the process computed before."""
-    if FORCE is not None:
-        return FORCE == "compiled"
-    return size > 0
-
 
 _BLAS_CONTROLLER = None
 

@@ -7,6 +7,10 @@ result's vertex indices back to the caller's order.
 Built for every call; a target localized against again and again is prepared once instead
 (`sgloc.pipeline.prepared.PreparedMap` keeps its canonical form,
 `CanonicalPair.with_canonical_target`).
+
+The orders, the duplicate search and `restore` run compiled kernels
+(`sgloc.maps.canonical_kernels`); their numpy references live with the tests
+(`tests/references/`).
 """
 
 from __future__ import annotations
@@ -17,7 +21,6 @@ from typing import Any
 import numpy as np
 from scipy import sparse
 
-from sgloc.kernels import use_compiled
 from sgloc.maps.graph import SemanticGraph
 
 #: Objects of one class closer than this (metres) are one object listed twice: kept once (the
@@ -27,12 +30,11 @@ DUPLICATE_RADIUS = 1e-3
 
 def canonical_order(graph: SemanticGraph) -> np.ndarray:
     """Vertex indices sorted by (label, x, y, z); ties (duplicate objects) keep input order."""
-    p = graph.positions
-    if use_compiled(len(p)):
-        from sgloc.maps.canonical_kernels import canonical_order_kernel
+    if len(graph.positions) == 0:
+        return np.zeros(0, dtype=np.int64)
+    from sgloc.maps.canonical_kernels import canonical_order_kernel
 
-        return canonical_order_kernel(*_kernel_arrays(graph))
-    return np.lexsort((p[:, 2], p[:, 1], p[:, 0], graph.labels))
+    return canonical_order_kernel(*_kernel_arrays(graph))
 
 
 def _kernel_arrays(graph: SemanticGraph) -> tuple[np.ndarray, np.ndarray]:
@@ -72,19 +74,18 @@ def without_duplicates(graph: SemanticGraph, order: np.ndarray) -> np.ndarray:
     """`order` (`canonical_order(graph)`) without the vertices that repeat an earlier one of it
     (same class, closer than DUPLICATE_RADIUS); without duplicates it comes back unchanged
     (or equal)."""
-    if use_compiled(len(order)):
-        from sgloc.maps.canonical_kernels import first_of_duplicates
+    if len(order) == 0:
+        return order
+    from sgloc.maps.canonical_kernels import first_of_duplicates
 
-        kept, long = first_of_duplicates(order, *_kernel_arrays(graph), DUPLICATE_RADIUS,
-                                         _RUN_SEARCH)  # fmt: skip
-        if not long:
-            return kept
-    return _first_of_close_groups(graph, order)
+    kept, long = first_of_duplicates(order, *_kernel_arrays(graph), DUPLICATE_RADIUS,
+                                     _RUN_SEARCH)  # fmt: skip
+    return _first_of_close_groups(graph, order) if long else kept
 
 
 def _first_of_close_groups(graph: SemanticGraph, order: np.ndarray) -> np.ndarray:
-    """`without_duplicates` in numpy (the compiled search's reference; its KD-tree fallback
-    for long runs)."""
+    """`without_duplicates` in numpy, for runs of close objects longer than _RUN_SEARCH (the
+    compiled search leaves those to a KD-tree)."""
     pairs = _close_pairs(graph, order)
     if len(pairs) == 0:
         return order
@@ -160,17 +161,17 @@ class CanonicalPair:
     def _form(self, graph: SemanticGraph) -> tuple[np.ndarray, np.ndarray]:
         """(order, labels): `without_duplicates(graph, canonical_order(graph))` and the class
         ids of those vertices renumbered by this pair's class table (one compiled pass)."""
-        if use_compiled(len(graph)):
-            from sgloc.maps.canonical_kernels import canonical_form
+        if len(graph) == 0:
+            order = np.zeros(0, dtype=np.int64)
+            return order, np.searchsorted(self.classes, graph.labels[order])
+        from sgloc.maps.canonical_kernels import canonical_form
 
-            classes = np.ascontiguousarray(self.classes, dtype=np.int64)
-            order, labels, long = canonical_form(*_kernel_arrays(graph), classes,
-                                                 DUPLICATE_RADIUS, _RUN_SEARCH)  # fmt: skip
-            if not long:
-                return order, labels
-            order = _first_of_close_groups(graph, order)  # `order`: the whole canonical order
-        else:
-            order = without_duplicates(graph, canonical_order(graph))
+        classes = np.ascontiguousarray(self.classes, dtype=np.int64)
+        order, labels, long = canonical_form(*_kernel_arrays(graph), classes,
+                                             DUPLICATE_RADIUS, _RUN_SEARCH)  # fmt: skip
+        if not long:
+            return order, labels
+        order = _first_of_close_groups(graph, order)  # `order`: the whole canonical order
         return order, np.searchsorted(self.classes, graph.labels[order])
 
     def _rebuilt(
@@ -194,30 +195,17 @@ class CanonicalPair:
         rows sorted by them (candidates keep their scores)."""
         qo, to = self.query_order, self.target_order
         scores = np.asarray(result.scores)
-        if use_compiled(len(scores)):
-            from sgloc.maps.canonical_kernels import restored_pairs
+        from sgloc.maps.canonical_kernels import restored_pairs
 
-            def back(pairs: np.ndarray, scores: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-                pairs = np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2)
-                return restored_pairs(pairs, scores, qo, to)
-        else:
-            back = _restored_pairs(qo, to)
+        def back(pairs: np.ndarray, scores: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            pairs = np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2)
+            if len(pairs) == 0:  # nothing to map back
+                return np.zeros((0, 2), dtype=np.int64), np.zeros(0, dtype=np.int64)
+            return restored_pairs(pairs, scores, qo, to)
+
         result.candidates, order = back(result.candidates, np.asarray(scores, np.float64))
         result.scores = scores[order]
         for name in ("survivors", "matches"):
             setattr(result, name, back(getattr(result, name), np.zeros(0))[0])
         return result
 
-
-def _restored_pairs(qo: np.ndarray, to: np.ndarray):
-    """`sgloc.maps.canonical_kernels.restored_pairs` in numpy (the kernel's reference), for the
-    orders qo, to."""
-
-    def back(pairs: np.ndarray, scores: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-        pairs = np.stack([qo[pairs[:, 0]], to[pairs[:, 1]]], axis=1)
-        keys = (pairs[:, 1], -scores, pairs[:, 0]) if len(scores) else (pairs[:, 1], pairs[:, 0])
-        order = np.lexsort(keys)
-        return pairs[order], order
-
-    return back

@@ -1,7 +1,7 @@
 """The canonical vertex order of a graph and its duplicate search in one compiled pass
 (`sgloc.maps.canonical`): the same order as numpy's `lexsort` of (class, x, y, z) (stable: ties
-keep input order) and the same duplicate groups as its numpy form, without a dozen small
-numpy calls per graph.
+keep input order) and the same duplicate groups as a KD-tree search (the numpy reference, kept
+with the tests), without a dozen small numpy calls per graph.
 
 The sort is a merge sort written out (the package's rule: no numba sort in a cached kernel).
 """
@@ -96,10 +96,10 @@ def first_of_duplicates(
 ) -> tuple[np.ndarray, bool]:
     """(kept, long): `order` (canonical) without the vertices that repeat an earlier one of
     it (same class, squared distance <= radius**2, groups joined through any chain of such
-    pairs, the first of each kept), searched as `sgloc.maps.canonical`'s numpy form does: pairs
+    pairs, the first of each kept), searched along the canonical order: pairs
     only along runs of consecutive same-class steps of at most `radius` in x, compared up to
     `run` places apart. `long`: a run of `run` steps was met; then `kept` is empty, not
-    computed (the caller searches that map by a KD-tree, as the numpy form)."""
+    computed (the caller searches that map by a KD-tree)."""
     # A writable copy: `canonical_form` hands the search the order it computed, so both
     # callers give it the same types (one compiled specialisation).
     return _first_of_groups(order.copy(), positions, labels, radius, run)

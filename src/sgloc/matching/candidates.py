@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import sparse
 
-from sgloc.kernels import one_blas_thread, use_compiled
+from sgloc.kernels import one_blas_thread
 from sgloc.maps.prepared_graph import PreparedGraph
 from sgloc.matching.index import build_index, class_index, search_class, uses_index
 from sgloc.validation import (
@@ -171,11 +171,9 @@ def _as_matrix(D):
 
 
 def _use_kernel(desc_q, desc_t) -> bool:
-    """Whether `_top_k` runs the compiled kernel: dense descriptors, and compiled kernels in
-    use for a problem of this size (`sgloc.kernels.use_compiled`: asked once per matching)."""
-    if sparse.issparse(desc_q) or sparse.issparse(desc_t):
-        return False
-    return use_compiled(max(len(desc_q), len(desc_t)))
+    """Whether `_top_k` runs the compiled kernel: dense descriptors (sparse ones, such as the
+    random walks' histograms, are matched by sparse block products in numpy)."""
+    return not (sparse.issparse(desc_q) or sparse.issparse(desc_t))
 
 
 @dataclass(frozen=True)

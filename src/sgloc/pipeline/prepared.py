@@ -37,7 +37,6 @@ import numpy as np
 
 from sgloc.descriptors import DistanceHistogramDescriptor, RandomWalkDescriptor
 from sgloc.errors import SglocError
-from sgloc.kernels import use_compiled
 from sgloc.maps.canonical import CanonicalPair, canonical_order
 from sgloc.maps.graph import SemanticGraph
 from sgloc.maps.prepared_graph import PreparedGraph
@@ -70,7 +69,7 @@ class PreparedMap:
         None; canonical: the `PreparedGraph` of `target` holding descriptors, blocks, neighbour
         grids and class indexes, handed to the stages of every query;
         chance_grid: the acceptance test's neighbour grid of `target` at the config's
-        acceptance radius (None without compiled kernels), built when the map is.
+        acceptance radius, built when the map is.
     """
 
     def __init__(self, graph: SemanticGraph, config: LocalizerConfig | None = None) -> None:
@@ -107,9 +106,7 @@ class PreparedMap:
     def _chance_grid(self):
         """The acceptance test's neighbour grid of the map at the config's acceptance radius
         (`PreparedGraph.grid`), built now rather than by the first query, and the class
-        counts; None when the chance model searches by KD-trees."""
-        if not use_compiled(len(self.target)):
-            return None
+        counts."""
         radius = float(self.config.acceptance.radius or self.config.ransac.threshold)
         _ = self.canonical.class_counts  # built now, not by the first query
         return self.canonical.grid(radius)
@@ -159,7 +156,7 @@ class PreparedMap:
         incremental = isinstance(self.descriptor, DistanceHistogramDescriptor) and isinstance(
             old[4], np.ndarray
         )
-        if incremental and use_compiled(len(grown)):
+        if incremental:
             self._set_descriptors(self._grown_descriptors(*old[1:], pos, lab))
         else:
             self._set_descriptors(self._describe())

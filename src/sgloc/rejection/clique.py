@@ -22,48 +22,6 @@ from sgloc.rejection.base import Rejector
 from sgloc.validation import MAX_COORDINATE, MAX_ITERATIONS, MAX_VERTICES, integer, real, setting
 
 
-def core_numbers(M: np.ndarray) -> np.ndarray:
-    """k-core number of every vertex of the graph with bool adjacency M (m,m), diagonal False.
-
-    Peels all vertices of the current least degree at once (vectorised rounds)."""
-    m = len(M)
-    Mu = M.view(np.uint8)
-    deg = Mu.sum(axis=1, dtype=np.int64)
-    core = np.zeros(m, dtype=np.int64)
-    alive = np.ones(m, dtype=bool)
-    k = 0
-    while alive.any():
-        k = max(k, int(deg[alive].min()))
-        peel = np.flatnonzero(alive & (deg <= k))
-        while len(peel):
-            core[peel] = k
-            alive[peel] = False
-            deg -= Mu[peel].sum(axis=0, dtype=np.int64)
-            peel = np.flatnonzero(alive & (deg <= k))
-    return core
-
-
-def greedy_clique(M: np.ndarray, rank: np.ndarray, seeds: np.ndarray) -> np.ndarray:
-    """Largest clique grown greedily from each seed: repeatedly add the candidate (adjacent to
-    every member so far) of highest `rank`. Returns sorted vertex indices."""
-    best = np.zeros(0, dtype=np.int64)
-    for s in seeds.tolist():
-        cand = M[s].copy()
-        clique = [s]
-        while True:
-            idx = np.flatnonzero(cand)
-            if len(idx) == 0:
-                break
-            if len(clique) + len(idx) <= len(best):
-                break  # cannot beat the best any more
-            u = int(idx[np.argmax(rank[idx])])
-            clique.append(u)
-            cand &= M[u]
-        if len(clique) > len(best):
-            best = np.sort(np.asarray(clique, dtype=np.int64))
-    return best
-
-
 def _bitsets(M: np.ndarray) -> list[int]:
     """Row i of bool M as a Python int with bit j set when M[i, j]."""
     packed = np.packbits(M, axis=1, bitorder="little")
@@ -146,9 +104,8 @@ class CliqueRejector(Rejector):
     name = "clique"
 
     def __call__(self, src, dst, scores=None):
-        """Compiled on packed rows (`sgloc.rejection.clique_kernels`); the exact search unpacks
-        only the
-        k-core pool. `max_clique(consistency_matrix(...))` is the numpy reference."""
+        """Compiled on packed rows (`sgloc.rejection.clique_kernels`: core numbers, greedy
+        growth); the exact search unpacks only the k-core pool."""
         m = len(src)
         if m == 0:
             return np.zeros(0, dtype=np.int64)
@@ -163,22 +120,6 @@ class CliqueRejector(Rejector):
         if 0 < len(pool) <= self.exact_limit:
             sub = unpack_rows(bits[pool], m)[:, pool]
             found, _ = exact_clique(sub, len(best), self.max_nodes)
-            if len(found) > len(best):
-                best = np.sort(pool[found])
-        return best
-
-    def max_clique(self, M: np.ndarray) -> np.ndarray:
-        """Sorted vertex indices of the (near-)maximum clique of consistency graph M."""
-        m = len(M)
-        core = core_numbers(M)
-        deg = M.sum(axis=1)
-        rank = core * (m + 1) + deg
-        seeds = np.argsort(-rank, kind="stable")[: self.n_seeds]
-        best = greedy_clique(M, rank, seeds)
-        # A clique of size s > |best| needs core number >= s - 1 >= |best|.
-        pool = np.flatnonzero(core >= len(best))
-        if 0 < len(pool) <= self.exact_limit:
-            found, _ = exact_clique(M[np.ix_(pool, pool)], len(best), self.max_nodes)
             if len(found) > len(best):
                 best = np.sort(pool[found])
         return best

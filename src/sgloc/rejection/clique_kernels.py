@@ -51,7 +51,7 @@ def core_numbers(bits: np.ndarray, degree: np.ndarray) -> np.ndarray:
 
 @kernel
 def greedy_clique(bits: np.ndarray, rank: np.ndarray, seeds: np.ndarray) -> np.ndarray:
-    """`sgloc.rejection.clique.greedy_clique` on packed rows: the largest clique grown from
+    """The clique rejector's greedy growth on packed rows: the largest clique grown from
     each seed by adding the candidate of highest rank (first on ties). Sorted indices."""
     n_words = bits.shape[1]
     best = np.zeros(0, dtype=np.int64)

@@ -79,7 +79,7 @@ def leading_eigenvector(
 def greedy_select(
     x: np.ndarray, order: np.ndarray, bits: np.ndarray, min_ratio: float, min_agreement: float
 ) -> np.ndarray:
-    """`sgloc.rejection.spectral.greedy_select` on packed rows: accept by decreasing x (`order`)
+    """The spectral rejector's greedy selection on packed rows: accept by decreasing x (`order`)
     while x_i >= min_ratio * max(x), skipping a match that agrees with fewer than min_agreement
     of those accepted so far. Sorted indices."""
     m = x.shape[0]
