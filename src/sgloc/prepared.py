@@ -41,6 +41,7 @@ from sgloc.errors import SglocError
 from sgloc.graph import SemanticGraph
 from sgloc.kernels import use_compiled
 from sgloc.prepared_graph import PreparedGraph
+from sgloc.scale import AUTO, estimate_scale
 from sgloc.validation import check_graph_arrays
 
 #: The file format's name and version (`PreparedMap.save`).
@@ -76,6 +77,12 @@ class PreparedMap:
         if not isinstance(graph, SemanticGraph):
             raise PreparedMapError(f"prepare needs a SemanticGraph, got {type(graph).__name__}.")
         self.config = config or LocalizerConfig()
+        #: The scene scale estimated from `graph` when `config` asked for scale="auto" (the
+        #: map keeps it as it grows; `sgloc.scale.ScaleEstimate`), else None.
+        self.scale_estimate = None
+        if self.config.scale == AUTO and isinstance(graph, SemanticGraph) and len(graph) >= 2:
+            self.scale_estimate = estimate_scale(graph)
+            self.config = self.config.resolved(self.scale_estimate.unit)
         self.descriptor = self.config.descriptor_config
         if isinstance(self.descriptor, RandomWalkDescriptor):
             raise PreparedMapError(
