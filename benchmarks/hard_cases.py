@@ -828,7 +828,12 @@ Mean error over the localized pairs; median ms = CPU time of the whole `localize
   defaults) for KITTI, city and Airsim, `forest` or `room` for the synthetic scenes.
 """
 
-SECTION_TITLES = {"tuning": "tuning pairs (scans 0-3000)", "heldout": "held-out pairs"}
+SECTION_TITLES = {"tuning": "tuning pairs (scans 0-3000)", "heldout": "held-out pairs",
+                  "scenes-tuning": "synthetic scenes, tuning seeds (0-39)",
+                  "scenes-heldout": "synthetic scenes, held-out seeds (10000-10039)"}
+#: The sections of docs/hard_cases.md, in order: full runs, then runs of the scene categories
+#: alone (`--only` scene categories `--update-docs`).
+DOC_SECTIONS = ("tuning", "heldout", "scenes-tuning", "scenes-heldout")
 
 
 def code_version() -> str:
@@ -994,7 +999,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--heldout", action="store_true", help="pairs with scans after 3000")
     p.add_argument("--out", type=Path, default=Path("results/hard_cases"))
     p.add_argument("--update-docs", action="store_true",
-                   help="write docs/hard_cases.md (+ .png from the tuning run)")  # fmt: skip
+                   help="write docs/hard_cases.md (+ .png from the tuning run); with --only "
+                   "scene categories: their section of it")  # fmt: skip
     return p.parse_args(argv)
 
 
@@ -1034,10 +1040,36 @@ def update_docs(out: Path, tag: str, summary, names: Sequence[str]) -> None:
     (docs / "hard_cases.md").write_text("\n".join(parts))
 
 
+def doc_sections(text: str) -> dict[str, str]:
+    """The "## Results: ..." sections of docs/hard_cases.md by tag (DOC_SECTIONS), each with
+    what follows it up to the next one."""
+    tags = {f"## Results: {SECTION_TITLES[t]}": t for t in DOC_SECTIONS}
+    out: dict[str, str] = {}
+    current = None
+    for line in text.splitlines(keepends=True):
+        if line.startswith("## Results: "):
+            current = tags.get(line.strip())
+        if current is not None:
+            out[current] = out.get(current, "") + line
+    return out
+
+
+def update_scene_docs(text: str, tag: str) -> None:
+    """docs/hard_cases.md with the section `tag` (scenes-tuning or scenes-heldout) replaced by
+    `text`: the header as the code defines it, the other sections as they were."""
+    path = Path(__file__).resolve().parents[1] / "docs" / "hard_cases.md"
+    sections = doc_sections(path.read_text()) if path.is_file() else {}
+    sections[tag] = text.rstrip("\n") + "\n\n"
+    parts = [header()] + [sections[t] for t in DOC_SECTIONS if t in sections]
+    path.write_text("\n".join(p.rstrip("\n") + "\n" for p in parts))
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     args = parse_args(argv)
-    if args.update_docs and (args.quick or args.only):
-        usage_error("--update-docs needs the full set: drop --quick and --only")
+    scenes_only = bool(args.only) and set(args.only) <= set(SCENE_CATEGORIES)
+    if args.update_docs and (args.quick or (args.only and not scenes_only)):
+        usage_error("--update-docs needs the full set (or only scene categories): drop --quick "
+                    "and --only")  # fmt: skip
     configs = configurations(args)
     t0 = time.time()
     cats = args.only or CATEGORIES
@@ -1049,13 +1081,16 @@ def main(argv: Sequence[str] | None = None) -> None:
     rows = run_all(specs, configs, args.workers)
     summary = summarize(rows, list(configs))
     tag = ("heldout" if args.heldout else "tuning") + ("-quick" if args.quick else "")
+    tag = f"scenes-{tag}" if scenes_only else tag
     text = section(tag, configs, rows, summary)
     print(text)
     print(f"wall time {time.time() - t0:.0f} s")
     args.out.mkdir(parents=True, exist_ok=True)
     write_rows(rows, args.out / f"pairs-{tag}.csv")
     (args.out / f"section-{tag}.md").write_text(text)
-    if args.update_docs:
+    if args.update_docs and scenes_only:
+        update_scene_docs(text, tag)
+    elif args.update_docs:
         update_docs(args.out, tag, summary, list(configs))
     print(f"rows in {args.out}/pairs-{tag}.csv")
 
