@@ -600,6 +600,9 @@ def run_spec(spec: PairSpec, configs: dict[str, dict[str, Any]]) -> list[dict[st
 
     limit_blas_threads()
     pair = make_pair(spec)
+    from sgloc.scale import estimate_scale
+
+    estimate = estimate_scale(pair.target)  # what scale="auto" takes the target map for
     gt = gt_check(pair) if spec.kind == "kitti" and spec.positive else {"gt_ok": True}
     tol_t, tol_r = TOLERANCE.get(spec.category, DEFAULT_TOLERANCE)
     rows = []
@@ -624,6 +627,8 @@ def run_spec(spec: PairSpec, configs: dict[str, dict[str, Any]]) -> list[dict[st
                 "overlap": spec.overlap, "revisit_m": round(spec.revisit_m, 1),
                 "pair": spec.label, "query_earlier": spec.swap,
                 "shared": pair.info.get("shared", ""), "reason": res.reason[:80],
+                "target_scene": estimate.scene,
+                "target_spacing_m": round(estimate.spacing, 3),
             }
         )  # fmt: skip
     return rows
@@ -958,6 +963,22 @@ def gt_summary(rows: list[dict[str, Any]]) -> str:
     )
 
 
+def scale_estimates(rows: list[dict[str, Any]]) -> str:
+    """One line: per category, the scene `scale="auto"` estimates for its target maps and the
+    range of their median object spacing."""
+    parts = []
+    for cat in CATEGORIES:
+        sel = {r["index"]: r for r in rows if r["category"] == cat}.values()
+        if not sel:
+            continue
+        scenes = sorted({r["target_scene"] for r in sel})
+        counts = ", ".join(f"{s} {sum(r['target_scene'] == s for r in sel)}" for s in scenes)
+        sp = [r["target_spacing_m"] for r in sel]
+        parts.append(f"{cat} {counts} ({min(sp):.2f}-{max(sp):.2f} m)")
+    return ("Scene of the target maps as `scale=\"auto\"` estimates it (median spacing to the "
+            "nearest object): " + "; ".join(parts) + ".")
+
+
 def section(tag: str, configs: dict[str, dict[str, Any]], rows, summary) -> str:
     """The results of one run: command, code, extra configurations, GT check, table, goals."""
     cmd = "python benchmarks/hard_cases.py " + " ".join(sys.argv[1:])
@@ -970,7 +991,7 @@ def section(tag: str, configs: dict[str, dict[str, Any]], rows, summary) -> str:
     new = new_config_keys()
     if new:
         lines.append(f"Settings newer than `previous` (there at their current defaults): {new}.")
-    lines += [gt_summary(rows), "", markdown_table(summary), ""]
+    lines += [gt_summary(rows), scale_estimates(rows), "", markdown_table(summary), ""]
     met = goals(summary)
     lines += ["Goals for `default`:", "", *met, ""] if met else []
     scene = scene_goals(rows)
