@@ -172,3 +172,24 @@ def test_hard_case_docs_keep_the_other_sections(benchmark_module):
     assert list(sections) == ["tuning", "heldout", "scenes-tuning"]
     assert "heldout table" in sections["heldout"] and "tuning table" not in sections["heldout"]
     assert "header" not in "".join(sections.values())
+
+
+def test_auto_takes_the_estimated_scene_preset_and_explicit_settings_win():
+    from sgloc.presets import at_estimated_scale, localizer_preset
+    from sgloc.scale import ScaleEstimate
+
+    auto = LocalizerConfig().with_overrides(scale="auto")
+    for scene in ("street", "forest", "room"):
+        est = ScaleEstimate(SCENES[scene], scene, 1.0, 100.0)
+        assert at_estimated_scale(auto, est) == localizer_preset(scene)
+    mine = LocalizerConfig().with_overrides(scale="auto", top_k=2, other_places=3)
+    forest = at_estimated_scale(mine, ScaleEstimate(SCENES["forest"], "forest", 2.0, 200.0))
+    assert forest.matching.top_k == 2 and forest.acceptance.other_places == 3
+    assert forest.descriptor_params == {"radius": 20.0}  # the preset's, not given
+
+
+def test_auto_refuses_an_office_of_identical_offices():
+    pair = repeated_room_pair(np.random.default_rng(1))
+    res = localize(pair.query, pair.target, scale="auto")
+    assert not res.success and "fits as well" in res.reason
+    assert res.settings.acceptance.other_places == 8  # the room preset's check came with it

@@ -115,13 +115,15 @@ class LocalizerConfig:
         from files without an explicit radius."""
         return scene_edge_radius(STREET_UNIT if self.scale == AUTO else self.scale)
 
-    def resolved(self, unit: float) -> LocalizerConfig:
+    def resolved(self, unit: float, scene: dict[str, Any] | None = None) -> LocalizerConfig:
         """This config with the scene scale `unit` (metres) in place of "auto": each length
-        that is at its street default becomes its street default times unit / 5 m, the others
-        (given explicitly) stay. A config of a numeric scale is returned as it is."""
+        that is at its street default becomes its street default times unit / 5 m, and the
+        flat settings `scene` (a scene preset's, `sgloc.presets.at_estimated_scale`) apply;
+        the settings that differ from the defaults (given explicitly) stay. A config of a
+        numeric scale is returned as it is."""
         if self.scale != AUTO:
             return self
-        flat = self.flat_settings()
+        flat = {k: v for k, v in (scene or {}).items() if k != "scale"} | self.flat_settings()
         flat.pop("scale", None)
         accept = flat.pop("acceptance", None)
         if accept is not None:  # its settings one by one: a whole group would hide the scaled

@@ -27,6 +27,7 @@ from sgloc.graph import SemanticGraph
 from sgloc.matching import match_flagged
 from sgloc.prepared import PreparedMap, prepare
 from sgloc.prepared_graph import PreparedGraph
+from sgloc.presets import at_estimated_scale
 from sgloc.rejection import make_rejector
 from sgloc.scale import AUTO, ScaleEstimate, estimate_scale, scene_hint
 from sgloc.timing import StageTimer
@@ -224,11 +225,13 @@ class Localizer:
         clock: Callable[[], float],
     ) -> LocalizationResult:
         """Localize with the scale of the target map (`sgloc.scale.estimate_scale`; a prepared
-        map's own estimate when it was prepared with scale="auto"); the result says so."""
+        map's own estimate when it was prepared with scale="auto") and its scene's preset
+        (`sgloc.presets.at_estimated_scale`); the result says so."""
         graph = target.graph if isinstance(target, PreparedMap) else target
         _check_graph(graph, "target")
         estimate = getattr(target, "scale_estimate", None) or estimate_scale(graph)
-        result = Localizer(self.config.resolved(estimate.unit))(query, target, rng, clock)
+        config = at_estimated_scale(self.config, estimate)
+        result = Localizer(config)(query, target, rng, clock)
         result.scale_estimate = estimate
         return result
 

@@ -41,6 +41,7 @@ from sgloc.errors import SglocError
 from sgloc.graph import SemanticGraph
 from sgloc.kernels import use_compiled
 from sgloc.prepared_graph import PreparedGraph
+from sgloc.presets import at_estimated_scale
 from sgloc.scale import AUTO, estimate_scale
 from sgloc.validation import check_graph_arrays
 
@@ -82,7 +83,7 @@ class PreparedMap:
         self.scale_estimate = None
         if self.config.scale == AUTO and isinstance(graph, SemanticGraph) and len(graph) >= 2:
             self.scale_estimate = estimate_scale(graph)
-            self.config = self.config.resolved(self.scale_estimate.unit)
+            self.config = at_estimated_scale(self.config, self.scale_estimate)
         self.descriptor = self.config.descriptor_config
         if isinstance(self.descriptor, RandomWalkDescriptor):
             raise PreparedMapError(

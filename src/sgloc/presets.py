@@ -47,6 +47,7 @@ from sgloc.scale import SCENES
 
 if TYPE_CHECKING:
     from sgloc.config import LocalizerConfig
+    from sgloc.scale import ScaleEstimate
 
 #: Guo et al.'s pipeline (the paper's baseline), every sgloc addition switched off.
 _GUO: dict[str, Any] = {
@@ -103,6 +104,14 @@ EXTRACTION_PRESETS: Registry[dict[str, Any]] = Registry("extraction preset", {
     "kitti-objects": {"merge_distance": 3.0, "min_observations": 2},
     "synthia": {"ignore_classes": (1, 3, 4, 12)},
 })
+
+
+def at_estimated_scale(config: LocalizerConfig, estimate: ScaleEstimate) -> LocalizerConfig:
+    """`config` (scale="auto") at the scale estimated from the target map: the lengths of
+    `estimate.unit` and the other settings of the preset of `estimate.scene` (forest: more
+    candidates per trunk; room: the check of other places), except the settings `config` gives
+    itself (those that differ from the defaults). A config of a numeric scale stays as it is."""
+    return config.resolved(estimate.unit, localizer_settings(estimate.scene))
 
 
 def localizer_settings(name: str) -> dict[str, Any]:

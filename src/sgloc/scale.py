@@ -152,5 +152,6 @@ def scene_hint(query: SemanticGraph, target: SemanticGraph, unit: float) -> str:
         f"; objects stand a median {spacing:.2f} m from their nearest neighbour, closer than "
         f"the settings' scene scale ({unit:g} m) assumes: its lengths (inlier distance, "
         f"min_spread, radii) are too long for this map; try preset={suggestion!r} (scene "
-        f"scale {SCENES[suggestion]:g} m) or set scale=<metres> (docs/scenes.md)"
+        f"scale {SCENES[suggestion]:g} m), scale='auto' (the scale of the target map) or "
+        "scale=<metres> (docs/scenes.md)"
     )

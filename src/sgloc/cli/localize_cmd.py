@@ -33,6 +33,7 @@ from sgloc.io.results import (
     write_results,
 )
 from sgloc.localizer import Localizer
+from sgloc.presets import at_estimated_scale
 from sgloc.scale import AUTO, estimate_scale
 
 
@@ -115,7 +116,7 @@ def localize_cmd(
     q = load_graph(query, radius, label_field, colour_table, class_table)
     t = load_graph(target, radius, label_field, colour_table, class_table)
     if cfg.scale == AUTO and edge_radius is None:  # the edges of the estimated scene's scale
-        radius = cfg.resolved(estimate_scale(t).unit).edge_radius
+        radius = at_estimated_scale(cfg, estimate_scale(t)).edge_radius
         q, t = (SemanticGraph(g.positions, g.labels, radius, name=g.name) for g in (q, t))
     res = Localizer(cfg)(q, t, seed)
     cfg = res.settings or cfg  # with scale="auto": the estimated scale's
