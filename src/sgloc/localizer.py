@@ -147,6 +147,8 @@ class Localizer:
         self.config = config or LocalizerConfig()
         self.descriptor = make_descriptor(self.config.descriptor, **self.config.descriptor_params)
         self.rejector = make_rejector(self.config.rejection, **self.config.rejection_params)
+        #: With scale="auto": the localizer of each scene estimated so far, by (unit, scene).
+        self._at_scale: dict[tuple[float, str], Localizer] = {}
 
     def prepare(self, target: SemanticGraph) -> PreparedMap:
         """`target` prepared for this localizer's calls (`sgloc.prepared`): its canonical form,
@@ -230,8 +232,10 @@ class Localizer:
         graph = target.graph if isinstance(target, PreparedMap) else target
         _check_graph(graph, "target")
         estimate = getattr(target, "scale_estimate", None) or estimate_scale(graph)
-        config = at_estimated_scale(self.config, estimate)
-        result = Localizer(config)(query, target, rng, clock)
+        key = (estimate.unit, estimate.scene)
+        if key not in self._at_scale:  # the same settings for every map of that scene
+            self._at_scale[key] = Localizer(at_estimated_scale(self.config, estimate))
+        result = self._at_scale[key](query, target, rng, clock)
         result.scale_estimate = estimate
         return result
 
