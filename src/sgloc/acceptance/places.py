@@ -32,6 +32,7 @@ The acceptance stage joins p to the confidence's rival term (confidence = 1 / (1
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,11 +88,17 @@ def log10_copy_weight(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     objects alike, so an object landed at one of them only is as likely at either: a ~
     Binomial(a + b, 1/2) (the paired sign test); weight = P(X >= a) / P(X >= b), at most 1."""
     a, b = np.asarray(a, np.int64), np.asarray(b, np.int64)
-    n = a + b
-    from scipy.stats import binom  # deferred: asked only by the check of other places
+    lg = [_log10_half_tail(int(x), int(x + y)) - _log10_half_tail(int(y), int(x + y))
+          for x, y in zip(a, b, strict=True)]  # a few places  # fmt: skip
+    return np.minimum(np.array(lg, dtype=np.float64), 0.0)
 
-    lg = (binom.logsf(a - 1, n, 0.5) - binom.logsf(b - 1, n, 0.5)) / np.log(10.0)
-    return np.minimum(np.where(n > 0, lg, 0.0), 0.0)
+
+def _log10_half_tail(k: int, n: int) -> float:
+    """log10 P(Binomial(n, 1/2) >= k), exactly (integer binomial sums; n is a count of
+    objects)."""
+    if k <= 0:
+        return 0.0
+    return math.log10(sum(math.comb(n, i) for i in range(k, n + 1))) - n * math.log10(2.0)
 
 
 def place_weights(landed: int, a: np.ndarray, b: np.ndarray, rival_landed: np.ndarray
