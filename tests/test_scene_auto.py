@@ -49,6 +49,8 @@ def test_degenerate_map_is_a_clear_error():
 def test_auto_resolves_to_the_scaled_config_and_explicit_lengths_win():
     auto = LocalizerConfig().with_overrides(scale="auto")
     assert auto.scale == "auto" and auto.edge_radius == 20.0
+    assert LocalizerConfig.from_dict(auto.to_dict()) == auto  # saved and read back
+    assert LocalizerConfig().with_overrides(**auto.flat_settings()) == auto
     assert auto.resolved(5.0) == LocalizerConfig()
     assert auto.resolved(0.5) == LocalizerConfig().with_overrides(scale=0.5)
     mine = LocalizerConfig().with_overrides(scale="auto", min_spread=1.0, ransac_threshold=0.3)
