@@ -16,6 +16,7 @@ from sgloc.errors import SglocError
 from sgloc.estimation import GROUND_VEHICLE
 from sgloc.graph import SemanticGraph
 from sgloc.io.results import summary
+from sgloc.presets import localizer_preset
 from sgloc.scale import SCENES, estimate_scale
 from sgloc.sim.forest import forest_pair
 from sgloc.sim.rooms import repeated_room_pair, room_pair
@@ -106,6 +107,9 @@ def test_cli_says_the_estimated_scale(tmp_path, capsys):
     assert "estimated from the target map: room" in " ".join(capsys.readouterr().out.split())
     doc = json.loads(out.read_text())
     assert doc["scale"]["estimated"] and doc["config"]["scale"] == SCENES["room"]
+    folder = tmp_path / "res"
+    assert main(["localize", str(q), str(t), "--set", "scale=auto", "--out", str(folder)]) == 0
+    assert LocalizerConfig.load(folder / "config.yaml") == localizer_preset("room")
     assert main(["localize", str(q), str(t), "--preset", "room"]) == 0
     assert "scene scale 0.5 m (given)" in capsys.readouterr().out
 
