@@ -600,6 +600,9 @@ def run_spec(spec: PairSpec, configs: dict[str, dict[str, Any]]) -> list[dict[st
 
     limit_blas_threads()
     pair = make_pair(spec)
+    from sgloc.maps.scale import estimate_scale
+
+    estimate = estimate_scale(pair.target)  # what scale="auto" takes the target map for
     gt = gt_check(pair) if spec.kind == "kitti" and spec.positive else {"gt_ok": True}
     tol_t, tol_r = TOLERANCE.get(spec.category, DEFAULT_TOLERANCE)
     rows = []
@@ -624,6 +627,8 @@ def run_spec(spec: PairSpec, configs: dict[str, dict[str, Any]]) -> list[dict[st
                 "overlap": spec.overlap, "revisit_m": round(spec.revisit_m, 1),
                 "pair": spec.label, "query_earlier": spec.swap,
                 "shared": pair.info.get("shared", ""), "reason": res.reason[:80],
+                "target_scene": estimate.scene,
+                "target_spacing_m": round(estimate.spacing, 3),
             }
         )  # fmt: skip
     return rows
@@ -827,7 +832,12 @@ Mean error over the localized pairs; median ms = CPU time of the whole `localize
   defaults) for KITTI, city and Airsim, `forest` or `room` for the synthetic scenes.
 """
 
-SECTION_TITLES = {"tuning": "tuning pairs (scans 0-3000)", "heldout": "held-out pairs"}
+SECTION_TITLES = {"tuning": "tuning pairs (scans 0-3000)", "heldout": "held-out pairs",
+                  "scenes-tuning": "synthetic scenes, tuning seeds (0-39)",
+                  "scenes-heldout": "synthetic scenes, held-out seeds (10000-10039)"}
+#: The sections of docs/hard_cases.md, in order: full runs, then runs of the scene categories
+#: alone (`--only` scene categories `--update-docs`).
+DOC_SECTIONS = ("tuning", "heldout", "scenes-tuning", "scenes-heldout")
 
 
 def code_version() -> str:
@@ -952,6 +962,22 @@ def gt_summary(rows: list[dict[str, Any]]) -> str:
     )
 
 
+def scale_estimates(rows: list[dict[str, Any]]) -> str:
+    """One line: per category, the scene `scale="auto"` estimates for its target maps and the
+    range of their median object spacing."""
+    parts = []
+    for cat in CATEGORIES:
+        sel = {r["index"]: r for r in rows if r["category"] == cat}.values()
+        if not sel:
+            continue
+        scenes = sorted({r["target_scene"] for r in sel})
+        counts = ", ".join(f"{s} {sum(r['target_scene'] == s for r in sel)}" for s in scenes)
+        sp = [r["target_spacing_m"] for r in sel]
+        parts.append(f"{cat} {counts} ({min(sp):.2f}-{max(sp):.2f} m)")
+    return ("Scene of the target maps as `scale=\"auto\"` estimates it (median spacing to the "
+            "nearest object): " + "; ".join(parts) + ".")
+
+
 def section(tag: str, configs: dict[str, dict[str, Any]], rows, summary) -> str:
     """The results of one run: command, code, extra configurations, GT check, table, goals."""
     cmd = "python benchmarks/hard_cases.py " + " ".join(sys.argv[1:])
@@ -964,7 +990,7 @@ def section(tag: str, configs: dict[str, dict[str, Any]], rows, summary) -> str:
     new = new_config_keys()
     if new:
         lines.append(f"Settings newer than `previous` (there at their current defaults): {new}.")
-    lines += [gt_summary(rows), "", markdown_table(summary), ""]
+    lines += [gt_summary(rows), scale_estimates(rows), "", markdown_table(summary), ""]
     met = goals(summary)
     lines += ["Goals for `default`:", "", *met, ""] if met else []
     scene = scene_goals(rows)
@@ -993,7 +1019,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--heldout", action="store_true", help="pairs with scans after 3000")
     p.add_argument("--out", type=Path, default=Path("results/hard_cases"))
     p.add_argument("--update-docs", action="store_true",
-                   help="write docs/hard_cases.md (+ .png from the tuning run)")  # fmt: skip
+                   help="write docs/hard_cases.md (+ .png from the tuning run); with --only "
+                   "scene categories: their section of it")  # fmt: skip
     return p.parse_args(argv)
 
 
@@ -1033,10 +1060,36 @@ def update_docs(out: Path, tag: str, summary, names: Sequence[str]) -> None:
     (docs / "hard_cases.md").write_text("\n".join(parts))
 
 
+def doc_sections(text: str) -> dict[str, str]:
+    """The "## Results: ..." sections of docs/hard_cases.md by tag (DOC_SECTIONS), each with
+    what follows it up to the next one."""
+    tags = {f"## Results: {SECTION_TITLES[t]}": t for t in DOC_SECTIONS}
+    out: dict[str, str] = {}
+    current = None
+    for line in text.splitlines(keepends=True):
+        if line.startswith("## Results: "):
+            current = tags.get(line.strip())
+        if current is not None:
+            out[current] = out.get(current, "") + line
+    return out
+
+
+def update_scene_docs(text: str, tag: str) -> None:
+    """docs/hard_cases.md with the section `tag` (scenes-tuning or scenes-heldout) replaced by
+    `text`: the header as the code defines it, the other sections as they were."""
+    path = Path(__file__).resolve().parents[1] / "docs" / "hard_cases.md"
+    sections = doc_sections(path.read_text()) if path.is_file() else {}
+    sections[tag] = text.rstrip("\n") + "\n\n"
+    parts = [header()] + [sections[t] for t in DOC_SECTIONS if t in sections]
+    path.write_text("\n".join(p.rstrip("\n") + "\n" for p in parts))
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     args = parse_args(argv)
-    if args.update_docs and (args.quick or args.only):
-        usage_error("--update-docs needs the full set: drop --quick and --only")
+    scenes_only = bool(args.only) and set(args.only) <= set(SCENE_CATEGORIES)
+    if args.update_docs and (args.quick or (args.only and not scenes_only)):
+        usage_error("--update-docs needs the full set (or only scene categories): drop --quick "
+                    "and --only")  # fmt: skip
     configs = configurations(args)
     t0 = time.time()
     cats = args.only or CATEGORIES
@@ -1048,13 +1101,16 @@ def main(argv: Sequence[str] | None = None) -> None:
     rows = run_all(specs, configs, args.workers)
     summary = summarize(rows, list(configs))
     tag = ("heldout" if args.heldout else "tuning") + ("-quick" if args.quick else "")
+    tag = f"scenes-{tag}" if scenes_only else tag
     text = section(tag, configs, rows, summary)
     print(text)
     print(f"wall time {time.time() - t0:.0f} s")
     args.out.mkdir(parents=True, exist_ok=True)
     write_rows(rows, args.out / f"pairs-{tag}.csv")
     (args.out / f"section-{tag}.md").write_text(text)
-    if args.update_docs:
+    if args.update_docs and scenes_only:
+        update_scene_docs(text, tag)
+    elif args.update_docs:
         update_docs(args.out, tag, summary, list(configs))
     print(f"rows in {args.out}/pairs-{tag}.csv")
 

@@ -16,8 +16,8 @@ from sgloc.io.files import MANIFEST, staged_folder, write_text_atomic
 from sgloc.io.results import SCHEMA, is_result_document, summary
 
 COMMON = ["schema", "success", "reason", "confidence", "T_target_query", "covariance",
-          "n_candidates", "n_survivors", "n_matches", "timings_ms", "query", "target",
-          "seed"]  # fmt: skip
+          "n_candidates", "n_survivors", "n_matches", "timings_ms", "scale", "query",
+          "target", "seed"]  # fmt: skip
 
 
 def test_three_outputs_share_one_schema(tmp_path, capsys):
@@ -32,6 +32,7 @@ def test_three_outputs_share_one_schema(tmp_path, capsys):
     for d in (printed, folder, full):
         assert list(d)[: len(COMMON)] == COMMON and d["schema"] == SCHEMA
     assert printed == folder | {"timings_ms": printed["timings_ms"]}  # timings vary
+    assert printed["scale"] == {"unit_m": 5.0, "estimated": False}  # the street's, given
     assert {k: v for k, v in full.items() if k in COMMON and k != "timings_ms"} == {
         k: v for k, v in folder.items() if k != "timings_ms"
     }

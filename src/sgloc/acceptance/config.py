@@ -137,6 +137,11 @@ class AcceptanceConfig:
         localizes (docs/acceptance.md), hence off by default.
     repetition_search: metres; the longest shift looked for (the longest period of a repeating
         layout; the shortest is `distinct_translation`).
+    other_places: how many other places of the target, where it repeats itself near an
+        accepted alignment (within `distinct_translation`..`repetition_search` metres), the
+        query is refitted at and compared with the alignment, object by object
+        (`sgloc.acceptance.places`); 0 (the default): none. A place where the refitted query
+        lands about as many objects makes the result ambiguous (identical offices of a floor).
     min_agreement: fraction in [0, 1]; of the query objects the estimate puts next to a target
         object (within `cover_radius`), at least this fraction must land on an object of their
         class (within `agreement_radius`) when there are at least `min_covered` of them; 0: no
@@ -163,6 +168,7 @@ class AcceptanceConfig:
     repetition_search: float = setting(
         100.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m")
     )
+    other_places: int = setting(0, check=integer(0, 1000))
     min_agreement: float = setting(0.0, check=real(0.0, 1.0))
     min_covered: int = setting(10, check=integer(1, MAX_VERTICES))
     agreement_radius: float | None = setting(

@@ -20,6 +20,7 @@ from sgloc.acceptance.assessment import Assessment, assess
 from sgloc.acceptance.config import AcceptanceConfig
 from sgloc.acceptance.evidence import select_evidence
 from sgloc.acceptance.mirror import looks_mirrored
+from sgloc.acceptance.places import elsewhere
 from sgloc.acceptance.verification import Verification, verify_small_query
 from sgloc.estimation import GROUND_VEHICLE, MotionModel
 from sgloc.maps.graph import SemanticGraph
@@ -127,7 +128,28 @@ def accept(
         t0 = clock()
         _verify(verdict, query, target, desc_q, desc_t, cfg, matching, motion, refit, prepared)
         verdict.timings["verification"] = clock() - t0
+    if verdict.accepted and cfg.enabled and cfg.other_places and verdict.confidence:
+        t0 = clock()
+        _refuse_elsewhere(verdict, query, target, float(cfg.radius or radius), cfg, motion)
+        verdict.timings["acceptance"] = verdict.timings.get("acceptance", 0.0) + clock() - t0
     return _settled(verdict, len(candidates), matching.min_similarity)
+
+
+def _refuse_elsewhere(
+    verdict: Verdict,
+    query: SemanticGraph,
+    target: SemanticGraph,
+    radius: float,
+    cfg: AcceptanceConfig,
+    motion: MotionModel,
+) -> None:
+    """Lower `verdict`'s confidence by the query's fit at the target's other places
+    (`places.elsewhere`), and refuse it when that falls below min_confidence."""
+    conf, reason, _ = elsewhere(query, target, verdict.transform, float(verdict.confidence),
+                                radius, cfg, motion)  # fmt: skip
+    verdict.confidence = conf
+    if reason:
+        verdict.accepted, verdict.transform, verdict.reason = False, None, reason
 
 
 def _refuse_mirrored(

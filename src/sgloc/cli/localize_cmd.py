@@ -31,7 +31,10 @@ from sgloc.io.results import (
     render,
     write_results,
 )
+from sgloc.maps.graph import SemanticGraph
+from sgloc.maps.scale import AUTO, estimate_scale
 from sgloc.pipeline.localizer import Localizer
+from sgloc.pipeline.presets import at_estimated_scale
 
 
 @app.command("localize")
@@ -112,7 +115,11 @@ def localize_cmd(
     radius = cfg.edge_radius if edge_radius is None else edge_radius
     q = load_graph(query, radius, label_field, colour_table, class_table)
     t = load_graph(target, radius, label_field, colour_table, class_table)
+    if cfg.scale == AUTO and edge_radius is None:  # the edges of the estimated scene's scale
+        radius = at_estimated_scale(cfg, estimate_scale(t)).edge_radius
+        q, t = (SemanticGraph(g.positions, g.labels, radius, name=g.name) for g in (q, t))
     res = Localizer(cfg)(q, t, seed)
+    cfg = res.settings or cfg  # with scale="auto": the estimated scale's
     info = {"query": str(query), "target": str(target), "seed": seed}
     if out is not None:
         names = _class_names(class_table, colour_table)
@@ -150,6 +157,7 @@ def _report(console: Console, q, t, res, example: bool) -> None:
     for k, v in res.timings.items():
         table.add_row(k, f"{v * 1e3:.2f}")
     console.print(table)
+    console.print(scale_line(res))
     if note := compile_note():
         console.print(note)
     if res.success:
@@ -165,6 +173,18 @@ def _report(console: Console, q, t, res, example: bool) -> None:
                 f"error against the ground truth (identity): {te:.2f} m at the target's origin, "
                 f"{tc:.2f} m at the query objects' centroid, {re:.2f} deg (docs/formats.md)"
             )
+
+
+def scale_line(res) -> str:
+    """The scene scale a result used, and whether it was given or estimated (and from what)."""
+    est = res.scale_estimate
+    if est is None:
+        unit = res.settings.scale if res.settings is not None else float("nan")
+        return f"scene scale {unit:g} m (given)"
+    return (
+        f"scene scale {est.unit:g} m (estimated from the target map: {est.scene}; objects a "
+        f"median {est.spacing:.2f} m apart, {est.extent:.0f} m across)"
+    )
 
 
 def _class_names(class_table: Path | None, colour_table: Path | None) -> list[str] | None:

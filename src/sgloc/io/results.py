@@ -62,9 +62,23 @@ def summary(result: Any, **extra: Any) -> dict[str, Any]:
         "n_survivors": int(len(result.survivors)),
         "n_matches": int(len(result.matches)),
         "timings_ms": {k: round(v * 1e3, 3) for k, v in result.timings.items()},
+        "scale": scale_summary(result),
     }
     d.update(extra)
     return d
+
+
+def scale_summary(result: Any) -> dict[str, Any] | None:
+    """The scene scale a result used: {"unit_m", "estimated"} and, when estimated from the
+    target map (scale="auto"), the "scene", "spacing_m" and "extent_m" it was estimated from;
+    None for a result without its settings."""
+    estimate = getattr(result, "scale_estimate", None)
+    if estimate is not None:
+        return estimate.to_dict()
+    settings = getattr(result, "settings", None)
+    if settings is None:
+        return None
+    return {"unit_m": float(settings.scale), "estimated": False}
 
 
 def document(result: Any, full: bool = False, **extra: Any) -> dict[str, Any]:

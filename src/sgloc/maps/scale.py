@@ -20,15 +20,29 @@ room has a smaller unit, and each length is its street default times unit / 5 m:
 `room` presets, `--set scale=...`) applies the table; a length also given explicitly wins.
 Named scenes: SCENES. `scene_hint` adds a sentence to a refusal when the maps' objects stand
 much closer together than the scale assumes.
+
+`scale="auto"` (AUTO) asks for the scale of the target map itself (`estimate_scale`): the named
+scene whose typical nearest-neighbour spacing (TYPICAL_SPACING) is nearest the map's median
+one, on a log scale (boundaries 3.2 m street/forest, 1.4 m forest/room), stepped down to a
+smaller scene while the map spans fewer than EXTENT_UNITS of its unit (a descriptor's reach).
+The unit is a named one, not the spacing times a constant: the unit also stands for how well
+positions are known (a metre on streets, centimetres indoors), which one map's spacing does not
+tell; the named units are measured (docs/scenes.md).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import Any
 
+import numpy as np
+
+from sgloc.errors import SglocError
 from sgloc.maps.graph import SemanticGraph
 from sgloc.maps.units import median_spacing
 from sgloc.registry import Registry
+from sgloc.validation import MAX_COORDINATE, InvalidSettingError
 
 #: The unit length (m) of a street map: the lengths of the code's defaults are the street's.
 STREET_UNIT = 5.0
@@ -50,6 +64,65 @@ ASSOCIATION_RADIUS_UNITS = 0.3
 #: Below this median nearest-neighbour spacing as a multiple of the unit, a refusal says that
 #: the maps look like a smaller scene than the settings assume (street maps: ~0.7-1.2 units).
 CLOSE_SPACING_UNITS = 0.4
+
+
+#: The value of `scale` that asks for the scale estimated from the target map.
+AUTO = "auto"
+
+#: A map spans at least this many units of its scene (the descriptor radius is 8 units): a map
+#: smaller than that is taken for the next smaller scene.
+EXTENT_UNITS = 8.0
+
+
+@dataclass(frozen=True)
+class ScaleEstimate:
+    """The scene scale of a map (`estimate_scale`): unit (m), the named scene it is, and what
+    it was estimated from: the median distance (m) from an object to its nearest neighbour and
+    the extent (m, the longer side of the objects' xy bounding box)."""
+
+    unit: float
+    scene: str
+    spacing: float
+    extent: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain values for a result document (metres)."""
+        return {"unit_m": self.unit, "estimated": True, "scene": self.scene,
+                "spacing_m": round(self.spacing, 3), "extent_m": round(self.extent, 1)}  # fmt: skip
+
+
+def estimate_scale(graph: SemanticGraph) -> ScaleEstimate:
+    """The scene scale of the map `graph` (positions in metres; module docstring): the named
+    scene of SCENES nearest its median object spacing, stepped down while the map spans fewer
+    than EXTENT_UNITS of the scene's unit."""
+    spacing = median_spacing(graph)
+    xy = np.asarray(graph.positions, dtype=np.float64)[:, :2]
+    extent = float(np.ptp(xy, axis=0).max()) if len(xy) else 0.0
+    if not math.isfinite(spacing) or spacing <= 0:
+        raise SglocError(
+            f"scale='auto': map {graph.name!r} has no two distinct object positions to "
+            "estimate its scene scale from; give the scale (preset='street'|'forest'|'room' "
+            "or scale=<metres>)."
+        )
+    scene = min(TYPICAL_SPACING, key=lambda k: abs(math.log(spacing / TYPICAL_SPACING[k])))
+    smaller = sorted((k for k in SCENES if SCENES[k] < SCENES[scene]), key=SCENES.__getitem__)
+    while smaller and extent < EXTENT_UNITS * SCENES[scene]:
+        scene = smaller.pop()
+    return ScaleEstimate(float(SCENES[scene]), scene, spacing, extent)
+
+
+def check_scale(name: str, value: Any) -> float | str:
+    """A scene scale setting: a number of metres > 0, or AUTO."""
+    if value == AUTO:
+        return AUTO
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+            or not (math.isfinite(value) and 0 < value <= MAX_COORDINATE):  # fmt: skip
+        raise InvalidSettingError(
+            f"setting {name}={value!r}: give the scene's unit length in metres (a number > 0;"
+            f" street maps 5, forests 1.25, rooms 0.5) or {AUTO!r} to estimate it from the "
+            "target map (docs/scenes.md)."
+        )
+    return float(value)
 
 
 def factor(unit: float) -> float:
@@ -79,5 +152,6 @@ def scene_hint(query: SemanticGraph, target: SemanticGraph, unit: float) -> str:
         f"; objects stand a median {spacing:.2f} m from their nearest neighbour, closer than "
         f"the settings' scene scale ({unit:g} m) assumes: its lengths (inlier distance, "
         f"min_spread, radii) are too long for this map; try preset={suggestion!r} (scene "
-        f"scale {SCENES[suggestion]:g} m) or set scale=<metres> (docs/scenes.md)"
+        f"scale {SCENES[suggestion]:g} m), scale='auto' (the scale of the target map) or "
+        "scale=<metres> (docs/scenes.md)"
     )

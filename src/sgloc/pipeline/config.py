@@ -12,7 +12,7 @@ from sgloc.descriptors import DESCRIPTORS, Descriptor, make_descriptor
 from sgloc.errors import SglocError, UnknownNameError
 from sgloc.estimation import MotionModel, RansacConfig
 from sgloc.io.settings_file import read_settings_data, write_settings_data
-from sgloc.maps.scale import STREET_UNIT
+from sgloc.maps.scale import AUTO, STREET_UNIT, check_scale
 from sgloc.maps.scale import edge_radius as scene_edge_radius
 from sgloc.maps.scale import factor as scale_factor
 from sgloc.matching.candidates import MatchingConfig
@@ -66,6 +66,9 @@ class LocalizerConfig:
         Setting it through `with_overrides` (`localize(..., scale=...)`, the `forest` and
         `room` presets) sets every absolute length of the stages to its street default times
         scale / 5 m, except the lengths given explicitly; the config records the scale used.
+        "auto": the scale of the target map (`sgloc.maps.scale.estimate_scale`), estimated by each
+        localization (`resolved` gives the config of an estimated scale); the result's config
+        holds the scale used and `LocalizationResult.scale_estimate` how it was estimated.
     """
 
     descriptor: str | Descriptor | dict[str, Any] = setting(
@@ -86,7 +89,7 @@ class LocalizerConfig:
     acceptance: AcceptanceConfig = setting(
         default_factory=AcceptanceConfig, check=group(AcceptanceConfig)
     )
-    scale: float = setting(STREET_UNIT, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+    scale: float | str = setting(STREET_UNIT, check=check_scale)
 
     def __post_init__(self) -> None:
         self.descriptor, self.descriptor_params = _named_stage(
@@ -107,9 +110,27 @@ class LocalizerConfig:
 
     @property
     def edge_radius(self) -> float:
-        """Graph edge radius (m) that suits this config's scene scale (street: 20 m); used
-        where the command line builds graphs from files without an explicit radius."""
-        return scene_edge_radius(self.scale)
+        """Graph edge radius (m) that suits this config's scene scale (street: 20 m; "auto":
+        the street's until the scale is estimated); used where the command line builds graphs
+        from files without an explicit radius."""
+        return scene_edge_radius(STREET_UNIT if self.scale == AUTO else self.scale)
+
+    def resolved(self, unit: float, scene: dict[str, Any] | None = None) -> LocalizerConfig:
+        """This config with the scene scale `unit` (metres) in place of "auto": each length
+        that is at its street default becomes its street default times unit / 5 m, and the
+        flat settings `scene` (a scene preset's, `sgloc.pipeline.presets.at_estimated_scale`) apply;
+        the settings that differ from the defaults (given explicitly) stay. A config of a
+        numeric scale is returned as it is."""
+        if self.scale != AUTO:
+            return self
+        flat = {k: v for k, v in (scene or {}).items() if k != "scale"} | self.flat_settings()
+        flat.pop("scale", None)
+        accept = flat.pop("acceptance", None)
+        if accept is not None:  # its settings one by one: a whole group would hide the scaled
+            base = _flat_acceptance(dataclasses.asdict(AcceptanceConfig()))
+            flat |= {f"acceptance_{k}": v for k, v in _flat_acceptance(accept).items()
+                     if base.get(k) != v}  # fmt: skip
+        return LocalizerConfig().with_overrides(**flat, scale=unit)
 
     @property
     def descriptor_config(self) -> Descriptor:
@@ -138,7 +159,7 @@ class LocalizerConfig:
         """
         overrides = dict(overrides)
         scaled: dict[str, Any] = {}
-        if "scale" in overrides:
+        if "scale" in overrides and overrides["scale"] != AUTO:
             scaled = self._scaled_lengths(overrides)
             explicit, overrides = overrides, scaled | overrides
         top = {k: overrides.pop(k) for k in ("descriptor", "rejection") if k in overrides}
@@ -327,6 +348,14 @@ def _named_stage(
     if isinstance(value, str):
         return table.key(value), params
     return value, params
+
+
+def _flat_acceptance(nested: dict[str, Any]) -> dict[str, Any]:
+    """The acceptance settings of `dataclasses.asdict(AcceptanceConfig)` by flat field name."""
+    out = {k: v for k, v in nested.items() if k not in ("evidence", "verification")}
+    for group_name in ("evidence", "verification"):
+        out |= nested.get(group_name) or {}
+    return out
 
 
 def _int_keys(data: dict[str, Any]) -> dict[str, Any]:

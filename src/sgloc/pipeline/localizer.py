@@ -24,11 +24,12 @@ from sgloc.estimation.covariance import FittedPoints
 from sgloc.maps.canonical import CanonicalPair
 from sgloc.maps.graph import SemanticGraph
 from sgloc.maps.prepared_graph import PreparedGraph
-from sgloc.maps.scale import scene_hint
+from sgloc.maps.scale import AUTO, ScaleEstimate, estimate_scale, scene_hint
 from sgloc.maps.units import units_hint
 from sgloc.matching.candidates import match_flagged
 from sgloc.pipeline.config import LocalizerConfig
 from sgloc.pipeline.prepared import PreparedMap, prepare
+from sgloc.pipeline.presets import at_estimated_scale
 from sgloc.rejection import make_rejector
 from sgloc.runtime.timing import StageTimer
 from sgloc.validation import check_seed
@@ -56,7 +57,10 @@ class LocalizationResult:
         (gtsam.Pose3's convention); measured on real data (`sgloc.estimation.covariance`). Computed
         when first read, from `fitted`.
     config: the call's settings as a nested dict (`LocalizerConfig.to_dict` of `settings`),
-        built when first read.
+        built when first read; `config["scale"]` is the scene scale used (metres).
+    scale_estimate: how that scale was estimated from the target map (`sgloc.maps.scale.
+        ScaleEstimate`: unit, scene, spacing, extent) when the settings asked for
+        scale="auto"; None when the scale was given.
     """
 
     success: bool
@@ -72,6 +76,7 @@ class LocalizationResult:
     settings: LocalizerConfig | None = field(default=None, repr=False)
     #: The matched points the transform was fitted on (`covariance` is computed from them).
     fitted: FittedPoints | None = field(default=None, repr=False)
+    scale_estimate: ScaleEstimate | None = None
 
     @cached_property
     def config(self) -> dict[str, Any]:
@@ -142,6 +147,8 @@ class Localizer:
         self.config = config or LocalizerConfig()
         self.descriptor = make_descriptor(self.config.descriptor, **self.config.descriptor_params)
         self.rejector = make_rejector(self.config.rejection, **self.config.rejection_params)
+        #: With scale="auto": the localizer of each scene estimated so far, by (unit, scene).
+        self._at_scale: dict[tuple[float, str], Localizer] = {}
 
     def prepare(self, target: SemanticGraph) -> PreparedMap:
         """`target` prepared for this localizer's calls (`sgloc.pipeline.prepared`): its canonical
@@ -158,8 +165,11 @@ class Localizer:
     ) -> LocalizationResult:
         """Localize `query` in `target`. `rng`: a seed or generator, split into one stream
         per random stage (`stage_streams`); `clock` (seconds) times the stages (e.g.
-        time.thread_time for CPU time). `target` may be a PreparedMap (the same result)."""
+        time.thread_time for CPU time). `target` may be a PreparedMap (the same result).
+        With scale="auto" the scene scale is estimated from the target map first."""
         _check_graph(query, "query")
+        if self.config.scale == AUTO:
+            return self._at_estimated_scale(query, target, rng, clock)
         # Canonical vertex order and class ids 0..L-1 (sgloc.maps.canonical); undone by restore().
         canonical = target.pair(query, self.config) if isinstance(target, PreparedMap) else None
         if canonical is None:  # a graph, or a query with a class the prepared map lacks
@@ -209,6 +219,26 @@ class Localizer:
             fitted=_fitted(query, target, verdict, pose, weights, cfg),
         )
         return canonical.restore(result)  # the caller's vertex indices and config
+
+    def _at_estimated_scale(
+        self,
+        query: SemanticGraph,
+        target: SemanticGraph | PreparedMap,
+        rng: np.random.Generator | int | None,
+        clock: Callable[[], float],
+    ) -> LocalizationResult:
+        """Localize with the scale of the target map (`sgloc.maps.scale.estimate_scale`; a prepared
+        map's own estimate when it was prepared with scale="auto") and its scene's preset
+        (`sgloc.pipeline.presets.at_estimated_scale`); the result says so."""
+        graph = target.graph if isinstance(target, PreparedMap) else target
+        _check_graph(graph, "target")
+        estimate = getattr(target, "scale_estimate", None) or estimate_scale(graph)
+        key = (estimate.unit, estimate.scene)
+        if key not in self._at_scale:  # the same settings for every map of that scene
+            self._at_scale[key] = Localizer(at_estimated_scale(self.config, estimate))
+        result = self._at_scale[key](query, target, rng, clock)
+        result.scale_estimate = estimate
+        return result
 
     def _accept(
         self,

@@ -40,7 +40,9 @@ from sgloc.errors import SglocError
 from sgloc.maps.canonical import CanonicalPair, canonical_order
 from sgloc.maps.graph import SemanticGraph
 from sgloc.maps.prepared_graph import PreparedGraph
+from sgloc.maps.scale import AUTO, estimate_scale
 from sgloc.pipeline.config import LocalizerConfig
+from sgloc.pipeline.presets import at_estimated_scale
 from sgloc.validation import check_graph_arrays
 
 #: The file format's name and version (`PreparedMap.save`).
@@ -76,6 +78,12 @@ class PreparedMap:
         if not isinstance(graph, SemanticGraph):
             raise PreparedMapError(f"prepare needs a SemanticGraph, got {type(graph).__name__}.")
         self.config = config or LocalizerConfig()
+        #: The scene scale estimated from `graph` when `config` asked for scale="auto" (the
+        #: map keeps it as it grows; `sgloc.maps.scale.ScaleEstimate`), else None.
+        self.scale_estimate = None
+        if self.config.scale == AUTO and isinstance(graph, SemanticGraph) and len(graph) >= 2:
+            self.scale_estimate = estimate_scale(graph)
+            self.config = at_estimated_scale(self.config, self.scale_estimate)
         self.descriptor = self.config.descriptor_config
         if isinstance(self.descriptor, RandomWalkDescriptor):
             raise PreparedMapError(

@@ -22,7 +22,8 @@ Localizer presets (flat `LocalizerConfig.with_overrides` settings):
 - `street`, `forest`, `room`: the scene scales of `sgloc.maps.scale` (docs/scenes.md): `street` is
   the defaults; `forest` (unit 1.25 m: one-class trunk maps, trunks a few metres apart, good
   to 0.2-0.5 m) and `room` (unit 0.5 m: furniture under a metre apart, good to ~5 cm) set
-  every absolute length of the pipeline to its street value times unit / 5 m. `forest` also
+  every absolute length of the pipeline to its street value times unit / 5 m; `room` also
+  refits the query at the places where the target repeats itself (identical offices). `forest` also
   keeps 5 candidates per object with 20 m descriptors and lets every candidate count as the
   acceptance test's evidence: with one class, neighbourhoods look alike and the right match is
   seldom the most similar one (chosen on the synthetic forests' tuning seeds, docs/scenes.md).
@@ -45,6 +46,7 @@ from sgloc.maps.scale import SCENES
 from sgloc.registry import Registry
 
 if TYPE_CHECKING:
+    from sgloc.maps.scale import ScaleEstimate
     from sgloc.pipeline.config import LocalizerConfig
 
 #: Guo et al.'s pipeline (the paper's baseline), every sgloc addition switched off.
@@ -87,12 +89,12 @@ LOCALIZER_PRESETS: Registry[dict[str, Any]] = Registry("preset", {
     # (the ratio test finds no match distinct when all objects are alike).
     "forest": {"scale": SCENES["forest"], "top_k": 5, "descriptor_radius": 20.0,
                "distinct_ratio": None},  # fmt: skip
-    # Floors repeat their rooms (identical offices): the acceptance test looks for shifts under
-    # which the floor maps onto itself, up to 40 m (a few offices away), and calls an alignment
-    # ambiguous when a shifted one explains the query as well (`acceptance.repetition`).
-    # Chosen on the tuning floors only (repeated-room negatives refused 22 -> 34 of 40; room
-    # and floor pairs unchanged); ~1.5 ms more per call.
-    "room": {"scale": SCENES["room"], "repetition_shifts": 16, "repetition_search": 40.0},
+    # Floors repeat their rooms (identical offices): the acceptance test refits the query at
+    # up to 8 other places where the floor maps onto itself, up to 40 m away (a few offices),
+    # and calls an alignment ambiguous when one of them lands about as many of the query's
+    # objects (`acceptance.places`). Chosen on the tuning floors only (repeated-room negatives
+    # refused 22 -> 40 of 40; room and floor pairs unchanged).
+    "room": {"scale": SCENES["room"], "other_places": 8, "repetition_search": 40.0},
 })
 
 EXTRACTION_PRESETS: Registry[dict[str, Any]] = Registry("extraction preset", {
@@ -102,6 +104,14 @@ EXTRACTION_PRESETS: Registry[dict[str, Any]] = Registry("extraction preset", {
     "kitti-objects": {"association_radius": 3.0, "min_observations": 2},
     "synthia": {"ignore_classes": (1, 3, 4, 12)},
 })
+
+
+def at_estimated_scale(config: LocalizerConfig, estimate: ScaleEstimate) -> LocalizerConfig:
+    """`config` (scale="auto") at the scale estimated from the target map: the lengths of
+    `estimate.unit` and the other settings of the preset of `estimate.scene` (forest: more
+    candidates per trunk; room: the check of other places), except the settings `config` gives
+    itself (those that differ from the defaults). A config of a numeric scale stays as it is."""
+    return config.resolved(estimate.unit, localizer_settings(estimate.scene))
 
 
 def localizer_settings(name: str) -> dict[str, Any]:
