@@ -156,7 +156,7 @@ def check_fit() -> None:
 
 
 def check_local() -> None:
-    from sgloc.consistency.local import CellGrid
+    from sgloc.consistency.local import RadiusGrid
     from sgloc.consistency.local_kernels import local_counts, local_prune
 
     ref = _references().consistency
@@ -164,7 +164,7 @@ def check_local() -> None:
 
     src, dst = _matches(400, 11)
     for radius in (20.0, 1e4):
-        g = CellGrid.build(src, radius)
+        g = RadiusGrid.build(src, radius)
         grid = (g.order, g.cell_start, g.point_cell, g.near_cells, radius)
         got = local_counts(src, dst, *grid, 5.0, False)
         ref = local_counts_reference(src, dst, 5.0, radius)

@@ -93,7 +93,7 @@ def test_dicts_written_before_are_read():
 
 def test_one_registry_style_for_names():
     from sgloc.datasets import DATASETS
-    from sgloc.datasets.downloads import DATASETS as DOWNLOADS
+    from sgloc.datasets.downloads import DOWNLOADS
     from sgloc.descriptors import DESCRIPTORS
     from sgloc.evaluation.scenes import PAIR_SOURCES
     from sgloc.pipeline.presets import EXTRACTION_PRESETS, LOCALIZER_PRESETS

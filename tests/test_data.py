@@ -122,14 +122,14 @@ def test_published_superset_keeps_one_sequence(serve, tmp_path, no_data, monkeyp
     (tmp_path / "gh" / "lc.txt").write_text(upstream)
     f = sd.RemoteFile("lc.txt", "o/r", "c" * 40, "lc.txt", sha(kept), sha(upstream), "0")
     fake = sd.DataSet("fake", "", "MIT", (f,))
-    monkeypatch.setitem(sd.DATASETS, "fake", fake)
+    monkeypatch.setitem(sd.DOWNLOADS, "fake", fake)
     base = serve(tmp_path / "gh")
     monkeypatch.setattr(sd.RemoteFile, "source",
                         lambda self, ds: (f"{base}/{self.path}", self.upstream_sha256))
     folder = sd.fetch("fake")
     assert (folder / "lc.txt").read_text() == kept
     bad = dataclasses.replace(f, sha256=sha("other rows"))  # the kept rows do not match
-    monkeypatch.setitem(sd.DATASETS, "fake", dataclasses.replace(fake, files=(bad,)))
+    monkeypatch.setitem(sd.DOWNLOADS, "fake", dataclasses.replace(fake, files=(bad,)))
     (folder / "lc.txt").unlink()
     with pytest.raises(DatasetError, match="sequence 0"):
         sd.fetch("fake")

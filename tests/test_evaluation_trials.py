@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from sgloc.errors import UnknownNameError
-from sgloc.evaluation import make_pair_source, reproducible_part, run_task, run_tasks
+from sgloc.evaluation import make_pair_source, reproducible_part, run_task, run_trials
 from sgloc.evaluation.experiments import ExperimentOptions, make_sweep
 from sgloc.evaluation.metrics import correct_matches
 from sgloc.geometry import apply
@@ -119,18 +119,18 @@ def test_process_pool_equals_serial():
     opts = {"trials": 3, "descriptors": ["histogram"], "dataset_params": {"overlap": 0.4}}
     sweep = _sweep("table", "object-world", **opts)
     tasks = sweep.tasks()
-    _same(run_tasks(tasks, workers=1), run_tasks(tasks, workers=2))
+    _same(run_trials(tasks, workers=1), run_trials(tasks, workers=2))
 
 
 def test_dask_cluster_equals_local():
     distributed = pytest.importorskip("distributed")
     tasks = _sweep("table", "airsim-guo", trials=3, descriptors=["histogram"]).tasks()
-    local = run_tasks(tasks, workers=1)
+    local = run_trials(tasks, workers=1)
     done = []
     with distributed.LocalCluster(
         n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None
     ) as cluster:
-        on_dask = run_tasks(tasks, scheduler=cluster.scheduler_address, progress=done.append)
+        on_dask = run_trials(tasks, scheduler=cluster.scheduler_address, progress=done.append)
     assert sum(done) == len(tasks)
     _same(local, on_dask)
 
@@ -189,9 +189,9 @@ def _near_same_class_no_gt(p, radius):
 
 def test_timing_repeats_change_no_result():
     sweep = _sweep("table", "airsim-guo", trials=2, descriptors=["fast"])
-    once = run_tasks(sweep.tasks(), workers=1)
+    once = run_trials(sweep.tasks(), workers=1)
     sweep.repeats = 3
-    thrice = run_tasks(sweep.tasks(), workers=1)
+    thrice = run_trials(sweep.tasks(), workers=1)
     _same(once, thrice)
     assert all(r["t_cpu_ms"] > 0 for r in thrice)
 

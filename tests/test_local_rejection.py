@@ -14,7 +14,7 @@ from references.consistency import prune_local as prune_local_reference
 from references.paths import on_references
 
 from sgloc import SemanticGraph, localize
-from sgloc.consistency.local import CellGrid, local_counts, prune_local
+from sgloc.consistency.local import RadiusGrid, local_counts, prune_local
 from sgloc.consistency.pairwise import ALL_PAIRS_LIMIT, consistency_bits
 from sgloc.consistency.sampled import SampledConsistency, distance_consistent
 from sgloc.geometry import random_rigid_transform, transform_error
@@ -76,7 +76,7 @@ def test_grid_finds_every_neighbour_of_a_wide_map():
     neighbours found are still exactly those within the radius."""
     rng = np.random.default_rng(3)
     pts = np.concatenate([rng.uniform(0, 30, (200, 3)), rng.uniform(9e6, 9e6 + 30, (200, 3))])
-    grid = CellGrid.build(pts, 5.0)
+    grid = RadiusGrid.build(pts, 5.0)
     assert grid.near_cells.shape[1] == 27 and grid.cell_start[-1] == len(pts)
     r, _ = local_counts(pts, pts, 1.0, 5.0)
     r_ref, _ = local_counts_reference(pts, pts, 1.0, 5.0)

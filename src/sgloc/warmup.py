@@ -38,7 +38,7 @@ def warm_up() -> WarmupReport:
     _registrations()
     loaded = [m for m in kernels.MODULES if m in sys.modules]
     wall, cpu = kernels.compile_seconds()
-    return WarmupReport(time.perf_counter() - t0, wall, cpu, kernels.cache_dir(), loaded)
+    return WarmupReport(time.perf_counter() - t0, wall, cpu, kernels.kernel_cache_dir(), loaded)
 
 
 def _localizations() -> None:

@@ -8,7 +8,7 @@ import typer
 
 from sgloc.cli.app import app
 from sgloc.datasets.downloads import (
-    DATASETS,
+    DOWNLOADS,
     dataset,
     fetch,
     fetch_dir,
@@ -30,7 +30,7 @@ def list_cmd() -> None:
 
     Example: sgloc data list
     """
-    for ds in DATASETS.values():
+    for ds in DOWNLOADS.values():
         folder = find_dataset(ds.name)
         if folder is not None and is_complete(ds.name, folder):
             shipped = ds.shipped and folder == sample_dir(ds.name)
@@ -44,7 +44,7 @@ def list_cmd() -> None:
 
 @data_app.command("fetch")
 def fetch_cmd(
-    name: str = typer.Argument(..., help=f"Data set: {' | '.join(DATASETS)}."),
+    name: str = typer.Argument(..., help=f"Data set: {' | '.join(DOWNLOADS)}."),
     dest: Path | None = typer.Option(
         None, help="Folder to put NAME/ in (default: $SGLOC_DATA, else the per-user data folder)."
     ),
@@ -65,7 +65,7 @@ def fetch_cmd(
 
 
 @data_app.command("path")
-def path_cmd(name: str = typer.Argument(..., help=f"Data set: {' | '.join(DATASETS)}.")) -> None:
+def path_cmd(name: str = typer.Argument(..., help=f"Data set: {' | '.join(DOWNLOADS)}.")) -> None:
     """Print the folder of a data set (for scripts: `ls "$(sgloc data path kitti00)"`).
 
     Example: sgloc data path airsim_guo

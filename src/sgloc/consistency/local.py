@@ -26,7 +26,7 @@ MAX_CELLS_PER_AXIS = 1 << 20
 
 
 @dataclass(frozen=True)
-class CellGrid:
+class RadiusGrid:
     """Points bucketed on a grid of cells at least `radius` wide (every point within the
     radius of a point lies in one of the 27 cells around its cell).
 
@@ -40,7 +40,7 @@ class CellGrid:
     near_cells: np.ndarray
 
     @classmethod
-    def build(cls, points: np.ndarray, radius: float) -> CellGrid:
+    def build(cls, points: np.ndarray, radius: float) -> RadiusGrid:
         """The grid of `points` (m,3) metres for neighbours closer than `radius` metres."""
         points = np.asarray(points, dtype=np.float64)
         lo = points.min(axis=0) if len(points) else np.zeros(3)
@@ -72,7 +72,7 @@ class CellGrid:
 def _kernel_args(src, dst, radius: float) -> tuple:
     src = np.ascontiguousarray(src, dtype=np.float64)
     dst = np.ascontiguousarray(dst, dtype=np.float64)
-    g = CellGrid.build(src, radius)
+    g = RadiusGrid.build(src, radius)
     return src, dst, g.order, g.cell_start, g.point_cell, g.near_cells, float(radius)
 
 

@@ -1,6 +1,6 @@
 """Alg. 1 within a radius: supports counted among spatial neighbours only (numba).
 
-Candidates are bucketed on a grid of the query positions (`sgloc.consistency.local.CellGrid`,
+Candidates are bucketed on a grid of the query positions (`sgloc.consistency.local.RadiusGrid`,
 cells at least the radius wide: every neighbour lies in one of the 27 cells around a
 candidate's). Nothing of size neighbours x candidates is stored: a candidate's neighbours are
 found again from the grid when it is removed, so memory is linear in the candidates and time

@@ -1,6 +1,6 @@
 """Where data lives, and how to get it.
 
-Data sets (`DATASETS`): `airsim_guo` ships inside the package (Guo et al.'s two Airsim object
+Data sets (`DOWNLOADS`): `airsim_guo` ships inside the package (Guo et al.'s two Airsim object
 maps, MIT); `kitti00` (KITTI odometry 00 LiDAR objects, poses and refined loop transforms, CC
 BY-NC-SA 3.0) is downloaded on demand by `sgloc data fetch kitti00` from its public repositories
 at pinned commits, each file checked against its sha256.
@@ -89,7 +89,7 @@ _LC_HASH = {
               "2f9de9ca4283b3c033ffbd4eab074ad9f13d22c141ca0d8ee5d9cbf742de50ce"),
 }
 
-DATASETS: Registry[DataSet] = Registry("data set", {
+DOWNLOADS: Registry[DataSet] = Registry("data set", {
     "airsim_guo": DataSet(
         "airsim_guo",
         "Airsim object maps of two robots (Guo et al., RA-L 2021); shipped with sgloc",
@@ -132,7 +132,7 @@ DATASETS: Registry[DataSet] = Registry("data set", {
 
 def dataset(name: str) -> DataSet:
     """The DataSet called `name` (`-` and `_` alike); UnknownNameError listing the names."""
-    return DATASETS.lookup(name)
+    return DOWNLOADS.lookup(name)
 
 
 def user_data_dir() -> Path:

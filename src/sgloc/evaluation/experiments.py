@@ -39,7 +39,7 @@ from sgloc.evaluation.trials import (
     TrialTask,
     prepare_tasks,
     run_prepare,
-    run_tasks,
+    run_trials,
 )
 from sgloc.io.files import naming, staged_folder
 from sgloc.pipeline.config import LocalizerConfig
@@ -204,9 +204,9 @@ def _unknown(name: str) -> UnknownNameError:
 
 
 def _ticker(progress: Callable | None, total: int, phase: str) -> Callable[[int], None]:
-    """A `run_tasks` progress callback that reports (done, total, phase) to `progress`, starting
+    """A `run_trials` progress callback that reports (done, total, phase) to `progress`, starting
     with (0, total, phase)."""
-    done = itertools.count(1)  # run_tasks ticks one trial at a time
+    done = itertools.count(1)  # run_trials ticks one trial at a time
     if progress:
         progress(0, total, phase)
     return (lambda n: progress(next(done), total, phase)) if progress else (lambda n: None)
@@ -257,8 +257,8 @@ def _run_into(
         prep = prepare_tasks(tasks)  # e.g. render each synthetic world once, in parallel
         if prep:
             tick = _ticker(progress, len(prep), "preparing worlds")
-            run_tasks(prep, workers, scheduler, tick, fn=run_prepare)
-        rows = run_tasks(tasks, workers, scheduler, _ticker(progress, len(tasks), "trials"))
+            run_trials(prep, workers, scheduler, tick, fn=run_prepare)
+        rows = run_trials(tasks, workers, scheduler, _ticker(progress, len(tasks), "trials"))
     wall = time.perf_counter() - t0
     files = [write_csv(rows, folder / "trials.csv")]
     md, figs = _outputs(name, dataset, rows, folder, opt)

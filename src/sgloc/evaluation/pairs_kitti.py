@@ -15,9 +15,9 @@ import numpy as np
 from sgloc.errors import DatasetError
 from sgloc.evaluation.scenes import (
     MovedTargetSource,
-    data_root,
     register_pair_source,
     route_overlap,
+    scene_data_root,
     window_overlaps,
 )
 from sgloc.extraction import extraction_preset
@@ -30,7 +30,7 @@ KITTI_LC_FILES = ("kitti_lc_test_0_10.txt", "kitti_lc_test_10_20.txt", "kitti_lc
 
 def kitti_root() -> str:
     """The absolute KITTI 00 folder (the `kitti00` data set under SGLOC_DATA)."""
-    return data_root(None, "kitti00")
+    return scene_data_root(None, "kitti00")
 
 
 @functools.lru_cache(maxsize=2)

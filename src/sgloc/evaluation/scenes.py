@@ -127,7 +127,7 @@ class MovedTargetSource:
         """A copy with `root` made absolute (so remote workers need no SGLOC_DATA)."""
         if not hasattr(self, "root"):
             return self
-        return dataclasses.replace(self, root=data_root(self.root, self.data_set))
+        return dataclasses.replace(self, root=scene_data_root(self.root, self.data_set))
 
     def maps(self, seed: int) -> tuple[SemanticGraph, SemanticGraph, np.ndarray, dict[str, Any]]:
         """(query, target, T_target_query0 in the maps' own frames, info) of trial `seed`."""
@@ -141,7 +141,7 @@ class MovedTargetSource:
         return pair
 
 
-def data_root(root: str | None, data_set: str | None) -> str:
+def scene_data_root(root: str | None, data_set: str | None) -> str:
     """`root` made absolute, or the folder of `data_set` under SGLOC_DATA when it is unset (so
     remote workers need no SGLOC_DATA)."""
     from pathlib import Path

@@ -121,7 +121,7 @@ def run_task(task: TrialTask) -> dict[str, Any]:
 def prepare_tasks(tasks: Sequence[TrialTask]) -> list[TrialTask]:
     """The first trial of each distinct world the trials need, for sources whose pairs come
     from an expensive disk-cached world (a `world(seed)` method, e.g. a rendered city); empty
-    for the others. Run them with `run_tasks(..., fn=run_prepare)` to build each world once."""
+    for the others. Run them with `run_trials(..., fn=run_prepare)` to build each world once."""
     first: dict[tuple, TrialTask] = {}
     for t in tasks:
         src = make_pair_source(t.dataset, **t.dataset_params)
@@ -136,7 +136,7 @@ def run_prepare(task: TrialTask) -> None:
     make_pair_source(task.dataset, **task.dataset_params)(task.seed)
 
 
-def run_tasks(
+def run_trials(
     tasks: Sequence[TrialTask],
     workers: int | None = None,
     scheduler: Any = None,
@@ -144,7 +144,7 @@ def run_tasks(
     fn: Callable[[TrialTask], Any] = run_task,
 ) -> list[Any]:
     """Run trials (`fn` of each task, default `run_task`) and return the results in the order
-    of `tasks`, by the one task runner `sgloc.runtime.tasks.run_tasks`.
+    of `tasks`, by the one task runner `sgloc.runtime.tasks.run_all`.
 
     workers: local processes (None: the number of CPUs; 0 or 1: in this process).
     scheduler: a Dask scheduler address ("tcp://host:8786") or a `distributed.Client`; when

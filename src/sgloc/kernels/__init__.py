@@ -56,7 +56,7 @@ MODULES = (
 )  # fmt: skip
 
 
-def cache_dir() -> Path:
+def kernel_cache_dir() -> Path:
     """The folder numba caches these kernels in: NUMBA_CACHE_DIR when set, else this
     package's `__pycache__` when the package folder is writable, else numba's per-user cache
     folder (as numba chooses)."""
@@ -73,7 +73,7 @@ def cache_dir() -> Path:
 
 
 def compiled_marker() -> Path:
-    """The file whose presence says this install's kernels have compiled into `cache_dir()`
+    """The file whose presence says this install's kernels have compiled into `kernel_cache_dir()`
     (named after the kernel sources' paths, sizes and times, numba's and Python's versions: a
     new install or an upgrade compiles, and is said, anew)."""
     import hashlib
@@ -87,7 +87,7 @@ def compiled_marker() -> Path:
         st = Path(find_spec(name).origin).stat()
         parts.append(f"{name}:{st.st_size}:{st.st_mtime_ns}")
     digest = hashlib.sha1("|".join(parts).encode()).hexdigest()[:16]
-    return cache_dir() / f"sgloc-kernels-{digest}.compiled"
+    return kernel_cache_dir() / f"sgloc-kernels-{digest}.compiled"
 
 
 class _CompileNotice:
@@ -109,7 +109,7 @@ class _CompileNotice:
                 self.said = True
                 name = getattr(ev.data.get("dispatcher"), "__qualname__", "kernels")
                 print(f"sgloc: compiling numba kernels for first use ({name}, ...), once per "
-                      f"install; cached in {cache_dir()}. `sgloc warmup` compiles them all "
+                      f"install; cached in {kernel_cache_dir()}. `sgloc warmup` compiles them all "
                       "ahead.", file=sys.stderr, flush=True)  # fmt: skip
                 import atexit
 

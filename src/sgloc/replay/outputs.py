@@ -92,7 +92,7 @@ def unplaced_reason(session: Any, robot: str) -> str:
     return "its links join it only to robots outside the root's group"
 
 
-def summarize(
+def replay_summary(
     logs: Sequence[RobotLog], session: Any, record: ReplayRecord, stems: dict[str, str]
 ) -> dict[str, Any]:
     """The summary.json content (robots in the order of `logs`, which is also their vertex
@@ -184,7 +184,7 @@ def write_replay_into(folder: Path, logs: Sequence[RobotLog], session: Any,
 
 
 def _write_all(tmp: Path, logs: Sequence[RobotLog], session: Any, record: ReplayRecord) -> None:
-    from sgloc.replay.plots import plot_fleet, plot_timeline
+    from sgloc.replay.plots import plot_replay_fleet, plot_timeline
 
     (tmp / FLEET_DIR).mkdir(parents=True)
     stems = robot_file_stems([g.name for g in logs])
@@ -197,7 +197,7 @@ def _write_all(tmp: Path, logs: Sequence[RobotLog], session: Any, record: Replay
         maps[g.name] = session.map(g.name).positions
         write_tum(tmp / FLEET_DIR / f"{stems[g.name]}.tum", g.stamps_ns,
                         *fleet_poses(g, T, corrected_keyframes(session, g)))
-    summary = summarize(logs, session, record, stems)
+    summary = replay_summary(logs, session, record, stems)
     end = max(int(g.stamps_ns[-1]) for g in logs)
     unplaced = [(end, name, r["unplaced_reason"]) for name, r in summary["robots"].items()
                 if not r["placed"]]
@@ -208,4 +208,4 @@ def _write_all(tmp: Path, logs: Sequence[RobotLog], session: Any, record: Replay
         write_links_g2o(tmp / LINKS, session, [g.name for g in logs])
     (tmp / SUMMARY).write_text(json.dumps(summary, indent=2) + "\n")
     plot_timeline(logs, session.events, tmp / "timeline.png")
-    plot_fleet(logs, frames, maps, tmp / "fleet.png")
+    plot_replay_fleet(logs, frames, maps, tmp / "fleet.png")

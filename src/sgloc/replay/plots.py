@@ -107,7 +107,7 @@ def fleet_figure(
     return fig
 
 
-def plot_fleet(
+def plot_replay_fleet(
     logs: Sequence[RobotLog],
     frames: dict[str, np.ndarray],
     maps: dict[str, np.ndarray],
