@@ -4,7 +4,7 @@ and graph inputs (`--label-field`, `--colour-table`)."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import typer
 
@@ -20,6 +20,22 @@ SET_HELP = "A localizer setting NAME=VALUE (repeatable), e.g. --set tau=3 --set 
 LABEL_HELP = "Class column of .ply/.csv/.txt graphs: a field name or a 0-based column index."
 COLOURS_HELP = "Colour table (lines `class r g b \\[name]`) for graphs whose classes are colours."
 CLASSES_HELP = "Class table (lines `class_id name`; names match in any case)"
+
+# The shared options as type aliases: `preset: Preset = None` declares `--preset`.
+Preset = Annotated[str | None, typer.Option("--preset", help=PRESET_HELP)]
+ConfigFile = Annotated[Path | None, typer.Option("--config", help=CONFIG_HELP, exists=False)]
+Settings = Annotated[
+    list[str] | None, typer.Option("--set", metavar="NAME=VALUE", help=SET_HELP)
+]
+LabelField = Annotated[str | None, typer.Option(help=LABEL_HELP)]
+ColourTable = Annotated[Path | None, typer.Option(help=COLOURS_HELP)]
+ClassTable = Annotated[Path | None, typer.Option(
+    "--class-table", help=f"{CLASSES_HELP} for .csv/.txt graphs whose classes are names."
+)]
+Seed = Annotated[int, typer.Option(min=0, help="Random seed.")]
+EdgeRadius = Annotated[float | None, typer.Option(
+    help="Graph edge radius (m); default 4 x the scene scale (20 m for streets)."
+)]
 
 
 def preset_option() -> Any:
