@@ -147,8 +147,7 @@ def load_graph(
     colour_table: Path | None = None,
     class_table: Path | None = None,
 ) -> SemanticGraph:
-    """A graph file with the reader options of the command line."""
-    from sgloc.io.inputs import read_graph_with
+    """A graph file with the reader options of the command line (`read_graph_file`)."""
+    from sgloc.io.inputs import read_graph_file
 
-    positions, labels = read_graph_with(path, label_field, colour_table, class_table)
-    return SemanticGraph(positions, labels, edge_radius, name=Path(path).name)
+    return read_graph_file(path, edge_radius, label_field, colour_table, class_table)
