@@ -56,24 +56,11 @@ def set_option() -> Any:
     return typer.Option([], "--set", metavar="NAME=VALUE", help=SET_HELP)
 
 
-def parse_settings(items: list[str]) -> dict[str, Any]:
-    """{NAME: value} from `NAME=VALUE` strings; values are read as YAML (3 -> int, a,b -> str,
-    {0: 0.1} -> dict). Raises SglocError on an item without `=`."""
-    import yaml
+def parse_settings(items: list[str] | None) -> dict[str, Any]:
+    """{NAME: value} from `NAME=VALUE` strings (`sgloc.io.settings_file.parse_assignments`)."""
+    from sgloc.io.settings_file import parse_assignments
 
-    out: dict[str, Any] = {}
-    for item in items:
-        if "=" not in item:
-            raise SglocError(f"--set expects NAME=VALUE, got {item!r}.")
-        key, text = item.split("=", 1)
-        if text.strip() in ("none", "None"):  # YAML's null, as Python users write it
-            out[key.strip()] = None
-            continue
-        try:
-            out[key.strip()] = yaml.safe_load(text)
-        except yaml.YAMLError:
-            out[key.strip()] = text
-    return out
+    return parse_assignments(items or [])
 
 
 _NESTED = {"matching", "ransac", "acceptance", "descriptor_params", "rejection_params"}
