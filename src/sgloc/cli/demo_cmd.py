@@ -112,7 +112,7 @@ def demo_cmd(
 def _bar(console: Console):
     columns = (TextColumn("{task.description:<28}"), BarColumn(), MofNCompleteColumn(),
                TimeElapsedColumn(), TimeRemainingColumn())
-    return progress_bar(*columns, console=console, per_phase=True)
+    return progress_bar(*columns, console=console, start=True, per_phase=True)
 
 
 def _print(console: Console, done: DemoResult, out: Path) -> None:

@@ -1,5 +1,7 @@
-"""Options shared by several commands: localizer settings (`--preset`, `--config`, `--set`)
-and graph inputs (`--label-field`, `--colour-table`)."""
+"""Options shared by several commands, as type aliases (`preset: Preset = None` declares
+`--preset`): localizer settings (`--preset`, `--config`, `--set`), graph inputs
+(`--label-field`, `--colour-table`, `--class-table`), `--seed`, `--edge-radius`; and the
+localizer settings they give."""
 
 from __future__ import annotations
 
@@ -10,7 +12,6 @@ import typer
 
 from sgloc.errors import SglocError
 from sgloc.io.settings_file import read_settings_data
-from sgloc.maps.graph import SemanticGraph
 from sgloc.pipeline.config import LocalizerConfig
 from sgloc.pipeline.presets import LOCALIZER_PRESETS
 
@@ -36,24 +37,6 @@ Seed = Annotated[int, typer.Option(min=0, help="Random seed.")]
 EdgeRadius = Annotated[float | None, typer.Option(
     help="Graph edge radius (m); default 4 x the scene scale (20 m for streets)."
 )]
-
-
-def preset_option() -> Any:
-    return typer.Option(None, "--preset", help=PRESET_HELP)
-
-
-def config_option() -> Any:
-    return typer.Option(None, "--config", help=CONFIG_HELP, exists=False)
-
-
-def class_table_option(what: str = "for .csv/.txt graphs whose classes are names",
-                       *aliases: str) -> Any:
-    """`--class-table FILE` (`sgloc.io.class_table`), with the help saying what it is for."""
-    return typer.Option(None, "--class-table", *aliases, help=f"{CLASSES_HELP} {what}.")
-
-
-def set_option() -> Any:
-    return typer.Option([], "--set", metavar="NAME=VALUE", help=SET_HELP)
 
 
 def parse_settings(items: list[str] | None) -> dict[str, Any]:
@@ -125,16 +108,3 @@ def localizer_config(
         except SglocError:
             raise e from None
         raise type(e)(f"{config_file}: {e}") from None
-
-
-def load_graph(
-    path: Path,
-    edge_radius: float = 20.0,
-    label_field: str | None = None,
-    colour_table: Path | None = None,
-    class_table: Path | None = None,
-) -> SemanticGraph:
-    """A graph file with the reader options of the command line (`read_graph_file`)."""
-    from sgloc.io.inputs import read_graph_file
-
-    return read_graph_file(path, edge_radius, label_field, colour_table, class_table)

@@ -19,21 +19,27 @@ def progress_bar(
     *columns: str | ProgressColumn,
     console: Console,
     disable: bool = False,
+    start: bool = False,
     first: str | None = None,
     per_phase: bool = False,
 ) -> Iterator[Report]:
-    """A `progress(done, total, phase="")` callback drawing `columns`. The bar appears at the
-    first report (an error before it prints no bar), or at once with the phase `first` (total
-    unknown). `per_phase`: a bar per phase; else one bar whose description is the phase."""
+    """A `progress(done, total, phase="")` callback drawing `columns`. The display starts at
+    the first report (an error before it prints no bar), or at once with `start`, or at once
+    with a bar for the phase `first` (total unknown). `per_phase`: a bar per phase; else one
+    bar whose description is the phase."""
     bar = Progress(*columns, console=console, disable=disable)
     tasks: dict[str, Any] = {}
-    if first is not None:
+    started = start or first is not None
+    if started:
         bar.start()
+    if first is not None:
         tasks[""] = bar.add_task(first, total=None)
 
     def report(done: int, total: int | None, phase: str = "") -> None:
-        if not tasks:
+        nonlocal started
+        if not started:
             bar.start()
+            started = True
         key = phase if per_phase else ""
         if key not in tasks:
             tasks[key] = bar.add_task(phase, total=total)
@@ -43,5 +49,5 @@ def progress_bar(
     try:
         yield report
     finally:
-        if tasks:
+        if started:
             bar.stop()
