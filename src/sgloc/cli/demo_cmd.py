@@ -103,9 +103,9 @@ def demo_cmd(
         run = SyntheticRunConfig(seed=seed, overlap=overlap, width=width, height=height,
                                  length=length, step=step)
         config = localizer_config(preset or ("paper" if paper_defaults else "city"), None, setting)
+        demo = city_demo(run, config, descriptor, rejection)  # checked before any display
         with _bar(console) as progress:
-            done = city_demo(run, config, descriptor, rejection, cache_dir, refresh, out,
-                             progress, console.print)
+            done = demo(cache_dir, refresh, out, progress, console.print)
     _print(console, done, out)
 
 

@@ -47,29 +47,48 @@ def default_cache_dir() -> Path:
     return cache_dir()
 
 
+@dataclass(frozen=True)
+class CityDemo:
+    """A checked demo on the rendered city: the run to render, the localizer settings, the
+    descriptor and rejection names."""
+
+    run: SyntheticRunConfig
+    config: LocalizerConfig
+    descriptor: str = "distance_histogram"
+    rejection: str = "neighbor"
+
+    def __call__(
+        self,
+        cache_dir: Path | None = None,
+        refresh: bool = False,
+        out: Path | None = None,
+        progress: Progress | None = None,
+        note: Callable[[str], None] | None = None,
+    ) -> DemoResult:
+        """Render the run (or reuse it from `cache_dir`, default `default_cache_dir()`;
+        `refresh`: render and extract again), extract both graphs, localize B in A (seed: the
+        run's) and draw the aligned maps to the PNG `out` (replaced only if sgloc drew it).
+        `note` hears that a cached run is used."""
+        run_dir = cached_run(self.run, cache_dir, refresh, progress, note)
+        target, query = run_graphs(run_dir, refresh, progress)
+        res = localize(query, target, self.descriptor, self.rejection, seed=self.run.seed,
+                       config=self.config)
+        done = DemoResult(target, query, res, read_ground_truth(run_dir), run_dir)
+        if out is not None:
+            demo_picture(done, out)
+        return done
+
+
 def city_demo(
     run: SyntheticRunConfig,
     config: LocalizerConfig,
     descriptor: str = "distance_histogram",
     rejection: str = "neighbor",
-    cache_dir: Path | None = None,
-    refresh: bool = False,
-    out: Path | None = None,
-    progress: Progress | None = None,
-    note: Callable[[str], None] | None = None,
-) -> DemoResult:
-    """Render `run` (or reuse it from `cache_dir`, default `default_cache_dir()`; `refresh`:
-    render and extract again), extract both graphs, localize B in A with `config`, `descriptor`
-    and `rejection` (seed: the run's), and draw the aligned maps to the PNG `out` (replaced
-    only if sgloc drew it). `note` hears that a cached run is used."""
-    LocalizerConfig().with_overrides(descriptor=descriptor, rejection=rejection)  # fail early
-    run_dir = cached_run(run, cache_dir, refresh, progress, note)
-    target, query = run_graphs(run_dir, refresh, progress)
-    res = localize(query, target, descriptor, rejection, seed=run.seed, config=config)
-    done = DemoResult(target, query, res, read_ground_truth(run_dir), run_dir)
-    if out is not None:
-        demo_picture(done, out)
-    return done
+) -> CityDemo:
+    """The demo of `run` localizing with `config`, `descriptor` and `rejection`; UnknownNameError
+    for a descriptor or rejection that does not exist, before anything is rendered."""
+    LocalizerConfig().with_overrides(descriptor=descriptor, rejection=rejection)
+    return CityDemo(run, config, descriptor, rejection)
 
 
 def cached_run(
