@@ -48,6 +48,7 @@ LAYERS: dict[str, int] = {
     "sgloc.extraction": 8,
     "sgloc.sim": 8,
     "sgloc.evaluation": 8,
+    "sgloc.experiments": 8,  # the paper's experiments, checked and run (on evaluation)
     "sgloc.replay": 8,
     "sgloc.warmup": 8,
     # the command line

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 import typer
@@ -11,79 +12,83 @@ from rich.table import Table
 
 from sgloc.cli.app import app, not_localized
 from sgloc.cli.options import (
-    COLOURS_HELP,
-    LABEL_HELP,
-    class_table_option,
-    config_option,
-    load_graph,
+    ClassTable,
+    ColourTable,
+    ConfigFile,
+    EdgeRadius,
+    LabelField,
+    Preset,
+    Seed,
+    Settings,
     localizer_config,
-    preset_option,
-    set_option,
 )
 from sgloc.cli.outputs import claim_output
-from sgloc.io.inputs import check_reader_options
-from sgloc.io.names import robot_names
-from sgloc.online.fleet import FleetConfig, localize_fleet
+from sgloc.online.fleet import FleetConfig, FleetResult
+from sgloc.online.fleet_files import localize_fleet_files
+
+Graphs = Annotated[list[Path], typer.Argument(
+    help="Two or more robot graphs (.pcd .ply .csv .txt .json .npz)."
+)]
+Scheduler = Annotated[str | None, typer.Option(
+    help="Address of an existing Dask scheduler (needs pip install 'sgloc\\[dask]'); "
+    "default: local processes.",
+)]
+Out = Annotated[Path, typer.Option(
+    help="Results folder (new, empty or an earlier one of sgloc) for merged.json, "
+    "fleet.json, poses.tum, poses.kitti, poses/, links.g2o, config.yaml, fleet.png.",
+)]
+Root = Annotated[str | None, typer.Option(
+    help="Robot whose frame is the fleet frame, by name (the file's stem; parent-stem when "
+    "two files share a stem). Default: the best-connected robot of the largest group.",
+)]
+MinConfidence = Annotated[float | None, typer.Option(
+    help="Acceptance strictness for each pair, 0-1 (default: the library's 0.9999)."
+)]
+Workers = Annotated[int | None, typer.Option(
+    min=0, help="Local processes (default: CPU count; 0: in this process)."
+)]
 
 
 @app.command("fleet")
 def fleet_cmd(
     ctx: typer.Context,
-    graphs: list[Path] = typer.Argument(
-        ..., help="Two or more robot graphs (.pcd .ply .csv .txt .json .npz)."
-    ),
-    scheduler: str | None = typer.Option(
-        None,
-        help="Address of an existing Dask scheduler (needs pip install 'sgloc\\[dask]'); "
-        "default: local processes.",
-    ),
-    out: Path = typer.Option(
-        Path("results/fleet"),
-        help="Results folder (new, empty or an earlier one of sgloc) for merged.json, "
-        "fleet.json, poses.tum, poses.kitti, poses/, links.g2o, config.yaml, fleet.png.",
-    ),
-    root: str | None = typer.Option(
-        None,
-        help="Robot whose frame is the fleet frame, by name (the file's stem; parent-stem when "
-        "two files share a stem). Default: the best-connected robot of the largest group.",
-    ),
-    min_confidence: float | None = typer.Option(
-        None, help="Acceptance strictness for each pair, 0-1 (default: the library's 0.9999)."
-    ),
-    workers: int | None = typer.Option(
-        None, min=0, help="Local processes (default: CPU count; 0: in this process)."
-    ),
-    edge_radius: float | None = typer.Option(
-        None, help="Graph edge radius (m); default 4 x the scene scale (20 m for streets)."
-    ),
-    seed: int = typer.Option(0, min=0, help="Random seed."),
-    preset: str | None = preset_option(),
-    config: Path | None = config_option(),
-    setting: list[str] = set_option(),
-    label_field: str | None = typer.Option(None, help=LABEL_HELP),
-    colour_table: Path | None = typer.Option(None, help=COLOURS_HELP),
-    class_table: Path | None = class_table_option(),
+    graphs: Graphs,
+    scheduler: Scheduler = None,
+    out: Out = Path("results/fleet"),
+    root: Root = None,
+    min_confidence: MinConfidence = None,
+    workers: Workers = None,
+    edge_radius: EdgeRadius = None,
+    seed: Seed = 0,
+    preset: Preset = None,
+    config: ConfigFile = None,
+    setting: Settings = None,
+    label_field: LabelField = None,
+    colour_table: ColourTable = None,
+    class_table: ClassTable = None,
 ) -> None:
     """Place N robots' graphs in one common frame and merge their maps.
 
-    Every pair is localized (in parallel), pairs failing the acceptance test are dropped,
-    links that disagree around loops are dropped, a pose graph over the remaining links places
-    the robots, and the robots that cannot be placed are reported. Robots are named by their
-    file's stem (r1/map.pcd and r2/map.pcd: r1-map and r2-map).
+    Every pair is localized (in parallel), pairs failing the acceptance test are dropped, links
+    that disagree around loops are dropped, a pose graph over the remaining links places the
+    robots, and the robots that cannot be placed are reported. Robots are named by their file's
+    stem (r1/map.pcd and r2/map.pcd: r1-map and r2-map).
 
     Example: sgloc fleet a.pcd b.pcd c.json d.npz --out results/fleet --scheduler
     tcp://10.0.0.5:8786
     """
     claim_output(ctx, out, [*graphs, config, colour_table, class_table])
     localizer = localizer_config(preset, config, setting, min_confidence=min_confidence)
-    check_reader_options(graphs, label_field, colour_table, class_table)
-    radius = localizer.edge_radius if edge_radius is None else edge_radius
-    gs = [load_graph(p, radius, label_field, colour_table, class_table) for p in graphs]
-    cfg = FleetConfig(localizer=localizer, seed=seed)
-    res = localize_fleet(
-        gs, cfg, names=robot_names(graphs), root=root, scheduler=scheduler, workers=workers,
-        out=out,
+    res = localize_fleet_files(
+        graphs, FleetConfig(localizer=localizer, seed=seed), edge_radius=edge_radius,
+        label_field=label_field, colour_table=colour_table, class_table=class_table, root=root,
+        scheduler=scheduler, workers=workers, out=out,
     )
+    _print(res, out)
+
+
+def _print(res: FleetResult, out: Path) -> None:
+    """The fleet's table and counts; exit 1 (not localized) when a robot was not placed."""
     console = Console()
     table = Table("robot", "placed", "x (m)", "y (m)", "yaw (deg)", "note", title="fleet")
     for i, name in enumerate(res.names):

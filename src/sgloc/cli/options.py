@@ -1,16 +1,17 @@
-"""Options shared by several commands: localizer settings (`--preset`, `--config`, `--set`)
-and graph inputs (`--label-field`, `--colour-table`)."""
+"""Options shared by several commands, as type aliases (`preset: Preset = None` declares
+`--preset`): localizer settings (`--preset`, `--config`, `--set`), graph inputs
+(`--label-field`, `--colour-table`, `--class-table`), `--seed`, `--edge-radius`; and the
+localizer settings they give."""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import typer
 
 from sgloc.errors import SglocError
 from sgloc.io.settings_file import read_settings_data
-from sgloc.maps.graph import DEFAULT_EDGE_RADIUS, SemanticGraph
 from sgloc.pipeline.config import LocalizerConfig
 from sgloc.pipeline.presets import LOCALIZER_PRESETS
 
@@ -21,43 +22,28 @@ LABEL_HELP = "Class column of .ply/.csv/.txt graphs: a field name or a 0-based c
 COLOURS_HELP = "Colour table (lines `class r g b \\[name]`) for graphs whose classes are colours."
 CLASSES_HELP = "Class table (lines `class_id name`; names match in any case)"
 
-
-def preset_option() -> Any:
-    return typer.Option(None, "--preset", help=PRESET_HELP)
-
-
-def config_option() -> Any:
-    return typer.Option(None, "--config", help=CONFIG_HELP, exists=False)
-
-
-def class_table_option(what: str = "for .csv/.txt graphs whose classes are names",
-                       *aliases: str) -> Any:
-    """`--class-table FILE` (`sgloc.io.class_table`), with the help saying what it is for."""
-    return typer.Option(None, "--class-table", *aliases, help=f"{CLASSES_HELP} {what}.")
-
-
-def set_option() -> Any:
-    return typer.Option([], "--set", metavar="NAME=VALUE", help=SET_HELP)
+# The shared options as type aliases: `preset: Preset = None` declares `--preset`.
+Preset = Annotated[str | None, typer.Option("--preset", help=PRESET_HELP)]
+ConfigFile = Annotated[Path | None, typer.Option("--config", help=CONFIG_HELP, exists=False)]
+Settings = Annotated[
+    list[str] | None, typer.Option("--set", metavar="NAME=VALUE", help=SET_HELP)
+]
+LabelField = Annotated[str | None, typer.Option(help=LABEL_HELP)]
+ColourTable = Annotated[Path | None, typer.Option(help=COLOURS_HELP)]
+ClassTable = Annotated[Path | None, typer.Option(
+    "--class-table", help=f"{CLASSES_HELP} for .csv/.txt graphs whose classes are names."
+)]
+Seed = Annotated[int, typer.Option(min=0, help="Random seed.")]
+EdgeRadius = Annotated[float | None, typer.Option(
+    help="Graph edge radius (m); default 4 x the scene scale (20 m for streets)."
+)]
 
 
-def parse_settings(items: list[str]) -> dict[str, Any]:
-    """{NAME: value} from `NAME=VALUE` strings; values are read as YAML (3 -> int, a,b -> str,
-    {0: 0.1} -> dict). Raises SglocError on an item without `=`."""
-    import yaml
+def parse_settings(items: list[str] | None) -> dict[str, Any]:
+    """{NAME: value} from `NAME=VALUE` strings (`sgloc.io.settings_file.parse_assignments`)."""
+    from sgloc.io.settings_file import parse_assignments
 
-    out: dict[str, Any] = {}
-    for item in items:
-        if "=" not in item:
-            raise SglocError(f"--set expects NAME=VALUE, got {item!r}.")
-        key, text = item.split("=", 1)
-        if text.strip() in ("none", "None"):  # YAML's null, as Python users write it
-            out[key.strip()] = None
-            continue
-        try:
-            out[key.strip()] = yaml.safe_load(text)
-        except yaml.YAMLError:
-            out[key.strip()] = text
-    return out
+    return parse_assignments(items or [])
 
 
 _NESTED = {"matching", "ransac", "acceptance", "descriptor_params", "rejection_params"}
@@ -122,17 +108,3 @@ def localizer_config(
         except SglocError:
             raise e from None
         raise type(e)(f"{config_file}: {e}") from None
-
-
-def load_graph(
-    path: Path,
-    edge_radius: float = DEFAULT_EDGE_RADIUS,
-    label_field: str | None = None,
-    colour_table: Path | None = None,
-    class_table: Path | None = None,
-) -> SemanticGraph:
-    """A graph file with the reader options of the command line."""
-    from sgloc.io.inputs import read_graph_with
-
-    positions, labels = read_graph_with(path, label_field, colour_table, class_table)
-    return SemanticGraph(positions, labels, edge_radius, name=Path(path).name)

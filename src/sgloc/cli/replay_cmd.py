@@ -3,160 +3,125 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated
 
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from sgloc.cli.app import app, fail, not_localized
-from sgloc.cli.options import (
-    class_table_option,
-    config_option,
-    localizer_config,
-    preset_option,
-    set_option,
-)
+from sgloc.cli.app import app, not_localized
+from sgloc.cli.options import CLASSES_HELP, ConfigFile, Preset, Settings, localizer_config
 from sgloc.cli.outputs import claim_output
+from sgloc.cli.progress import progress_bar
+from sgloc.replay.job import replay_job
+
+Sources = Annotated[list[Path] | None, typer.Argument(
+    metavar="[SOURCE]...", help="A plain layout folder (one folder per robot: "
+    "odometry.tum, objects.csv), a rosbag2 folder or an .mcap/.db3 file; or one bag (or "
+    "robot folder) per robot, each robot named by its file's stem."
+)]
+Robot = Annotated[list[str] | None, typer.Option(
+    "--robot", metavar="NAME=PATH", help="A robot's own bag (or robot folder), the "
+    "robot named NAME (repeatable; with or instead of SOURCES)."
+)]
+Kitti00 = Annotated[bool, typer.Option("--kitti00", help="Replay KITTI 00 (data `kitti00`) "
+                                       "cut into --robots consecutive segments.")]
+City = Annotated[bool, typer.Option("--city", help="Replay the synthetic city's two routes cut "
+                                    "into --robots robots (objects only, no rendering).")]
+Robots = Annotated[int, typer.Option(min=1, help="Robots to cut --kitti00 / --city into.")]
+Scans = Annotated[str, typer.Option(help="KITTI 00 scans to cut (--kitti00), first-last.")]
+Every = Annotated[int, typer.Option(min=1, help="Use every n-th scan as a keyframe (--kitti00).")]
+Poses = Annotated[str, typer.Option(help="KITTI 00 poses used as the robots' odometry and as "
+                                    "the truth (--kitti00): raw (poses_00.txt) or refined (made "
+                                    "consistent with the refined revisit transforms; needs "
+                                    "gtsam).")]
+Seed = Annotated[int, typer.Option(min=0, help="City (--city) and session seed.")]
+Out = Annotated[Path, typer.Option(help="Results folder: a new or empty folder, or an earlier "
+                                   "results folder of sgloc (replaced).")]
+OutBag = Annotated[Path | None, typer.Option(help="Also write the fleet frames as "
+                                             "geometry_msgs/TransformStamped into this ROS 2 bag "
+                                             "folder: new, empty, or an earlier bag of sgloc "
+                                             "(replaced).")]
+Classes = Annotated[Path | None, typer.Option("--class-table", "--classes", help=f"{CLASSES_HELP} "
+                                              "for class names in objects.csv or marker "
+                                              "namespaces.")]
+OdomTopic = Annotated[str | None, typer.Option(help="Odometry topic template (default "
+                                               "/{robot}/odom), or a plain topic name (/odom) "
+                                               "for bags of one robot each.")]
+ObjectsTopic = Annotated[str | None, typer.Option(help="Object topic template (default "
+                                                  "/{robot}/objects), or a plain topic name.")]
+Root = Annotated[str | None, typer.Option(help="Robot whose odometry frame is the fleet frame "
+                                          "(default: the first to send a keyframe).")]
+Backend = Annotated[str, typer.Option(help="Fleet back-end: robots (one rigid frame per robot) "
+                                      "or keyframes (a pose graph over every keyframe, for "
+                                      "drifting odometry; docs/online_session.md).")]
+Quiet = Annotated[bool, typer.Option("--quiet", help="No progress bar or table.")]
 
 
 @app.command("replay")
 def replay_cmd(
     ctx: typer.Context,
-    sources: list[Path] | None = typer.Argument(
-        None, metavar="[SOURCE]...", help="A plain layout folder (one folder per robot: "
-        "odometry.tum, objects.csv), a rosbag2 folder or an .mcap/.db3 file; or one bag (or "
-        "robot folder) per robot, each robot named by its file's stem."
-    ),
-    robot: list[str] = typer.Option(
-        [], "--robot", metavar="NAME=PATH", help="A robot's own bag (or robot folder), the "
-        "robot named NAME (repeatable; with or instead of SOURCES)."
-    ),
-    kitti00: bool = typer.Option(False, "--kitti00", help="Replay KITTI 00 (data `kitti00`) "
-                                 "cut into --robots consecutive segments."),
-    city: bool = typer.Option(False, "--city", help="Replay the synthetic city's two routes cut "
-                              "into --robots robots (objects only, no rendering)."),
-    robots: int = typer.Option(4, min=1, help="Robots to cut --kitti00 / --city into."),
-    scans: str = typer.Option("0-2999", help="KITTI 00 scans to cut (--kitti00), first-last."),
-    every: int = typer.Option(1, min=1, help="Use every n-th scan as a keyframe (--kitti00)."),
-    poses: str = typer.Option("raw", help="KITTI 00 poses used as the robots' odometry and as "
-                              "the truth (--kitti00): raw (poses_00.txt) or refined (made "
-                              "consistent with the refined revisit transforms; needs gtsam)."),
-    seed: int = typer.Option(0, min=0, help="City (--city) and session seed."),
-    out: Path = typer.Option(Path("results/replay"), help="Results folder: a new or empty "
-                             "folder, or an earlier results folder of sgloc (replaced)."),
-    out_bag: Path | None = typer.Option(None, help="Also write the fleet frames as "
-                                        "geometry_msgs/TransformStamped into this ROS 2 bag "
-                                        "folder: new, empty, or an earlier bag of sgloc "
-                                        "(replaced)."),
-    classes: Path | None = class_table_option(
-        "for class names in objects.csv or marker namespaces", "--classes"
-    ),
-    odom_topic: str | None = typer.Option(None, help="Odometry topic template (default "
-                                          "/{robot}/odom), or a plain topic name (/odom) for "
-                                          "bags of one robot each."),
-    objects_topic: str | None = typer.Option(None, help="Object topic template (default "
-                                             "/{robot}/objects), or a plain topic name."),
-    root: str | None = typer.Option(None, help="Robot whose odometry frame is the fleet frame "
-                                    "(default: the first to send a keyframe)."),
-    preset: str | None = preset_option(),
-    config: Path | None = config_option(),
-    setting: list[str] = set_option(),
-    backend: str = typer.Option("robots", help="Fleet back-end: robots (one rigid frame per "
-                                "robot) or keyframes (a pose graph over every keyframe, for "
-                                "drifting odometry; docs/online_session.md)."),
-    quiet: bool = typer.Option(False, "--quiet", help="No progress bar or table."),
+    sources: Sources = None,
+    robot: Robot = None,
+    kitti00: Kitti00 = False,
+    city: City = False,
+    robots: Robots = 4,
+    scans: Scans = "0-2999",
+    every: Every = 1,
+    poses: Poses = "raw",
+    seed: Seed = 0,
+    out: Out = Path("results/replay"),
+    out_bag: OutBag = None,
+    classes: Classes = None,
+    odom_topic: OdomTopic = None,
+    objects_topic: ObjectsTopic = None,
+    root: Root = None,
+    preset: Preset = None,
+    config: ConfigFile = None,
+    setting: Settings = None,
+    backend: Backend = "robots",
+    quiet: Quiet = False,
 ) -> None:
-    """Stream every robot's keyframes, interleaved by stamp, through one online session and
-    write the fleet: fleet/<robot>.tum, events.csv, links.g2o, summary.json, timeline.png,
-    fleet.png.
+    """Stream every robot's keyframes, interleaved by stamp, through one online session and write
+    the fleet: fleet/<robot>.tum, events.csv, links.g2o, summary.json, timeline.png, fleet.png.
 
     Examples: sgloc replay runs/campus --out results/campus --out-bag results/campus_bag
     |   sgloc replay alpha.mcap beta.mcap --odom-topic /odom --objects-topic /objects
     |   sgloc replay --kitti00 --robots 4 --every 2 --poses refined
     |   sgloc replay --city --robots 8 --backend keyframes
     """
-    from sgloc.online import OnlineConfig, OnlineSession
-    from sgloc.replay import replay_logs
-    from sgloc.replay.outputs import write_replay
+    inputs = _claim(ctx, sources or [], robot or [], classes, config, out, out_bag)
+    job = replay_job(sources or [], robot or [], _scenarios(kitti00, city), robots=robots,
+                     scans=scans, every=every, poses=poses, seed=seed, classes=classes,
+                     odom_topic=odom_topic, objects_topic=objects_topic, backend=backend, root=root)
+    cfg = localizer_config(preset or job.preset, config, setting)
+    with _bar(quiet) as progress:
+        summary = job.run(cfg, out, out_bag, inputs, progress)
+    _print(Console(quiet=quiet), summary, out, out_bag, len(job.logs))
 
-    inputs = [*(sources or []), *(r.partition("=")[2] for r in robot), classes, config]
+
+def _claim(ctx: typer.Context, sources, robot, classes, config, out, out_bag) -> list:
+    """Claim the outputs; returns the inputs they must not touch."""
+    inputs = [*sources, *(r.partition("=")[2] for r in robot), classes, config]
     claim_output(ctx, out, inputs)
     claim_output(ctx, out_bag, inputs, "--out-bag")
-    logs, default_preset = _inputs(sources or [], robot, kitti00, city, robots, scans, every,
-                                   seed, classes, odom_topic, objects_topic, poses)
-    if backend not in ("robots", "keyframes"):
-        raise fail(f"--backend {backend!r}: choose robots or keyframes.")
-    if root is not None and root not in {g.name for g in logs}:
-        raise fail(f"--root {root!r} is not a robot of the input; robots: "
-                   f"{', '.join(g.name for g in logs)}.")
-    cfg = localizer_config(preset or default_preset, config, setting)
-    session = OnlineSession(cfg, OnlineConfig(seed=seed, backend=backend), root=root)
-    console = Console(quiet=quiet)
-    with Progress(TextColumn("[bold]replaying"), BarColumn(), MofNCompleteColumn(),
-                  TimeElapsedColumn(), console=console, disable=quiet) as bar:
-        task = bar.add_task("keyframes", total=sum(len(g) for g in logs))
-        record = replay_logs(logs, session, progress=lambda n: bar.advance(task, n))
-    summary = write_replay(out, logs, session, record, inputs)
-    if out_bag is not None:
-        from sgloc.io.rosbag import write_fleet_bag
-
-        write_fleet_bag(out_bag, record.transforms + _final(logs, session))
-    _print(console, summary, out, out_bag)
-    if len(logs) > 1 and summary["placed"] < 2:
-        raise not_localized(f"no robot joined the fleet frame of {summary['root']}.")
+    return inputs
 
 
-def _inputs(sources, named, kitti00, city, robots, scans, every, seed, classes, odom_topic,
-            objects_topic, poses="raw"):
-    """(robot logs, default localizer preset) of the chosen input."""
-    from sgloc.evaluation import replay_scenarios as scenarios
-
-    if bool(sources or named) + kitti00 + city != 1:
-        raise fail("give exactly one input: a layout folder or bag (or one bag per robot), "
-                   "--kitti00, or --city.")
-    if poses not in ("raw", "refined"):
-        raise fail(f"--poses {poses!r}: choose raw or refined.")
-    if poses != "raw" and not kitti00:
-        raise fail(f"--poses {poses}: only for --kitti00 (other inputs bring their own poses).")
-    if kitti00:
-        try:
-            first, last = (int(v) for v in scans.split("-"))
-        except ValueError:
-            raise fail(f"--scans {scans!r}: give first-last, e.g. 0-2999.") from None
-        return scenarios.kitti_scenario(robots, first, last, every, poses).logs, "kitti-objects"
-    if city:
-        return scenarios.city_scenario(robots, seed).logs, "city"
-    return _recorded(sources, named, classes, odom_topic, objects_topic), None
+def _scenarios(kitti00: bool, city: bool) -> list[str]:
+    """The scenarios asked for (`sgloc.replay.scenarios`)."""
+    return [name for name, on in (("kitti00", kitti00), ("city", city)) if on]
 
 
-def _recorded(sources, named, classes, odom_topic, objects_topic) -> list:
-    """The robots of one source, or of one source per robot (`named`: NAME=PATH items)."""
-    from sgloc.replay.inputs import read_logs, read_robot_sources
-
-    if len(sources) == 1 and not named:
-        return read_logs(sources[0], classes, odom_topic, objects_topic)
-    pairs = [(None, Path(p)) for p in sources]
-    for item in named:
-        name, sep, path = item.partition("=")
-        if not sep or not name.strip() or not path.strip():
-            raise fail(f"--robot {item!r}: give NAME=PATH, e.g. --robot alpha=runs/alpha.mcap.")
-        pairs.append((name.strip(), Path(path.strip())))
-    return read_robot_sources(pairs, classes, odom_topic, objects_topic)
+def _bar(quiet: bool):
+    columns = (TextColumn("[bold]replaying"), BarColumn(), MofNCompleteColumn(),
+               TimeElapsedColumn())
+    return progress_bar(*columns, console=Console(quiet=quiet), disable=quiet)
 
 
-def _final(logs, session) -> list:
-    """The fleet frame of every placed robot at the last stamp."""
-    end = max(int(g.stamps_ns[-1]) for g in logs)
-    out = []
-    for g in logs:
-        T = session.T_fleet_robot(g.name) if g.name in session.robots else None
-        if T is not None:
-            out.append((end, g.name, T))
-    return out
-
-
-def _print(console: Console, summary: dict, out: Path, out_bag: Path | None) -> None:
+def _print(console: Console, summary: dict, out: Path, out_bag: Path | None, robots: int) -> None:
+    """The replay's table and counts; exit 1 (not localized) when no robot joined another."""
     table = Table("robot", "keyframes", "joined at (s)", "placed", "latency median / p99 / max "
                   "(ms)", title="replay")
     for name, r in summary["robots"].items():
@@ -172,3 +137,5 @@ def _print(console: Console, summary: dict, out: Path, out_bag: Path | None) -> 
     console.print(f"{summary['placed']} of {len(summary['robots'])} robots placed in the frame of "
                   f"{summary['root']}; {ev['link_accepted']} links accepted, "
                   f"{ev['link_revoked']} revoked -> {out}" + (f", {out_bag}" if out_bag else ""))
+    if robots > 1 and summary["placed"] < 2:
+        raise not_localized(f"no robot joined the fleet frame of {summary['root']}.")

@@ -4,10 +4,14 @@ options go through `sgloc.io.graph_files.read_graph`."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from sgloc.maps.classes import AIRSIM_COLORS
+
+if TYPE_CHECKING:
+    from sgloc.maps.graph import SemanticGraph
 
 
 def read_graph_with(
@@ -73,3 +77,18 @@ def check_reader_options(paths, label_field=None, colour_table=None, class_table
                 f"{option} applies to {'/'.join(kinds)} graphs only, and none is given "
                 f"({', '.join(str(p) for p in paths)}); drop it."
             )
+
+
+def read_graph_file(
+    path: str | Path,
+    edge_radius: float = 20.0,
+    label_field: str | None = None,
+    colour_table: str | Path | None = None,
+    class_table: str | Path | None = None,
+) -> SemanticGraph:
+    """The SemanticGraph of a graph file read with the reader options (`read_graph_with`),
+    edges within `edge_radius` (m), named by the file's name."""
+    from sgloc.maps.graph import SemanticGraph
+
+    positions, labels = read_graph_with(path, label_field, colour_table, class_table)
+    return SemanticGraph(positions, labels, edge_radius, name=Path(path).name)

@@ -5,6 +5,7 @@ SglocError naming the file."""
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -51,3 +52,24 @@ def _json_ready(data: Any) -> Any:
     if isinstance(data, list | tuple):
         return [_json_ready(v) for v in data]
     return data
+
+
+def parse_assignments(items: Sequence[str]) -> dict[str, Any]:
+    """{NAME: value} from `NAME=VALUE` strings (`--set`, `--param`); values are read as YAML
+    (3 -> int, a,b -> str, {0: 0.1} -> dict; none/None -> None). SglocError on an item
+    without `=`."""
+    import yaml
+
+    out: dict[str, Any] = {}
+    for item in items:
+        if "=" not in item:
+            raise SglocError(f"--set expects NAME=VALUE, got {item!r}.")
+        key, text = item.split("=", 1)
+        if text.strip() in ("none", "None"):  # YAML's null, as Python users write it
+            out[key.strip()] = None
+            continue
+        try:
+            out[key.strip()] = yaml.safe_load(text)
+        except yaml.YAMLError:
+            out[key.strip()] = text
+    return out
