@@ -78,6 +78,9 @@ def test_bag_replay_equals_plain_replay(replayed, world, tmp_path):
         assert (tmp_path / "out" / "fleet" / f"{g.name}.tum").read_bytes() == a
     g2o = (replayed / "out" / "links.g2o").read_text()
     assert (tmp_path / "out" / "links.g2o").read_text() == g2o
+    # the bag's storage file carries the bag's name, not the name of its staging folder
+    assert sorted(p.name for p in (tmp_path / "fleet_bag").iterdir()) == [
+        ".sgloc-results.json", "fleet_bag.mcap", "metadata.yaml"]
     msgs = read_fleet_bag(tmp_path / "fleet_bag")
     last = {r: T for _, r, T in msgs}
     assert set(last) == {"world0", "world1"}

@@ -21,7 +21,6 @@ caller, its topics the templates with `{robot}` filled in or plain names such as
 from __future__ import annotations
 
 import contextlib
-import os
 import re
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -282,10 +281,16 @@ def write_fleet_bag(
     path, an empty folder or an earlier bag of sgloc (`sgloc.io.files.staged_folder`); of several
     transforms of one robot at one stamp only the last given is written."""
     rosbag2, _, ts = _rosbags()
+    path = Path(path)
     with staged_folder(path, option="--out-bag") as stage:  # a whole bag or none
-        os.rmdir(stage)  # the bag writer makes its folder itself
-        _write_transforms(rosbag2, ts, stage, transforms, topic)
-    return Path(path)
+        # The bag writer makes its folder itself and names its storage file after that folder:
+        # written as `stage/<name>`, then moved up, the bag's files carry the final name.
+        inner = Path(stage) / path.name
+        _write_transforms(rosbag2, ts, inner, transforms, topic)
+        for f in inner.iterdir():
+            f.rename(Path(stage) / f.name)
+        inner.rmdir()
+    return path
 
 
 def _write_transforms(rosbag2, ts, path: Path, transforms, topic: str) -> None:
