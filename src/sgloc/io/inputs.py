@@ -81,14 +81,15 @@ def check_reader_options(paths, label_field=None, colour_table=None, class_table
 
 def read_graph_file(
     path: str | Path,
-    edge_radius: float = 20.0,
+    edge_radius: float | None = None,
     label_field: str | None = None,
     colour_table: str | Path | None = None,
     class_table: str | Path | None = None,
 ) -> SemanticGraph:
     """The SemanticGraph of a graph file read with the reader options (`read_graph_with`),
-    edges within `edge_radius` (m), named by the file's name."""
-    from sgloc.maps.graph import SemanticGraph
+    edges within `edge_radius` (m; None: `DEFAULT_EDGE_RADIUS`), named by the file's name."""
+    from sgloc.maps.graph import DEFAULT_EDGE_RADIUS, SemanticGraph
 
     positions, labels = read_graph_with(path, label_field, colour_table, class_table)
-    return SemanticGraph(positions, labels, edge_radius, name=Path(path).name)
+    radius = DEFAULT_EDGE_RADIUS if edge_radius is None else edge_radius
+    return SemanticGraph(positions, labels, radius, name=Path(path).name)
