@@ -137,6 +137,14 @@ class AcceptanceConfig:
         localizes (docs/acceptance.md), hence off by default.
     repetition_search: metres; the longest shift looked for (the longest period of a repeating
         layout; the shortest is `distinct_translation`).
+    layout_shifts: how many self-similar shifts of each map (found as for
+        `repetition_shifts`, up to `repetition_search` metres) measure how much of the maps'
+        layout repeats; an estimate that lands no more of the query than a copy of that
+        repeating layout would (counted against the test's hypotheses) is refused as
+        ambiguous (`sgloc.acceptance.repetition`, check 3). 0 (the default): no such check.
+        8 removes most lattice-offset accepts of a street grid, but with few shifted objects
+        the estimate is coarse: on KITTI 00 and on small overlaps of the rendered city it
+        refused right accepts the default keeps (docs/acceptance.md, docs/repetition.md).
     min_agreement: fraction in [0, 1]; of the query objects the estimate puts next to a target
         object (within `cover_radius`), at least this fraction must land on an object of their
         class (within `agreement_radius`) when there are at least `min_covered` of them; 0: no
@@ -163,6 +171,7 @@ class AcceptanceConfig:
     repetition_search: float = setting(
         100.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m")
     )
+    layout_shifts: int = setting(0, check=integer(0, 1000))
     min_agreement: float = setting(0.0, check=real(0.0, 1.0))
     min_covered: int = setting(10, check=integer(1, MAX_VERTICES))
     agreement_radius: float | None = setting(
