@@ -7,12 +7,20 @@ import pytest
 
 from sgloc import SemanticGraph
 from sgloc.acceptance import AcceptanceConfig, assess
-from sgloc.acceptance.repetition import log10_rival_weight, self_similar_shifts
+from sgloc.acceptance.repetition import (
+    log10_binomial_sum_tail,
+    log10_rival_weight,
+    self_similar_shifts,
+)
 from sgloc.geometry import apply, invert, make_transform, random_rigid_transform
 
 PERIOD = 20.0
-#: The test with the repetition check on (off by default).
+#: The test with the rival-shift check on (off by default).
 SHIFTS = AcceptanceConfig(repetition_shifts=8)
+#: The test without any repetition check (the default).
+PLAIN = AcceptanceConfig()
+#: The test with the layout's own chance on (off by default).
+LAYOUT = AcceptanceConfig(layout_shifts=8)
 
 
 def _lattice(rng: np.random.Generator, blocks: int = 7) -> tuple[np.ndarray, np.ndarray]:
@@ -48,7 +56,7 @@ def _lattice_offset_pair(rng):
 
 def test_lattice_offset_false_match_is_refused_as_ambiguous(rng):
     query, target, cand, T_true, T_false = _lattice_offset_pair(rng)
-    before = assess(query, target, cand, T_false, 2.0, AcceptanceConfig())  # the default: off
+    before = assess(query, target, cand, T_false, 2.0, PLAIN)
     assert before.accepted and before.confidence > 0.9999  # the chance model alone is fooled
     a = assess(query, target, cand, T_false, 2.0, SHIFTS)
     assert not a.accepted and a.confidence < 0.9
@@ -56,6 +64,105 @@ def test_lattice_offset_false_match_is_refused_as_ambiguous(rng):
     assert "repetition_shifts=0" in a.reason
     squared = (a.details["repetition_shift_m"] / PERIOD) ** 2  # a lattice vector: i^2 + j^2
     assert squared >= 1 - 0.1 and abs(squared - round(squared)) < 0.1
+
+
+def _street_grid(rng: np.random.Generator, blocks: int = 7):
+    """A street grid of blocks STREET metres wide: the same 10 pieces of street furniture
+    (classes 0-1) in every block, and 10 objects (classes 2-4) at random places of each
+    block (buildings, trees: what the layout does not repeat). Returns positions, labels."""
+    furniture = np.column_stack([rng.uniform(0, STREET, (10, 2)), rng.uniform(0, 3, 10)])
+    furniture_labels = rng.integers(0, 2, 10)
+    pos, lab = [], []
+    for i in range(blocks):
+        for j in range(blocks):
+            corner = np.array([i * STREET, j * STREET, 0.0])
+            own = np.column_stack([rng.uniform(0, STREET, (10, 2)), rng.uniform(0, 3, 10)])
+            pos += [furniture + corner, own + corner]
+            lab += [furniture_labels, rng.integers(2, 5, 10)]
+    return np.concatenate(pos), np.concatenate(lab)
+
+
+STREET = 40.0
+
+
+def _street_grid_pair(rng):
+    """Target: the street grid. Query: 3 x 3 of its blocks (5 cm noise) under a random motion.
+    Returns query, target, the true candidates (every object to itself) with T_true, and the
+    lattice-offset false match: every piece of furniture to its copy one block further
+    along x, with T_false (the true alignment moved by that block)."""
+    pos, lab = _street_grid(rng)
+    q, ql, idx = _crop(pos, lab, (2 * STREET, 2 * STREET), (5 * STREET, 5 * STREET), rng)
+    M = random_rigid_transform(rng, 100.0, 0.0)
+    query, target = SemanticGraph(apply(M, q), ql), SemanticGraph(pos, lab)
+    true = np.column_stack([np.arange(len(idx)), idx])
+    # blocks are listed along y first, 20 objects each (10 furniture, then 10 of its own)
+    furniture = np.flatnonzero(idx % 20 < 10)
+    false = np.column_stack([furniture, idx[furniture] + 20 * 7])
+    assert np.allclose(pos[false[:, 1]] - pos[idx[furniture]], [STREET, 0, 0])
+    T_true = invert(M)
+    T_false = make_transform(np.eye(3), np.array([STREET, 0.0, 0.0])) @ T_true
+    return query, target, (true, T_true), (false, T_false)
+
+
+def test_lattice_offset_on_a_street_grid_is_refused_as_ambiguous(rng):
+    """The street furniture of a grid matched one block off: every piece lands, so the chance
+    model alone (the default) accepts it with confidence ~1; the layout's own chance knows
+    that a copy of the grid lands its furniture too, and nothing else: ambiguous."""
+    assert PLAIN.layout_shifts == 0
+    query, target, _, (cand, T_false) = _street_grid_pair(rng)
+    plain = assess(query, target, cand, T_false, 2.0, PLAIN)
+    assert plain.accepted and plain.confidence > 0.9999
+    a = assess(query, target, cand, T_false, 2.0, LAYOUT)
+    assert not a.accepted and a.confidence < 0.5
+    assert a.reason.startswith("ambiguous: the maps repeat themselves"), a.reason
+    assert "layout_shifts=0" in a.reason
+    assert a.details["layout_shifts_measured"] > 0 and a.details["layout_log10_nfa"] > 0
+
+
+def test_true_match_on_the_street_grid_is_accepted(rng):
+    """The same grid's true alignment lands the objects the layout does not repeat too."""
+    query, target, (cand, T_true), _ = _street_grid_pair(rng)
+    a = assess(query, target, cand, T_true, 2.0, LAYOUT)
+    assert a.accepted and a.confidence > 0.9999, a.reason
+    assert a.details["layout_shifts_measured"] > 0 and a.details["layout_log10_nfa"] < -10
+    assert a.details["layout_expected_landed"] < 0.8 * a.details["agreement_landed"]
+
+
+def test_layout_chance_changes_nothing_without_repetition(rng):
+    """On a layout that does not repeat no self-similar shift is found: the same verdict."""
+    pos = np.column_stack([rng.uniform(0, 140, (280, 2)), rng.uniform(0, 3, 280)])
+    lab = rng.integers(0, 4, 280)
+    q, ql, idx = _crop(pos, lab, (40, 40), (100, 100), rng)
+    M = random_rigid_transform(rng, 100.0, 0.0)
+    query, target = SemanticGraph(apply(M, q), ql), SemanticGraph(pos, lab)
+    cand = np.column_stack([np.arange(len(idx)), idx])
+    a = assess(query, target, cand, invert(M), 2.0, LAYOUT)
+    b = assess(query, target, cand, invert(M), 2.0, PLAIN)
+    assert a.accepted and b.accepted and a.confidence == pytest.approx(b.confidence)
+    assert a.details["layout_shifts_measured"] == 0
+
+
+def test_layout_shifts_setting():
+    """Off by default; a count of shifts per map; a bad value is refused by name."""
+    from sgloc.pipeline.config import LocalizerConfig
+
+    assert LocalizerConfig().acceptance.layout_shifts == 0
+    assert LocalizerConfig().with_overrides(layout_shifts=8).acceptance.layout_shifts == 8
+    with pytest.raises(ValueError, match="layout_shifts"):
+        AcceptanceConfig(layout_shifts=-1)
+
+
+def test_binomial_sum_tail():
+    """The tail of a sum of binomials: exact against a direct sum, 0 (log) at or below 0
+    landed, -inf above the objects counted."""
+    from scipy.stats import binom
+
+    n, p = np.array([3, 0, 5]), np.array([0.5, 0.9, 0.2])
+    full = np.convolve(binom.pmf(np.arange(4), 3, 0.5), binom.pmf(np.arange(6), 5, 0.2))
+    for k in range(1, 9):
+        assert 10 ** log10_binomial_sum_tail(k, n, p) == pytest.approx(full[k:].sum())
+    assert log10_binomial_sum_tail(0, n, p) == 0.0
+    assert log10_binomial_sum_tail(9, n, p) == -np.inf
 
 
 def test_true_alignment_on_the_lattice_is_as_ambiguous(rng):

@@ -60,9 +60,15 @@ makes many inliers one coincidence, which the nulls above count as many. With
 the target's self-similar shifts near the estimate, and the weight p of the best such rival
 (the objects only it lands against those only the estimate lands, each against what a shift
 lands by chance) joins the rival term: confidence = 1 / (1 / confidence + p), about 1/2 when
-a shift explains the query as well ("ambiguous"). With `min_agreement` > 0, an estimate
-whose claimed overlap mostly disagrees (too few of the query objects it puts next to target
-objects land on one of their class) is refused too.
+a shift explains the query as well ("ambiguous"). With `layout_shifts` > 0 (off by default)
+the estimate is also weighed against the maps' own repetition: each map's
+part of the claimed overlap moved by the map's self-similar shifts tells, per class, how
+often a copy of the layout lands an object; NFA_layout = (the tests) x P(a copy lands as
+many of the covered query objects as the estimate) joins the rival term the same way, so
+an alignment at a copy of a street grid (a lattice offset) is refused as ambiguous while a
+true one, which lands also what the layout does not repeat, passes. With `min_agreement` >
+0, an estimate whose claimed overlap mostly disagrees (too few of the query objects it puts
+next to target objects land on one of their class) is refused too.
 """
 
 from __future__ import annotations
@@ -316,10 +322,10 @@ def assess(
         return Assessment(False, 0.0, _spread_reason(details, min_spread, dof), details, **seen)
     if conf < cfg.min_confidence:
         return Assessment(False, conf, _chance_reason(details, conf, cfg), details, **seen)
-    if cfg.repetition_shifts == 0 and cfg.min_agreement == 0:
+    if cfg.repetition_shifts == 0 and cfg.min_agreement == 0 and not cfg.layout_shifts:
         return Assessment(True, conf, "", details, **seen)
     return _against_repetition(Assessment(True, conf, "", details, **seen), query, target, c,
-                               transform, cfg)  # fmt: skip
+                               transform, cfg, tests.n_tests)  # fmt: skip
 
 
 def _against_repetition(
@@ -329,20 +335,38 @@ def _against_repetition(
     c: _Candidates,
     transform: np.ndarray,
     cfg: AcceptanceConfig,
+    n_tests: float = 1.0,
 ) -> Assessment:
     """The assessment `passed` (accepted so far) after the repetition checks: its confidence
-    with the best self-similar shift as a rival, refused when that falls below min_confidence
-    or when the claimed overlap disagrees (`min_agreement`)."""
+    with the best self-similar shift and the layout's copies (NFA_layout over `n_tests`
+    hypotheses) as rivals, refused when that falls below min_confidence or when the claimed
+    overlap disagrees (`min_agreement`)."""
     rep = _repetition(query, target, c, transform, float(passed.radius_m), cfg)
     passed.details |= _repetition_details(rep)
-    if np.isfinite(rep.log10_p) and passed.confidence > 0:  # joins the test's rival term
-        passed.confidence = float(1.0 / (1.0 / passed.confidence + 10.0**rep.log10_p))
-    if passed.confidence < cfg.min_confidence:
+    lg_layout = -np.inf
+    if rep.layout is not None:
+        lg_layout = min(rep.layout.log10_tail + float(np.log10(max(n_tests, 1.0))), 300.0)
+        passed.details["layout_log10_nfa"] = float(lg_layout)
+    before = passed.confidence
+    for lg in (rep.log10_p, lg_layout):  # each joins the test's rival term
+        if np.isfinite(lg) and passed.confidence > 0:
+            passed.confidence = float(1.0 / (1.0 / passed.confidence + 10.0**lg))
+    if passed.confidence < cfg.min_confidence and _layout_decides(rep, before, lg_layout, cfg):
+        passed.accepted, passed.reason = False, layout_reason(rep, passed.confidence, cfg)
+    elif passed.confidence < cfg.min_confidence:
         passed.accepted, passed.reason = False, repeated_reason(rep, passed.confidence, cfg)
     elif cfg.min_agreement > 0 and rep.covered >= cfg.min_covered \
             and rep.agreement < cfg.min_agreement:  # fmt: skip
         passed.accepted, passed.reason = False, disagreement_reason(rep, cfg)
     return passed
+
+
+def _layout_decides(rep: Repetition, before: float, lg_layout: float,
+                    cfg: AcceptanceConfig) -> bool:
+    """Whether the layout's copies alone (check 3) refuse a `before` confidence."""
+    if rep.layout is None or not np.isfinite(lg_layout) or before <= 0:
+        return False
+    return 1.0 / (1.0 / before + 10.0**lg_layout) < cfg.min_confidence
 
 
 def _repetition(
@@ -358,7 +382,7 @@ def _repetition(
     shifts = (cfg.distinct_translation, cfg.repetition_search, cfg.repetition_shifts)
     radii = cfg.repetition_radii(radius, _precision(c))
     return check_repetition(query, target, apply(transform, query.positions),
-                            c.cand[c.inlier, 1], radii, shifts)  # fmt: skip
+                            c.cand[c.inlier, 1], radii, shifts, cfg.layout_shifts)  # fmt: skip
 
 
 def _precision(c: _Candidates) -> float:
@@ -376,7 +400,28 @@ def _repetition_details(rep: Repetition) -> dict:
         "repetition_rival_only": rep.rival_only,
         "repetition_estimate_only": rep.estimate_only,
         "repetition_log10_p": float(rep.log10_p),
-    }
+    } | ({} if rep.layout is None else {
+        "layout_shifts_measured": rep.layout.shifts,
+        "layout_rate": rep.layout.rate,
+        "layout_expected_landed": float(rep.layout.covered @ rep.layout.p),
+        "layout_log10_tail": float(rep.layout.log10_tail),
+    })  # fmt: skip
+
+
+def layout_reason(rep: Repetition, conf: float, cfg: AcceptanceConfig) -> str:
+    """Why the maps' repeating layout makes the estimate ambiguous (check 3)."""
+    lay = rep.layout
+    landed, covered = int(lay.landed.sum()), int(lay.covered.sum())
+    expected = float(lay.covered @ lay.p)
+    return (
+        f"ambiguous: the maps repeat themselves (their shifted copies land {100 * lay.rate:.0f} "
+        f"% of their objects again); of the {covered} query objects the alignment puts next "
+        f"to the target's, {landed} land on an object of their class, against {expected:.1f} "
+        f"for a copy of the repeating layout (confidence {conf:.6g} < min_confidence "
+        f"{cfg.min_confidence}); the place cannot be told from its copies: a larger map "
+        "(more of what does not repeat) decides (--set layout_shifts=0 turns this check off; "
+        "Python: layout_shifts=0)"
+    )
 
 
 def repeated_reason(rep: Repetition, conf: float, cfg: AcceptanceConfig) -> str:

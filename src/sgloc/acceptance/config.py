@@ -142,6 +142,14 @@ class AcceptanceConfig:
         query is refitted at and compared with the alignment, object by object
         (`sgloc.acceptance.places`); 0 (the default): none. A place where the refitted query
         lands about as many objects makes the result ambiguous (identical offices of a floor).
+    layout_shifts: how many self-similar shifts of each map (found as for
+        `repetition_shifts`, up to `repetition_search` metres) measure how much of the maps'
+        layout repeats; an estimate that lands no more of the query than a copy of that
+        repeating layout would (counted against the test's hypotheses) is refused as
+        ambiguous (`sgloc.acceptance.repetition`, check 3). 0 (the default): no such check.
+        8 removes most lattice-offset accepts of a street grid, but with few shifted objects
+        the estimate is coarse: on KITTI 00 and on small overlaps of the rendered city it
+        refused right accepts the default keeps (docs/acceptance.md, docs/repetition.md).
     min_agreement: fraction in [0, 1]; of the query objects the estimate puts next to a target
         object (within `cover_radius`), at least this fraction must land on an object of their
         class (within `agreement_radius`) when there are at least `min_covered` of them; 0: no
@@ -169,6 +177,7 @@ class AcceptanceConfig:
         100.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m")
     )
     other_places: int = setting(0, check=integer(0, 1000))
+    layout_shifts: int = setting(0, check=integer(0, 1000))
     min_agreement: float = setting(0.0, check=real(0.0, 1.0))
     min_covered: int = setting(10, check=integer(1, MAX_VERTICES))
     agreement_radius: float | None = setting(

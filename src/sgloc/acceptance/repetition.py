@@ -26,6 +26,27 @@ coincidence. Two checks of the estimate T_target_query against the layout, on th
    their class (within `land` metres); an alignment at the wrong copy of a repeating layout
    lands only the objects the layout repeats (the street furniture at the curb lines, not the
    rest). Refused when fewer than `min_agreement` of at least `min_covered` such objects land.
+3. The layout's own chance (`layout_chance`; `layout_shifts` > 0, off by default): how often
+   would a copy of this repeating layout land the objects the estimate lands? Each map is
+   measured against itself: the objects of its part of the claimed overlap are moved by its
+   own self-similar shifts (found as in 1., anchored on those objects) and, per class c, the
+   fraction p_c of those that come to lie next to an object of the map (within `cover`) and
+   land on one of class c (within `land`) is what a copy of the layout lands, chance
+   coincidences included (both maps' shifts pooled; a class no shift carries takes the rate
+   of all classes). Poles on a street grid repeat with the grid (p near 1), trees and
+   buildings of random widths do not (p near the chance of their density). The objects that
+   voted for a shift are counted too: in a repeating layout they are the repeating objects;
+   on a layout that barely repeats they make p_c higher than a copy would land (the check
+   then refuses more than it must: a cautious estimate). Under the null "T is one of the
+   layout's copies", a covered query object of class c lands with probability p_c, so the
+   landed count L of the N covered objects is a sum of binomials, and NFA_layout = n_tests *
+   P(sum_c Binomial(N_c, p_c) >= L) (n_tests: the test's hypotheses; RANSAC picks the best
+   of the layout's copies). NFA_layout joins the test's rival term, confidence = 1 / (1 /
+   confidence + NFA_layout): about 1/2 or lower when a copy of the layout explains the
+   landings ("ambiguous"). A true alignment also lands what the layout does not repeat; on
+   a layout that does not repeat no shift is found and nothing changes. The model measures
+   only the maps' own repetition, so it serves any repeating scene (street grids, rooms or
+   blocks built from one template).
 """
 
 from __future__ import annotations
@@ -39,6 +60,23 @@ from sgloc.maps.graph import SemanticGraph
 
 #: At most this many anchors vote for the shifts (evenly spaced among the inliers' targets).
 MAX_ANCHORS = 32
+
+
+@dataclass
+class LayoutChance:
+    """Outcome of `layout_chance`: per class (arrays of n_classes), the covered query objects
+    (`covered`), those that land under the estimate (`landed`), and the probability `p` that
+    one lands under a copy of the repeating layout; `shifts`: the self-similar shifts measured
+    (both maps); `log10_tail`: log10 P(sum_c Binomial(covered_c, p_c) >= landed.sum()) (0 when
+    nothing is covered); `rate`: the pooled landing fraction of the shifted copies (0 without
+    shifts)."""
+
+    covered: np.ndarray
+    landed: np.ndarray
+    p: np.ndarray
+    shifts: int
+    log10_tail: float
+    rate: float = 0.0
 
 
 @dataclass
@@ -62,6 +100,7 @@ class Repetition:
     estimate_only: int = 0
     log10_p: float = -np.inf
     shifts_tried: int = 0
+    layout: LayoutChance | None = None
 
     @property
     def agreement(self) -> float:
@@ -145,6 +184,88 @@ def _landing(
     return near[np.arange(len(moved)), labels] > 0, around.sum(axis=1) > 0
 
 
+def self_landing(
+    graph: SemanticGraph,
+    idx: np.ndarray,
+    models: tuple[ChanceModel, ChanceModel],
+    shifts: tuple[float, float, int],
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """The objects `idx` of `graph` moved by the graph's own self-similar shifts (anchored on
+    them; shifts = (min, max metres, how many)), per class (n_classes,): how many come to lie
+    next to an object of the graph (`models` = (land, cover) models of the graph: within
+    cover.radius) and how many of those land on one of their class (within land.radius),
+    summed over the shifts: (landed, covered, number of shifts)."""
+    land, cover = models
+    n_classes = land.n_classes
+    zero = np.zeros(n_classes, np.int64)
+    d = self_similar_shifts(graph, idx, land.radius, *shifts)
+    if len(d) == 0:
+        return zero, zero, 0
+    every = (graph.positions[idx][None] + d[:, None, :]).reshape(-1, 3)
+    lab = np.tile(graph.labels[idx], len(d))
+    lands, near = _landing(every, lab, land, cover)
+    return (np.bincount(lab[lands & near], minlength=n_classes)[:n_classes],
+            np.bincount(lab[near], minlength=n_classes)[:n_classes], len(d))  # fmt: skip
+
+
+def log10_binomial_sum_tail(landed: int, n: np.ndarray, p: np.ndarray) -> float:
+    """log10 P(sum_c Binomial(n_c, p_c) >= landed) (n, p: (k,) arrays); 0 for landed <= 0."""
+    if landed <= 0:
+        return 0.0
+    if landed > int(n.sum()):
+        return -np.inf
+    from scipy.stats import binom  # deferred, as in chance: scipy's import is slow
+
+    pmf = np.ones(1)
+    for nc, pc in zip(n.tolist(), p.tolist(), strict=True):
+        if nc > 0:
+            pmf = np.convolve(pmf, binom.pmf(np.arange(nc + 1), nc, min(max(pc, 0.0), 1.0)))
+    tail = float(pmf[landed:].sum())
+    return float(np.log10(tail)) if tail > 0 else -np.inf
+
+
+def layout_chance(
+    query: SemanticGraph,
+    target: SemanticGraph,
+    moved: np.ndarray,
+    hits: tuple[np.ndarray, np.ndarray],
+    models: tuple[ChanceModel, ChanceModel],
+    shifts: tuple[float, float, int],
+) -> LayoutChance:
+    """Check 3 of the module docstring for the query moved by the estimate (`moved` (n,3),
+    target frame). hits = (landed, covered): (n,) bool of `_landing`; models: the target's
+    (land, cover) models; shifts = (min, max metres, how many per map)."""
+    land, cover = models
+    n_classes = land.n_classes
+    landed, covered = hits
+    cov_c = np.bincount(query.labels[covered], minlength=n_classes)[:n_classes]
+    land_c = np.bincount(query.labels[covered & landed], minlength=n_classes)[:n_classes]
+    hit, seen, k = np.zeros(n_classes), np.zeros(n_classes), 0
+    if covered.any():
+        own = (ChanceModel(query, land.radius, n_classes), ChanceModel(query, cover.radius,
+                                                                        n_classes))  # fmt: skip
+        mine = np.flatnonzero(covered)
+        theirs = _near_points(target.positions, moved[mine], cover.radius)
+        for graph, idx, pair in ((query, mine, own), (target, theirs, models)):
+            h, s, n = self_landing(graph, idx, pair, shifts)
+            hit, seen, k = hit + h, seen + s, k + n
+    rate = float(hit.sum() / seen.sum()) if seen.sum() else 0.0
+    p = np.where(seen > 0, hit / np.maximum(seen, 1), rate)
+    tail = log10_binomial_sum_tail(int(land_c.sum()), cov_c, p)
+    return LayoutChance(cov_c, land_c, p, k, tail, rate)
+
+
+def _near_points(pos: np.ndarray, points: np.ndarray, radius: float) -> np.ndarray:
+    """Indices of `pos` (n,3) within `radius` metres of any of `points` (k,3)."""
+    from scipy.spatial import cKDTree  # deferred, as in chance
+
+    box = _within_box(pos, points, radius)
+    if len(box) == 0:
+        return box
+    d, _ = cKDTree(points).query(pos[box], distance_upper_bound=radius)
+    return box[np.isfinite(d)]
+
+
 def check_repetition(
     query: SemanticGraph,
     target: SemanticGraph,
@@ -152,10 +273,13 @@ def check_repetition(
     anchors: np.ndarray,
     radii: tuple[float, float],
     shifts: tuple[float, float, int],
+    layout: int = 0,
 ) -> Repetition:
-    """Both checks of the module docstring for the query moved by the estimate (`moved` (n,3),
+    """The checks of the module docstring for the query moved by the estimate (`moved` (n,3),
     target frame). anchors: target indices the estimate's inliers landed on; radii = (land,
-    cover) metres; shifts = (min_shift, max_shift metres, how many shifts to try; 0: none)."""
+    cover) metres; shifts = (min_shift, max_shift metres, how many shifts to try; 0: none);
+    layout: how many self-similar shifts of each map measure the layout's chance (0: check 3
+    is not run; `Repetition.layout` None)."""
     land_r, cover_r = radii
     n_classes = max(query.n_classes, target.n_classes)
     land = ChanceModel(target, land_r, n_classes)
@@ -165,6 +289,9 @@ def check_repetition(
     landed, covered = _landing(moved, query.labels, land, cover)
     out = Repetition(int((landed & covered).sum()), int(covered.sum()), radii,
                      shifts_tried=len(d))  # fmt: skip
+    if layout > 0:
+        out.layout = layout_chance(query, target, moved, (landed, covered),
+                                   (land, cover), (min_shift, max_shift, layout))  # fmt: skip
     if len(d) == 0 or not covered.any():
         return out
     # only the overlap T claims is compared: the shifted copies of its objects, one search
