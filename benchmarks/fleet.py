@@ -44,7 +44,7 @@ def run_fleet(
         secs = time.perf_counter() - t0
         if config is None and not name.startswith("world") or name == "world0":
             shutil.copy(Path(tmp) / "fleet.png", out / f"fleet_{name}.png")
-    errs = fleet_errors(res.T_world_robot, scene.T_gt_robot, res.root, scene.graphs)
+    errs = fleet_errors(res.T_fleet_robot, scene.T_gt_robot, res.root, scene.graphs)
     wrong = [i for i, (dt, dr) in errs.items() if dt > MAX_M or dr > MAX_DEG]
     oracle = expected_placeable(scene)
     # Robots with a real overlap (oracle) to some other robot: could be placed in principle.

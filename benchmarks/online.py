@@ -340,9 +340,9 @@ def batch_kitti(out: Path) -> dict:
         empty = [(np.zeros((0, 3)), np.zeros(0, np.int64))] * len(scans)
         log = log_from_frames(f"r{i}", scans * 0.1, L[scans], empty, L[a])
         gt = write_tum_exact(out / f"gt_{i}.tum", log.stamps_ns, *fleet_poses(log, L[a]))
-        if i in res.T_world_robot:
+        if i in res.T_fleet_robot:
             est = write_tum_exact(out / f"est_{i}.tum", log.stamps_ns,
-                                  *fleet_poses(log, res.T_world_robot[i]))
+                                  *fleet_poses(log, res.T_fleet_robot[i]))
             pairs.append((est, gt))
     return {"placed": len(res.placed), "n": len(KITTI_FLEET), "ape": fleet_ape(pairs)}
 

@@ -19,7 +19,7 @@ from sgloc.online.posegraph import fleet_frame
 
 
 def _check_placed(res, scene, max_m=3.0, max_deg=3.0):
-    errors = fleet_errors(res.T_world_robot, scene.T_gt_robot, res.root, scene.graphs)
+    errors = fleet_errors(res.T_fleet_robot, scene.T_gt_robot, res.root, scene.graphs)
     for i, (dt, dr) in errors.items():
         assert dt < max_m and dr < max_deg, (i, dt, dr)
     return errors
@@ -95,13 +95,13 @@ def test_local_processes_and_dask_give_the_same_fleet():
     here = localize_fleet(graphs, workers=0)  # in this process
     assert here.placed == local.placed
     for i in local.placed:
-        np.testing.assert_array_equal(here.T_world_robot[i], local.T_world_robot[i])
+        np.testing.assert_array_equal(here.T_fleet_robot[i], local.T_fleet_robot[i])
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=False) as cluster:
         with Client(cluster):
             dask = localize_fleet(graphs, scheduler=cluster.scheduler_address)
     assert local.placed == dask.placed
     for i in local.placed:
-        assert np.allclose(local.T_world_robot[i], dask.T_world_robot[i])
+        assert np.allclose(local.T_fleet_robot[i], dask.T_fleet_robot[i])
 
 
 def test_cli_fleet(tmp_path, capsys):

@@ -26,17 +26,17 @@ def fleet4(tmp_path_factory):
 
 def test_fleet_writes_tum_and_kitti_poses(fleet4):
     scene, res, out = fleet4
-    placed = sorted(res.T_world_robot)
+    placed = sorted(res.T_fleet_robot)
     assert len(placed) >= 2
     stamps, T_tum = read_tum_poses(out / "poses.tum")
     T_kitti = read_kitti_poses(out / "poses.kitti")
     assert stamps.tolist() == [0.0] * len(placed)  # whole maps have no time of their own
     for k, i in enumerate(placed):
-        np.testing.assert_allclose(T_tum[k], res.T_world_robot[i], atol=1e-6)
-        np.testing.assert_allclose(T_kitti[k], res.T_world_robot[i], atol=1e-6)
+        np.testing.assert_allclose(T_tum[k], res.T_fleet_robot[i], atol=1e-6)
+        np.testing.assert_allclose(T_kitti[k], res.T_fleet_robot[i], atol=1e-6)
         np.testing.assert_allclose(
             read_kitti_poses(out / "poses" / f"{scene.graphs[i].name}.kitti")[0],
-            res.T_world_robot[i], atol=1e-6,
+            res.T_fleet_robot[i], atol=1e-6,
         )
     assert (out / "config.yaml").is_file()
 
@@ -46,7 +46,7 @@ def test_links_g2o_parses_back(fleet4):
     vertices, edges = read_g2o(out / "links.g2o")
     assert sorted(vertices) == res.placed
     for i, T in vertices.items():
-        np.testing.assert_allclose(T, res.T_world_robot[i], atol=1e-6)
+        np.testing.assert_allclose(T, res.T_fleet_robot[i], atol=1e-6)
     kept = [lk for lk in res.links if lk.used in ("tree", "loop")]
     assert len(edges) == len(kept) >= len(res.placed) - 1
     for (a, b, T, cov), lk in zip(edges, kept, strict=True):
@@ -82,8 +82,8 @@ def test_root_can_be_chosen(tmp_path):
     graphs = scene.graphs[:3]
     res = localize_fleet(graphs, workers=0, root="world2")
     assert res.names[res.root] == "world2"
-    np.testing.assert_allclose(res.T_world_robot[2], np.eye(4), atol=1e-12)
-    for dt, dr in fleet_errors(res.T_world_robot, scene.T_gt_robot, 2, graphs).values():
+    np.testing.assert_allclose(res.T_fleet_robot[2], np.eye(4), atol=1e-12)
+    for dt, dr in fleet_errors(res.T_fleet_robot, scene.T_gt_robot, 2, graphs).values():
         assert dt < 3.0 and dr < 3.0
     paths = [str(g.save(tmp_path / f"{g.name}.json")) for g in graphs]
     out = tmp_path / "out"

@@ -92,8 +92,8 @@ def _print(res: FleetResult, out: Path) -> None:
     console = Console()
     table = Table("robot", "placed", "x (m)", "y (m)", "yaw (deg)", "note", title="fleet")
     for i, name in enumerate(res.names):
-        if i in res.T_world_robot:
-            T = res.T_world_robot[i]
+        if i in res.T_fleet_robot:
+            T = res.T_fleet_robot[i]
             yaw = np.degrees(np.arctan2(T[1, 0], T[0, 0]))
             note = "root (world frame)" if i == res.root else ""
             table.add_row(name, "yes", f"{T[0, 3]:.2f}", f"{T[1, 3]:.2f}", f"{yaw:.1f}", note)
@@ -112,6 +112,6 @@ def _print(res: FleetResult, out: Path) -> None:
         f"results in {out}/: merged.json, fleet.json, poses.tum, poses.kitti, poses/, "
         "links.g2o, config.yaml, fleet.png"
     )
-    if len(res.T_world_robot) < len(res.names):
-        unplaced = len(res.names) - len(res.T_world_robot)
+    if len(res.T_fleet_robot) < len(res.names):
+        unplaced = len(res.names) - len(res.T_fleet_robot)
         raise not_localized(f"{unplaced} of {len(res.names)} robots could not be placed.")

@@ -95,7 +95,7 @@ def city_fleet(seed: int = 0, overlap: float = 0.5, pieces: int = 3) -> FleetSce
 
 
 def fleet_errors(
-    T_world_robot: dict[int, np.ndarray],
+    T_fleet_robot: dict[int, np.ndarray],
     T_gt_robot: list[np.ndarray],
     root: int,
     graphs: list[SemanticGraph],
@@ -106,7 +106,7 @@ def fleet_errors(
     with the distance of the root's frame origin."""
     G_root = invert(T_gt_robot[root])
     out = {}
-    for i, T in sorted(T_world_robot.items()):
+    for i, T in sorted(T_fleet_robot.items()):
         G = G_root @ T_gt_robot[i]
         c = graphs[i].positions.mean(axis=0)
         dt = float(np.linalg.norm(apply(T, c[None]) - apply(G, c[None])))

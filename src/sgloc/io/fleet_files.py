@@ -16,14 +16,14 @@ SCHEMA = "sgloc.online.fleet/1"
 
 
 def write_fleet_poses(result, folder: str | Path) -> list[Path]:
-    """Each placed robot's pose T_world_robot as TUM and KITTI files (for evo and friends):
+    """Each placed robot's pose T_fleet_robot as TUM and KITTI files (for evo and friends):
     `poses/<robot>.tum` and `poses/<robot>.kitti` (one line each; <robot> = its unique name),
     and `poses.tum` / `poses.kitti` with every placed robot, one line each in robot order. The
     TUM time column is the pose's stamp (`result.stamps`: 0.0 for a whole map, which has no
     time of its own)."""
     d = Path(folder)
-    placed = sorted(result.T_world_robot)
-    T = np.array([result.T_world_robot[i] for i in placed]).reshape(-1, 4, 4)
+    placed = sorted(result.T_fleet_robot)
+    T = np.array([result.T_fleet_robot[i] for i in placed]).reshape(-1, 4, 4)
     stamps = np.array([result.stamps.get(i, 0.0) for i in placed], float)
     files = [write_tum_poses(d / "poses.tum", stamps, T), write_kitti_poses(d / "poses.kitti", T)]
     for k, i in enumerate(placed):
@@ -35,10 +35,10 @@ def write_fleet_poses(result, folder: str | Path) -> list[Path]:
 
 def write_fleet_g2o(result, path: str | Path) -> Path:
     """`links.g2o`: a VERTEX_SE3:QUAT per placed robot (id = its index in `names`, pose
-    T_world_robot) and an EDGE_SE3:QUAT per kept link (T_target_query, its information)."""
+    T_fleet_robot) and an EDGE_SE3:QUAT per kept link (T_target_query, its information)."""
     edges = [(lk.target, lk.query, lk.transform, lk.covariance) for lk in result.links
              if lk.used in ("tree", "loop") and lk.covariance is not None]
-    return write_g2o(path, result.T_world_robot, edges)
+    return write_g2o(path, result.T_fleet_robot, edges)
 
 
 def write_fleet_outputs(result, localizer_config, folder: str | Path) -> list[Path]:

@@ -203,7 +203,7 @@ def plot_fleet(result, graphs: Sequence, path) -> Path:
     fig, ax = plt.subplots(figsize=(7.5, 6), dpi=100)
     n = len(result.placed)
     for k, i in enumerate(result.placed):
-        p = apply(result.T_world_robot[i], graphs[i].positions)
+        p = apply(result.T_fleet_robot[i], graphs[i].positions)
         root = " (world frame)" if i == result.root else ""
         # Hollow markers, smaller for each robot drawn later: where two robots mapped the same
         # objects, both stay visible (one inside the other).

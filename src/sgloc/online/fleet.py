@@ -114,9 +114,10 @@ class PairLink:
 class FleetResult:
     """Robots placed in one frame (the frame of robot `root`).
 
-    names: unique robot names (also the pose files' names). T_world_robot: {robot index: 4x4}
-    for the placed robots (p_world = T @ p_robot). stamps: {robot index: seconds} the time of
-    each robot's pose (0.0 for a whole map: it has no time of its own). unplaced: robot indices
+    names: unique robot names (also the pose files' names). T_fleet_robot: {robot index: 4x4}
+    for the placed robots (p_fleet = T @ p_robot; the fleet frame is robot `root`'s; also
+    readable as `T_world_robot`). stamps: {robot index: seconds} the time of each robot's pose
+    (0.0 for a whole map: it has no time of its own). unplaced: robot indices
     that could not be placed, with `unplaced_reason`. links: every pairwise localization;
     `merged`: the fused map of the placed robots, with `merged_robot` (n,) the robot that first
     contributed each merged object. session: the online session that placed them.
@@ -124,7 +125,7 @@ class FleetResult:
 
     names: list[str]
     root: int | None
-    T_world_robot: dict[int, np.ndarray]
+    T_fleet_robot: dict[int, np.ndarray]
     unplaced: list[int]
     unplaced_reason: dict[int, str]
     links: list[PairLink]
@@ -135,15 +136,20 @@ class FleetResult:
     session: OnlineSession | None = None
 
     @property
+    def T_world_robot(self) -> dict[int, np.ndarray]:
+        """`T_fleet_robot` under its earlier name (kept for earlier code)."""
+        return self.T_fleet_robot
+
+    @property
     def placed(self) -> list[int]:
-        return sorted(self.T_world_robot)
+        return sorted(self.T_fleet_robot)
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "robots": self.names,
             "root": self.root,
             "root_name": None if self.root is None else self.names[self.root],
-            "placed": {self.names[i]: T.tolist() for i, T in sorted(self.T_world_robot.items())},
+            "placed": {self.names[i]: T.tolist() for i, T in sorted(self.T_fleet_robot.items())},
             "unplaced": {self.names[i]: self.unplaced_reason.get(i, "") for i in self.unplaced},
             "links": [
                 {
@@ -309,7 +315,7 @@ def localize_fleet(
     merged, merged_robot, _, _ = merge_graphs(graphs, poses, cfg.fuse_radius)
     reasons = _unplaced_reasons(len(graphs), set(poses), links)
     result = FleetResult(
-        names=names, root=root_i, T_world_robot=poses, unplaced=sorted(reasons),
+        names=names, root=root_i, T_fleet_robot=poses, unplaced=sorted(reasons),
         unplaced_reason=reasons, links=links, merged=merged, merged_robot=merged_robot,
         timings={"pairs": t1 - t0, "frame_and_merge": time.perf_counter() - t1},
         stamps={k: 0.0 for k in poses}, session=s,

@@ -14,7 +14,7 @@ from sgloc.maps.graph import SemanticGraph
 
 def merge_graphs(
     graphs: Sequence[SemanticGraph],
-    T_world_robot: dict[int, np.ndarray],
+    T_fleet_robot: dict[int, np.ndarray],
     fuse_radius: float,
     name: str = "fleet",
 ) -> tuple[SemanticGraph, np.ndarray, np.ndarray, np.ndarray]:
@@ -23,12 +23,12 @@ def merge_graphs(
 
     Returns (merged graph, robot of each merged object (first contributor), all objects' world
     positions (N,3), robot of each of those (N,))."""
-    ids = sorted(T_world_robot)
+    ids = sorted(T_fleet_robot)
     if not ids:
         return SemanticGraph(np.zeros((0, 3)), np.zeros(0, np.int64), name=name), *(
             np.zeros(0, np.int64),
         ) * 3
-    pos = np.concatenate([apply(T_world_robot[i], graphs[i].positions) for i in ids])
+    pos = np.concatenate([apply(T_fleet_robot[i], graphs[i].positions) for i in ids])
     lab = np.concatenate([graphs[i].labels for i in ids])
     rob = np.concatenate([np.full(len(graphs[i]), i) for i in ids])
     radius = graphs[ids[0]].edge_radius
