@@ -144,7 +144,7 @@ def test_summary_is_versioned_and_counts_revocations_from_the_events():
     logs = [make_robot_log(r, [1], [[0, 0, 0]], [[0, 0, 0, 1.0]], [], np.zeros((0, 3)), [])
             for r in ("a", "b")]
     rec = ReplayRecord({"a": np.ones(1), "b": np.ones(1)}, {"a": 1, "b": 3})
-    summary = outputs.summarize(logs, s, rec, {"a": "a", "b": "b"})
+    summary = outputs.replay_summary(logs, s, rec, {"a": "a", "b": "b"})
     assert summary["schema"] == "sgloc.replay/1"
     assert summary["links_revoked"] == summary["events"]["link_revoked"] == 1
     assert summary["links_active"] == 1 and summary["links_inactive"] == 0
