@@ -233,3 +233,25 @@ def test_the_hold_survives_save_and_resume(tmp_path):
     for x in (s, resumed):
         assert _attempt(x, _yaw(0, [0, 0, 0]), 24, 4.0) == []
     np.testing.assert_array_equal(s.T_fleet_robot("a"), resumed.T_fleet_robot("a"))
+
+
+def test_the_joint_refinement_runs_on_the_final_maps_once_every_robot_finished(counted):
+    s, pts, lab = _fleet(0.10)
+    cov = np.eye(6) * 1e-4
+    s.add_link("a", "b", _yaw(0.2, [0.1, 0, 0]), cov)
+    s.add_link("a", "c", _yaw(-0.2, [0, 0.1, 0]), cov)
+    s.add_keyframe("a", 1.0, np.eye(4), pts[20:22], lab[20:22])  # 60 -> 62: not due
+    s.add_link("a", "b", _yaw(0.3, [0.1, 0, 0]), cov)
+    assert counted == [2, 3]
+    s.finish("a")
+    s.finish("b")
+    assert counted == [2, 3]  # c is still running
+    s.finish("c")
+    assert counted == [2, 3, 3]
+    s.finish("c")
+    assert counted == [2, 3, 3]  # nothing changed since
+    s.add_keyframe("b", 2.0, np.eye(4), pts[22:24], lab[22:24])  # b runs again
+    s.finish("a")
+    assert counted == [2, 3, 3]
+    s.finish("b")
+    assert counted == [2, 3, 3, 3]

@@ -17,6 +17,7 @@ from sgloc.online.attempts import run_tasks
 from sgloc.online.config import OnlineConfig
 from sgloc.online.consistency import (
     Edge,
+    LoopMemo,
     invert_with_covariance,
     loop_error,
     loop_tolerance,
@@ -75,6 +76,8 @@ class OnlineSession:
         # pair -> the most matches of a link of it that was revoked: the evidence a link of
         # the pair must beat to come back
         self._revoked: dict[tuple[int, int], int] = {}
+        self._finished: set[str] = set()  # robots whose `finish` came after their last keyframe
+        self._loop_memo = LoopMemo()  # loop verdicts of unchanged links and maps (a cache)
 
     # -- what the session knows ---------------------------------------------------------------
     @property
@@ -170,6 +173,7 @@ class OnlineSession:
             m = RobotMap(robot, o.association_radius, o.min_observations, o.edge_radius)
         m.add(stamp, T, pos, lab)
         self._maps[robot] = m
+        self._finished.discard(robot)
         if self._kf is not None:
             self._kf.graph.add_keyframe(self.robots.index(robot), m.poses[-1])
         if robot == self.root and robot not in self._T:
@@ -205,9 +209,27 @@ class OnlineSession:
         changed at all since the pair's last attempt, and refit its links likewise (no budget,
         no growth threshold), so that what it saw last is not left untried. More keyframes of
         the robot may still follow. stamp: the events' stamp (default: the newest keyframe's).
-        Returns the events."""
+        Once every robot has finished, the joint refinement (`OnlineConfig.refine_fleet`) runs
+        on the final maps if they changed since its last run. Returns the events."""
         r = self._index(robot)
-        return self._run(stamp, None, math.inf, 1, r, scheduler, workers)
+        n_events = len(self.events)
+        self._run(stamp, None, math.inf, 1, r, scheduler, workers)
+        self._finished.add(robot)
+        if self._kf is None and self.online.refine_fleet and len(self._finished) == len(
+                self._maps) and self._joint_stale():
+            self._joint_at = None  # due now
+            self._refresh(check_stamp("the update", stamp) if stamp is not None
+                          else self._now())
+        return self.events[n_events:]
+
+    def _joint_stale(self) -> bool:
+        """Whether the placed robots or their maps changed since the joint refinement's last
+        run."""
+        if self._joint_at is None:
+            return len(self._T) >= 2
+        robots, total = self._joint_at
+        return sorted(self._T) != robots or total != sum(self._maps[r].n_confirmed
+                                                         for r in self._T)
 
     def _run(self, stamp, max_attempts, growth_ratio, growth_objects, robot, scheduler,
              workers) -> list[Event]:
@@ -500,7 +522,7 @@ class OnlineSession:
         frame = fleet_frame(
             len(names), edges, [lk.covariance for lk in links], names.index(root),
             lambda r: self._maps[names[r]].graph().positions,
-            o.loop_translation, o.loop_rotation, o.solver,
+            o.loop_translation, o.loop_rotation, o.solver, self._loop_memo,
         )
         active = set(frame.active)
         T_new = {names[r]: T for r, T in frame.T_fleet_robot.items()}
@@ -638,6 +660,7 @@ class OnlineSession:
                                                              self._joint_at[1]],
             "joint_fixed": sorted(self._joint_fix),
             "revoked": [[i, j, v] for (i, j), v in sorted(self._revoked.items())],
+            "finished": sorted(self._finished),
         }
         arrays = {f"map{k}_{key}": arr for k, r in enumerate(self.robots)
                   for key, arr in self._maps[r].state().items()}
@@ -672,6 +695,7 @@ class OnlineSession:
         s.events = [Event.from_dict(d) for d in meta["events"]]
         s._loop_last = {int(r): int(n) for r, n in meta.get("loop_last", [])}
         s._revoked = {(int(i), int(j)): int(v) for i, j, v in meta.get("revoked", [])}
+        s._finished = set(meta.get("finished", []))
         if meta.get("joint_at") is not None:
             s._joint_at = (list(meta["joint_at"][0]), int(meta["joint_at"][1]))
         s._joint_fix = {r: np.array(arrays[f"joint_fix{s.robots.index(r)}"], np.float64)
