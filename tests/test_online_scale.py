@@ -209,29 +209,37 @@ def _attempt(s, T, matches, stamp):
 
 
 def test_a_revoked_link_comes_back_only_with_more_matches():
+    # New evidence: at least growth_objects (10) more matches than a revoked link of the pair
+    # had, or growth_ratio (10 %) more, whichever is more.
     s, _, _ = _fleet(0.1, maps=2)
     one, other = _yaw(0, [0, 0, 0]), _yaw(20, [30, 0, 0])
     assert _attempt(s, one, 20, 1.0) == ["link_accepted", "robot_joined"]
-    # A later attempt disagrees (more matches): the first link is revoked, the new one taken.
-    assert _attempt(s, other, 25, 2.0) == ["link_revoked", "link_accepted"]
-    # The first answer again, on no more evidence than the revoked one had: the second link
-    # is revoked (it disagrees) but the first answer stays out.
-    assert _attempt(s, one, 22, 3.0) == ["link_revoked"]
+    # A later attempt disagrees: the first link is revoked; with 29 matches (< 20 + 10) the
+    # new answer is held back too, with 30 it is taken.
+    assert _attempt(s, other, 29, 2.0) == ["link_revoked"]
+    assert s.T_fleet_robot("b") is None and "held back" in s.links[0].reason
+    assert _attempt(s, other, 30, 2.5) == ["link_accepted", "robot_joined"]
+    # The first answer again, on too little new evidence: the second link is revoked (it
+    # disagrees) and the first answer stays out until it has 40 matches (30 + 10).
+    assert _attempt(s, one, 35, 3.0) == ["link_revoked"]
     assert not s.links[0].active and "held back" in s.links[0].reason
-    assert s.T_fleet_robot("b") is None
-    assert _attempt(s, one, 25, 4.0) == []  # 25 is the most a revoked link had
-    assert _attempt(s, one, 26, 5.0) == ["link_accepted", "robot_joined"]
+    assert _attempt(s, one, 39, 4.0) == []
+    assert _attempt(s, one, 40, 5.0) == ["link_accepted", "robot_joined"]
     np.testing.assert_allclose(s.T_fleet_robot("b"), one, atol=1e-9)
+    # A bigger revoked link raises the margin to 10 % of its matches.
+    s._revoked[(0, 1)] = 200
+    s.links[0].active = False
+    assert _attempt(s, one, 219, 6.0) == [] and "220 matches" in s.links[0].reason
 
 
 def test_the_hold_survives_save_and_resume(tmp_path):
     s, _, _ = _fleet(0.1, maps=2)
     _attempt(s, _yaw(0, [0, 0, 0]), 20, 1.0)
-    _attempt(s, _yaw(20, [30, 0, 0]), 25, 2.0)
-    _attempt(s, _yaw(0, [0, 0, 0]), 22, 3.0)
+    _attempt(s, _yaw(20, [30, 0, 0]), 30, 2.0)
+    _attempt(s, _yaw(0, [0, 0, 0]), 35, 3.0)
     resumed = OnlineSession.load(s.save(tmp_path / "s.npz"))
     for x in (s, resumed):
-        assert _attempt(x, _yaw(0, [0, 0, 0]), 24, 4.0) == []
+        assert _attempt(x, _yaw(0, [0, 0, 0]), 39, 4.0) == []
     np.testing.assert_array_equal(s.T_fleet_robot("a"), resumed.T_fleet_robot("a"))
 
 

@@ -400,19 +400,25 @@ class OnlineSession:
 
     def _revoke(self, pair: tuple[int, int], lk: Link) -> None:
         """`lk`, the link of `pair`, leaves the consistent set: the pair's links come back only
-        with more matches than it had (hysteresis: no flip-flopping on the same evidence)."""
+        with clearly more matches than it had (hysteresis: no flip-flopping on the same
+        evidence; `_eligible`)."""
         lk.revoked = True
         self._revoked[pair] = max(self._revoked.get(pair, 0), lk.n_matches)
 
     def _eligible(self, pair: tuple[int, int], lk: Link) -> bool:
         """Whether `lk` (of `pair`) may enter the consistent set: it is in it, or no link of
-        the pair was revoked, or it rests on more matches than any revoked one (new
-        evidence). An inactive link held back says so in its reason."""
+        the pair was revoked, or it rests on new evidence: more matches than any revoked one
+        had (m) by growth_objects or growth_ratio * m, whichever is more (the attempts' growth
+        rule). An inactive link held back says so in its reason."""
         bar = self._revoked.get(pair)
-        if lk.active or bar is None or (lk.n_matches > bar and not lk.revoked):
+        if lk.active or bar is None:
             return True
-        lk.reason = (f"revoked; held back until an attempt of this pair has more than {bar} "
-                     f"matches")
+        o = self.online
+        need = bar + max(o.growth_objects, math.ceil(o.growth_ratio * bar))
+        if lk.n_matches >= need and not lk.revoked:
+            return True
+        lk.reason = (f"revoked; held back until an attempt of this pair has {need} matches "
+                     f"(a revoked link of it had {bar})")
         return False
 
     def _refine_due(self, sizes: list[int], budget: int | None, growth_ratio: float,
