@@ -39,14 +39,16 @@ def localize_pair(
 
 def localize_task(task: tuple) -> dict[str, Any]:
     """Worker: `localize_pair` on graphs passed as arrays (so any process or Dask worker can).
-    task = (key, qpos, qlab, qr, tpos, tlab, tr, cfg_dict, seed)."""
+    task = (key, qpos, qlab, qr, tpos, tlab, tr, config, seed); config: a LocalizerConfig (it
+    pickles) or its `to_dict`."""
     from sgloc.pipeline.localizer import Localizer
 
-    key, qpos, qlab, qr, tpos, tlab, tr, cfg_dict, seed = task
+    key, qpos, qlab, qr, tpos, tlab, tr, cfg, seed = task
+    if not isinstance(cfg, LocalizerConfig):
+        cfg = LocalizerConfig.from_dict(cfg)
     q = SemanticGraph(qpos, qlab, qr, name="query")
     t = SemanticGraph(tpos, tlab, tr, name="target")
-    return {"key": key, **localize_pair(Localizer(LocalizerConfig.from_dict(cfg_dict)), q, t,
-                                        seed)}
+    return {"key": key, **localize_pair(Localizer(cfg), q, t, seed)}
 
 
 def run_tasks(

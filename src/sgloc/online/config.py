@@ -104,6 +104,10 @@ class OnlineConfig:
         far better than a link fitted at one meeting point (`sgloc.online.joint`). Robust
         (Huber) and in the localizer's dof (4: yaw and translation); skipped when it would move
         a robot by more than loop_translation / loop_rotation.
+    refine_fleet_growth: the joint refinement reruns when the placed robots' confirmed objects
+        have grown by this fraction since its last run, or a robot of that run is no longer
+        placed; in between, each robot keeps the correction the last run made to its frame
+        (0: after every change of the fleet frame). Bounds its cost as the fleet grows.
     refine_radius: metres, the pairing radius of refine_fleet (None: the localizer's RANSAC
         threshold).
     join_sigmas: None (off) or k: a robot not yet placed joins only once k standard deviations
@@ -139,6 +143,7 @@ class OnlineConfig:
     confirmations: int = setting(1, check=integer(1, MAX_ITERATIONS))
     refine_links: bool = setting(True, check=flag())
     refine_fleet: bool = setting(True, check=flag())
+    refine_fleet_growth: float = setting(0.10, check=real(0.0))
     refine_radius: float | None = setting(
         None, check=real(0.0, MAX_COORDINATE, low_open=True, none_ok=True, unit="m")
     )

@@ -9,7 +9,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sgloc.online.consistency import Edge, select_consistent, spanning_forest, tree_poses
+from sgloc.online.consistency import (
+    Edge,
+    LoopMemo,
+    select_consistent,
+    spanning_forest,
+    tree_poses,
+)
 from sgloc.online.solve import solve_pose_graph
 
 
@@ -34,11 +40,13 @@ def fleet_frame(
     tol_m: float = 3.0,
     tol_deg: float = 3.0,
     solver: str = "auto",
+    memo: LoopMemo | None = None,
 ) -> FleetFrame:
     """Select the consistent links, place the root's connected robots along the
     maximum-confidence spanning tree, then refine by least squares over every consistent link
-    among them (points(robot): that robot's objects, for the loop tolerance in metres)."""
-    active, dropped = select_consistent(n, edges, points, tol_m, tol_deg)
+    among them (points(robot): that robot's objects, for the loop tolerance in metres; memo:
+    loop verdicts kept between calls, `consistency.LoopMemo`)."""
+    active, dropped = select_consistent(n, edges, points, tol_m, tol_deg, memo)
     tree = spanning_forest(n, edges, active)
     initial, paths = tree_poses(n, edges, tree, root)
     inside = [k for k in active if edges[k].a in initial and edges[k].b in initial]

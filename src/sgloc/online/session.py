@@ -16,6 +16,7 @@ from sgloc.online.attempts import run_tasks
 from sgloc.online.config import OnlineConfig
 from sgloc.online.consistency import (
     Edge,
+    LoopMemo,
     invert_with_covariance,
     loop_error,
     loop_tolerance,
@@ -35,7 +36,7 @@ from sgloc.online.records import (
 )
 from sgloc.online.refine import refine_link
 from sgloc.online.robot_map import RobotMap
-from sgloc.online.schedule import due_pairs
+from sgloc.online.schedule import PairSizes, due_pairs
 from sgloc.pipeline.config import LocalizerConfig
 
 
@@ -59,9 +60,9 @@ class OnlineSession:
         self.online = online or OnlineConfig()
         self._root = root
         self._maps: dict[str, RobotMap] = {}
-        self._last: dict[tuple[int, int], tuple[int, int]] = {}
+        self._last = PairSizes()  # pair -> the two maps' sizes at its last attempt
         self._tries: dict[tuple[int, int], int] = {}
-        self._refined: dict[tuple[int, int], tuple[int, int]] = {}
+        self._refined = PairSizes()  # pair -> the two maps' sizes at its last refit
         self._links: dict[tuple[int, int], Link] = {}
         self._T: dict[str, np.ndarray] = {}
         self.attempts: list[Attempt] = []
@@ -69,6 +70,14 @@ class OnlineSession:
         # backend "keyframes": the keyframe pose graph, its links, each robot's last loop try
         self._kf = KeyframeFleet(self.online) if self.online.backend == "keyframes" else None
         self._loop_last: dict[int, int] = {}
+        # the joint refinement's last run: (its robots, their objects) and its corrections
+        self._joint_at: tuple[list[str], int] | None = None
+        self._joint_fix: dict[str, np.ndarray] = {}
+        # pair -> the most matches of a link of it that was revoked: the evidence a link of
+        # the pair must beat to come back
+        self._revoked: dict[tuple[int, int], int] = {}
+        self._finished: set[str] = set()  # robots whose `finish` came after their last keyframe
+        self._loop_memo = LoopMemo()  # loop verdicts of unchanged links and maps (a cache)
 
     # -- what the session knows ---------------------------------------------------------------
     @property
@@ -164,6 +173,7 @@ class OnlineSession:
             m = RobotMap(robot, o.association_radius, o.min_observations, o.edge_radius)
         m.add(stamp, T, pos, lab)
         self._maps[robot] = m
+        self._finished.discard(robot)
         if self._kf is not None:
             self._kf.graph.add_keyframe(self.robots.index(robot), m.poses[-1])
         if robot == self.root and robot not in self._T:
@@ -199,9 +209,27 @@ class OnlineSession:
         changed at all since the pair's last attempt, and refit its links likewise (no budget,
         no growth threshold), so that what it saw last is not left untried. More keyframes of
         the robot may still follow. stamp: the events' stamp (default: the newest keyframe's).
-        Returns the events."""
+        Once every robot has finished, the joint refinement (`OnlineConfig.refine_fleet`) runs
+        on the final maps if they changed since its last run. Returns the events."""
         r = self._index(robot)
-        return self._run(stamp, None, math.inf, 1, r, scheduler, workers)
+        n_events = len(self.events)
+        self._run(stamp, None, math.inf, 1, r, scheduler, workers)
+        self._finished.add(robot)
+        if self._kf is None and self.online.refine_fleet and len(self._finished) == len(
+                self._maps) and self._joint_stale():
+            self._joint_at = None  # due now
+            self._refresh(check_stamp("the update", stamp) if stamp is not None
+                          else self._now())
+        return self.events[n_events:]
+
+    def _joint_stale(self) -> bool:
+        """Whether the placed robots or their maps changed since the joint refinement's last
+        run."""
+        if self._joint_at is None:
+            return len(self._T) >= 2
+        robots, total = self._joint_at
+        return sorted(self._T) != robots or total != sum(self._maps[r].n_confirmed
+                                                         for r in self._T)
 
     def _run(self, stamp, max_attempts, growth_ratio, growth_objects, robot, scheduler,
              workers) -> list[Event]:
@@ -212,8 +240,7 @@ class OnlineSession:
         n_events = len(self.events)
         sizes = [self._maps[r].n_confirmed for r in self.robots]
         o = self.online
-        due = [p for p in due_pairs(sizes, self._last, o.min_objects, growth_ratio,
-                                    growth_objects) if robot is None or robot in p]
+        due = due_pairs(sizes, self._last, o.min_objects, growth_ratio, growth_objects, robot)
         changed = False
         if self._kf is not None:  # also every half submap of travel; loop closures too
             travelled = [self._maps[r].distance for r in self.robots]
@@ -266,7 +293,7 @@ class OnlineSession:
         names = self.robots
         q, t = self._maps[names[j]].graph(), self._maps[names[i]].graph()
         return ((i, j), q.positions, q.labels, q.edge_radius, t.positions, t.labels,
-                t.edge_radius, self.config.to_dict(), self._seed(i, j))
+                t.edge_radius, self.config, self._seed(i, j))
 
     def _due_loops(self, sizes, growth_ratio, growth_objects, robot) -> list[int]:
         """Robots (indices) due for a loop-closure attempt under the growth rule."""
@@ -317,7 +344,7 @@ class OnlineSession:
             a, b = qu.query_graph, qu.target_graph
             key = (min(qu.target, qu.query), max(qu.target, qu.query))
             tasks.append(((qu.target, qu.query), a.positions, a.labels, a.edge_radius,
-                          b.positions, b.labels, b.edge_radius, self.config.to_dict(),
+                          b.positions, b.labels, b.edge_radius, self.config,
                           self._seed(*key)))
             self._tries[key] = self._tries.get(key, 0) + 1
         changed = False
@@ -366,9 +393,33 @@ class OnlineSession:
         if dt <= lim_m and dr <= lim_deg:
             new.active, new.agreed = old.active, old.agreed + 1
         elif old.active:
+            self._revoke((i, j), old)
             self._emit(True, float(stamp), LINK_REVOKED, (names[i], names[j]),
                        f"a later attempt of this pair disagrees with it by {dt:.2f} m / "
                        f"{dr:.2f} deg")
+
+    def _revoke(self, pair: tuple[int, int], lk: Link) -> None:
+        """`lk`, the link of `pair`, leaves the consistent set: the pair's links come back only
+        with clearly more matches than it had (hysteresis: no flip-flopping on the same
+        evidence; `_eligible`)."""
+        lk.revoked = True
+        self._revoked[pair] = max(self._revoked.get(pair, 0), lk.n_matches)
+
+    def _eligible(self, pair: tuple[int, int], lk: Link) -> bool:
+        """Whether `lk` (of `pair`) may enter the consistent set: it is in it, or no link of
+        the pair was revoked, or it rests on new evidence: more matches than any revoked one
+        had (m) by growth_objects or growth_ratio * m, whichever is more (the attempts' growth
+        rule). An inactive link held back says so in its reason."""
+        bar = self._revoked.get(pair)
+        if lk.active or bar is None:
+            return True
+        o = self.online
+        need = bar + max(o.growth_objects, math.ceil(o.growth_ratio * bar))
+        if lk.n_matches >= need and not lk.revoked:
+            return True
+        lk.reason = (f"revoked; held back until an attempt of this pair has {need} matches "
+                     f"(a revoked link of it had {bar})")
+        return False
 
     def _refine_due(self, sizes: list[int], budget: int | None, growth_ratio: float,
                     growth_objects: int, robot: int | None = None) -> bool:
@@ -379,8 +430,7 @@ class OnlineSession:
         if not o.refine_links or not self._links:
             return False
         due = [p for p in due_pairs(sizes, self._refined, o.min_objects, growth_ratio,
-                                    growth_objects)
-               if p in self._links and (robot is None or robot in p)]
+                                    growth_objects, robot) if p in self._links]
         changed = False
         for i, j in due if budget is None else due[:budget]:
             self._refined[(i, j)] = (sizes[i], sizes[j])
@@ -416,7 +466,8 @@ class OnlineSession:
     ) -> list[Event]:
         """Add an inter-robot link found elsewhere (e.g. another place recognizer): T_a_b (4,4)
         maps b's odometry frame into a's, covariance (6,6) as `Link.covariance`. It replaces the
-        pair's current link and goes through the same consistency check. Returns the events."""
+        pair's current link and goes through the same consistency check (as new evidence: a
+        revoked link of the pair does not hold it back). Returns the events."""
         i, j = self._index(robot_a), self._index(robot_b)
         if i == j:
             raise SglocError(f"a link needs two different robots, got {robot_a!r} twice.")
@@ -436,6 +487,7 @@ class OnlineSession:
                                        reason="added link", keyframe_a=ka, keyframe_b=kb))
         else:
             self._store_link(i, j, T, cov, confidence, stamp, 0, "added link")
+            self._revoked.pop((i, j), None)  # an added link is new evidence by itself
         self._refresh(stamp)
         return self.events[n_events:]
 
@@ -447,6 +499,7 @@ class OnlineSession:
         n_events = len(self.events)
         self._root = robot
         self._T = {}
+        self._joint_at, self._joint_fix = None, {}
         if self._kf is not None:
             self._kf.graph.set_root(self._index(robot))
         self._refresh(stamp)
@@ -463,7 +516,8 @@ class OnlineSession:
         for lk in self._links.values():
             if lk.agreed < o.confirmations:
                 lk.reason = f"awaiting confirmation: {lk.agreed} of {o.confirmations} attempts"
-        keys = sorted(k for k, lk in self._links.items() if lk.agreed >= o.confirmations)
+        keys = sorted(k for k, lk in self._links.items()
+                      if lk.agreed >= o.confirmations and self._eligible(k, lk))
         links = [self._links[k] for k in keys]
         edges = [Edge(i, j, lk.T_a_b, lk.confidence, lk.stamp)
                  for (i, j), lk in zip(keys, links, strict=True)]
@@ -474,7 +528,7 @@ class OnlineSession:
         frame = fleet_frame(
             len(names), edges, [lk.covariance for lk in links], names.index(root),
             lambda r: self._maps[names[r]].graph().positions,
-            o.loop_translation, o.loop_rotation, o.solver,
+            o.loop_translation, o.loop_rotation, o.solver, self._loop_memo,
         )
         active = set(frame.active)
         T_new = {names[r]: T for r, T in frame.T_fleet_robot.items()}
@@ -486,6 +540,7 @@ class OnlineSession:
             was, now = lk.active, k in active
             if was and not now:
                 lk.reason = frame.dropped.get(k, "")
+                self._revoke(keys[k], lk)
                 note = f"; no longer placed: {', '.join(lost)}" if lost else ""
                 self._emit(emit, stamp, LINK_REVOKED, (lk.robot_a, lk.robot_b), lk.reason + note)
             elif now and not was:
@@ -550,11 +605,16 @@ class OnlineSession:
 
     def _joint(self, T: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """The placed robots' frames refined together on every object pair their maps
-        co-locate (`OnlineConfig.refine_fleet`); T unchanged when that is off, when it would
-        move a robot by more than the loop tolerance, or with fewer than two robots."""
+        co-locate (`OnlineConfig.refine_fleet`); T unchanged when that is off or with fewer
+        than two robots. The refinement reruns when it is due (`_joint_due`); in between, each
+        robot keeps the correction the last run made to its pose-graph frame (T @ correction,
+        in the robot's odometry frame), and robots placed since have none."""
         o, names = self.online, self.robots
         if not o.refine_fleet or len(T) < 2:
             return T
+        if not self._joint_due(T):
+            return {r: M @ self._joint_fix[r] if r in self._joint_fix else M
+                    for r, M in T.items()}
         frames = {names.index(r): M for r, M in T.items()}
         graphs = {k: self._maps[names[k]].graph() for k in frames}
         objects = {k: (g.positions, g.labels) for k, g in graphs.items()}
@@ -562,9 +622,25 @@ class OnlineSession:
         out, _ = refine_fleet(frames, objects, names.index(self.root), radius,
                               self.config.motion.dof)
         m, deg = largest_shift(frames, out, {k: g.positions for k, g in graphs.items()})
+        self._joint_at = (sorted(T), sum(self._maps[r].n_confirmed for r in T))
         if m > o.loop_translation or deg > o.loop_rotation:
+            self._joint_fix = {}
             return T
-        return {names[k]: M for k, M in out.items()}
+        refined = {names[k]: M for k, M in out.items()}
+        self._joint_fix = {r: invert(T[r]) @ M for r, M in refined.items()}
+        return refined
+
+    def _joint_due(self, T: dict[str, np.ndarray]) -> bool:
+        """The joint refinement is due for the placed robots T: never run, a robot of its last
+        run is no longer placed, or their confirmed objects have grown by
+        `OnlineConfig.refine_fleet_growth` (a fraction) since."""
+        if self._joint_at is None:
+            return True
+        robots, total = self._joint_at
+        if any(r not in T for r in robots):
+            return True
+        now = sum(self._maps[r].n_confirmed for r in T)
+        return now - total >= self.online.refine_fleet_growth * total
 
     def _emit(self, emit: bool, stamp: float, kind: str, robots: tuple, detail: str) -> None:
         if emit:
@@ -586,6 +662,11 @@ class OnlineSession:
             "events": [e.to_dict() for e in self.events],
             "placed": [k for k, r in enumerate(self.robots) if r in self._T],
             "loop_last": sorted([r, n] for r, n in self._loop_last.items()),
+            "joint_at": None if self._joint_at is None else [self._joint_at[0],
+                                                             self._joint_at[1]],
+            "joint_fixed": sorted(self._joint_fix),
+            "revoked": [[i, j, v] for (i, j), v in sorted(self._revoked.items())],
+            "finished": sorted(self._finished),
         }
         arrays = {f"map{k}_{key}": arr for k, r in enumerate(self.robots)
                   for key, arr in self._maps[r].state().items()}
@@ -593,6 +674,8 @@ class OnlineSession:
         # the last solve, and a resumed session must give exactly the saved frames.
         arrays.update({f"frame{k}": self._T[r] for k, r in enumerate(self.robots)
                        if r in self._T})
+        arrays.update({f"joint_fix{k}": self._joint_fix[r] for k, r in enumerate(self.robots)
+                       if r in self._joint_fix})
         if self._kf is not None:
             meta["keyframes"], kf_arrays = self._kf.state()
             arrays.update(kf_arrays)
@@ -610,13 +693,19 @@ class OnlineSession:
             m.set_state({key[len(prefix):]: v for key, v in arrays.items()
                          if key.startswith(prefix)})
             s._maps[r] = m
-        s._last = {(i, j): (a, b) for i, j, a, b in meta["last"]}
+        s._last = PairSizes({(i, j): (a, b) for i, j, a, b in meta["last"]})
         s._tries = {(i, j): v for i, j, v in meta["tries"]}
-        s._refined = {(i, j): (a, b) for i, j, a, b in meta.get("refined", [])}
+        s._refined = PairSizes({(i, j): (a, b) for i, j, a, b in meta.get("refined", [])})
         s._links = {(i, j): Link.from_dict(d) for i, j, d in meta["links"]}
         s.attempts = [Attempt.from_dict(d) for d in meta["attempts"]]
         s.events = [Event.from_dict(d) for d in meta["events"]]
         s._loop_last = {int(r): int(n) for r, n in meta.get("loop_last", [])}
+        s._revoked = {(int(i), int(j)): int(v) for i, j, v in meta.get("revoked", [])}
+        s._finished = set(meta.get("finished", []))
+        if meta.get("joint_at") is not None:
+            s._joint_at = (list(meta["joint_at"][0]), int(meta["joint_at"][1]))
+        s._joint_fix = {r: np.array(arrays[f"joint_fix{s.robots.index(r)}"], np.float64)
+                        for r in meta.get("joint_fixed", [])}
         if s._kf is not None:  # the saved solution as it was (not re-solved)
             s._kf = KeyframeFleet.from_state(o, meta["keyframes"], arrays)
             g = s._kf.graph
