@@ -264,6 +264,25 @@ def flag() -> Check:
     return check_bool
 
 
+def span(low: float, high: float, *, whole: bool = False, unit: str = "") -> Check:
+    """A range `(a, b)` with low <= a <= b <= high, as a tuple of floats (of ints: `whole`)."""
+
+    def check(name: str, value: Any) -> tuple:
+        try:
+            a, b = value
+        except (TypeError, ValueError):
+            raise InvalidSettingError(
+                f"setting {name}={value!r}: must be a range (low, high)."
+            ) from None
+        inner = integer(int(low), int(high)) if whole else real(low, high, unit=unit)
+        a, b = inner(f"{name}[0]", a), inner(f"{name}[1]", b)
+        if a > b:
+            raise InvalidSettingError(f"setting {name}={value!r}: low must not exceed high.")
+        return (a, b)
+
+    return check
+
+
 def class_ids(name: str, value: Any) -> tuple[int, ...]:
     """A sequence of class ids (whole numbers), as a tuple of ints."""
     try:

@@ -13,6 +13,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sgloc.validation import (
+    MAX_COORDINATE,
+    integer,
+    real,
+    setting,
+    span,
+    validate_settings,
+)
+
 #: Class names of the synthetic city; class k is drawn with sgloc.maps.classes.AIRSIM_COLORS[k].
 CITY_CLASSES: tuple[str, ...] = (
     "building",
@@ -32,6 +41,10 @@ CLASS_ID = {name: k for k, name in enumerate(CITY_CLASSES)}
 BOX, CYLINDER = 0, 1
 
 
+#: The check of a (low, high) range of lengths in metres.
+LENGTHS = span(0.0, MAX_COORDINATE, unit="m")
+
+
 @dataclass
 class CityConfig:
     """Layout of the procedural city (all lengths in metres).
@@ -46,27 +59,30 @@ class CityConfig:
     *_probability / *_spacing: densities of the street furniture, per side of a street segment.
     """
 
-    blocks: int = 7
-    pitch: float = 80.0
-    road_half_width: float = 6.0
-    sidewalk: float = 4.5
-    park_probability: float = 0.15
-    tree_row_probability: float = 0.7
-    tree_spacing: tuple[float, float] = (9.0, 14.0)
-    pole_spacing: float = 20.0
-    car_slot: float = 6.5
-    car_occupancy: float = 0.3
-    signs_per_side: tuple[int, int] = (0, 2)
-    fence_probability: float = 0.3
-    bush_probability: float = 0.5
-    bench_probability: float = 0.4
-    bin_probability: float = 0.5
-    bus_stop_probability: float = 0.15
-    traffic_light_probability: float = 0.5
-    building_height: tuple[float, float] = (8.0, 35.0)
-    building_width: tuple[float, float] = (10.0, 20.0)
-    building_gap: tuple[float, float] = (3.0, 8.0)
-    tree_crown_radius: tuple[float, float] = (1.0, 1.4)
+    blocks: int = setting(7, check=integer(1, 1000))
+    pitch: float = setting(80.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+    road_half_width: float = setting(6.0, check=real(0.0, MAX_COORDINATE, unit="m"))
+    sidewalk: float = setting(4.5, check=real(0.0, MAX_COORDINATE, unit="m"))
+    park_probability: float = setting(0.15, check=real(0.0, 1.0))
+    tree_row_probability: float = setting(0.7, check=real(0.0, 1.0))
+    tree_spacing: tuple[float, float] = setting((9.0, 14.0), check=LENGTHS)
+    pole_spacing: float = setting(20.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+    car_slot: float = setting(6.5, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+    car_occupancy: float = setting(0.3, check=real(0.0, 1.0))
+    signs_per_side: tuple[int, int] = setting((0, 2), check=span(0, 1000, whole=True))
+    fence_probability: float = setting(0.3, check=real(0.0, 1.0))
+    bush_probability: float = setting(0.5, check=real(0.0, 1.0))
+    bench_probability: float = setting(0.4, check=real(0.0, 1.0))
+    bin_probability: float = setting(0.5, check=real(0.0, 1.0))
+    bus_stop_probability: float = setting(0.15, check=real(0.0, 1.0))
+    traffic_light_probability: float = setting(0.5, check=real(0.0, 1.0))
+    building_height: tuple[float, float] = setting((8.0, 35.0), check=LENGTHS)
+    building_width: tuple[float, float] = setting((10.0, 20.0), check=LENGTHS)
+    building_gap: tuple[float, float] = setting((3.0, 8.0), check=LENGTHS)
+    tree_crown_radius: tuple[float, float] = setting((1.0, 1.4), check=LENGTHS)
+
+    def __post_init__(self) -> None:
+        validate_settings(self, "CityConfig")
 
     @property
     def street_half_width(self) -> float:

@@ -17,6 +17,7 @@ from scipy.spatial import cKDTree
 from sgloc.geometry import invert
 from sgloc.maps.graph import SemanticGraph
 from sgloc.sim.scene_maps import MapPair, planar_transform, shared_count
+from sgloc.validation import MAX_COORDINATE, real, setting, validate_settings
 
 #: Height of a trunk's mapped centre above the ground (metres): breast height.
 BREAST_HEIGHT = 1.3
@@ -41,18 +42,21 @@ class ForestConfig:
     terrain: amplitude of the rolling ground (its wavelength is 60 m).
     """
 
-    density: float = 0.05
-    clustering: float = 0.0
-    clump_radius: float = 4.0
-    size: float = 400.0
-    noise: float = 0.3
-    miss: float = 0.1
-    spurious: float = 0.05
-    view_radius: float = 15.0
-    drift_deg: float = 3.0
-    drift_rate_deg: float = 0.5
-    start_offset: float = 1.0
-    terrain: float = 2.0
+    density: float = setting(0.05, check=real(0.0, 10.0, low_open=True, unit="stems per m^2"))
+    clustering: float = setting(0.0, check=real(0.0, 1.0))
+    clump_radius: float = setting(4.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+
+    def __post_init__(self) -> None:
+        validate_settings(self, "ForestConfig")
+    size: float = setting(400.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+    noise: float = setting(0.3, check=real(0.0, MAX_COORDINATE, unit="m"))
+    miss: float = setting(0.1, check=real(0.0, 1.0))
+    spurious: float = setting(0.05, check=real(0.0, 100.0))
+    view_radius: float = setting(15.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+    drift_deg: float = setting(3.0, check=real(0.0, 180.0, unit="degrees"))
+    drift_rate_deg: float = setting(0.5, check=real(0.0, 180.0, unit="degrees per 100 m"))
+    start_offset: float = setting(1.0, check=real(0.0, MAX_COORDINATE, unit="m"))
+    terrain: float = setting(2.0, check=real(0.0, MAX_COORDINATE, unit="m"))
 
 
 def make_forest(rng: np.random.Generator, config: ForestConfig = ForestConfig()) -> np.ndarray:

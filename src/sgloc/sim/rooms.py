@@ -17,6 +17,7 @@ import numpy as np
 from sgloc.geometry import random_rigid_transform
 from sgloc.maps.graph import SemanticGraph
 from sgloc.sim.scene_maps import MapPair, shared_count
+from sgloc.validation import MAX_COORDINATE, real, setting, span, validate_settings
 
 #: Class names of the furniture; class k of a room map is FURNITURE_CLASSES[k].
 FURNITURE_CLASSES: tuple[str, ...] = (
@@ -43,14 +44,17 @@ class RoomConfig:
     corridor: width of a floor's corridor; wall: thickness of the walls between rooms.
     """
 
-    objects: tuple[int, int] = (20, 60)
-    width: tuple[float, float] = (8.0, 14.0)
-    depth: tuple[float, float] = (6.0, 10.0)
-    noise: float = 0.05
-    miss: float = 0.1
-    spurious: float = 0.03
-    corridor: float = 2.5
-    wall: float = 0.2
+    objects: tuple[int, int] = setting((20, 60), check=span(1, 100000, whole=True))
+    width: tuple[float, float] = setting((8.0, 14.0), check=span(0.5, MAX_COORDINATE, unit="m"))
+    depth: tuple[float, float] = setting((6.0, 10.0), check=span(0.5, MAX_COORDINATE, unit="m"))
+    noise: float = setting(0.05, check=real(0.0, MAX_COORDINATE, unit="m"))
+    miss: float = setting(0.1, check=real(0.0, 1.0))
+    spurious: float = setting(0.03, check=real(0.0, 100.0))
+    corridor: float = setting(2.5, check=real(0.0, MAX_COORDINATE, unit="m"))
+    wall: float = setting(0.2, check=real(0.0, MAX_COORDINATE, unit="m"))
+
+    def __post_init__(self) -> None:
+        validate_settings(self, "RoomConfig")
 
 
 class _Placer:
