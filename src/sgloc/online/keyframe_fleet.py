@@ -50,10 +50,13 @@ def make_query(maps: list[RobotMap], target: int, query: int, length: float) -> 
 
 def link_of(maps: list[RobotMap], names: list[str], task: Query, result: dict,
             stamp: float) -> Link:
-    """The keyframe link of an accepted attempt: the query robot's latest keyframe and the
-    target keyframe nearest the query submap's centroid moved into the target map (for a loop
-    closure, among the keyframes before the submap's stretch); T and covariance from the
-    localization's T_target_query through the two keyframes' current poses in their maps."""
+    """The keyframe link of an accepted attempt, between the two keyframes nearest the place
+    the attempt aligned (the query submap's centroid): the query keyframe of the submap's
+    stretch nearest it, and the target keyframe nearest it moved into the target map (for a
+    loop closure, among the keyframes before the submap's stretch). Both ends lie where the
+    two maps overlap, so the link does not carry the query's drift along the rest of its
+    submap. T and covariance from the localization's T_target_query through the two
+    keyframes' current poses in their maps."""
     qm, tm = maps[task.query], maps[task.target]
     T = np.asarray(result["transform"], np.float64)
     c = task.query_graph.positions.mean(axis=0)
@@ -62,7 +65,8 @@ def link_of(maps: list[RobotMap], names: list[str], task: Query, result: dict,
     if task.target == task.query:
         anchors_t = anchors_t[:max(task.first, 1)]
     ka = int(np.argmin(np.linalg.norm(anchors_t[:, :3, 3] - c_t, axis=1)))
-    kb = qm.keyframes - 1
+    anchors_q = qm.anchors()[task.first:]
+    kb = task.first + int(np.argmin(np.linalg.norm(anchors_q[:, :3, 3] - c, axis=1)))
     T_kk, cov = keyframe_link(tm.anchors()[ka], T, result["covariance"], qm.anchors()[kb])
     return Link(names[task.target], names[task.query], T_kk, cov, float(result["confidence"]),
                 float(stamp), active=False, n_matches=int(result["n_matches"]),
@@ -80,12 +84,15 @@ class KeyframeFleet:
         # (i, j) robot indices (i <= j; i == j: loop closures) -> metres each had travelled
         # at the pair's last attempt
         self.travel_last: dict[tuple[int, int], tuple[float, float]] = {}
+        # (target, query) -> metres the query had travelled at its last attempt in that target
+        self.query_last: dict[tuple[int, int], float] = {}
 
     def due_by_travel(self, travelled: list[float], sizes: list[int], min_objects: int,
                       robot: int | None) -> list[tuple[int, int]]:
         """Pairs (i, j), i <= j (i == j: a loop closure; only with `loop_closures`), both maps
         with >= min_objects, of which a robot travelled half a submap (submap_length / 2)
-        since the pair's last attempt; those never attempted first, then most travelled."""
+        since its last try as the pair's query; those never attempted first, then most
+        travelled."""
         step = self.online.submap_length / 2
         scored = []
         for j in range(len(sizes)):
@@ -94,12 +101,62 @@ class KeyframeFleet:
                     continue
                 if i == j and not self.online.loop_closures:
                     continue
-                prev = self.travel_last.get((i, j), (0.0, 0.0))
-                moved = max(travelled[i] - prev[0], travelled[j] - prev[1])
+                moved = max(travelled[q] - self.query_last.get((t, q), 0.0)
+                            for t, q in ((i, j), (j, i)))
                 if moved >= step:
                     scored.append(((i, j) not in self.travel_last, moved, i, j))
         scored.sort(key=lambda x: (not x[0], -x[1], x[2], x[3]))
         return [(i, j) for _, _, i, j in scored]
+
+    def directions(self, pairs: list[tuple[int, int]], travelled: list[float],
+                   finishing: int | None = None) -> list[tuple[int, int]]:
+        """(target, query) attempts for the due `pairs` (i, j): each robot of a pair whose
+        recent submap has not been tried in the other's map since it travelled half a submap
+        (or never) is a query, so that where one robot now is a place the other passed long
+        ago, the meeting is tried from the side that holds it as its recent stretch; when
+        neither is (the pair is due by map growth), the robot that travelled more since the
+        pair's last attempt. A `finishing` robot (`OnlineSession.finish`) is a query whenever
+        it travelled at all since its last try in the other's map: what it saw last is tried.
+        A loop closure (i, i) is (i, i)."""
+        step = self.online.submap_length / 2
+        out = []
+        for i, j in pairs:
+            if i == j:
+                out.append((i, i))
+                continue
+            both = [(t, q) for t, q in ((i, j), (j, i))
+                    if (moved := travelled[q] - self.query_last.get((t, q), -np.inf)) >= step
+                    or (q == finishing and moved > 0)]
+            if not both:
+                prev = self.travel_last.get((i, j), (0.0, 0.0))
+                moved_i, moved_j = travelled[i] - prev[0], travelled[j] - prev[1]
+                both = [(i, j) if moved_j >= moved_i else (j, i)]
+            out += both
+        return out
+
+    def ordered(self, attempts: list[tuple[int, int]], travelled: list[float],
+                group: np.ndarray) -> list[tuple[int, int]]:
+        """(target, query) `attempts` in the order the budget takes them: those that would
+        join two separate groups (`group`: a label per robot) first, then one side of every
+        pair before the other side of any, then the never tried, then the queries that
+        travelled most since their last try (ties: as given)."""
+        moved = [travelled[q] - self.query_last.get((t, q), -np.inf) for t, q in attempts]
+        side: dict[tuple[int, int], int] = {}
+        rank = [0] * len(attempts)
+        for k in sorted(range(len(attempts)), key=lambda k: (-moved[k], k)):
+            t, q = attempts[k]
+            key = (min(t, q), max(t, q))
+            rank[k] = side.get(key, 0)
+            side[key] = rank[k] + 1
+        keys = sorted(range(len(attempts)), key=lambda k: (
+            bool(group[attempts[k][0]] == group[attempts[k][1]]), rank[k], -moved[k], k))
+        return [attempts[k] for k in keys]
+
+    def tried(self, target: int, query: int, travelled: list[float]) -> None:
+        """Note an attempt of `query`'s recent submap in `target`'s map (travel so far)."""
+        i, j = min(target, query), max(target, query)
+        self.travel_last[(i, j)] = (travelled[i], travelled[j])
+        self.query_last[(target, query)] = travelled[query]
 
     def select(self, maps: list[RobotMap], names: list[str]) -> tuple[list[int], dict]:
         """The link ids the evidence supports now, and why the others are not taken."""
@@ -153,6 +210,7 @@ class KeyframeFleet:
         meta["links"] = [lk.to_dict() for lk in self.links]
         meta["fid"] = sorted([lid, f] for lid, f in self.fid.items())
         meta["travel_last"] = [[i, j, a, b] for (i, j), (a, b) in sorted(self.travel_last.items())]
+        meta["query_last"] = [[t, q, d] for (t, q), d in sorted(self.query_last.items())]
         return meta, arrays
 
     @classmethod
@@ -164,4 +222,5 @@ class KeyframeFleet:
         f.fid = {int(lid): int(fid) for lid, fid in meta["fid"]}
         f.travel_last = {(int(i), int(j)): (float(a), float(b))
                          for i, j, a, b in meta.get("travel_last", [])}
+        f.query_last = {(int(t), int(q)): float(d) for t, q, d in meta.get("query_last", [])}
         return f
