@@ -101,8 +101,7 @@ class KeyframeFleet:
                     continue
                 if i == j and not self.online.loop_closures:
                     continue
-                moved = max(travelled[q] - self.query_last.get((t, q), 0.0)
-                            for t, q in ((i, j), (j, i)))
+                moved = max(self.moved(t, q, travelled, 0.0) for t, q in ((i, j), (j, i)))
                 if moved >= step:
                     scored.append(((i, j) not in self.travel_last, moved, i, j))
         scored.sort(key=lambda x: (not x[0], -x[1], x[2], x[3]))
@@ -125,7 +124,7 @@ class KeyframeFleet:
                 out.append((i, i))
                 continue
             both = [(t, q) for t, q in ((i, j), (j, i))
-                    if (moved := travelled[q] - self.query_last.get((t, q), -np.inf)) >= step
+                    if (moved := self.moved(t, q, travelled)) >= step
                     or (q == finishing and moved > 0)]
             if not both:
                 prev = self.travel_last.get((i, j), (0.0, 0.0))
@@ -138,19 +137,30 @@ class KeyframeFleet:
                 group: np.ndarray) -> list[tuple[int, int]]:
         """(target, query) `attempts` in the order the budget takes them: those that would
         join two separate groups (`group`: a label per robot) first, then one side of every
-        pair before the other side of any, then the never tried, then the queries that
-        travelled most since their last try (ties: as given)."""
-        moved = [travelled[q] - self.query_last.get((t, q), -np.inf) for t, q in attempts]
-        side: dict[tuple[int, int], int] = {}
-        rank = [0] * len(attempts)
-        for k in sorted(range(len(attempts)), key=lambda k: (-moved[k], k)):
-            t, q = attempts[k]
-            key = (min(t, q), max(t, q))
-            rank[k] = side.get(key, 0)
-            side[key] = rank[k] + 1
+        pair before the other side of any (first the side whose query travelled more since
+        the pair's last attempt; ties: the higher robot index as query), then the pairs never
+        tried, then those whose robots travelled most since the pair's last attempt."""
+        def since(t: int, q: int) -> float:
+            prev = self.travel_last.get((min(t, q), max(t, q)))
+            return np.inf if prev is None else travelled[q] - prev[0 if q == min(t, q) else 1]
+
+        rank = [sorted(((t, q), (q, t)), key=lambda d: (-since(*d), -d[1])).index((t, q))
+                for t, q in attempts]
         keys = sorted(range(len(attempts)), key=lambda k: (
-            bool(group[attempts[k][0]] == group[attempts[k][1]]), rank[k], -moved[k], k))
+            bool(group[attempts[k][0]] == group[attempts[k][1]]), rank[k],
+            -max(since(*attempts[k]), since(*attempts[k][::-1])), k))
         return [attempts[k] for k in keys]
+
+    def moved(self, target: int, query: int, travelled: list[float],
+              never: float = np.inf) -> float:
+        """Metres `query` travelled since its last try in `target`'s map (since the pair's
+        last attempt when it was never the query; `never` when the pair was never tried)."""
+        if (target, query) in self.query_last:
+            return travelled[query] - self.query_last[(target, query)]
+        i, j = min(target, query), max(target, query)
+        if (i, j) not in self.travel_last:
+            return travelled[query] - never if np.isfinite(never) else never
+        return travelled[query] - self.travel_last[(i, j)][0 if query == i else 1]
 
     def tried(self, target: int, query: int, travelled: list[float]) -> None:
         """Note an attempt of `query`'s recent submap in `target`'s map (travel so far)."""
