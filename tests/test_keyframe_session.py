@@ -258,3 +258,18 @@ def test_a_meeting_at_the_end_of_one_robot_and_the_start_of_another_is_linked(fi
     i, j = np.nonzero(np.linalg.norm(ta[:, None, :3, 3] - tb[None, :, :3, 3], axis=2) < 20)
     err = np.linalg.norm((Xb[j, :3, 3] - Xa[i, :3, 3]) - (tb[j, :3, 3] - ta[i, :3, 3]), axis=1)
     assert len(err) and err.max() < 1.0
+
+
+def test_keyframe_links_are_refitted_on_the_co_located_objects(out_and_back):
+    frames, _ = out_and_back
+    pairs = {}
+    for refine in (True, False):
+        s = OnlineSession(online=OnlineConfig(backend="keyframes", min_observations=1,
+                                              growth_objects=3, refine_links=refine))
+        for stamp, T, p, lab in frames:
+            s.add_keyframe("a", stamp, T, p, lab)
+        assert s.links
+        pairs[refine] = [(lk.refined_pairs, lk.n_matches) for lk in s.links]
+    assert all(n == 0 for n, _ in pairs[False])
+    refitted = [(n, m) for n, m in pairs[True] if n]
+    assert refitted and all(n >= m for n, m in refitted)

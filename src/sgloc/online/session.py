@@ -21,7 +21,7 @@ from sgloc.online.consistency import (
     loop_tolerance,
 )
 from sgloc.online.joint import largest_shift, refine_fleet
-from sgloc.online.keyframe_fleet import KeyframeFleet, link_of, make_query
+from sgloc.online.keyframe_fleet import KeyframeFleet, make_query
 from sgloc.online.keyframe_graph import keyframe_link
 from sgloc.online.posegraph import fleet_frame
 from sgloc.online.precision import chain_covariance, predicted_error
@@ -323,7 +323,9 @@ class OnlineSession:
                 (len(qu.query_graph.positions), len(qu.target_graph.positions)),
             ))
             if r["accepted"]:
-                self._kf.links.append(link_of(maps, names, qu, r, stamp))
+                self._kf.links.append(self._kf.link(maps, names, qu, r, stamp,
+                                                    self.config.motion,
+                                                    self.config.ransac.threshold))
                 changed = True
         return changed
 
