@@ -229,3 +229,47 @@ def test_an_added_link_places_a_robot_and_set_root_moves_the_fleet_frame():
     s.set_root("b")
     np.testing.assert_allclose(s.T_fleet_robot("a"), np.linalg.inv(T_ab), atol=1e-9)
     np.testing.assert_allclose(s.T_fleet_robot("b"), np.eye(4), atol=1e-9)
+
+
+@pytest.mark.parametrize("first", ["a", "b"])
+def test_a_meeting_at_the_end_of_one_robot_and_the_start_of_another_is_linked(first):
+    # One drive along the street cut in two: robot b starts where robot a stops, both driving
+    # at once, their keyframes arriving in either order. The place they share is a's latest
+    # stretch but b's oldest: only a's recent submap in b's map finds it, so a pair must be
+    # tried from both sides, whichever robot happened to travel more since its last attempt.
+    frames, truth = _drive(5, (0.0, 400.0), 0.005, view=50.0)
+    half = len(frames) // 2  # a: keyframes 0..half, b: half..end (as many)
+    a, b = frames[:half + 1], frames[half:]
+    T0 = lie.between(b[0][1], np.eye(4))
+    b = [(s - b[0][0], T0 @ T, p, lab) for s, T, p, lab in b]  # b's own odometry frame
+    s = OnlineSession(online=OnlineConfig(backend="keyframes", min_observations=1,
+                                          growth_ratio=10.0, growth_objects=1000))
+    for fa, fb in zip(a, b, strict=True):
+        for name, f in sorted((("a", fa), ("b", fb)), key=lambda x: x[0] != first):
+            s.add_keyframe(name, *f)
+    # found while a still drives through the shared stretch, not only at its last keyframe
+    met = [lk.stamp for lk in s.links if lk.active and {lk.robot_a, lk.robot_b} == {"a", "b"}]
+    assert met and min(met) <= half - 5
+    s.finish("a")
+    s.finish("b")
+    Xa, Xb = s.trajectory("a")[1], s.trajectory("b")[1]
+    assert Xb is not None and s.T_fleet_robot("b") is not None
+    ta, tb = truth[:half + 1], truth[half:]
+    i, j = np.nonzero(np.linalg.norm(ta[:, None, :3, 3] - tb[None, :, :3, 3], axis=2) < 20)
+    err = np.linalg.norm((Xb[j, :3, 3] - Xa[i, :3, 3]) - (tb[j, :3, 3] - ta[i, :3, 3]), axis=1)
+    assert len(err) and err.max() < 1.0
+
+
+def test_keyframe_links_are_refitted_on_the_co_located_objects(out_and_back):
+    frames, _ = out_and_back
+    pairs = {}
+    for refine in (True, False):
+        s = OnlineSession(online=OnlineConfig(backend="keyframes", min_observations=1,
+                                              growth_objects=3, refine_links=refine))
+        for stamp, T, p, lab in frames:
+            s.add_keyframe("a", stamp, T, p, lab)
+        assert s.links
+        pairs[refine] = [(lk.refined_pairs, lk.n_matches) for lk in s.links]
+    assert all(n == 0 for n, _ in pairs[False])
+    refitted = [(n, m) for n, m in pairs[True] if n]
+    assert refitted and all(n >= m for n, m in refitted)

@@ -96,7 +96,8 @@ class OnlineConfig:
         is accepted and whenever one of its maps has grown by growth_ratio / growth_objects
         since; the refit replaces the link when it rests on more pairs than the link's matches
         and agrees with it within the loop tolerance (a loop of 2). At most max_attempts
-        refits per update (None: all; 0: in `run_pending` only).
+        refits per update (None: all; 0: in `run_pending` only). Backend "keyframes": an
+        accepted attempt is refitted once, on the query submap and the target map.
     refine_fleet: after the pose graph, refine the placed robots' frames together on every
         object pair their maps co-locate in the fleet frame (mutual nearest same-class
         neighbours within refine_radius), linked robots or not: where a

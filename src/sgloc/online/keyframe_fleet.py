@@ -12,11 +12,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from sgloc import lie
+from sgloc.estimation import MotionModel
 from sgloc.maps.graph import SemanticGraph
 from sgloc.online.config import OnlineConfig
+from sgloc.online.consistency import loop_error, loop_tolerance
 from sgloc.online.keyframe_graph import KeyframeGraph, keyframe_link
 from sgloc.online.keyframe_links import select_links
 from sgloc.online.records import Link
+from sgloc.online.refine import refine_link
 from sgloc.online.robot_map import RobotMap
 
 
@@ -48,24 +51,50 @@ def make_query(maps: list[RobotMap], target: int, query: int, length: float) -> 
     return Query(target, query, first, q.subgraph(recent), tgt)
 
 
-def link_of(maps: list[RobotMap], names: list[str], task: Query, result: dict,
-            stamp: float) -> Link:
-    """The keyframe link of an accepted attempt: the query robot's latest keyframe and the
-    target keyframe nearest the query submap's centroid moved into the target map (for a loop
-    closure, among the keyframes before the submap's stretch); T and covariance from the
-    localization's T_target_query through the two keyframes' current poses in their maps."""
-    qm, tm = maps[task.query], maps[task.target]
+def refit(task: Query, result: dict, motion: MotionModel, radius: float, tol_m: float,
+          tol_deg: float) -> tuple[np.ndarray, np.ndarray, int] | None:
+    """The accepted attempt's T_target_query refitted on every object pair it co-locates
+    between the query submap and the target map (`refine.refine_link`), with the covariance
+    of that fit: (T, covariance, pairs), or None when the refit rests on fewer pairs than the
+    attempt's matches or moves the query submap by more than the loop tolerance (as a loop
+    of 2) from the attempt's alignment."""
+    q, t = task.query_graph, task.target_graph
     T = np.asarray(result["transform"], np.float64)
+    r = refine_link(q.positions, q.labels, t.positions, t.labels, T, motion, radius)
+    if r is None or r.n_pairs < int(result["n_matches"]):
+        return None
+    dt, dr = loop_error(lie.between(T, r.T_a_b), q.positions)
+    lim_m, lim_deg = loop_tolerance(tol_m, tol_deg, 2)
+    return None if dt > lim_m or dr > lim_deg else (r.T_a_b, r.covariance, r.n_pairs)
+
+
+def link_of(maps: list[RobotMap], names: list[str], task: Query, result: dict,
+            stamp: float, refitted: tuple | None = None) -> Link:
+    """The keyframe link of an accepted attempt, between the two keyframes nearest the place
+    the attempt aligned (the query submap's centroid): the query keyframe of the submap's
+    stretch nearest it, and the target keyframe nearest it moved into the target map (for a
+    loop closure, among the keyframes before the submap's stretch). Both ends lie where the
+    two maps overlap, so the link does not carry the query's drift along the rest of its
+    submap. T and covariance from the localization's T_target_query (T: `refitted`'s when
+    given, the (T, covariance, pairs) of `refit`) through the two keyframes' current poses in
+    their maps. The localizer's covariance is kept: calibrated on real data, it holds the
+    offset two maps share, which more pairs do not remove."""
+    qm, tm = maps[task.query], maps[task.target]
+    T, C = np.asarray(result["transform"], np.float64), result["covariance"]
+    if refitted is not None:
+        T = refitted[0]
     c = task.query_graph.positions.mean(axis=0)
     c_t = T[:3, :3] @ c + T[:3, 3]
     anchors_t = tm.anchors()
     if task.target == task.query:
         anchors_t = anchors_t[:max(task.first, 1)]
     ka = int(np.argmin(np.linalg.norm(anchors_t[:, :3, 3] - c_t, axis=1)))
-    kb = qm.keyframes - 1
-    T_kk, cov = keyframe_link(tm.anchors()[ka], T, result["covariance"], qm.anchors()[kb])
+    anchors_q = qm.anchors()[task.first:]
+    kb = task.first + int(np.argmin(np.linalg.norm(anchors_q[:, :3, 3] - c, axis=1)))
+    T_kk, cov = keyframe_link(tm.anchors()[ka], T, C, qm.anchors()[kb])
     return Link(names[task.target], names[task.query], T_kk, cov, float(result["confidence"]),
                 float(stamp), active=False, n_matches=int(result["n_matches"]),
+                refined_pairs=0 if refitted is None else int(refitted[2]),
                 keyframe_a=ka, keyframe_b=kb)
 
 
@@ -80,12 +109,25 @@ class KeyframeFleet:
         # (i, j) robot indices (i <= j; i == j: loop closures) -> metres each had travelled
         # at the pair's last attempt
         self.travel_last: dict[tuple[int, int], tuple[float, float]] = {}
+        # (target, query) -> metres the query had travelled at its last attempt in that target
+        self.query_last: dict[tuple[int, int], float] = {}
+
+    def link(self, maps: list[RobotMap], names: list[str], task: Query, result: dict,
+             stamp: float, motion: MotionModel, radius: float) -> Link:
+        """The keyframe link of an accepted attempt (`link_of`), its alignment refitted on
+        the co-located objects (`refit`) when `OnlineConfig.refine_links` is on; motion: the
+        localizer's motion model, radius: the pairing radius (metres)."""
+        o = self.online
+        r = (refit(task, result, motion, radius, o.loop_translation, o.loop_rotation)
+             if o.refine_links else None)
+        return link_of(maps, names, task, result, stamp, r)
 
     def due_by_travel(self, travelled: list[float], sizes: list[int], min_objects: int,
                       robot: int | None) -> list[tuple[int, int]]:
         """Pairs (i, j), i <= j (i == j: a loop closure; only with `loop_closures`), both maps
         with >= min_objects, of which a robot travelled half a submap (submap_length / 2)
-        since the pair's last attempt; those never attempted first, then most travelled."""
+        since its last try as the pair's query; those never attempted first, then most
+        travelled."""
         step = self.online.submap_length / 2
         scored = []
         for j in range(len(sizes)):
@@ -94,12 +136,72 @@ class KeyframeFleet:
                     continue
                 if i == j and not self.online.loop_closures:
                     continue
-                prev = self.travel_last.get((i, j), (0.0, 0.0))
-                moved = max(travelled[i] - prev[0], travelled[j] - prev[1])
+                moved = max(self.moved(t, q, travelled, 0.0) for t, q in ((i, j), (j, i)))
                 if moved >= step:
                     scored.append(((i, j) not in self.travel_last, moved, i, j))
         scored.sort(key=lambda x: (not x[0], -x[1], x[2], x[3]))
         return [(i, j) for _, _, i, j in scored]
+
+    def directions(self, pairs: list[tuple[int, int]], travelled: list[float],
+                   finishing: int | None = None) -> list[tuple[int, int]]:
+        """(target, query) attempts for the due `pairs` (i, j): each robot of a pair whose
+        recent submap has not been tried in the other's map since it travelled half a submap
+        (or never) is a query, so that where one robot now is a place the other passed long
+        ago, the meeting is tried from the side that holds it as its recent stretch; when
+        neither is (the pair is due by map growth), the robot that travelled more since the
+        pair's last attempt. A `finishing` robot (`OnlineSession.finish`) is a query whenever
+        it travelled at all since its last try in the other's map: what it saw last is tried.
+        A loop closure (i, i) is (i, i)."""
+        step = self.online.submap_length / 2
+        out = []
+        for i, j in pairs:
+            if i == j:
+                out.append((i, i))
+                continue
+            both = [(t, q) for t, q in ((i, j), (j, i))
+                    if (moved := self.moved(t, q, travelled)) >= step
+                    or (q == finishing and moved > 0)]
+            if not both:
+                prev = self.travel_last.get((i, j), (0.0, 0.0))
+                moved_i, moved_j = travelled[i] - prev[0], travelled[j] - prev[1]
+                both = [(i, j) if moved_j >= moved_i else (j, i)]
+            out += both
+        return out
+
+    def ordered(self, attempts: list[tuple[int, int]], travelled: list[float],
+                group: np.ndarray) -> list[tuple[int, int]]:
+        """(target, query) `attempts` in the order the budget takes them: those that would
+        join two separate groups (`group`: a label per robot) first, then one side of every
+        pair before the other side of any (first the side whose query travelled more since
+        the pair's last attempt; ties: the higher robot index as query), then the pairs never
+        tried, then those whose robots travelled most since the pair's last attempt."""
+        def since(t: int, q: int) -> float:
+            prev = self.travel_last.get((min(t, q), max(t, q)))
+            return np.inf if prev is None else travelled[q] - prev[0 if q == min(t, q) else 1]
+
+        rank = [sorted(((t, q), (q, t)), key=lambda d: (-since(*d), -d[1])).index((t, q))
+                for t, q in attempts]
+        keys = sorted(range(len(attempts)), key=lambda k: (
+            bool(group[attempts[k][0]] == group[attempts[k][1]]), rank[k],
+            -max(since(*attempts[k]), since(*attempts[k][::-1])), k))
+        return [attempts[k] for k in keys]
+
+    def moved(self, target: int, query: int, travelled: list[float],
+              never: float = np.inf) -> float:
+        """Metres `query` travelled since its last try in `target`'s map (since the pair's
+        last attempt when it was never the query; `never` when the pair was never tried)."""
+        if (target, query) in self.query_last:
+            return travelled[query] - self.query_last[(target, query)]
+        i, j = min(target, query), max(target, query)
+        if (i, j) not in self.travel_last:
+            return travelled[query] - never if np.isfinite(never) else never
+        return travelled[query] - self.travel_last[(i, j)][0 if query == i else 1]
+
+    def tried(self, target: int, query: int, travelled: list[float]) -> None:
+        """Note an attempt of `query`'s recent submap in `target`'s map (travel so far)."""
+        i, j = min(target, query), max(target, query)
+        self.travel_last[(i, j)] = (travelled[i], travelled[j])
+        self.query_last[(target, query)] = travelled[query]
 
     def select(self, maps: list[RobotMap], names: list[str]) -> tuple[list[int], dict]:
         """The link ids the evidence supports now, and why the others are not taken."""
@@ -153,6 +255,7 @@ class KeyframeFleet:
         meta["links"] = [lk.to_dict() for lk in self.links]
         meta["fid"] = sorted([lid, f] for lid, f in self.fid.items())
         meta["travel_last"] = [[i, j, a, b] for (i, j), (a, b) in sorted(self.travel_last.items())]
+        meta["query_last"] = [[t, q, d] for (t, q), d in sorted(self.query_last.items())]
         return meta, arrays
 
     @classmethod
@@ -164,4 +267,5 @@ class KeyframeFleet:
         f.fid = {int(lid): int(fid) for lid, fid in meta["fid"]}
         f.travel_last = {(int(i), int(j)): (float(a), float(b))
                          for i, j, a, b in meta.get("travel_last", [])}
+        f.query_last = {(int(t), int(q)): float(d) for t, q, d in meta.get("query_last", [])}
         return f

@@ -22,7 +22,7 @@ from sgloc.online.consistency import (
     loop_tolerance,
 )
 from sgloc.online.joint import largest_shift, refine_fleet
-from sgloc.online.keyframe_fleet import KeyframeFleet, link_of, make_query
+from sgloc.online.keyframe_fleet import KeyframeFleet, make_query
 from sgloc.online.keyframe_graph import keyframe_link
 from sgloc.online.posegraph import fleet_frame
 from sgloc.online.precision import chain_covariance, predicted_error
@@ -254,7 +254,7 @@ class OnlineSession:
             due = due if max_attempts is None else due[:max_attempts]
         if self._kf is not None:
             changed = self._kf_attempts(due, loops, sizes, travelled, stamp, max_attempts,
-                                        scheduler, workers)
+                                        scheduler, workers, robot)
         elif due:
             # Each attempt on graphs rebuilt from arrays, wherever it runs: the localizer's
             # caches on a reused graph shift results by ~1e-13 with their history, and a
@@ -310,27 +310,22 @@ class OnlineSession:
         return out
 
     def _kf_attempts(self, due, loops, sizes, travelled, stamp, budget, scheduler,
-                     workers) -> bool:
-        """Backend "keyframes": attempt the due pairs (the robot that travelled more since the
-        pair's last attempt is the query: its recent submap in the other's map) and loop
-        closures, at most `budget` in all: pairs that would join two separate groups first,
-        then never attempted, then most travelled since the last attempt; keep the accepted
-        ones as keyframe links."""
+                     workers, finishing: int | None = None) -> bool:
+        """Backend "keyframes": attempt the due pairs (each robot of a pair that travelled
+        half a submap since its last try is a query, its recent submap in the other's map:
+        `KeyframeFleet.directions`; a `finishing` robot's last stretch in every other map)
+        and loop closures, at most `budget` in all, in `KeyframeFleet.ordered`'s order; keep
+        the accepted ones as keyframe links."""
         o, names = self.online, self.robots
         maps = [self._maps[r] for r in names]
         group = self._groups()
-        scored = []
-        for i, j in [*due, *((r, r) for r in loops)]:
-            prev = self._kf.travel_last.get((i, j))
-            d = (np.inf, np.inf) if prev is None else (travelled[i] - prev[0],
-                                                       travelled[j] - prev[1])
-            pair = (j, i) if d[0] > d[1] else (i, j)  # (target, query)
-            scored.append((bool(group[i] == group[j]), -max(d), len(scored), pair))
-        pairs = [p for *_, p in sorted(scored)]
+        pairs = self._kf.ordered(
+            self._kf.directions([*due, *((r, r) for r in loops)], travelled, finishing),
+            travelled, group)
         queries = []
         for t, q in pairs if budget is None else pairs[:budget]:
             i, j = min(t, q), max(t, q)
-            self._kf.travel_last[(i, j)] = (travelled[i], travelled[j])
+            self._kf.tried(t, q, travelled)
             if t == q:
                 self._loop_last[q] = sizes[q]
             else:
@@ -355,7 +350,9 @@ class OnlineSession:
                 (len(qu.query_graph.positions), len(qu.target_graph.positions)),
             ))
             if r["accepted"]:
-                self._kf.links.append(link_of(maps, names, qu, r, stamp))
+                self._kf.links.append(self._kf.link(maps, names, qu, r, stamp,
+                                                    self.config.motion,
+                                                    self.config.ransac.threshold))
                 changed = True
         return changed
 
