@@ -7,7 +7,7 @@ import dataclasses
 import hashlib
 import json
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +19,14 @@ from sgloc.sim.airsim_writer import write_ground_truth, write_robot, write_run_m
 from sgloc.sim.city import City, CityConfig, make_city
 from sgloc.sim.render import Camera, render_frames
 from sgloc.sim.trajectory import ROBOT_NAMES, TrajectoryConfig, TwoRobotRoutes, make_routes
+from sgloc.validation import (
+    MAX_COORDINATE,
+    group,
+    integer,
+    real,
+    setting,
+    validate_settings,
+)
 
 #: Robot A (the target map) and robot B (the query), as in Guo's Airsim data.
 TARGET, QUERY = ROBOT_NAMES
@@ -38,14 +46,19 @@ class SyntheticRunConfig:
     """Everything that fixes a synthetic run. One `seed` gives the city and the streets; the
     overlap only moves robot B along the same path."""
 
-    seed: int = 0
-    overlap: float = 0.5
-    width: int = 320
-    height: int = 180
-    length: float = 400.0
-    step: float = 1.5
-    city: CityConfig = field(default_factory=CityConfig)
-    trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
+    seed: int = setting(0, check=integer(0))
+    overlap: float = setting(0.5, check=real(0.0, 1.0))
+    width: int = setting(320, check=integer(2, 100_000))
+    height: int = setting(180, check=integer(2, 100_000))
+    length: float = setting(400.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+    step: float = setting(1.5, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+    city: CityConfig = setting(default_factory=CityConfig, check=group(CityConfig))
+    trajectory: TrajectoryConfig = setting(
+        default_factory=TrajectoryConfig, check=group(TrajectoryConfig)
+    )
+
+    def __post_init__(self) -> None:
+        validate_settings(self, "SyntheticRunConfig")
 
     def resolved_trajectory(self) -> TrajectoryConfig:
         return dataclasses.replace(

@@ -16,6 +16,7 @@ import numpy as np
 from sgloc.errors import SglocError
 from sgloc.geometry import invert
 from sgloc.sim.city import City
+from sgloc.validation import MAX_COORDINATE, real, setting, validate_settings
 
 ROBOT_NAMES = ("forwardCar", "backwardCar")
 
@@ -37,25 +38,22 @@ class TrajectoryConfig:
     straight_probability: chance to go straight on at an intersection (else turn).
     """
 
-    length: float = 400.0
-    step: float = 1.5
-    overlap: float = 0.5
-    gap: float = 0.0
-    lane_offset: float = 1.75
-    camera_height: float = 1.6
-    pitch_deg: float = 0.0
-    corner_radius: float = 8.0
-    straight_probability: float = 0.6
+    length: float = setting(400.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+    step: float = setting(1.5, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+    overlap: float = setting(0.5, check=real(0.0, 1.0))
+    gap: float = setting(0.0, check=real(0.0, MAX_COORDINATE, unit="m"))
+    lane_offset: float = setting(1.75, check=real(-100.0, 100.0, unit="m"))
+    camera_height: float = setting(1.6, check=real(-100.0, 1000.0, unit="m"))
+    pitch_deg: float = setting(0.0, check=real(-90.0, 90.0, unit="degrees"))
+    corner_radius: float = setting(8.0, check=real(0.0, MAX_COORDINATE, unit="m"))
+    straight_probability: float = setting(0.6, check=real(0.0, 1.0))
+
+    def __post_init__(self) -> None:
+        validate_settings(self, "TrajectoryConfig")
 
     def validate(self) -> None:
-        if not 0.0 <= self.overlap <= 1.0:
-            raise SglocError(f"overlap must be in [0, 1], got {self.overlap}.")
-        if self.length <= 0 or self.step <= 0:
-            raise SglocError(
-                f"route length ({self.length} m) and step ({self.step} m) must be > 0."
-            )
-        if self.gap < 0:
-            raise SglocError(f"gap must be >= 0 m, got {self.gap}.")
+        """Check every setting again (InvalidSettingError naming the first bad one)."""
+        validate_settings(self, "TrajectoryConfig")
 
 
 @dataclass
