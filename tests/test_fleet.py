@@ -12,8 +12,8 @@ from sgloc.errors import SglocError
 from sgloc.evaluation.fleet_scenes import fleet_errors, kitti_fleet, world_fleet
 from sgloc.geometry import invert, make_transform
 from sgloc.maps.graph import SemanticGraph
-from sgloc.online.consistency import Edge
 from sgloc.online.fleet import localize_fleet
+from sgloc.online.link_selection import Edge
 from sgloc.online.merge import merge_graphs
 from sgloc.online.posegraph import fleet_frame
 

@@ -96,7 +96,7 @@ def test_a_session_refits_its_link_as_the_maps_grow_and_that_is_more_precise():
 
 def test_chain_covariance_matches_the_spread_of_composed_noisy_links():
     from sgloc.lie import se3_exp, se3_log
-    from sgloc.online.consistency import Edge
+    from sgloc.online.link_selection import Edge
     from sgloc.online.precision import chain_covariance
 
     rng = np.random.default_rng(5)

@@ -12,7 +12,7 @@ import pytest
 from sgloc.geometry import invert, make_transform
 from sgloc.online import OnlineConfig, OnlineSession
 from sgloc.online import session as session_module
-from sgloc.online.consistency import (
+from sgloc.online.link_selection import (
     Edge,
     loop_error,
     loop_tolerance,

@@ -128,7 +128,7 @@ def oracle_link_frames(session, T_gt_odom: dict[str, np.ndarray]) -> dict[str, n
     """{robot: T_fleet_robot} of the session's fleet frame re-solved with every active link's
     transform replaced by its `oracle_refit` (same links, covariances, root and solver; a link
     without 3 true pairs is left out): the best the same links could give."""
-    from sgloc.online.consistency import Edge
+    from sgloc.online.link_selection import Edge
     from sgloc.online.posegraph import fleet_frame
 
     names, o, cfg = session.robots, session.online, session.config

@@ -5,7 +5,7 @@ is added as one keyframe at the identity, then every pair is localized once (in 
 processes, or an existing Dask cluster).
 
 1. Only pairs that pass the acceptance test (`sgloc.acceptance`) become links.
-2. Loop check (`sgloc.online.consistency`): links that close a loop must compose to the
+2. Loop check (`sgloc.online.link_selection`): links that close a loop must compose to the
    identity within `loop_translation` metres (at the centroid of the robot's objects) and
    `loop_rotation` degrees per link (a loop of k links: sqrt(k) times that); the link in the
    most disagreeing loops is dropped until every loop agrees.
@@ -33,7 +33,7 @@ from sgloc.errors import SglocError
 from sgloc.io.names import unique_names
 from sgloc.maps.graph import SemanticGraph
 from sgloc.online import OnlineConfig, OnlineSession
-from sgloc.online.consistency import Edge, spanning_forest
+from sgloc.online.link_selection import Edge, spanning_forest
 from sgloc.online.merge import merge_graphs
 from sgloc.pipeline.config import LocalizerConfig
 from sgloc.validation import (

@@ -15,9 +15,9 @@ from sgloc import lie
 from sgloc.estimation import MotionModel
 from sgloc.maps.graph import SemanticGraph
 from sgloc.online.config import OnlineConfig
-from sgloc.online.consistency import loop_error, loop_tolerance
 from sgloc.online.keyframe_graph import KeyframeGraph, keyframe_link
 from sgloc.online.keyframe_links import select_links
+from sgloc.online.link_selection import loop_error, loop_tolerance
 from sgloc.online.records import Link
 from sgloc.online.refine import refine_link
 from sgloc.online.robot_map import RobotMap

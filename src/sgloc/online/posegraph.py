@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sgloc.online.consistency import (
+from sgloc.online.link_selection import (
     Edge,
     LoopMemo,
     select_consistent,

@@ -10,7 +10,7 @@ import numpy as np
 from sgloc.estimation.covariance import point_covariance
 from sgloc.geometry import invert
 from sgloc.lie import adjoint
-from sgloc.online.consistency import Edge, invert_with_covariance
+from sgloc.online.link_selection import Edge, invert_with_covariance
 
 
 def chain_covariance(

@@ -14,16 +14,16 @@ from sgloc.io.keyframe_checks import check_keyframe, check_link, check_stamp
 from sgloc.maps.graph import SemanticGraph
 from sgloc.online.attempts import run_tasks
 from sgloc.online.config import OnlineConfig
-from sgloc.online.consistency import (
+from sgloc.online.joint import largest_shift, refine_fleet
+from sgloc.online.keyframe_fleet import KeyframeFleet, make_query
+from sgloc.online.keyframe_graph import keyframe_link
+from sgloc.online.link_selection import (
     Edge,
     LoopMemo,
     invert_with_covariance,
     loop_error,
     loop_tolerance,
 )
-from sgloc.online.joint import largest_shift, refine_fleet
-from sgloc.online.keyframe_fleet import KeyframeFleet, make_query
-from sgloc.online.keyframe_graph import keyframe_link
 from sgloc.online.posegraph import fleet_frame
 from sgloc.online.precision import chain_covariance, predicted_error
 from sgloc.online.records import (

@@ -10,7 +10,7 @@ import numpy as np
 from sgloc.errors import SglocError
 from sgloc.geometry import invert, regularized_covariance
 from sgloc.lie import so3_exp, so3_log
-from sgloc.online.consistency import Edge
+from sgloc.online.link_selection import Edge
 
 
 def gtsam_available() -> bool:
