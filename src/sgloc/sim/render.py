@@ -16,9 +16,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from sgloc.datasets.base import Frame
-from sgloc.errors import SglocError
 from sgloc.geometry import invert
 from sgloc.sim.city import BOX, CYLINDER, Primitives
+from sgloc.validation import MAX_COORDINATE, integer, real, setting, validate_settings
 
 #: T_body_optical: optical (x right, y down, z forward) -> AirSim body (x forward, y right,
 #: z down); a point (X, Y, Z) of the optical frame is (Z, X, Y) in the body frame.
@@ -37,25 +37,21 @@ class Camera:
     (cx, cy) = image centre (90 deg horizontal field of view). max_range (metres): nothing
     farther is drawn (the AirSim 8-bit depth format ends at 100 m)."""
 
-    width: int = 320
-    height: int = 180
-    fx: float | None = None
-    fy: float | None = None
-    cx: float | None = None
-    cy: float | None = None
-    max_range: float = 100.0
-    near: float = 0.05
+    width: int = setting(320, check=integer(2, 100_000))
+    height: int = setting(180, check=integer(2, 100_000))
+    fx: float | None = setting(None, check=real(0.0, 1e9, low_open=True, none_ok=True))
+    fy: float | None = setting(None, check=real(0.0, 1e9, low_open=True, none_ok=True))
+    cx: float | None = setting(None, check=real(-1e9, 1e9, none_ok=True))
+    cy: float | None = setting(None, check=real(-1e9, 1e9, none_ok=True))
+    max_range: float = setting(100.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
+    near: float = setting(0.05, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
 
     def __post_init__(self) -> None:
-        if int(self.width) < 2 or int(self.height) < 2:
-            raise SglocError(f"image size must be at least 2x2, got {self.width}x{self.height}.")
-        self.width, self.height = int(self.width), int(self.height)
+        validate_settings(self, "Camera")
         self.fx = float(self.fx if self.fx is not None else self.width / 2)
         self.fy = float(self.fy if self.fy is not None else self.fx)
         self.cx = float(self.cx if self.cx is not None else self.width / 2)
         self.cy = float(self.cy if self.cy is not None else self.height / 2)
-        if self.fx <= 0 or self.fy <= 0 or self.max_range <= 0:
-            raise SglocError("focal lengths and max_range must be > 0.")
 
     @property
     def K(self) -> np.ndarray:
