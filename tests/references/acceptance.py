@@ -15,8 +15,8 @@ from sgloc.acceptance.chance import (
     per_object_min,
     permutation_lambda,
 )
-from sgloc.acceptance.rivals import distinct_from
-from sgloc.estimation import squared_residuals, yaw_from_pairs
+from sgloc.acceptance.rivals import best_distinct
+from sgloc.estimation import yaw_from_pairs
 from sgloc.geometry import apply
 
 
@@ -113,18 +113,7 @@ def _yaw_hypotheses(src, dst, i, j) -> tuple[np.ndarray, np.ndarray] | None:
 def yaw_runner_up(src, dst, T, exclude, i, j, radius, cfg) -> tuple[int, np.ndarray | None]:
     """`sgloc.acceptance.rivals.runner_up`'s dof=4 branch from the drawn pairs (i, j) on, in
     numpy (the reference of `sgloc.acceptance.runner_up_kernels.best_yaw_alternative`)."""
-    free = ~exclude
     hyp = _yaw_hypotheses(src, dst, *_first_draws(i, j, len(src)))
     if hyp is None:
         return 0, None
-    R, t = hyp
-    c = src[exclude].mean(axis=0) if exclude.any() else src.mean(axis=0)
-    distinct = distinct_from(R, t, T, c, cfg.distinct_translation, cfg.distinct_rotation)
-    if not distinct.any():
-        return 0, None
-    R, t = R[distinct], t[distinct]
-    counts = (squared_residuals(R, t, src[free], dst[free]) < radius**2).sum(axis=1)
-    h = int(np.argmax(counts))
-    T2 = np.eye(4)
-    T2[:3, :3], T2[:3, 3] = R[h], t[h]
-    return int(counts[h]), T2
+    return best_distinct(*hyp, T, src, dst, exclude, radius, cfg)

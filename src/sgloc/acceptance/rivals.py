@@ -74,13 +74,20 @@ def runner_up(
     hyp = _triplet_hypotheses(src, dst, i, j, rows, free, rng, max_tilt)
     if hyp is None:
         return 0, None
-    R, t = hyp
+    return best_distinct(*hyp, T, src, dst, exclude, radius, cfg)
+
+
+def best_distinct(R: np.ndarray, t: np.ndarray, T: np.ndarray, src: np.ndarray, dst: np.ndarray,
+                  exclude: np.ndarray, radius: float, cfg) -> tuple[int, np.ndarray | None]:
+    """Of the hypotheses (R (k,3,3), t (k,3)) distinct from T, the one with the most inliers
+    (within `radius` m) among the candidates not in `exclude`: (its inliers, its 4x4), or
+    (0, None) when none is distinct."""
     # Distinctness, measured where it matters: at the centroid of T's support (query frame).
     c = src[exclude].mean(axis=0) if exclude.any() else src.mean(axis=0)
     distinct = distinct_from(R, t, T, c, cfg.distinct_translation, cfg.distinct_rotation)
     if not distinct.any():
         return 0, None
-    R, t = R[distinct], t[distinct]
+    R, t, free = R[distinct], t[distinct], ~exclude
     counts = (squared_residuals(R, t, src[free], dst[free]) < radius**2).sum(axis=1)
     h = int(np.argmax(counts))
     T2 = np.eye(4)
