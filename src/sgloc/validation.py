@@ -266,6 +266,7 @@ def flag() -> Check:
 
 def span(low: float, high: float, *, whole: bool = False, unit: str = "") -> Check:
     """A range `(a, b)` with low <= a <= b <= high, as a tuple of floats (of ints: `whole`)."""
+    inner = integer(int(low), int(high)) if whole else real(low, high, unit=unit)
 
     def check(name: str, value: Any) -> tuple:
         try:
@@ -274,7 +275,6 @@ def span(low: float, high: float, *, whole: bool = False, unit: str = "") -> Che
             raise InvalidSettingError(
                 f"setting {name}={value!r}: must be a range (low, high)."
             ) from None
-        inner = integer(int(low), int(high)) if whole else real(low, high, unit=unit)
         a, b = inner(f"{name}[0]", a), inner(f"{name}[1]", b)
         if a > b:
             raise InvalidSettingError(f"setting {name}={value!r}: low must not exceed high.")

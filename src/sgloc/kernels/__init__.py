@@ -77,14 +77,13 @@ def compiled_marker() -> Path:
     (named after the kernel sources' paths, sizes and times, numba's and Python's versions: a
     new install or an upgrade compiles, and is said, anew)."""
     import hashlib
-    from importlib.util import find_spec
 
     import numba
 
     here = Path(__file__).resolve().parent
     parts = [numba.__version__, sys.version, str(here)]
-    for name in MODULES:
-        st = Path(find_spec(name).origin).stat()
+    for name in MODULES:  # the source files, found without importing their packages
+        st = here.parent.joinpath(*name.split(".")[1:]).with_suffix(".py").stat()
         parts.append(f"{name}:{st.st_size}:{st.st_mtime_ns}")
     digest = hashlib.sha1("|".join(parts).encode()).hexdigest()[:16]
     return kernel_cache_dir() / f"sgloc-kernels-{digest}.compiled"

@@ -49,7 +49,7 @@ class TrajectoryConfig:
     straight_probability: float = setting(0.6, check=real(0.0, 1.0))
 
     def __post_init__(self) -> None:
-        validate_settings(self, "TrajectoryConfig")
+        self.validate()
 
     def validate(self) -> None:
         """Check every setting again (InvalidSettingError naming the first bad one)."""
