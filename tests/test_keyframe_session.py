@@ -273,3 +273,34 @@ def test_keyframe_links_are_refitted_on_the_co_located_objects(out_and_back):
     assert all(n == 0 for n, _ in pairs[False])
     refitted = [(n, m) for n, m in pairs[True] if n]
     assert refitted and all(n >= m for n, m in refitted)
+
+
+def _together(refine_fleet: bool):
+    """Two robots driving one 300 m street side by side, their odometry turning opposite ways
+    (0.01 deg per metre each): the session, the truth, the trajectories."""
+    a, truth = _drive(7, (0.0, 300.0), 0.01)
+    b, _ = _drive(7, (0.0, 300.0), -0.01)
+    s = OnlineSession(online=OnlineConfig(backend="keyframes", min_observations=1,
+                                          growth_objects=3, refine_fleet=refine_fleet))
+    for fa, fb in zip(a, b, strict=True):
+        s.add_keyframe("a", *fa)
+        s.add_keyframe("b", *fb)
+    s.finish("a")
+    s.finish("b")
+    return s, truth
+
+
+def test_co_location_factors_hold_robots_together_all_along_where_they_met():
+    """Where two drifting robots share a whole stretch, the accepted links hold them where
+    attempts aligned them; the co-location factors (refine_fleet, on by default) hold them all
+    along it, to its end (metres apart: same place in the truth)."""
+    from sgloc.online.keyframe_graph import COLOCATION
+
+    errors = {}
+    for refine in (False, True):
+        s, truth = _together(refine)
+        Xa, Xb = s.trajectory("a")[1], s.trajectory("b")[1]
+        errors[refine] = np.linalg.norm(Xb[:, :3, 3] - Xa[:, :3, 3], axis=1).max()
+        kinds = [f.kind for f in s._kf.graph.factors().values()]
+        assert (COLOCATION in kinds) == refine
+    assert errors[True] < 1.0 < errors[False]

@@ -37,7 +37,7 @@ class Case:
 
     @property
     def preset(self) -> str:
-        return "city" if self.kind == "city" else "kitti-objects"
+        return "city-objects" if self.kind == "city" else "kitti-objects"
 
 
 def case_scenario(case: Case) -> Any:
@@ -70,17 +70,30 @@ def run_case(case: Case, settings: dict, oracle: bool = True) -> dict:
     from sgloc.online import OnlineConfig
     from sgloc.pipeline.presets import localizer_preset
 
-    config = localizer_preset(case.preset)
+    online, localizer = split_settings(settings)
+    config = localizer_preset(case.preset).with_overrides(**localizer)
     with tempfile.TemporaryDirectory() as d:
         run_scenario(world_scenario(), Path(d) / "warm", config)
     t0 = time.perf_counter()
     scenario = case_scenario(case)
     built = time.perf_counter() - t0
-    out = run_fleet(scenario, config, OnlineConfig(**settings), case.level, oracle)
+    out = run_fleet(scenario, config, OnlineConfig(**online), case.level, oracle)
     out.update(case=dataclasses.asdict(case), settings=settings, build_seconds=built,
                peak_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
                status="done")
     return out
+
+
+#: A setting named with this prefix goes to the localizer (`LocalizerConfig.with_overrides`),
+#: e.g. "localizer.layout_shifts"; the others are OnlineConfig's.
+LOCALIZER_PREFIX = "localizer."
+
+
+def split_settings(settings: dict) -> tuple[dict, dict]:
+    """(OnlineConfig settings, localizer overrides) of a run's `settings`."""
+    n = len(LOCALIZER_PREFIX)
+    localizer = {k[n:]: v for k, v in settings.items() if k.startswith(LOCALIZER_PREFIX)}
+    return {k: v for k, v in settings.items() if not k.startswith(LOCALIZER_PREFIX)}, localizer
 
 
 def _child(case: Case, settings: dict, oracle: bool, queue: Any) -> None:

@@ -104,11 +104,15 @@ class OnlineConfig:
         robot also passed objects of a robot it has no link to, those pairs fix its rotation
         far better than a link fitted at one meeting point (`sgloc.online.joint`). Robust
         (Huber) and in the localizer's dof (4: yaw and translation); skipped when it would move
-        a robot by more than loop_translation / loop_rotation.
-    refine_fleet_growth: the joint refinement reruns when the placed robots' confirmed objects
-        have grown by this fraction since its last run, or a robot of that run is no longer
-        placed; in between, each robot keeps the correction the last run made to its frame
-        (0: after every change of the fleet frame). Bounds its cost as the fleet grows.
+        a robot by more than loop_translation / loop_rotation. With backend "keyframes" the
+        same pairs, cut into windows of a quarter submap of travel, become co-location factors
+        between the keyframes that saw them (`sgloc.online.keyframe_colocation`): the graph is
+        held all along where two robots met, not only where an attempt aligned them.
+    refine_fleet_growth: the joint refinement (or the co-location factors) reruns when the
+        placed robots' confirmed objects have grown by this fraction since its last run, or a
+        robot of that run is no longer placed; in between, each robot keeps the correction the
+        last run made to its frame (0: after every change of the fleet frame). Bounds its cost
+        as the fleet grows.
     refine_radius: metres, the pairing radius of refine_fleet (None: the localizer's RANSAC
         threshold).
     join_sigmas: None (off) or k: a robot not yet placed joins only once k standard deviations

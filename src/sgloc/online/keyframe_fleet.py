@@ -15,7 +15,8 @@ from sgloc import lie
 from sgloc.estimation import MotionModel
 from sgloc.maps.graph import SemanticGraph
 from sgloc.online.config import OnlineConfig
-from sgloc.online.keyframe_graph import KeyframeGraph, keyframe_link
+from sgloc.online.keyframe_colocation import colocation_factors
+from sgloc.online.keyframe_graph import COLOCATION, KeyframeGraph, keyframe_link
 from sgloc.online.keyframe_links import select_links
 from sgloc.online.link_selection import loop_error, loop_tolerance
 from sgloc.online.records import Link
@@ -111,6 +112,9 @@ class KeyframeFleet:
         self.travel_last: dict[tuple[int, int], tuple[float, float]] = {}
         # (target, query) -> metres the query had travelled at its last attempt in that target
         self.query_last: dict[tuple[int, int], float] = {}
+        self.colocated: list[int] = []  # factor ids of the co-location factors in the graph
+        # (placed robots, their confirmed objects) when the co-location factors were derived
+        self.colocated_at: tuple[list[int], int] | None = None
 
     def link(self, maps: list[RobotMap], names: list[str], task: Query, result: dict,
              stamp: float, motion: MotionModel, radius: float) -> Link:
@@ -224,6 +228,8 @@ class KeyframeFleet:
             lk = self.links[lid]
             lk.active, lk.revoked, lk.reason = False, True, dropped.get(lid, "")
             left.append(lid)
+        if left:  # derived from a solution the link held: they leave with it
+            self.drop_colocated()
         index = {n: i for i, n in enumerate(names)}
         for lid in taken:
             if lid not in self.fid:
@@ -239,6 +245,37 @@ class KeyframeFleet:
         self.graph.solve()
         self.reanchor(maps)
         return entered, left
+
+    def drop_colocated(self) -> None:
+        """Remove the co-location factors from the graph (derived again when next due)."""
+        for fid in self.colocated:
+            self.graph.remove(fid)
+        self.colocated, self.colocated_at = [], None
+
+    def colocation_due(self, maps: list[RobotMap], growth: float) -> bool:
+        """Whether the co-location factors are due: never derived, the placed robots changed,
+        or their confirmed objects grew by the fraction `growth` since (and at all)."""
+        if self.colocated_at is None:
+            return len(self.graph.placed) >= 2
+        robots, before = self.colocated_at
+        total = sum(maps[r].n_confirmed for r in self.graph.placed)
+        return robots != self.graph.placed or (total != before
+                                                and total - before >= growth * before)
+
+    def colocate(self, maps: list[RobotMap], motion: MotionModel, radius: float) -> None:
+        """Derive the co-location factors (`keyframe_colocation`) of the placed robots again
+        from the current solution, solve and reanchor. motion: the localizer's motion model;
+        radius: the pairing radius (metres)."""
+        g = self.graph
+        placed = g.placed
+        self.drop_colocated()
+        T = {r: g.T_fleet_odom(r) for r in placed}
+        for f in colocation_factors(maps, T, motion, radius, self.online.submap_length / 4):
+            self.colocated.append(g.add_link(f.robot_a, f.k_a, f.robot_b, f.k_b, f.T_a_b,
+                                             f.covariance, COLOCATION))
+        self.colocated_at = (placed, sum(maps[r].n_confirmed for r in placed))
+        g.solve()
+        self.reanchor(maps)
 
     def reanchor(self, maps: list[RobotMap]) -> None:
         """Each placed robot's map re-placed on its corrected keyframes, expressed in its
@@ -256,6 +293,8 @@ class KeyframeFleet:
         meta["fid"] = sorted([lid, f] for lid, f in self.fid.items())
         meta["travel_last"] = [[i, j, a, b] for (i, j), (a, b) in sorted(self.travel_last.items())]
         meta["query_last"] = [[t, q, d] for (t, q), d in sorted(self.query_last.items())]
+        meta["colocated"] = list(self.colocated)
+        meta["colocated_at"] = self.colocated_at
         return meta, arrays
 
     @classmethod
@@ -268,4 +307,7 @@ class KeyframeFleet:
         f.travel_last = {(int(i), int(j)): (float(a), float(b))
                          for i, j, a, b in meta.get("travel_last", [])}
         f.query_last = {(int(t), int(q)): float(d) for t, q, d in meta.get("query_last", [])}
+        f.colocated = [int(x) for x in meta.get("colocated", [])]
+        at = meta.get("colocated_at")
+        f.colocated_at = None if at is None else ([int(r) for r in at[0]], int(at[1]))
         return f

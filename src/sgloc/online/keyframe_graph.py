@@ -17,8 +17,9 @@ from sgloc.errors import SglocError
 from sgloc.online.config import OdometryNoise
 from sgloc.online.keyframe_solve import Factor, make_solver
 
-#: Factor kinds.
-ODOMETRY, LINK = "odometry", "link"
+#: Factor kinds: odometry, accepted links, co-location factors (`keyframe_colocation`; they
+#: never connect robots: only links place a robot).
+ODOMETRY, LINK, COLOCATION = "odometry", "link", "colocation"
 
 
 @dataclass(frozen=True)
@@ -93,10 +94,10 @@ class KeyframeGraph:
         return k
 
     def add_link(self, robot_a: int, k_a: int, robot_b: int, k_b: int, T_a_b: np.ndarray,
-                 covariance: np.ndarray) -> int:
+                 covariance: np.ndarray, kind: str = LINK) -> int:
         """Add a link factor: T_a_b (4,4) the pose of keyframe k_b of robot_b in keyframe k_a
-        of robot_a, covariance (6,6) ([rx ry rz tx ty tz], right perturbation). Returns the
-        factor's id (for `remove`)."""
+        of robot_a, covariance (6,6) ([rx ry rz tx ty tz], right perturbation); kind LINK or
+        COLOCATION. Returns the factor's id (for `remove`)."""
         for r, k in ((robot_a, k_a), (robot_b, k_b)):
             if not 0 <= k < len(self._odom.get(int(r), [])):
                 raise SglocError(f"link: robot {r} has no keyframe {k}.")
@@ -107,7 +108,9 @@ class KeyframeGraph:
         if T.shape != (4, 4) or C.shape != (6, 6) or not (np.isfinite(T).all()
                                                          and np.isfinite(C).all()):
             raise SglocError("link: T_a_b must be a finite (4,4) and covariance a finite (6,6).")
-        return self._add(GraphFactor(LINK, int(robot_a), int(k_a), int(robot_b), int(k_b),
+        if kind not in (LINK, COLOCATION):
+            raise SglocError(f"link: kind {kind!r}; use {LINK!r} or {COLOCATION!r}.")
+        return self._add(GraphFactor(kind, int(robot_a), int(k_a), int(robot_b), int(k_b),
                                      T.copy(), C.copy()))
 
     def _add(self, f: GraphFactor) -> int:
@@ -117,9 +120,10 @@ class KeyframeGraph:
         return fid
 
     def remove(self, fid: int) -> None:
-        """Remove the link factor `fid` (it leaves the solver at the next `solve`)."""
+        """Remove the link or co-location factor `fid` (it leaves the solver at the next
+        `solve`)."""
         f = self._factors.get(int(fid))
-        if f is None or f.kind != LINK:
+        if f is None or f.kind not in (LINK, COLOCATION):
             raise SglocError(f"no link factor {fid} in the graph.")
         del self._factors[int(fid)]
 

@@ -209,18 +209,33 @@ class OnlineSession:
         changed at all since the pair's last attempt, and refit its links likewise (no budget,
         no growth threshold), so that what it saw last is not left untried. More keyframes of
         the robot may still follow. stamp: the events' stamp (default: the newest keyframe's).
-        Once every robot has finished, the joint refinement (`OnlineConfig.refine_fleet`) runs
-        on the final maps if they changed since its last run. Returns the events."""
+        Once every robot has finished, the joint refinement (`OnlineConfig.refine_fleet`; with
+        back-end "keyframes" the co-location factors) runs on the final maps if they changed
+        since its last run. Returns the events."""
         r = self._index(robot)
         n_events = len(self.events)
         self._run(stamp, None, math.inf, 1, r, scheduler, workers)
         self._finished.add(robot)
-        if self._kf is None and self.online.refine_fleet and len(self._finished) == len(
-                self._maps) and self._joint_stale():
-            self._joint_at = None  # due now
+        if self.online.refine_fleet and len(self._finished) == len(self._maps) \
+                and self._final_refinement_due():
             self._refresh(check_stamp("the update", stamp) if stamp is not None
                           else self._now())
         return self.events[n_events:]
+
+    def _final_refinement_due(self) -> bool:
+        """Once every robot finished: whether the maps changed since the joint refinement
+        (back-end "robots") or the co-location factors (back-end "keyframes") were last made;
+        then they are made due now."""
+        if self._kf is not None:
+            maps = [self._maps[r] for r in self.robots]
+            if not self._kf.colocation_due(maps, 0.0):
+                return False
+            self._kf.colocated_at = None
+            return True
+        if not self._joint_stale():
+            return False
+        self._joint_at = None
+        return True
 
     def _joint_stale(self) -> bool:
         """Whether the placed robots or their maps changed since the joint refinement's last
@@ -563,7 +578,12 @@ class OnlineSession:
         root = names.index(self.root)
         if self._kf.graph.root != root:
             self._kf.graph.set_root(root)
-        entered, left = self._kf.update([self._maps[r] for r in names], names)
+        maps = [self._maps[r] for r in names]
+        entered, left = self._kf.update(maps, names)
+        if self.online.refine_fleet and self._kf.colocation_due(
+                maps, self.online.refine_fleet_growth):
+            self._kf.colocate(maps, self.config.motion,
+                              self.online.refine_radius or self.config.ransac.threshold)
         g = self._kf.graph
         T_new = {names[r]: g.T_fleet_odom(r) for r in g.placed}
         lost = [r for r in names if r in self._T and r not in T_new]

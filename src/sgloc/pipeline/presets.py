@@ -17,6 +17,13 @@ Localizer presets (flat `LocalizerConfig.with_overrides` settings):
 - `city`: graphs extracted from the rendered synthetic city. A building's vertex depends on the
   viewpoint (the centroid of the visible part of a facade moves as a robot drives past, and two
   robots see opposite ends), so every other class weighs 10x a building in the final fit.
+- `city-objects`: a street grid's object maps that agree to decimetres (the synthetic city's
+  object sightings, surveyed maps): `city` plus the agreement check (`min_agreement` 0.75):
+  an alignment at another copy of a repeating street grid lands only the furniture the grid
+  repeats, two maps of one place land most of the objects it puts side by side. Chosen on
+  pair attempts of the 12x12-block city, seeds 0-1 (true alignments land >= 0.92 of those
+  objects, lattice offsets <= 0.63; docs/repetition.md); not for maps extracted from images,
+  whose true alignments land 0.7-0.9 (docs/acceptance.md).
 - `kitti-objects`: GOSMatch LiDAR object centroids; precise to well under a metre, so a 2 m
   RANSAC threshold and tau = 2 m suit them better than the image-based 5 m defaults.
 - `street`, `forest`, `room`: the scene scales of `sgloc.maps.scale` (docs/scenes.md): `street` is
@@ -82,6 +89,7 @@ LOCALIZER_PRESETS: Registry[dict[str, Any]] = Registry("preset", {
     "guo": _GUO,
     "airsim-guo": {},
     "city": {"class_weights": {0: 0.1}},
+    "city-objects": {"class_weights": {0: 0.1}, "min_agreement": 0.75},
     "kitti-objects": {"ransac_threshold": 2.0, "tau": 2.0},
     "street": {},
     # One class: more candidates per trunk (the right one is rarely the most similar), wider

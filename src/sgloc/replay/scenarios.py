@@ -45,4 +45,4 @@ def city(robots: int = 4, seed: int = 0) -> ReplayInput:
     (`sgloc.evaluation.replay_scenarios.city_scenario`)."""
     from sgloc.evaluation.replay_scenarios import city_scenario
 
-    return ReplayInput(city_scenario(robots, seed).logs, "city")
+    return ReplayInput(city_scenario(robots, seed).logs, "city-objects")
