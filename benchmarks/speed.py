@@ -295,7 +295,7 @@ try:
     t0 = time.perf_counter()
     res = localize(q, t, seed=0)
     out["wall_s"] = time.perf_counter() - t0
-    out["success"] = bool(res.success)
+    out["success"] = bool(res.accepted)
     if res.transform is not None:
         out["t_err"] = transform_error(res.transform, scene.T_target_query)[0]
     out["timings"] = res.timings
@@ -356,7 +356,7 @@ s = scene(n) out = {"n_query": len(s.query), "n_target": len(s.target), "base_mb
     t0 = time.perf_counter() res = localize(q, t, seed=0)
     out["s"].append(time.perf_counter() - t0)
     out["timings"] = res.timings
-out["success"] = bool(res.success)
+out["success"] = bool(res.accepted)
 if res.transform is not None:
     out["t_err"] = float(transform_error(res.transform, s.T_target_query)[0])
 out["n_candidates"], out["n_survivors"] = len(res.candidates), len(res.survivors)

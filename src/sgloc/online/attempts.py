@@ -26,10 +26,10 @@ def localize_pair(
     try:
         res = localizer(query, target, np.random.default_rng(seed))
         out.update(
-            accepted=bool(res.success), confidence=float(res.confidence or 0.0),
+            accepted=bool(res.accepted), confidence=float(res.confidence or 0.0),
             n_matches=int(len(res.matches)), reason=res.reason,
         )
-        if res.success:
+        if res.accepted:
             out["transform"], out["covariance"] = res.transform, res.covariance
     except SglocError as e:
         out.update(accepted=False, confidence=0.0, n_matches=0, reason=str(e))
