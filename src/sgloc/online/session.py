@@ -4,6 +4,7 @@ when their maps have grown enough and keeps one fleet frame over the consistent 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -344,31 +345,27 @@ class OnlineSession:
             self._tries[key] = self._tries.get(key, 0) + 1
         changed = False
         for qu, r in zip(queries, run_tasks(tasks, scheduler, workers), strict=True):
-            self.attempts.append(Attempt(
-                names[qu.query], names[qu.target], stamp, r["accepted"], r["transform"],
-                r["confidence"], r["n_matches"], r["reason"], r["seconds"],
-                (len(qu.query_graph.positions), len(qu.target_graph.positions)),
-            ))
-            if r["accepted"]:
+            r = replace(r, query=names[qu.query], target=names[qu.target], stamp=stamp,
+                        sizes=(len(qu.query_graph.positions), len(qu.target_graph.positions)))
+            self.attempts.append(r)
+            if r.accepted:
                 self._kf.links.append(self._kf.link(maps, names, qu, r, stamp,
                                                     self.config.motion,
                                                     self.config.ransac.threshold))
                 changed = True
         return changed
 
-    def _record(self, i: int, j: int, sizes: list[int], r: dict, stamp: float) -> bool:
-        """Store one attempt; True when it added or replaced a link."""
+    def _record(self, i: int, j: int, sizes: list[int], r: Attempt, stamp: float) -> bool:
+        """Store one attempt (robot j in robot i's map, named here); True when it added or
+        replaced a link."""
         names = self.robots
         self._last[(i, j)] = (sizes[i], sizes[j])
         self._tries[(i, j)] = self._tries.get((i, j), 0) + 1
-        self.attempts.append(Attempt(
-            names[j], names[i], stamp, r["accepted"], r["transform"], r["confidence"],
-            r["n_matches"], r["reason"], r["seconds"], (sizes[j], sizes[i]),
-        ))
-        if not r["accepted"]:
+        r = replace(r, query=names[j], target=names[i], stamp=stamp, sizes=(sizes[j], sizes[i]))
+        self.attempts.append(r)
+        if not r.accepted:
             return False
-        self._store_link(i, j, r["transform"], r["covariance"], r["confidence"], stamp,
-                         r["n_matches"], "")
+        self._store_link(i, j, r.transform, r.covariance, r.confidence, stamp, r.n_matches, "")
         return True
 
     def _store_link(self, i, j, T, cov, confidence, stamp, n_matches, reason) -> None:
