@@ -19,7 +19,7 @@ from sgloc.online.keyframe_graph import KeyframeGraph, keyframe_link
 from sgloc.online.keyframe_links import select_links
 from sgloc.online.link_selection import loop_error, loop_tolerance
 from sgloc.online.records import Attempt, Link
-from sgloc.online.refine import refine_link
+from sgloc.online.refine import refit_link
 from sgloc.online.robot_map import RobotMap
 
 
@@ -54,13 +54,13 @@ def make_query(maps: list[RobotMap], target: int, query: int, length: float) -> 
 def refit(task: Query, result: Attempt, motion: MotionModel, radius: float, tol_m: float,
           tol_deg: float) -> tuple[np.ndarray, np.ndarray, int] | None:
     """The accepted attempt's T_target_query refitted on every object pair it co-locates
-    between the query submap and the target map (`refine.refine_link`), with the covariance
+    between the query submap and the target map (`refine.refit_link`), with the covariance
     of that fit: (T, covariance, pairs), or None when the refit rests on fewer pairs than the
     attempt's matches or moves the query submap by more than the loop tolerance (as a loop
     of 2) from the attempt's alignment."""
     q, t = task.query_graph, task.target_graph
     T = np.asarray(result.transform, np.float64)
-    r = refine_link(q.positions, q.labels, t.positions, t.labels, T, motion, radius)
+    r = refit_link(q.positions, q.labels, t.positions, t.labels, T, motion, radius)
     if r is None or r.n_pairs < int(result.n_matches):
         return None
     dt, dr = loop_error(lie.between(T, r.T_a_b), q.positions)
