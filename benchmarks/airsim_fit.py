@@ -152,7 +152,7 @@ def trial_rows(trials: int, q: SemanticGraph, t: SemanticGraph, axes: np.ndarray
         gt_own = invert(pair.T_moved_own) @ pair.T_target_query
         for name, settings in VARIANTS.items():
             r = localize(pair.query, pair.target, seed=seed, **settings)
-            if not r.success:
+            if not r.accepted:
                 out[name].append([np.nan] * 8)
                 continue
             E = invert(pair.T_moved_own) @ r.transform @ invert(gt_own)

@@ -64,13 +64,13 @@ def run(trials: int) -> list[dict]:
             ref = reference_workload()
             res = localize(pair.query, pair.target, desc, rej, 5.0, seed=k, **extra)
             te, re = (np.inf, np.inf)
-            if res.success:
+            if res.accepted:
                 te, re = pair.own_frame_errors(res.transform)
             per.append(
                 {
                     "te": te,
                     "re": re,
-                    "ok": res.success,
+                    "ok": res.accepted,
                     "ref": ref,
                     "n_cand": len(res.candidates),
                     "n_surv": len(res.survivors),

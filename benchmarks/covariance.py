@@ -81,7 +81,7 @@ def fit_pair(spec: Any) -> dict[str, Any]:
     m = res.matches
     return {
         "category": spec.category, "index": spec.index, "pair": spec.label,
-        "gt_ok": bool(gt["gt_ok"]), "success": bool(res.success),
+        "gt_ok": bool(gt["gt_ok"]), "accepted": bool(res.accepted),
         "T_est": res.transform, "T_true": pair.T_target_query,
         "T_moved_own": pair.T_moved_own,
         "src": pair.query.positions[m[:, 0]], "dst": pair.target.positions[m[:, 1]],
@@ -164,7 +164,7 @@ class Errors:
 def errors(rows: list[dict[str, Any]]) -> Errors:
     """The accepted pairs whose ground truth passed hard_cases' check."""
     ransac = LocalizerConfig().ransac
-    ok = [r for r in rows if r["success"] and r["gt_ok"]]
+    ok = [r for r in rows if r["accepted"] and r["gt_ok"]]
     stats = [fit_statistics(r["src"], r["dst"], r["T_est"], None, ransac.dof, ransac.max_tilt)
              for r in ok]  # fmt: skip
     return Errors(
@@ -330,7 +330,7 @@ def counts(rows: list[dict[str, Any]]) -> dict[str, int]:
 
     hc = hard_cases()
     kept = [r for r in rows if r["gt_ok"]]
-    acc = [r for r in kept if r["success"]]
+    acc = [r for r in kept if r["accepted"]]
     tol_t, tol_r = hc.DEFAULT_TOLERANCE
     far = 0
     for r in acc:

@@ -1,4 +1,4 @@
-"""How far `success` can be trusted when the maps lose objects: the acceptance test's ROC on the
+"""How far `accepted` can be trusted when the maps lose objects: the acceptance test's ROC on the
 Airsim maps under random object dropout.
 
     python benchmarks/dropout_roc.py [--trials 100] [--dropout 0.3 0.5] [--update-docs]
@@ -38,14 +38,14 @@ def dropped(graph, keep_fraction: float, rng: np.random.Generator):
 
 
 def trial(source, seed: int, dropout: float) -> dict:
-    """One localization under dropout: confidence, success and the own-frame errors."""
+    """One localization under dropout: confidence, acceptance and the own-frame errors."""
     pair = source(seed)
     rng = np.random.default_rng([seed, 7, int(round(dropout * 1000))])
     q, t = dropped(pair.query, 1.0 - dropout, rng), dropped(pair.target, 1.0 - dropout, rng)
     t0 = time.perf_counter()
     res = localize(q, t, seed=seed, min_confidence=0.0)
     row = {"seed": seed, "dropout": dropout, "ms": (time.perf_counter() - t0) * 1e3}
-    row |= {"success": res.success, "confidence": res.confidence or 0.0}
+    row |= {"accepted": res.accepted, "confidence": res.confidence or 0.0}
     te, re = pair.own_frame_errors(res.transform)
     return row | {"t_err_m": te, "r_err_deg": re}
 
@@ -60,7 +60,7 @@ def table(rows: list[dict]) -> str:
     for d in sorted({r["dropout"] for r in rows}):
         sel = [r for r in rows if r["dropout"] == d]
         for c in STRICTNESS:
-            acc = [r for r in sel if r["success"] and r["confidence"] >= c]
+            acc = [r for r in sel if r["accepted"] and r["confidence"] >= c]
             far = sum(r["t_err_m"] > WRONG_M for r in acc)
             off = sum(r["t_err_m"] > WRONG_M or r["r_err_deg"] > WRONG_DEG for r in acc)
             lines.append(
@@ -79,7 +79,7 @@ def plot(rows: list[dict], path: Path) -> None:
     fig, ax = plt.subplots(figsize=(5.5, 4.2))
     for d in sorted({r["dropout"] for r in rows}):
         sel = [r for r in rows if r["dropout"] == d]
-        acc = [[r for r in sel if r["success"] and r["confidence"] >= c] for c in STRICTNESS]
+        acc = [[r for r in sel if r["accepted"] and r["confidence"] >= c] for c in STRICTNESS]
         x = [sum(r["t_err_m"] > WRONG_M for r in a) / len(sel) for a in acc]
         y = [sum(r["t_err_m"] <= WRONG_M for r in a) / len(sel) for a in acc]
         ax.plot(x, y, "o-", label=f"dropout {d:g}")
@@ -112,9 +112,9 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     ms = np.median([r["ms"] for r in rows])
     worst = [
-        max((r["t_err_m"], r["r_err_deg"]) for r in rows if r["dropout"] == d and r["success"]
+        max((r["t_err_m"], r["r_err_deg"]) for r in rows if r["dropout"] == d and r["accepted"]
             and r["confidence"] >= DEFAULT_STRICTNESS)
-        if any(r["dropout"] == d and r["success"] and r["confidence"] >= DEFAULT_STRICTNESS
+        if any(r["dropout"] == d and r["accepted"] and r["confidence"] >= DEFAULT_STRICTNESS
                for r in rows) else None
         for d in args.dropout
     ]  # fmt: skip

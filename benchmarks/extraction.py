@@ -83,7 +83,7 @@ def kitti(seeds: int) -> list[tuple]:
             errs, ok = [], 0
             for s in range(seeds):
                 r = localize(q, tg, seed=s, config=localizer_preset("kitti-objects"))
-                if r.success:
+                if r.accepted:
                     e = transform_error(r.transform, G)
                     errs.append(e)
                     ok += e[0] < 3 and e[1] < 3

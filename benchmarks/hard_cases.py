@@ -614,10 +614,10 @@ def run_spec(spec: PairSpec, configs: dict[str, dict[str, Any]]) -> list[dict[st
         res = localize(pair.query, pair.target, seed=spec.seed, **settings)
         ms = 1e3 * (time.thread_time() - c0)
         te, re_ = pair.own_frame_errors(res.transform)
-        right = spec.positive and res.success and te <= tol_t and re_ <= tol_r
-        if spec.kind == "scene" and spec.positive and res.success and not right:
+        right = spec.positive and res.accepted and te <= tol_t and re_ <= tol_r
+        if spec.kind == "scene" and spec.positive and res.accepted and not right:
             right = local_residual(pair, res.transform, res.matches) <= tol_t
-        outcome = "localized" if right else ("wrong" if res.success else "refused")
+        outcome = "localized" if right else ("wrong" if res.accepted else "refused")
         rows.append(
             {
                 "category": spec.category, "index": spec.index, "config": name,

@@ -49,7 +49,8 @@ def end_to_end(q, t, T_gt, search: str) -> str:
     if res.transform is None:
         return f"not localized, {s:.2f} s"
     te, re = transform_error(res.transform, T_gt)
-    return f"{'localized' if res.success else 'not localized'}, {te:.2f} m, {re:.2f} deg, {s:.2f} s"
+    said = "localized" if res.accepted else "not localized"
+    return f"{said}, {te:.2f} m, {re:.2f} deg, {s:.2f} s"
 
 
 def city_rows(sizes: list[int]) -> list[str]:

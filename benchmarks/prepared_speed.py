@@ -144,7 +144,7 @@ t0 = time.perf_counter()
 import sgloc
 q, t = sgloc.SemanticGraph.load(sys.argv[1]), sgloc.SemanticGraph.load(sys.argv[2])
 res = sgloc.localize(q, t)
-print(time.perf_counter() - t0, res.success)
+print(time.perf_counter() - t0, res.accepted)
 """
 
 

@@ -111,7 +111,7 @@ def score(attempts: list, sc: Scenario, settings: dict) -> dict:
         t0 = time.perf_counter()
         res = loc(q, t, np.random.default_rng(a["seed"]))
         secs += time.perf_counter() - t0
-        if not res.success:
+        if not res.accepted:
             refused += 1
             continue
         G_a, G_b = sc.T_gt_odom[a["target"]], sc.T_gt_odom[a["query"]]

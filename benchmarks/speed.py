@@ -295,7 +295,7 @@ try:
     t0 = time.perf_counter()
     res = localize(q, t, seed=0)
     out["wall_s"] = time.perf_counter() - t0
-    out["success"] = bool(res.success)
+    out["accepted"] = bool(res.accepted)
     if res.transform is not None:
         out["t_err"] = transform_error(res.transform, scene.T_target_query)[0]
     out["timings"] = res.timings
@@ -356,7 +356,7 @@ s = scene(n) out = {"n_query": len(s.query), "n_target": len(s.target), "base_mb
     t0 = time.perf_counter() res = localize(q, t, seed=0)
     out["s"].append(time.perf_counter() - t0)
     out["timings"] = res.timings
-out["success"] = bool(res.success)
+out["accepted"] = bool(res.accepted)
 if res.transform is not None:
     out["t_err"] = float(transform_error(res.transform, s.T_target_query)[0])
 out["n_candidates"], out["n_survivors"] = len(res.candidates), len(res.survivors)
@@ -407,7 +407,7 @@ def report_scale(rows: list[dict], args) -> list[str]:
             continue
         med[r["n"]] = float(np.median(r["s"]))
         per = (r["peak_mb"] - r["base_mb"]) * 1e6 / (r["n_query"] + r["n_target"])
-        res = ("localized" if r["success"] else "not localized") + (
+        res = ("localized" if r["accepted"] else "not localized") + (
             f", t_err {r['t_err']:.2f} m" if "t_err" in r else ""
         )
         stages = ", ".join(f"{k} {v:.2f}" for k, v in r["timings"].items())
@@ -558,7 +558,7 @@ def report_maps(maps, cap_gb) -> list[str]:
     out = []
     for r in maps:
         if "wall_s" in r and "error" not in r:
-            res = ("localized" if r["success"] else "not localized") + (
+            res = ("localized" if r["accepted"] else "not localized") + (
                 f", t_err {r['t_err']:.2f} m" if "t_err" in r else ""
             )
             tim = r.get("second_timings", r["timings"])

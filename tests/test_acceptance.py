@@ -1,4 +1,4 @@
-"""The acceptance test behind LocalizationResult.success (sgloc.acceptance)."""
+"""The acceptance test behind LocalizationResult.accepted (sgloc.acceptance)."""
 
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ def test_airsim_positive_accepted_with_high_confidence(airsim_graphs, rng):
     c1, c2 = airsim_graphs
     T = random_rigid_transform(rng, 200.0, 5.0)
     res = localize(c1, c2.transformed(T), seed=1)
-    assert res.success, res.reason
+    assert res.accepted, res.reason
     assert 0.99 <= res.confidence <= 1.0
     dt, dr = transform_error(res.transform, T)
     assert dt < 10 and dr < 3
@@ -43,10 +43,10 @@ def test_airsim_with_shared_area_cut_is_rejected(airsim_graphs, rng):
     T = random_rigid_transform(rng, 200.0, 5.0)
     # Guo's rule alone (no acceptance test, no gravity gate) accepts this non-overlapping pair...
     guo = localize(q, c2.transformed(T), seed=2, acceptance=False, max_tilt=None)
-    assert guo.success
+    assert guo.accepted
     res = localize(q, c2.transformed(T), seed=2, max_tilt=None)
-    assert not res.success  # ...the acceptance test does not
-    assert not localize(q, c2.transformed(T), seed=2).success  # nor do the defaults
+    assert not res.accepted  # ...the acceptance test does not
+    assert not localize(q, c2.transformed(T), seed=2).accepted  # nor do the defaults
     assert res.transform is None and len(res.matches) == 0
     assert 0.0 <= res.confidence < 0.99
     assert res.reason
@@ -56,10 +56,10 @@ def test_world_negatives_rejected_positives_accepted():
     negs = world_pairs(6, positive=False, seed=3)
     poss = world_pairs(4, positive=True, seed=3, overlaps=(0.7,))
     for i, p in enumerate(negs):
-        assert not localize(p.query, p.target, seed=i).success
+        assert not localize(p.query, p.target, seed=i).accepted
     for i, p in enumerate(poss):
         res = localize(p.query, p.target, seed=i)
-        assert res.success, res.reason
+        assert res.accepted, res.reason
         assert transform_error(res.transform, p.T_target_query)[0] < 5
 
 
@@ -69,9 +69,9 @@ def test_kitti_positive_and_negative():
     (neg,) = kitti_pairs(1, positive=False, seed=0)
     assert pos.info["overlap"] >= 0.2
     res = localize(pos.query, pos.target, seed=0)
-    assert res.success, res.reason
+    assert res.accepted, res.reason
     assert transform_error(res.transform, pos.T_target_query)[0] < 3
-    assert not localize(neg.query, neg.target, seed=0).success
+    assert not localize(neg.query, neg.target, seed=0).accepted
 
 
 def _two_copies(rng, shift):
@@ -120,11 +120,11 @@ def test_strictness_zero_gives_guo_rule_back(airsim_graphs):
     c1, c2 = airsim_graphs
     q = cut_shared_area(c1, c2, np.eye(4), 25.0)
     guo = localize(q, c2, seed=0, acceptance=False)
-    assert localize(q, c2, seed=0, min_confidence=0.0, distinct_ratio=None).success == guo.success
+    assert localize(q, c2, seed=0, min_confidence=0.0, distinct_ratio=None).accepted == guo.accepted
     # With the default, only distinctive candidates are evidence: this negative has none among
     # Guo's inliers, so even strictness 0 refuses it (no distinctive inlier at all).
     zero = localize(q, c2, seed=0, min_confidence=0.0)
-    assert guo.success and not zero.success and "only 0 query object(s) agree" in zero.reason
+    assert guo.accepted and not zero.accepted and "only 0 query object(s) agree" in zero.reason
 
 
 def test_config_round_trip_and_overrides():
@@ -259,7 +259,7 @@ def test_the_localizer_makes_one_acceptance_call(monkeypatch, airsim_graphs):
         res = localize(q, c2, seed=0)
         assert len(verdicts) == 1
         v = verdicts[0]
-        assert (res.success, res.confidence, res.reason) == (v.accepted, v.confidence, v.reason)
+        assert (res.accepted, res.confidence, res.reason) == (v.accepted, v.confidence, v.reason)
         assert v.assessment is not None and "acceptance" in v.timings
         assert len(res.matches) == len(v.matches)
     assert not verdicts[0].accepted and len(verdicts[0].matches) == 0  # the cut pair: refused

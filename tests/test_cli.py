@@ -18,7 +18,7 @@ def test_localize_writes_json(airsim_dir, tmp_path, capsys):
     rc = main(["localize", str(d / "cloud1.pcd"), str(d / "cloud2.pcd"), "--json", str(out)])
     assert rc == 0
     res = json.loads(out.read_text())
-    assert res["success"] and res["n_matches"] > 10
+    assert res["accepted"] and res["n_matches"] > 10
     T = np.array(res["T_target_query"])
     assert np.linalg.norm(T[:3, 3]) < 5.0  # ground truth is the identity
     printed = capsys.readouterr().out

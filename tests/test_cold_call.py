@@ -23,11 +23,11 @@ def _new(g: SemanticGraph) -> SemanticGraph:
 
 
 def _same_bits(a, b) -> None:
-    assert a.success == b.success and a.reason == b.reason
+    assert a.accepted == b.accepted and a.reason == b.reason
     assert a.confidence == b.confidence
     for name in ("matches", "candidates", "survivors", "scores"):
         assert np.array_equal(getattr(a, name), getattr(b, name)), name
-    if a.success:
+    if a.accepted:
         assert a.transform.tobytes() == b.transform.tobytes()
         assert a.covariance.tobytes() == b.covariance.tobytes()
     else:
@@ -48,7 +48,7 @@ def _synthetic(seed: int, n: int) -> tuple[SemanticGraph, SemanticGraph]:
 def test_new_graph_objects_give_the_bits_of_kept_ones(airsim_graphs, seed):
     q, t = airsim_graphs
     kept = localize(q, t, seed=seed)
-    assert kept.success
+    assert kept.accepted
     _same_bits(kept, localize(_new(q), _new(t), seed=seed))
     _same_bits(kept, localize(_new(q), prepare(_new(t)), seed=seed))
     _same_bits(kept, localize(_new(q), _new(t), seed=seed))  # again: nothing carried over
@@ -66,7 +66,7 @@ def test_new_graph_objects_give_the_bits_of_kept_ones_synthetic(seed, n):
 def test_covariance_and_settings_are_computed_when_first_read(airsim_graphs):
     q, t = airsim_graphs
     r = localize(_new(q), _new(t), seed=0, class_weights={3: 5.0})
-    assert r.success
+    assert r.accepted
     assert "covariance" not in r.__dict__ and "config" not in r.__dict__
     f = r.fitted
     expected = transform_covariance(f.src, f.dst, r.transform, f.weights, f.dof, f.max_tilt)
@@ -77,7 +77,7 @@ def test_covariance_and_settings_are_computed_when_first_read(airsim_graphs):
     assert r.config == config.to_dict() and r.config["class_weights"] == {3: 5.0}
     assert r.to_dict()["config"] == r.config
     refused = localize(_new(q), SemanticGraph(t.positions[:40], t.labels[:40]), seed=0)
-    assert not refused.success and refused.covariance is None and refused.fitted is None
+    assert not refused.accepted and refused.covariance is None and refused.fitted is None
     assert refused.config == LocalizerConfig().to_dict()
 
 

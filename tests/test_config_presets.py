@@ -131,7 +131,7 @@ def test_preset_by_name_in_localize(airsim_graphs):
     target, query = airsim_graphs
     res = localize(query, target, preset="paper")
     assert res.config == localizer_preset("paper").to_dict()
-    assert res.success and len(res.matches) >= 5
+    assert res.accepted and len(res.matches) >= 5
     # Arguments given with the preset override it.
     res = localize(query, target, preset="guo", ransac_threshold=4.0)
     assert res.config["rejection"] == "none" and res.config["ransac"]["threshold"] == 4.0
@@ -145,7 +145,7 @@ def test_preset_by_name_on_the_command_line(name, tmp_path, capsys):
     assert main(["localize", "--example", "--preset", name, "--out", str(out)]) == 0
     cfg = LocalizerConfig.from_yaml(out / "config.yaml")
     assert cfg == localizer_preset(name)
-    assert json.loads((out / "result.json").read_text())["success"]
+    assert json.loads((out / "result.json").read_text())["accepted"]
 
 
 def test_every_preset_builds():

@@ -206,7 +206,7 @@ def _moved_copy(seed: int = 3) -> tuple[SemanticGraph, SemanticGraph, np.ndarray
 def test_localize_attaches_the_covariance_of_its_final_fit():
     q, t, _ = _moved_copy()
     res = sgloc.localize(q, t)
-    assert res.success, res.reason
+    assert res.accepted, res.reason
     assert res.covariance.shape == (6, 6) and _spd(res.covariance)
     m = res.matches
     expected = transform_covariance(
@@ -223,7 +223,7 @@ def test_no_covariance_when_not_localized():
     q = SemanticGraph(rng.uniform(0, 100, (30, 3)), rng.integers(0, 5, 30))
     t = SemanticGraph(rng.uniform(0, 100, (30, 3)), rng.integers(0, 5, 30))
     res = sgloc.localize(q, t)
-    assert not res.success and res.covariance is None
+    assert not res.accepted and res.covariance is None
     assert res.to_dict()["covariance"] is None
     assert json.loads(render(res, "json"))["covariance"] is None
 

@@ -19,7 +19,7 @@ def test_every_object_listed_twice_in_both_maps_localizes(airsim_graphs):
     plain = localize(q, t, seed=0)
     for query, target in ((_twice(q, 0.0), _twice(t, 0.0)), (_twice(q, 1e-5), t)):
         r = localize(query, target, seed=0)
-        assert r.success, r.reason
+        assert r.accepted, r.reason
         assert np.allclose(r.transform, plain.transform, atol=1e-4)  # copies 1e-5 m apart
         assert len(r.matches) == len(plain.matches)
     exact = localize(_twice(q, 0.0), _twice(t, 0.0), seed=0)
@@ -29,7 +29,7 @@ def test_every_object_listed_twice_in_both_maps_localizes(airsim_graphs):
 def test_copies_side_by_side_get_a_reason_that_names_them(airsim_graphs):
     q, t = airsim_graphs
     r = localize(_twice(q, 0.1), _twice(t, 0.1), seed=0)
-    assert not r.success
+    assert not r.accepted
     assert "no candidate match is distinctive" in r.reason and "distinct_ratio=null" in r.reason
     assert "0 inliers" not in r.reason
-    assert localize(_twice(q, 0.1), _twice(t, 0.1), seed=0, distinct_ratio=None).success
+    assert localize(_twice(q, 0.1), _twice(t, 0.1), seed=0, distinct_ratio=None).accepted

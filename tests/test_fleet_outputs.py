@@ -50,7 +50,7 @@ def test_links_g2o_parses_back(fleet4):
     kept = [lk for lk in res.links if lk.used in ("tree", "loop")]
     assert len(edges) == len(kept) >= len(res.placed) - 1
     for (a, b, T, cov), lk in zip(edges, kept, strict=True):
-        assert (a, b) == (lk.target, lk.query)
+        assert (res.names[a], res.names[b]) == (lk.target, lk.query)  # g2o ids: robot indices
         np.testing.assert_allclose(T, lk.transform, atol=1e-6)
         np.testing.assert_allclose(cov, lk.covariance, rtol=1e-5, atol=1e-12)
     import gtsam

@@ -245,7 +245,7 @@ def test_not_localized_hint_follows_the_settings_used(airsim_graphs):
     assert "candidate match" in r.reason and "min_similarity 0.5 now" in r.reason
     assert "min_similarity=0.5;" not in r.reason and "--set min_similarity=0.25;" in r.reason
     r = localize(few, far, min_similarity=0.99)
-    assert not r.success and "--set min_similarity=0.5;" in r.reason
+    assert not r.accepted and "--set min_similarity=0.5;" in r.reason
     some = SemanticGraph(q.positions[:20], q.labels[:20])
     for used, hint in ((0.9999, "0.999"), (0.999, "0.99")):
         r = localize(some, far, min_confidence=used)

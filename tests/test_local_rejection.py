@@ -176,7 +176,7 @@ def test_large_maps_localize_and_refuse_without_overlap(overlap, localized):
     scene = make_two_robot_scene(seed=1, overlap=overlap, stretch=25_000 / 0.47, view_radius=130)
     res = localize(scene.query, scene.target, seed=0)
     assert len(res.candidates) > ALL_PAIRS_LIMIT
-    assert res.success is localized, res.reason
+    assert res.accepted is localized, res.reason
     if localized:
         t_err, r_err = transform_error(res.transform, scene.T_target_query)
         assert t_err < 1.0 and r_err < 0.5

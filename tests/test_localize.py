@@ -40,7 +40,7 @@ def test_pipeline_recovers_transform_of_a_moved_copy(seed, n, descriptor, reject
     res = localize(
         g, g.transformed(T), descriptor, rejection, seed=seed, acceptance=False, **ANY_MOTION
     )
-    assert res.success, res.reason
+    assert res.accepted, res.reason
     te, re = transform_error(res.transform, T)
     assert te < 1e-6 and re < 1e-6
     assert STAGES <= set(res.timings)
@@ -63,7 +63,7 @@ def test_localize_accepts_and_recovers_a_moved_copy(seed, n, descriptor, rejecti
     g, T = _random_graph_and_motion(seed, n, 30.0 if dof == 6 else 0.0)
     model = ANY_MOTION if dof == 6 else {}
     res = localize(g, g.transformed(T), descriptor, rejection, seed=seed, **model)
-    assert res.success, res.reason
+    assert res.accepted, res.reason
     te, re = transform_error(res.transform, T)
     assert te < 1e-6 and re < 1e-6
     assert 0.0 <= res.confidence <= 1.0
@@ -75,7 +75,7 @@ def test_small_copies_are_never_placed_wrongly(seed, n):
     """Small graphs may be declared not localized, but an accepted result is exact."""
     g, T = _random_graph_and_motion(seed, n)
     res = localize(g, g.transformed(T), seed=seed)
-    if res.success:
+    if res.accepted:
         te, re = transform_error(res.transform, T)
         assert te < 1e-6 and re < 1e-6
     else:
@@ -93,7 +93,7 @@ def test_airsim_twenty_random_transforms(airsim_graphs):
     for k in range(20):
         T = random_rigid_transform(rng, max_translation=200.0, max_roll_pitch_deg=5.0)
         res = localize(cloud1, cloud2.transformed(T), "histogram", "neighbor", seed=k)
-        if res.success:
+        if res.accepted:
             te, re = transform_error(invert(T) @ res.transform, np.eye(4))
             good += te < 5.0 and re < 2.0
     assert good >= 19
@@ -110,7 +110,7 @@ def test_result_fields(airsim_graphs):
     surv = {tuple(m) for m in res.survivors}
     assert surv <= cand and {tuple(m) for m in res.matches} <= surv
     d = res.to_dict()
-    assert d["success"] and d["n_matches"] == len(res.matches)
+    assert d["accepted"] and d["n_matches"] == len(res.matches)
 
 
 def test_settings_route_to_stages():
@@ -157,7 +157,7 @@ def test_fewer_than_three_matches_is_not_localized():
     q = SemanticGraph(rng.uniform(0, 60, (12, 3)), np.zeros(12, int))
     t = SemanticGraph(rng.uniform(0, 60, (12, 3)), np.ones(12, int))  # no shared class
     res = localize(q, t)
-    assert not res.success and res.transform is None
+    assert not res.accepted and res.transform is None
     assert "fewer than 3" in res.reason
     with pytest.raises(NotLocalizedError, match="not localized"):
         res.raise_if_failed()
@@ -169,7 +169,7 @@ def test_collinear_matches_are_not_localized():
     g = SemanticGraph(line, np.arange(10) % 2)
     T = random_rigid_transform(np.random.default_rng(0))
     res = localize(g, g.transformed(T), **ANY_MOTION)
-    assert not res.success and res.transform is None
+    assert not res.accepted and res.transform is None
     assert "collinear" in res.reason
 
 
@@ -180,7 +180,7 @@ def test_a_line_fixes_the_yaw_when_gravity_is_shared():
     g = SemanticGraph(line, np.arange(10) % 2)
     T = random_rigid_transform(np.random.default_rng(0), max_roll_pitch_deg=0.0)
     res = localize(g, g.transformed(T), acceptance=False)
-    assert res.success, res.reason
+    assert res.accepted, res.reason
     te, re = transform_error(res.transform, T)
     assert te < 1e-6 and re < 1e-6
 
@@ -193,11 +193,11 @@ def test_mirrored_map_is_refused(airsim_graphs):
     mirrored = SemanticGraph(c2.positions[:, [1, 0, 2]], c2.labels, name="mirrored")
     for model in ({}, {"dof": 6}):
         res = localize(c1, mirrored, **model)
-        assert not res.success and res.transform is None, model
+        assert not res.accepted and res.transform is None, model
     # Without the gravity assumption the mirror image is "aligned" upside down; the tilt gate
     # is what refuses it.
     free = localize(c1, mirrored, acceptance=False, **ANY_MOTION)
-    if free.success:
+    if free.accepted:
         assert np.degrees(np.arccos(np.clip(free.transform[2, 2], -1, 1))) > 90
 
 

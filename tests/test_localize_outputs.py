@@ -23,7 +23,7 @@ def test_example_out_folder_holds_every_form_of_one_transform(tmp_path, capsys):
                      ".sgloc-results.json"}  # the manifest: what sgloc wrote here
     text = (out / "result.json").read_text()
     res = json.loads(text)
-    assert res["success"] and len(text.splitlines()) < 40  # compact: a matrix row a line
+    assert res["accepted"] and len(text.splitlines()) < 40  # compact: a matrix row a line
     T = np.array(res["T_target_query"])
     np.testing.assert_allclose(np.loadtxt(out / "T_target_query.txt"), T, atol=1e-8)
     np.testing.assert_allclose(read_kitti_poses(out / "T_target_query_kitti.txt")[0], T, atol=1e-8)
@@ -46,7 +46,7 @@ def test_format_prints_only_the_transform(fmt, rows, cols, capsys):
 def test_format_json_is_the_compact_summary(capsys):
     assert main(["localize", "--example", "--format", "json"]) == 0
     d = json.loads(capsys.readouterr().out)
-    assert d["success"] and np.array(d["T_target_query"]).shape == (4, 4)
+    assert d["accepted"] and np.array(d["T_target_query"]).shape == (4, 4)
     assert "matches" not in d
 
 

@@ -130,7 +130,7 @@ def test_index_localizes_a_city_map(city):
     scene = city[0]
     config = LocalizerConfig().with_overrides(search="index")
     res = localize(scene.query, scene.target, config=config, seed=0)
-    assert res.success
+    assert res.accepted
     from sgloc.geometry import transform_error
 
     assert transform_error(res.transform, scene.T_target_query)[0] < 1.0
@@ -170,7 +170,7 @@ def test_prepared_map_keeps_the_index(small_rule, street, tmp_path):
     fresh = SemanticGraph(street.positions, street.labels, street.edge_radius, street.name)
     for seed, query in enumerate(scans(street, np.random.default_rng(1), 3)):
         a, b = localize(query, fresh, seed=seed), localize(query, prepared, seed=seed)
-        assert np.array_equal(a.candidates, b.candidates) and a.success == b.success
+        assert np.array_equal(a.candidates, b.candidates) and a.accepted == b.accepted
         if a.transform is not None:
             assert np.array_equal(a.transform, b.transform)
     grown = sgloc.prepare(SemanticGraph(street.positions[:-40], street.labels[:-40]))
@@ -197,5 +197,5 @@ def test_prepared_blocks_leave_out_indexed_classes(small_rule, street):
     for seed, query in enumerate(scans(street, np.random.default_rng(2), 3)):
         a = localize(query, prepared_exact, config=exact, seed=seed)
         b = localize(query, prepared, config=exact, seed=seed)
-        assert np.array_equal(a.candidates, b.candidates) and a.success == b.success
+        assert np.array_equal(a.candidates, b.candidates) and a.accepted == b.accepted
         assert np.array_equal(a.scores, b.scores)

@@ -32,7 +32,7 @@ def test_maps_in_millimetres_get_a_units_hint(airsim_graphs):
     mm = [SemanticGraph(g.positions * 1000.0, g.labels) for g in (q, t)]
     r = localize(*mm)
     assert (
-        not r.success
+        not r.accepted
         and "expects metres" in r.reason
         and "divide its positions by 1000" in (r.reason)
     )
@@ -43,9 +43,9 @@ def test_not_localized_reasons_give_the_command_line_syntax(airsim_graphs):
     q, t = airsim_graphs
     far = SemanticGraph(t.positions[:40] + [5000.0, 0.0, 0.0], t.labels[:40])
     r = localize(q, far, min_similarity=0.99)
-    assert not r.success and "--set min_similarity=0.5" in r.reason
+    assert not r.accepted and "--set min_similarity=0.5" in r.reason
     r = localize(q, SemanticGraph(t.positions[:60], t.labels[:60]))
-    assert not r.success and "0 inliers lie within" not in r.reason
+    assert not r.accepted and "0 inliers lie within" not in r.reason
     assert "agree with the best alignment" in r.reason
 
 
@@ -102,7 +102,7 @@ def test_from_csv_refuses_trial_options_it_would_ignore(tmp_path, capsys):
 
 def test_random_walk_localizes_the_shipped_example_with_its_defaults(airsim_graphs):
     r = localize(*airsim_graphs, descriptor="random_walk", seed=0)
-    assert r.success, r.reason
+    assert r.accepted, r.reason
 
 
 def test_docs_speak_of_the_software_not_of_the_machine_they_ran_on():

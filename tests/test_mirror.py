@@ -18,7 +18,7 @@ def test_mirrored_map_against_itself_is_refused(airsim_graphs, which, axis):
     flip = np.ones(3)
     flip[axis] = -1.0
     r = localize(SemanticGraph(g.positions * flip, g.labels), g, seed=0)
-    assert not r.success and r.transform is None
+    assert not r.accepted and r.transform is None
     assert "mirrored" in r.reason
 
 
@@ -28,7 +28,7 @@ def test_true_pairs_are_not_taken_for_mirrors(airsim_graphs):
     moved = SemanticGraph(apply(T, t.positions), t.labels)
     for query, target in ((q, t), (t, q), (q, moved)):
         r = localize(query, target, seed=0)
-        assert r.success, r.reason
+        assert r.accepted, r.reason
         mirrored, plain, flipped = looks_mirrored(query, target, r.transform,
                                                   np.unique(r.matches[:, 0]), 5.0)  # fmt: skip
         assert not mirrored and plain > 2 * flipped
@@ -58,11 +58,11 @@ def test_mirrored_crops_are_refused_and_true_crops_kept(airsim_graphs):
                 continue
             crop = SemanticGraph(src.positions[idx], src.labels[idx])
             flipped = SemanticGraph(src.positions[idx] * [-1, 1, 1], src.labels[idx])
-            accepted["mirror"] += localize(flipped, src, seed=s).success
-            accepted["true"] += localize(crop, dst, seed=s).success
+            accepted["mirror"] += localize(flipped, src, seed=s).accepted
+            accepted["true"] += localize(crop, dst, seed=s).accepted
             mirror.MIRROR_MARGIN, old = 10**9, mirror.MIRROR_MARGIN
             try:
-                accepted["true without the test"] += localize(crop, dst, seed=s).success
+                accepted["true without the test"] += localize(crop, dst, seed=s).accepted
             finally:
                 mirror.MIRROR_MARGIN = old
     assert accepted["mirror"] == 0

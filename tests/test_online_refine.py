@@ -9,7 +9,7 @@ from sgloc.estimation.covariance import point_covariance
 from sgloc.evaluation.fleet_scenes import world_fleet
 from sgloc.geometry import apply, invert, make_transform, rotation_angle_deg
 from sgloc.online import OnlineConfig, OnlineSession
-from sgloc.online.refine import co_located, refine_link
+from sgloc.online.refine import co_located, refit_link
 
 
 def _yaw(deg: float, t) -> np.ndarray:
@@ -39,9 +39,9 @@ def test_refit_on_all_co_located_objects_is_more_precise_and_its_covariance_shri
     motion = MotionModel(4, 15.0)
     # An early link: fitted on the 12 objects of a small overlap at one end of the maps.
     few = np.argsort(pos_a[:, 0])[:12]
-    early = refine_link(pos_b[few], lab[few], pos_a[few], lab[few], T_true, motion, 2.0)
+    early = refit_link(pos_b[few], lab[few], pos_a[few], lab[few], T_true, motion, 2.0)
     start = early.T_a_b @ _yaw(0.8, [0.6, -0.4, 0.0])  # and off by the imprecision of such a fit
-    full = refine_link(pos_b, lab, pos_a, lab, start, motion, 2.0)
+    full = refit_link(pos_b, lab, pos_a, lab, start, motion, 2.0)
     assert full.n_pairs > 250
     e0, e1 = _error(start, T_true, pos_b), _error(full.T_a_b, T_true, pos_b)
     assert e1[0] < 0.25 * e0[0] and e1[1] < 0.25 * e0[1]
@@ -51,9 +51,9 @@ def test_refit_on_all_co_located_objects_is_more_precise_and_its_covariance_shri
     assert np.trace(point_covariance(full.covariance, c)) < 0.2 * var_early
     assert full.covariance[2, 2] < 0.5 * early.covariance[2, 2]  # yaw
     # Deterministic, and None when nothing is co-located.
-    again = refine_link(pos_b, lab, pos_a, lab, start, motion, 2.0)
+    again = refit_link(pos_b, lab, pos_a, lab, start, motion, 2.0)
     np.testing.assert_array_equal(full.T_a_b, again.T_a_b)
-    assert refine_link(pos_b, lab, pos_a + 500.0, lab, start, motion, 2.0) is None
+    assert refit_link(pos_b, lab, pos_a + 500.0, lab, start, motion, 2.0) is None
 
 
 def test_co_located_pairs_are_mutual_same_class_and_within_the_radius():

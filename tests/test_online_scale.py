@@ -20,6 +20,7 @@ from sgloc.online.link_selection import (
     spanning_forest,
     tree_poses,
 )
+from sgloc.online.records import Attempt
 from sgloc.online.schedule import PairSizes, due_pairs
 
 
@@ -200,8 +201,8 @@ def test_joint_refinement_with_growth_zero_runs_at_every_change(counted):
 def _attempt(s, T, matches, stamp):
     """Store an accepted attempt of the pair (a, b) with `matches` inliers and re-solve."""
     sizes = [s._maps[r].n_confirmed for r in s.robots]
-    r = {"accepted": True, "transform": T, "covariance": np.eye(6) * 1e-4, "confidence": 1.0,
-         "n_matches": matches, "reason": "", "seconds": 0.0}
+    r = Attempt("", "", 0.0, True, T, confidence=1.0, n_matches=matches, reason="", seconds=0.0,
+                sizes=(0, 0), covariance=np.eye(6) * 1e-4)  # as a worker returns it
     n = len(s.events)
     s._record(0, 1, sizes, r, stamp)
     s._refresh(stamp)

@@ -84,7 +84,7 @@ def test_localize_reports_failure_on_graphs_that_do_not_correspond(name):
     t = SemanticGraph(rng.uniform(0, 300, (80, 3)) * [1, 1, 0.02], rng.integers(0, 3, 80))
     res = localize(q, t, rejection=name, seed=0)
     assert len(res.candidates) >= 10  # there was something to reject
-    assert res.success is False
+    assert res.accepted is False
     assert res.transform is None
     assert res.reason
 
@@ -96,7 +96,7 @@ def test_localize_succeeds_with_each_rejector(name):
 
     scene = make_two_robot_scene(seed=2)
     res = localize(scene.query, scene.target, rejection=name, seed=0)
-    assert res.success
+    assert res.accepted
     dt, dr = transform_error(res.transform, scene.T_target_query)
     assert dt < 3.0 and dr < 3.0
 
@@ -123,7 +123,7 @@ def test_cli_localize_with_rejection(name, airsim_dir, tmp_path):
     result = CliRunner().invoke(app, [*args, "--json", str(out)])
     assert result.exit_code == 0, result.output
     res = json.loads(out.read_text())
-    assert res["success"] and res["config"]["rejection"] == name
+    assert res["accepted"] and res["config"]["rejection"] == name
     # Same frame: the transform is near the identity.
     T = np.array(res["T_target_query"])
     assert np.linalg.norm(T[:3, 3]) < 10.0

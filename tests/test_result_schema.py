@@ -15,7 +15,7 @@ from sgloc.errors import OutputPathError, SglocError
 from sgloc.io.files import MANIFEST, staged_folder, write_text_atomic
 from sgloc.io.results import SCHEMA, is_result_document, summary
 
-COMMON = ["schema", "success", "reason", "confidence", "T_target_query", "covariance",
+COMMON = ["schema", "accepted", "reason", "confidence", "T_target_query", "covariance",
           "n_candidates", "n_survivors", "n_matches", "timings_ms", "scale", "query",
           "target", "seed"]  # fmt: skip
 
@@ -28,7 +28,7 @@ def test_three_outputs_share_one_schema(tmp_path, capsys):
     printed = json.loads(capsys.readouterr().out)
     folder = json.loads((tmp_path / "r" / "result.json").read_text())
     full = json.loads((tmp_path / "full.json").read_text())
-    assert SCHEMA == "sgloc.result/1"
+    assert SCHEMA == "sgloc.result/2"
     for d in (printed, folder, full):
         assert list(d)[: len(COMMON)] == COMMON and d["schema"] == SCHEMA
     assert printed == folder | {"timings_ms": printed["timings_ms"]}  # timings vary
@@ -146,3 +146,18 @@ def test_experiment_folder_appears_complete_or_not_at_all(tmp_path, monkeypatch,
     assert main(argv) == 0
     assert {"trials.csv", "table.md", "config.yaml"} <= set(os.listdir(out))
     assert os.listdir(tmp_path) == ["exp"]
+
+
+def test_success_is_a_read_only_alias_of_accepted(tmp_path):
+    from sgloc import localize
+    from sgloc.datasets.downloads import airsim_guo
+
+    res = localize(*airsim_guo(), seed=0)
+    assert res.accepted is True and res.success is res.accepted
+    with pytest.raises(AttributeError):
+        res.success = False  # one flag: the alias cannot drift from `accepted`
+    assert res.to_dict()["accepted"] is True and "success" not in res.to_dict()
+    for version in ("1", "2"):  # a document of either version is one sgloc may replace
+        p = tmp_path / f"v{version}.json"
+        p.write_text(f'{{"schema": "sgloc.result/{version}", "accepted": true}}')
+        assert is_result_document(p)

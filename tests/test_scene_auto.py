@@ -66,7 +66,7 @@ def test_auto_resolves_to_the_scaled_config_and_explicit_lengths_win():
 def test_auto_localizes_a_room_and_says_how():
     pair = room_pair(np.random.default_rng(4))
     res = localize(pair.query, pair.target, scale="auto")
-    assert res.success, res.reason
+    assert res.accepted, res.reason
     assert res.config["scale"] == SCENES["room"]
     assert res.scale_estimate is not None and res.scale_estimate.scene == "room"
     doc = summary(res)["scale"]
@@ -93,7 +93,7 @@ def test_prepared_map_keeps_its_estimate_and_gives_the_same_result():
     assert prepared.scale_estimate.scene == "room" and prepared.config.scale == SCENES["room"]
     a = localize(pair.query, prepared, config=cfg)
     b = localize(pair.query, pair.target, config=cfg)
-    assert a.success and np.array_equal(a.transform, b.transform)
+    assert a.accepted and np.array_equal(a.transform, b.transform)
     assert a.scale_estimate == b.scale_estimate
 
 
@@ -146,13 +146,13 @@ def test_other_places_weigh_a_twin_about_as_much_as_the_estimate():
 def test_room_preset_refuses_an_office_of_identical_offices(seed):
     pair = repeated_room_pair(np.random.default_rng(seed))
     without = localize(pair.query, pair.target, preset="room", other_places=0)
-    assert without.success  # these three fooled the test before the check
+    assert without.accepted  # these three fooled the test before the check
     res = localize(pair.query, pair.target, preset="room")
-    assert not res.success and "fits as well" in res.reason and "other_places=0" in res.reason
+    assert not res.accepted and "fits as well" in res.reason and "other_places=0" in res.reason
 
 
 def test_room_preset_still_localizes_rooms():
-    ok = [localize(p.query, p.target, preset="room").success
+    ok = [localize(p.query, p.target, preset="room").accepted
           for p in (room_pair(np.random.default_rng(s)) for s in (0, 1, 2, 3))]  # fmt: skip
     assert all(ok)
 
@@ -197,5 +197,5 @@ def test_auto_takes_the_estimated_scene_preset_and_explicit_settings_win():
 def test_auto_refuses_an_office_of_identical_offices():
     pair = repeated_room_pair(np.random.default_rng(1))
     res = localize(pair.query, pair.target, scale="auto")
-    assert not res.success and "fits as well" in res.reason
+    assert not res.accepted and "fits as well" in res.reason
     assert res.settings.acceptance.other_places == 8  # the room preset's check came with it

@@ -30,7 +30,7 @@ def test_objects_layer_read_as_a_graph(tmp_path, suffix):
     g = SemanticGraph.load(path)
     np.testing.assert_array_equal(g.positions, q.positions)
     np.testing.assert_array_equal(g.labels, q.labels)
-    assert localize(g, t).success == localize(q, t).success
+    assert localize(g, t).accepted == localize(q, t).accepted
 
 
 def test_sgloc_json_is_still_sgloc_json(tmp_path):

@@ -73,10 +73,10 @@ def test_scene_presets_use_their_unit():
 def test_room_needs_its_scale_and_the_refusal_says_so():
     pair = room_pair(np.random.default_rng(4))
     street = localize(pair.query, pair.target, seed=0)
-    assert not street.success
+    assert not street.accepted
     assert "preset='room'" in street.reason and "scale" in street.reason
     room = localize(pair.query, pair.target, seed=0, preset="room")
-    assert room.success, room.reason
+    assert room.accepted, room.reason
     te, re = transform_error(room.transform, pair.T_target_query)
     assert te < 0.5 and re < 3.0
     assert room.config["scale"] == SCENES["room"]  # the result says which scale was used
@@ -86,7 +86,7 @@ def test_forest_preset_localizes_a_one_class_pair():
     pair = forest_pair(np.random.default_rng(3))
     assert pair.shared >= 50
     res = localize(pair.query, pair.target, seed=0, preset="forest")
-    assert res.success, res.reason
+    assert res.accepted, res.reason
     te, re = transform_error(res.transform, pair.T_target_query)
     assert te < 1.0 and re < 3.0
     assert res.config["matching"]["top_k"] > 1
@@ -114,7 +114,7 @@ def test_cli_room_preset(tmp_path, capsys):
     assert main(["localize", str(q), str(t), "--preset", "room", "--json", str(out)]) == 0
     import json
 
-    assert json.loads(out.read_text())["success"]
+    assert json.loads(out.read_text())["accepted"]
 
 
 def test_hard_case_scene_categories_split_and_truth(benchmark_module):

@@ -22,7 +22,7 @@ def localize_city(seed: int) -> tuple[float, float]:
     target = build_graph(run.frames(TARGET), ExtractionConfig(), name=TARGET)
     query = build_graph(run.frames(QUERY), ExtractionConfig(), name=QUERY)
     res = localize(query, target, seed=seed, config=city_localizer_config())
-    if not res.success:
+    if not res.accepted:
         return np.inf, np.inf
     return transform_error(res.transform, run.ground_truth)
 

@@ -84,7 +84,7 @@ def test_localize_same_either_way(airsim_graphs):
         with _path(path):
             results.append(localize(q, t, seed=4))
     a, b = results
-    assert a.success and b.success and a.confidence == pytest.approx(b.confidence, abs=1e-9)
+    assert a.accepted and b.accepted and a.confidence == pytest.approx(b.confidence, abs=1e-9)
     assert np.abs(a.transform - b.transform).max() < 1e-9  # compiled fits: equal to rounding
     assert np.array_equal(a.matches, b.matches)
 

@@ -85,7 +85,7 @@ def test_localize_files_is_the_localizer_on_the_files(airsim_dir, tmp_path):
     q, t = airsim_dir / "cloud1.pcd", airsim_dir / "cloud2.pcd"
     done = localize_files(q, t, seed=3, out=tmp_path / "out", truth=np.eye(4))
     direct = Localizer(LocalizerConfig())(read_graph_file(q), read_graph_file(t), 3)
-    assert done.result.success == direct.success
+    assert done.result.accepted == direct.accepted
     assert np.array_equal(done.result.transform, direct.transform)
     assert done.info == {"query": str(q), "target": str(t), "seed": 3}
     assert {p.name for p in done.files.values()} >= {"result.json", "aligned_maps.png"}

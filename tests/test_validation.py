@@ -154,3 +154,24 @@ def test_every_stage_setting_declares_its_bounds_beside_its_field():
     for _, f in fields:  # each check refuses what is no value at all (it is not a pass-through)
         with pytest.raises(InvalidSettingError, match=f"setting x.{f.name}\\b"):
             check_of(f)(f"x.{f.name}", object())
+
+
+def test_shared_settings_are_declared_once():
+    """ExtractionConfig takes its association settings from AssociationSettings (one default,
+    one check), under the same names; a config cannot take a setting that is not declared."""
+    import dataclasses
+
+    from sgloc.extraction import ExtractionConfig
+    from sgloc.maps.association import AssociationSettings
+    from sgloc.validation import check_of, same_setting
+
+    theirs = {f.name: f for f in dataclasses.fields(AssociationSettings)}
+    ours = {f.name: f for f in dataclasses.fields(ExtractionConfig)}
+    assert set(theirs) <= set(ours)
+    for name, f in theirs.items():
+        assert check_of(ours[name]) is check_of(f) and ours[name].default == f.default, name
+    assert ExtractionConfig().association_radius == AssociationSettings().association_radius
+    with pytest.raises(InvalidSettingError, match="ExtractionConfig.min_observations"):
+        ExtractionConfig(min_observations=0)
+    with pytest.raises(TypeError, match="no setting 'radius'"):
+        same_setting(AssociationSettings, "radius")

@@ -94,7 +94,7 @@ def test_repetitive_road_is_refused(rng):
     assert not v.accepted
     assert v.confidence < 0.9
     assert "another place" in v.reason or "few metres" in v.reason
-    assert not localize(query, target).success
+    assert not localize(query, target).accepted
 
 
 def test_random_small_query_against_unrelated_map_is_refused(rng):
@@ -120,11 +120,11 @@ def test_localizer_verifies_only_refused_small_queries(monkeypatch, rng):
     other = _scattered_map(np.random.default_rng(5))
     small, _ = _query_of(other, np.array([150.0, 150.0]), 28.0, np.eye(4), rng)
     res = localize(small, target)
-    assert not res.success and calls == [len(small)]
+    assert not res.accepted and calls == [len(small)]
     assert "verification" in res.timings
     calls.clear()
-    assert not localize(small, target, verify_small=False).success and calls == []
-    assert not localize(small, target, dof=6, max_tilt=None).success and calls == []
+    assert not localize(small, target, verify_small=False).accepted and calls == []
+    assert not localize(small, target, dof=6, max_tilt=None).accepted and calls == []
     big, _ = _query_of(other, np.array([150.0, 150.0]), 60.0, np.eye(4), rng)
     assert len(big) >= 30
     localize(big, target)

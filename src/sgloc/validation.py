@@ -215,6 +215,18 @@ def setting(default: Any = dataclasses.MISSING, *, check: Check, **field_options
     return dataclasses.field(default=default, metadata={"check": check}, **field_options)
 
 
+def same_setting(config: type, name: str) -> Any:
+    """A field declaring what the dataclass `config` declares for its setting `name` (default
+    or default factory, and check): a setting two configs share is declared once, in one of
+    them, and the other takes it by name (`sgloc.extraction.ExtractionConfig`'s association
+    settings are `sgloc.maps.association.AssociationSettings`')."""
+    f = next((f for f in dataclasses.fields(config) if f.name == name), None)
+    if f is None:
+        raise TypeError(f"{config.__name__} declares no setting {name!r}.")
+    return dataclasses.field(default=f.default, default_factory=f.default_factory,
+                             metadata=f.metadata)
+
+
 def check_of(f: dataclasses.Field) -> Check | None:
     """The check a field declares (None: it declares none)."""
     return f.metadata.get("check")

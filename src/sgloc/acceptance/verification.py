@@ -11,7 +11,7 @@ cheap to check instead, as relocalization systems do:
 3. score: per hypothesis, the query objects (all of them, not only the matched ones) that land
    within `radius` of a target object of their class (one KD-tree for all classes: the class is
    a fourth coordinate; heights count Z_SCALE), the summed squared distance breaking ties;
-4. refine: the best is re-fitted (the 4-dof model's least squares, tilted up to `max_tilt`) to
+4. refit: the best is re-fitted (the 4-dof model's least squares, tilted up to `max_tilt`) to
    the nearest same-class target of each query object within the radius, a few rounds;
 5. decide, a-contrario: k = co-located query objects after the refit. Chance model: query
    object i, placed at random near its hypothesised place, lands within r of one of the N_i
@@ -19,7 +19,7 @@ cheap to check instead, as relocalization systems do:
    p_i = 1 - exp(-N_i (r / R)^2) (the local density of its class; the object's own partner
    counts in N_i). NFA = (consistent pairs: the hypotheses) * P(Poisson(sum p_i) >= k - 2)
    (two objects fix a hypothesis), evaluated at 1/4, 1/2 and all of the radius
-   (`chance.nfa_over_radii`). Rivals: the best of a few refined hypotheses more
+   (`chance.nfa_over_radii`). Rivals: the best of a few refitted hypotheses more
    than 2 * radius (at the query's centroid) or `distinct_rotation` degrees away from the best,
    and the best other place of the target where the constellation the query landed on fits
    again (a world built of copies, such as regular blocks or roadside rows, has such places;
@@ -52,8 +52,8 @@ from sgloc.maps.spatial import ClassKDTree
 from sgloc.matching.candidates import MatchingConfig, match_descriptors, match_flagged
 
 #: Rounds of nearest-neighbour re-association and refit of the best hypothesis.
-REFINE_ROUNDS = 3
-#: Distinct hypotheses refined in the search for the runner-up (the best scored first).
+REFIT_ROUNDS = 3
+#: Distinct hypotheses refitted in the search for the runner-up (the best scored first).
 RUNNER_UPS = 4
 #: Co-located pairs that must be distinctive best matches: the minimal sample (a pair) that the
 #: whole geometry then extends.
@@ -123,7 +123,7 @@ def _pair_hypotheses(
     return R, t, n_tests
 
 
-def _refine(
+def _refit(
     query: SemanticGraph,
     tpos: np.ndarray,
     tree: ClassTree,
@@ -131,10 +131,10 @@ def _refine(
     max_tilt: float | None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Re-associate each query object with its nearest same-class target within the radius and
-    refit (4-dof model: tilted up to `max_tilt` degrees), REFINE_ROUNDS times; (T, distances
+    refit (4-dof model: tilted up to `max_tilt` degrees), REFIT_ROUNDS times; (T, distances
     (n,), target index (n,))."""
     q = query.positions
-    for _ in range(REFINE_ROUNDS):
+    for _ in range(REFIT_ROUNDS):
         d, j = tree.nearest(q @ T[:3, :3].T + T[:3, 3], query.labels)
         ok = np.isfinite(d)
         if ok.sum() < 2:
@@ -200,7 +200,7 @@ def _best_distinct(
     n_tests: int,
 ) -> tuple[float, int]:
     """(log10 NFA, co-located count) of the best of the RUNNER_UPS best-scored hypotheses
-    `hyps` = (R, t, order) that, refined, stay distinct from T at the centroid of `graph`
+    `hyps` = (R, t, order) that, refitted, stay distinct from T at the centroid of `graph`
     (inf, 0: none)."""
     R, t, order = hyps
     tpos, tree, chance = context.tpos, context.tree, context.chance
@@ -212,7 +212,7 @@ def _best_distinct(
     for h in order[distinct[order]][:RUNNER_UPS]:
         T2 = np.eye(4)
         T2[:3, :3], T2[:3, 3] = R[h], t[h]
-        T2, d2, _ = _refine(graph, tpos, tree, T2, max_tilt)
+        T2, d2, _ = _refit(graph, tpos, tree, T2, max_tilt)
         if distinct_from(T2[None, :3, :3], T2[None, :3, 3], T, c, 2.0 * r, degrees)[0]:
             lg2, k2 = _log10_nfa(d2, _local_chance(chance, graph, T2, r), n_tests, r)
             best = min(best, (lg2, k2))
@@ -273,7 +273,7 @@ def _distinct_support(
 
 @dataclass
 class _Fit:
-    """The best hypothesis refined: T (4x4), per query object distance to its nearest
+    """The best hypothesis refitted: T (4x4), per query object distance to its nearest
     same-class target within the radius (inf beyond) and that target's index."""
 
     T: np.ndarray
@@ -319,7 +319,7 @@ def verify_small_query(
         return Verification(False, None, 0.0, empty, "no consistent pair of candidates")
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R[order[0]], t[order[0]]
-    fit = _Fit(*_refine(query, target.positions, tree, T, max_tilt))
+    fit = _Fit(*_refit(query, target.positions, tree, T, max_tilt))
     n_classes = max(query.n_classes, target.n_classes)
     chance = ChanceModel(target, float(vcfg.verify_density_radius), n_classes, prepared)
     context = SearchContext(target.positions, tree, chance, max_tilt, cfg.distinct_rotation)

@@ -129,10 +129,10 @@ def _print(console: Console, done: DemoResult, out: Path) -> None:
         f"{len(res.matches)} final",
     )
     table.add_row("time", f"{res.timings['total'] * 1e3:.1f} ms {compile_note()}".rstrip())
-    if res.success:
+    if res.accepted:
         te, re = transform_error(res.transform, done.truth)
         table.add_row("error vs ground truth", f"translation {te:.2f} m, rotation {re:.2f} deg")
     console.print(table)
     console.print(f"saved {out}")
-    if not res.success:
+    if not res.accepted:
         raise not_localized(res.reason)

@@ -134,9 +134,9 @@ def _print(done: FileLocalization, out: Path | None, fmt: str | None, example: b
     if out is not None:
         files = sorted(p.name for p in done.files.values())
         console.print(f"results in {out}/: " + ", ".join(files))
-    if fmt is not None and (res.success or fmt == "json"):
+    if fmt is not None and (res.accepted or fmt == "json"):
         typer.echo(render(res, fmt, **done.info), nl=False)
-    if not res.success:
+    if not res.accepted:
         raise not_localized(res.reason)
 
 
@@ -153,7 +153,7 @@ def _report(console: Console, q, t, res, example: bool) -> None:
     console.print(scale_line(res))
     if note := compile_note():
         console.print(note)
-    if res.success:
+    if res.accepted:
         conf = "n/a" if res.confidence is None else f"{res.confidence:.4f}"
         with np.printoptions(precision=4, suppress=True):
             console.print(f"confidence {conf}\nT_target_query =\n{res.transform}")

@@ -1,5 +1,10 @@
 """Refinements of a fit on matched points: Tukey IRLS (optionally with per-class,
-per-axis residual scales and the anisotropic fit they need) and mutual-nearest-neighbour ICP."""
+per-axis residual scales and the anisotropic fit they need) and mutual-nearest-neighbour ICP.
+
+*Refine* here means improving one transform's fit on its matches (`register(refine=...)`,
+`FinalFit.refine`, `icp_refine`). Re-estimating a transform on a new set of object pairs is a
+*refit* (a link on grown maps: `sgloc.online.refine`; a hypothesis in
+`sgloc.acceptance.verification`); the fleet's *joint refinement* is `sgloc.online.joint`."""
 
 from __future__ import annotations
 

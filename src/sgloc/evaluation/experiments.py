@@ -340,7 +340,7 @@ def _matches(dataset: str, folder: Path, opt: ExperimentOptions) -> ExperimentOu
     md += markdown_table(["stage", "matches", "correct"], body)
     for rej, res in results.items():
         te, re = pair.own_frame_errors(res.transform)
-        md += f"\n{rej}: localized={res.success}, translation error {fmt(te)} m, "
+        md += f"\n{rej}: localized={res.accepted}, translation error {fmt(te)} m, "
         md += f"rotation error {fmt(re)} deg"
     with naming(folder / "table.md"):
         (folder / "table.md").write_text(md + "\n")

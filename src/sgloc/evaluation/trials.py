@@ -104,7 +104,7 @@ def run_task(task: TrialTask) -> dict[str, Any]:
         "rejection": cfg.rejection,
         "ransac_threshold": float(cfg.ransac.threshold),
         "seed": int(task.seed),
-        "localized": bool(res.success),
+        "localized": bool(res.accepted),
         "failed": is_failure(te, task.failure_m),
         "translation_error_m": te,
         "rotation_error_deg": re,

@@ -7,14 +7,14 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 from sgloc.errors import SglocError
-from sgloc.maps.graph import DEFAULT_EDGE_RADIUS
+from sgloc.maps.association import AssociationSettings
 from sgloc.pipeline.presets import extraction_settings
 from sgloc.validation import (
     MAX_COORDINATE,
     choice,
-    class_ids,
     integer,
     real,
+    same_setting,
     setting,
     validate_settings,
 )
@@ -38,7 +38,8 @@ class ExtractionConfig:
         ignore_classes: class ids never turned into vertices (e.g. road, sky).
     Detections (LiDAR objects):
         max_range: detections farther than this from the sensor (metres) are ignored; None = all.
-    Association (both):
+    Association (both; declared by `sgloc.maps.association.AssociationSettings`, as
+    `ignore_classes`):
         association_radius: an observation within this distance (metres) of an existing vertex
             of the same class is that vertex (Guo 5 m); the vertex keeps the running mean.
         min_observations: vertices seen fewer times are dropped at the end (1 keeps all).
@@ -49,15 +50,13 @@ class ExtractionConfig:
     depth_jump: float = setting(1.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m"))
     min_pixels: int = setting(5000, check=integer(1))
     position: Literal["mean", "centre"] = setting("mean", check=choice("mean", "centre"))
-    ignore_classes: tuple[int, ...] = setting((), check=class_ids)
+    ignore_classes: tuple[int, ...] = same_setting(AssociationSettings, "ignore_classes")
     max_range: float | None = setting(
         None, check=real(0.0, MAX_COORDINATE, low_open=True, none_ok=True, unit="m")
     )
-    association_radius: float = setting(5.0, check=real(0.0, MAX_COORDINATE, unit="m"))
-    min_observations: int = setting(1, check=integer(1))
-    edge_radius: float = setting(
-        DEFAULT_EDGE_RADIUS, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m")
-    )
+    association_radius: float = same_setting(AssociationSettings, "association_radius")
+    min_observations: int = same_setting(AssociationSettings, "min_observations")
+    edge_radius: float = same_setting(AssociationSettings, "edge_radius")
 
     def __post_init__(self) -> None:
         validate_settings(self, "ExtractionConfig")

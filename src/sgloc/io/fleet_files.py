@@ -36,7 +36,8 @@ def write_fleet_poses(result, folder: str | Path) -> list[Path]:
 def write_fleet_g2o(result, path: str | Path) -> Path:
     """`links.g2o`: a VERTEX_SE3:QUAT per placed robot (id = its index in `names`, pose
     T_fleet_robot) and an EDGE_SE3:QUAT per kept link (T_target_query, its information)."""
-    edges = [(lk.target, lk.query, lk.transform, lk.covariance) for lk in result.links
+    idx = result.names.index
+    edges = [(idx(lk.target), idx(lk.query), lk.transform, lk.covariance) for lk in result.links
              if lk.used in ("tree", "loop") and lk.covariance is not None]
     return write_g2o(path, result.T_fleet_robot, edges)
 

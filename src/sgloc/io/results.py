@@ -26,12 +26,14 @@ FILES = {
 
 
 #: Version of the JSON result document (`--json`, result.json, `--format json`); docs/formats.md.
-SCHEMA = "sgloc.result/1"
+#: Version 2 renamed the key "success" of version 1 to "accepted" (`LocalizationResult.accepted`);
+#: every other key means the same.
+SCHEMA = "sgloc.result/2"
 
 
 def is_result_document(path: Path) -> bool:
-    """True if `path` holds a JSON result document sgloc wrote (`--json FILE`): it may be
-    replaced by the next one."""
+    """True if `path` holds a JSON result document sgloc wrote (`--json FILE`), of any schema
+    version: it may be replaced by the next one."""
     try:
         with open(path, "rb") as f:
             head = f.read(4096).decode("utf-8", "replace")
@@ -49,11 +51,11 @@ def _array(a: Any, decimals: int | None = None) -> list | None:
 
 def summary(result: Any, **extra: Any) -> dict[str, Any]:
     """The JSON result document without per-match lists (result.json, `--format json`):
-    schema, success, reason, confidence, T_target_query (4x4, metres), covariance (6x6 or
+    schema, accepted, reason, confidence, T_target_query (4x4, metres), covariance (6x6 or
     None), counts, timings_ms, then `extra` (query, target, seed)."""
     d = {
         "schema": SCHEMA,
-        "success": bool(result.success),
+        "accepted": bool(result.accepted),
         "reason": result.reason,
         "confidence": None if result.confidence is None else round(float(result.confidence), 6),
         "T_target_query": _array(result.transform, 9),
@@ -155,7 +157,7 @@ def write_results_into(out: Path, result: Any, config: Any, **extra: Any) -> dic
         files["json"].write_text(compact_json(summary(result, **extra)))
     with naming(files["config"]):
         config.to_yaml(files["config"])
-    if result.success:
+    if result.accepted:
         for fmt in ("matrix", "kitti", "tum"):
             with naming(out / FILES[fmt]):
                 files[fmt] = write_transform(out / FILES[fmt], result.transform, fmt)

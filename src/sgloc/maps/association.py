@@ -36,7 +36,8 @@ class AssociationSettings:
     """association_radius: metres, an observation this close to an object of its class is that
     object (0: never merge); min_observations: objects seen fewer times are left out of
     `graph()`; edge_radius: metres, the graph's edges; ignore_classes: class ids never
-    turned into objects. (`sgloc.extraction.ExtractionConfig` has the same fields.)"""
+    turned into objects. These four settings are declared here only:
+    `sgloc.extraction.ExtractionConfig` takes them by name (`sgloc.validation.same_setting`)."""
 
     association_radius: float = setting(5.0, check=real(0.0, MAX_COORDINATE, unit="m"))
     min_observations: int = setting(1, check=integer(1))

@@ -21,7 +21,7 @@ processes, or an existing Dask cluster).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +35,7 @@ from sgloc.maps.graph import SemanticGraph
 from sgloc.online import OnlineConfig, OnlineSession
 from sgloc.online.link_selection import Edge, spanning_forest
 from sgloc.online.merge import merge_graphs
+from sgloc.online.records import Attempt
 from sgloc.pipeline.config import LocalizerConfig
 from sgloc.validation import (
     MAX_COORDINATE,
@@ -78,36 +79,11 @@ class FleetConfig:
         validate_settings(self, "FleetConfig")
 
 
-@dataclass
-class PairLink:
-    """Outcome of localizing robot `query` against robot `target` (indices): T_target_query
-    when `accepted`, its `covariance` ([rx ry rz tx ty tz], query frame); `confidence` from the
-    acceptance test; `reason` when not accepted or dropped; `used`: "tree" or "loop" (kept),
-    "dropped" (by the loop check) or "" (not accepted)."""
-
-    query: int
-    target: int
-    accepted: bool
-    transform: np.ndarray | None
-    confidence: float
-    n_matches: int
-    reason: str = ""
-    seconds: float = 0.0
-    used: str = ""
-    covariance: np.ndarray | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "query": self.query,
-            "target": self.target,
-            "accepted": self.accepted,
-            "confidence": self.confidence,
-            "n_matches": self.n_matches,
-            "used": self.used,
-            "reason": self.reason,
-            "transform": None if self.transform is None else self.transform.tolist(),
-            "covariance": None if self.covariance is None else self.covariance.tolist(),
-        }
+#: The earlier name of the fleet's pairwise records (`FleetResult.links`): they are the
+#: session's `Attempt` records, marked with how the fleet used them (`Attempt.used`) and the
+#: covariance of their link; `query` and `target` are robot names (`FleetResult.names`), their
+#: indices in fleet.json.
+PairLink = Attempt
 
 
 @dataclass
@@ -118,7 +94,8 @@ class FleetResult:
     for the placed robots (p_fleet = T @ p_robot; the fleet frame is robot `root`'s; also
     readable as `T_world_robot`). stamps: {robot index: seconds} the time of each robot's pose
     (0.0 for a whole map: it has no time of its own). unplaced: robot indices
-    that could not be placed, with `unplaced_reason`. links: every pairwise localization;
+    that could not be placed, with `unplaced_reason`. links: every pairwise localization
+    (`Attempt`, named by robot, with `used` and the covariance of its link);
     `merged`: the fused map of the placed robots, with `merged_robot` (n,) the robot that first
     contributed each merged object. session: the online session that placed them.
     """
@@ -128,7 +105,7 @@ class FleetResult:
     T_fleet_robot: dict[int, np.ndarray]
     unplaced: list[int]
     unplaced_reason: dict[int, str]
-    links: list[PairLink]
+    links: list[Attempt]
     merged: SemanticGraph | None
     merged_robot: np.ndarray
     timings: dict[str, float] = field(default_factory=dict)
@@ -151,16 +128,26 @@ class FleetResult:
             "root_name": None if self.root is None else self.names[self.root],
             "placed": {self.names[i]: T.tolist() for i, T in sorted(self.T_fleet_robot.items())},
             "unplaced": {self.names[i]: self.unplaced_reason.get(i, "") for i in self.unplaced},
-            "links": [
-                {
-                    **lk.to_dict(),
-                    "query_name": self.names[lk.query],
-                    "target_name": self.names[lk.target],
-                }
-                for lk in self.links
-            ],
+            "links": [self._link_dict(a) for a in self.links],
             "merged_objects": 0 if self.merged is None else len(self.merged),
             "timings": self.timings,
+        }
+
+
+    def _link_dict(self, a: Attempt) -> dict[str, Any]:
+        """One pairwise localization in fleet.json: robots by index, then by name."""
+        return {
+            "query": self.names.index(a.query),
+            "target": self.names.index(a.target),
+            "accepted": a.accepted,
+            "confidence": a.confidence,
+            "n_matches": a.n_matches,
+            "used": a.used,
+            "reason": a.reason,
+            "transform": None if a.transform is None else a.transform.tolist(),
+            "covariance": None if a.covariance is None else a.covariance.tolist(),
+            "query_name": a.query,
+            "target_name": a.target,
         }
 
 
@@ -215,8 +202,9 @@ def default_root(session: OnlineSession) -> str:
     return names[int(members[np.argmax(conf[members])])]
 
 
-def _pair_links(session: OnlineSession) -> list[PairLink]:
-    """Every attempt of the session as a PairLink, marking the kept links tree / loop."""
+def _pair_links(session: OnlineSession) -> list[Attempt]:
+    """Every attempt of the session, marked with how the fleet used it (`Attempt.used`: the
+    kept links "tree" / "loop", "dropped") and the covariance of its link."""
     names = session.robots
     idx = {r: k for k, r in enumerate(names)}
     links = {(lk.robot_a, lk.robot_b): lk for lk in session.links}
@@ -232,19 +220,18 @@ def _pair_links(session: OnlineSession) -> list[PairLink]:
         if lk is not None:
             used = ("tree" if (a.target, a.query) in tree else "loop") if lk.active else "dropped"
             reason = lk.reason if not lk.active else reason
-        out.append(PairLink(
-            idx[a.query], idx[a.target], a.accepted, a.transform, a.confidence, a.n_matches,
-            reason, a.seconds, used, None if lk is None else lk.covariance,
-        ))
+        out.append(replace(a, reason=reason, used=used,
+                           covariance=None if lk is None else lk.covariance))
     return out
 
 
-def _unplaced_reasons(n: int, placed: set[int], links: list[PairLink]) -> dict[int, str]:
+def _unplaced_reasons(names: list[str], placed: set[int], links: list[Attempt]
+                      ) -> dict[int, str]:
     reasons = {}
-    for i in range(n):
+    for i, name in enumerate(names):
         if i in placed:
             continue
-        mine = [lk for lk in links if lk.accepted and i in (lk.query, lk.target)]
+        mine = [lk for lk in links if lk.accepted and name in (lk.query, lk.target)]
         kept = [lk for lk in mine if lk.used in ("tree", "loop")]
         reasons[i] = (
             "its accepted pairs link it only to robots outside the placed group" if kept
@@ -313,7 +300,7 @@ def localize_fleet(
     root_i = names.index(s.root)
     poses = {k: T for k, r in enumerate(names) if (T := s.T_fleet_robot(r)) is not None}
     merged, merged_robot, _, _ = merge_graphs(graphs, poses, cfg.fuse_radius)
-    reasons = _unplaced_reasons(len(graphs), set(poses), links)
+    reasons = _unplaced_reasons(names, set(poses), links)
     result = FleetResult(
         names=names, root=root_i, T_fleet_robot=poses, unplaced=sorted(reasons),
         unplaced_reason=reasons, links=links, merged=merged, merged_robot=merged_robot,

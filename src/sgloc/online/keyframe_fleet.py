@@ -19,8 +19,8 @@ from sgloc.online.keyframe_colocation import colocation_factors
 from sgloc.online.keyframe_graph import COLOCATION, KeyframeGraph, keyframe_link
 from sgloc.online.keyframe_links import select_links
 from sgloc.online.link_selection import loop_error, loop_tolerance
-from sgloc.online.records import Link
-from sgloc.online.refine import refine_link
+from sgloc.online.records import Attempt, Link
+from sgloc.online.refine import refit_link
 from sgloc.online.robot_map import RobotMap
 
 
@@ -52,24 +52,24 @@ def make_query(maps: list[RobotMap], target: int, query: int, length: float) -> 
     return Query(target, query, first, q.subgraph(recent), tgt)
 
 
-def refit(task: Query, result: dict, motion: MotionModel, radius: float, tol_m: float,
+def refit(task: Query, result: Attempt, motion: MotionModel, radius: float, tol_m: float,
           tol_deg: float) -> tuple[np.ndarray, np.ndarray, int] | None:
     """The accepted attempt's T_target_query refitted on every object pair it co-locates
-    between the query submap and the target map (`refine.refine_link`), with the covariance
+    between the query submap and the target map (`refine.refit_link`), with the covariance
     of that fit: (T, covariance, pairs), or None when the refit rests on fewer pairs than the
     attempt's matches or moves the query submap by more than the loop tolerance (as a loop
     of 2) from the attempt's alignment."""
     q, t = task.query_graph, task.target_graph
-    T = np.asarray(result["transform"], np.float64)
-    r = refine_link(q.positions, q.labels, t.positions, t.labels, T, motion, radius)
-    if r is None or r.n_pairs < int(result["n_matches"]):
+    T = np.asarray(result.transform, np.float64)
+    r = refit_link(q.positions, q.labels, t.positions, t.labels, T, motion, radius)
+    if r is None or r.n_pairs < int(result.n_matches):
         return None
     dt, dr = loop_error(lie.between(T, r.T_a_b), q.positions)
     lim_m, lim_deg = loop_tolerance(tol_m, tol_deg, 2)
     return None if dt > lim_m or dr > lim_deg else (r.T_a_b, r.covariance, r.n_pairs)
 
 
-def link_of(maps: list[RobotMap], names: list[str], task: Query, result: dict,
+def link_of(maps: list[RobotMap], names: list[str], task: Query, result: Attempt,
             stamp: float, refitted: tuple | None = None) -> Link:
     """The keyframe link of an accepted attempt, between the two keyframes nearest the place
     the attempt aligned (the query submap's centroid): the query keyframe of the submap's
@@ -81,7 +81,7 @@ def link_of(maps: list[RobotMap], names: list[str], task: Query, result: dict,
     their maps. The localizer's covariance is kept: calibrated on real data, it holds the
     offset two maps share, which more pairs do not remove."""
     qm, tm = maps[task.query], maps[task.target]
-    T, C = np.asarray(result["transform"], np.float64), result["covariance"]
+    T, C = np.asarray(result.transform, np.float64), result.covariance
     if refitted is not None:
         T = refitted[0]
     c = task.query_graph.positions.mean(axis=0)
@@ -93,8 +93,8 @@ def link_of(maps: list[RobotMap], names: list[str], task: Query, result: dict,
     anchors_q = qm.anchors()[task.first:]
     kb = task.first + int(np.argmin(np.linalg.norm(anchors_q[:, :3, 3] - c, axis=1)))
     T_kk, cov = keyframe_link(tm.anchors()[ka], T, C, qm.anchors()[kb])
-    return Link(names[task.target], names[task.query], T_kk, cov, float(result["confidence"]),
-                float(stamp), active=False, n_matches=int(result["n_matches"]),
+    return Link(names[task.target], names[task.query], T_kk, cov, float(result.confidence),
+                float(stamp), active=False, n_matches=int(result.n_matches),
                 refined_pairs=0 if refitted is None else int(refitted[2]),
                 keyframe_a=ka, keyframe_b=kb)
 
@@ -116,7 +116,7 @@ class KeyframeFleet:
         # (placed robots, their confirmed objects) when the co-location factors were derived
         self.colocated_at: tuple[list[int], int] | None = None
 
-    def link(self, maps: list[RobotMap], names: list[str], task: Query, result: dict,
+    def link(self, maps: list[RobotMap], names: list[str], task: Query, result: Attempt,
              stamp: float, motion: MotionModel, radius: float) -> Link:
         """The keyframe link of an accepted attempt (`link_of`), its alignment refitted on
         the co-located objects (`refit`) when `OnlineConfig.refine_links` is on; motion: the

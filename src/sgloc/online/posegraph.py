@@ -43,7 +43,7 @@ def fleet_frame(
     memo: LoopMemo | None = None,
 ) -> FleetFrame:
     """Select the consistent links, place the root's connected robots along the
-    maximum-confidence spanning tree, then refine by least squares over every consistent link
+    maximum-confidence spanning tree, then solve the least squares over every consistent link
     among them (points(robot): that robot's objects, for the loop tolerance in metres; memo:
     loop verdicts kept between calls, `consistency.LoopMemo`)."""
     active, dropped = select_consistent(n, edges, points, tol_m, tol_deg, memo)

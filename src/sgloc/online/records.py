@@ -13,7 +13,13 @@ ROBOT_JOINED, LINK_ACCEPTED, LINK_REVOKED = "robot_joined", "link_accepted", "li
 
 @dataclass
 class Link:
-    """An accepted localization between two robots.
+    """An accepted localization between two robots: an edge of the fleet's pose graph.
+
+    A separate record from the `Attempt` that produced it: an attempt is a finished, immutable
+    fact (one try, kept in `OnlineSession.attempts` whatever its outcome), while a link lives on
+    in the fleet's state (active or not, agreed by later attempts, refitted on the grown maps,
+    revoked) and holds what the pose graph needs (T_a_b in robot or keyframe frames, its
+    covariance); a link may outlive or replace several attempts of its pair.
 
     T_a_b: (4,4) maps robot_b's odometry frame into robot_a's (p_a = R @ p_b + t).
     covariance: (6,6) of T_a_b, GTSAM Pose3 tangent order [rx ry rz tx ty tz] (rad, m), right
@@ -86,8 +92,16 @@ class Event:
 
 @dataclass
 class Attempt:
-    """One localization attempt of robot `query` in robot `target`'s map (both names):
-    `transform` = T_target_query when accepted."""
+    """One localization attempt of robot `query` in robot `target`'s map (both names), the one
+    record of a pairwise localization from the worker that ran it to `FleetResult.links`:
+    `transform` = T_target_query when accepted, `covariance` its (6,6) covariance ([rx ry rz tx
+    ty tz], rad and m, query frame; None when not accepted), `confidence` the acceptance
+    test's, `n_matches` the inliers, `reason` why not accepted, `seconds` its wall time,
+    `sizes` the objects of (query, target) it ran on. `used`: how `localize_fleet` used it
+    ("tree" or "loop": kept, "dropped" by the loop check, "": not accepted; "" in a session).
+
+    An accepted attempt becomes a `Link` of the session; `to_dict` leaves out `covariance`
+    (the link keeps it) and `used` (a fleet result writes it), as earlier session files did."""
 
     query: str
     target: str
@@ -99,6 +113,8 @@ class Attempt:
     reason: str
     seconds: float
     sizes: tuple[int, int]  # confirmed objects of (query, target) at the attempt
+    covariance: np.ndarray | None = None
+    used: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -114,4 +130,6 @@ class Attempt:
         d = dict(d)
         d["transform"] = None if d["transform"] is None else np.array(d["transform"], float)
         d["sizes"] = tuple(d["sizes"])
+        if d.get("covariance") is not None:
+            d["covariance"] = np.array(d["covariance"], float)
         return cls(**d)

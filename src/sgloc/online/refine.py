@@ -1,8 +1,11 @@
-"""Refine a link on everything two grown maps share: pair the objects the link puts on top of
-each other (mutual nearest same-class neighbours within a radius), refit by the robust fit of
-the motion model, repeat until the pairing stops changing, and give the covariance of the fit
-over all those pairs (`sgloc.estimation.covariance`): the more co-located objects, the smaller
-it is."""
+"""Refit a link on everything two grown maps share (`OnlineConfig.refine_links`): pair the
+objects the link puts on top of each other (mutual nearest same-class neighbours within a
+radius), refit by the robust fit of the motion model, repeat until the pairing stops changing,
+and give the covariance of the fit over all those pairs (`sgloc.estimation.covariance`): the
+more co-located objects, the smaller it is.
+
+Words of the online package: a link is *refitted* here (one link, on its two maps); the fleet
+frame is *refined* jointly in `sgloc.online.joint` (`OnlineConfig.refine_fleet`)."""
 
 from __future__ import annotations
 
@@ -17,7 +20,7 @@ from sgloc.maps.spatial import mutual_nearest_pairs
 
 
 @dataclass(frozen=True)
-class Refined:
+class Refit:
     """A link refitted on co-located objects: T_a_b (4,4), covariance (6,6; `Link`'s
     convention), n_pairs the object pairs it was fitted on."""
 
@@ -42,10 +45,10 @@ def co_located(
     return i, j - len(moved)
 
 
-def refine_link(
+def refit_link(
     pos_b: np.ndarray, lab_b: np.ndarray, pos_a: np.ndarray, lab_a: np.ndarray,
     T_a_b: np.ndarray, motion: MotionModel, radius: float, iterations: int = 10,
-) -> Refined | None:
+) -> Refit | None:
     """T_a_b refitted on every object pair it co-locates (robot b's objects pos_b (n,3) in b's
     odometry frame, robot a's pos_a (m,3) in a's, metres; labels class ids); None when fewer
     than 3 pairs. Deterministic: a pure function of its inputs."""
@@ -66,4 +69,4 @@ def refine_link(
     if len(i) < 3:
         return None
     cov = transform_covariance(pos_b[i], pos_a[j], T, None, motion.dof, motion.max_tilt)
-    return Refined(T, cov, int(len(i)))
+    return Refit(T, cov, int(len(i)))

@@ -4,6 +4,7 @@ when their maps have grown enough and keeps one fleet frame over the consistent 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -34,7 +35,7 @@ from sgloc.online.records import (
     Event,
     Link,
 )
-from sgloc.online.refine import refine_link
+from sgloc.online.refine import refit_link
 from sgloc.online.robot_map import RobotMap
 from sgloc.online.schedule import PairSizes, due_pairs
 from sgloc.pipeline.config import LocalizerConfig
@@ -62,7 +63,7 @@ class OnlineSession:
         self._maps: dict[str, RobotMap] = {}
         self._last = PairSizes()  # pair -> the two maps' sizes at its last attempt
         self._tries: dict[tuple[int, int], int] = {}
-        self._refined = PairSizes()  # pair -> the two maps' sizes at its last refit
+        self._refitted = PairSizes()  # pair -> the two maps' sizes at its last refit
         self._links: dict[tuple[int, int], Link] = {}
         self._T: dict[str, np.ndarray] = {}
         self.attempts: list[Attempt] = []
@@ -278,8 +279,8 @@ class OnlineSession:
             for (i, j), r in zip(due, results, strict=True):
                 changed |= self._record(i, j, sizes, r, stamp)
         if self._kf is None:
-            changed |= self._refine_due(sizes, max_attempts, growth_ratio, growth_objects,
-                                        robot)
+            changed |= self._refit_due(sizes, max_attempts, growth_ratio, growth_objects,
+                                       robot)
         if changed:
             self._refresh(stamp)
         return self.events[n_events:]
@@ -359,31 +360,27 @@ class OnlineSession:
             self._tries[key] = self._tries.get(key, 0) + 1
         changed = False
         for qu, r in zip(queries, run_tasks(tasks, scheduler, workers), strict=True):
-            self.attempts.append(Attempt(
-                names[qu.query], names[qu.target], stamp, r["accepted"], r["transform"],
-                r["confidence"], r["n_matches"], r["reason"], r["seconds"],
-                (len(qu.query_graph.positions), len(qu.target_graph.positions)),
-            ))
-            if r["accepted"]:
+            r = replace(r, query=names[qu.query], target=names[qu.target], stamp=stamp,
+                        sizes=(len(qu.query_graph.positions), len(qu.target_graph.positions)))
+            self.attempts.append(r)
+            if r.accepted:
                 self._kf.links.append(self._kf.link(maps, names, qu, r, stamp,
                                                     self.config.motion,
                                                     self.config.ransac.threshold))
                 changed = True
         return changed
 
-    def _record(self, i: int, j: int, sizes: list[int], r: dict, stamp: float) -> bool:
-        """Store one attempt; True when it added or replaced a link."""
+    def _record(self, i: int, j: int, sizes: list[int], r: Attempt, stamp: float) -> bool:
+        """Store one attempt (robot j in robot i's map, named here); True when it added or
+        replaced a link."""
         names = self.robots
         self._last[(i, j)] = (sizes[i], sizes[j])
         self._tries[(i, j)] = self._tries.get((i, j), 0) + 1
-        self.attempts.append(Attempt(
-            names[j], names[i], stamp, r["accepted"], r["transform"], r["confidence"],
-            r["n_matches"], r["reason"], r["seconds"], (sizes[j], sizes[i]),
-        ))
-        if not r["accepted"]:
+        r = replace(r, query=names[j], target=names[i], stamp=stamp, sizes=(sizes[j], sizes[i]))
+        self.attempts.append(r)
+        if not r.accepted:
             return False
-        self._store_link(i, j, r["transform"], r["covariance"], r["confidence"], stamp,
-                         r["n_matches"], "")
+        self._store_link(i, j, r.transform, r.covariance, r.confidence, stamp, r.n_matches, "")
         return True
 
     def _store_link(self, i, j, T, cov, confidence, stamp, n_matches, reason) -> None:
@@ -397,7 +394,7 @@ class OnlineSession:
                    float(confidence), float(stamp), active=False, reason=reason,
                    n_matches=int(n_matches))
         self._links[(i, j)] = new
-        self._refined.pop((i, j), None)  # the new link is refitted at the next chance
+        self._refitted.pop((i, j), None)  # the new link is refitted at the next chance
         if old is None:
             return
         dt, dr = loop_error(invert(old.T_a_b) @ new.T_a_b, self._maps[names[j]].graph().positions)
@@ -433,31 +430,31 @@ class OnlineSession:
                      f"(a revoked link of it had {bar})")
         return False
 
-    def _refine_due(self, sizes: list[int], budget: int | None, growth_ratio: float,
-                    growth_objects: int, robot: int | None = None) -> bool:
+    def _refit_due(self, sizes: list[int], budget: int | None, growth_ratio: float,
+                   growth_objects: int, robot: int | None = None) -> bool:
         """Refit the links whose maps have grown (the attempts' growth rule; never-refitted
         links first), only those of robot index `robot` when given, at most `budget` (None:
         all). True when a link changed."""
         o = self.online
         if not o.refine_links or not self._links:
             return False
-        due = [p for p in due_pairs(sizes, self._refined, o.min_objects, growth_ratio,
+        due = [p for p in due_pairs(sizes, self._refitted, o.min_objects, growth_ratio,
                                     growth_objects, robot) if p in self._links]
         changed = False
         for i, j in due if budget is None else due[:budget]:
-            self._refined[(i, j)] = (sizes[i], sizes[j])
-            changed |= self._refine(i, j)
+            self._refitted[(i, j)] = (sizes[i], sizes[j])
+            changed |= self._refit_link(i, j)
         return changed
 
-    def _refine(self, i: int, j: int) -> bool:
+    def _refit_link(self, i: int, j: int) -> bool:
         """Refit the link (i, j) on every object pair it co-locates in the current maps; keep
         the refit when it rests on at least the link's matches and agrees with the link
         within the loop tolerance (a loop of 2)."""
         names, o = self.robots, self.online
         lk = self._links[(i, j)]
         a, b = self._maps[names[i]].graph(), self._maps[names[j]].graph()
-        r = refine_link(b.positions, b.labels, a.positions, a.labels, lk.T_a_b,
-                        self.config.motion, self.config.ransac.threshold)
+        r = refit_link(b.positions, b.labels, a.positions, a.labels, lk.T_a_b,
+                       self.config.motion, self.config.ransac.threshold)
         if r is None or r.n_pairs < lk.n_matches:
             return False
         dt, dr = loop_error(invert(lk.T_a_b) @ r.T_a_b, b.positions)
@@ -673,7 +670,7 @@ class OnlineSession:
             "robots": self.robots,
             "last": [[i, j, *v] for (i, j), v in sorted(self._last.items())],
             "tries": [[i, j, v] for (i, j), v in sorted(self._tries.items())],
-            "refined": [[i, j, *v] for (i, j), v in sorted(self._refined.items())],
+            "refined": [[i, j, *v] for (i, j), v in sorted(self._refitted.items())],
             "links": [[i, j, lk.to_dict()] for (i, j), lk in sorted(self._links.items())],
             "attempts": [a.to_dict() for a in self.attempts],
             "events": [e.to_dict() for e in self.events],
@@ -712,7 +709,7 @@ class OnlineSession:
             s._maps[r] = m
         s._last = PairSizes({(i, j): (a, b) for i, j, a, b in meta["last"]})
         s._tries = {(i, j): v for i, j, v in meta["tries"]}
-        s._refined = PairSizes({(i, j): (a, b) for i, j, a, b in meta.get("refined", [])})
+        s._refitted = PairSizes({(i, j): (a, b) for i, j, a, b in meta.get("refined", [])})
         s._links = {(i, j): Link.from_dict(d) for i, j, d in meta["links"]}
         s.attempts = [Attempt.from_dict(d) for d in meta["attempts"]]
         s.events = [Event.from_dict(d) for d in meta["events"]]

@@ -45,7 +45,9 @@ class NotLocalizedError(SglocError):
 class LocalizationResult:
     """What `localize` found.
 
-    success: False when the evidence is not enough; then `transform` is None and `reason` says why.
+    accepted: whether the acceptance test passed (`sgloc.acceptance`; the online records' name
+        too); False when the evidence is not enough: then `transform` is None and `reason` says
+        why. `success` is a read-only alias of it (the name of earlier versions).
     transform: (4,4) T_target_query, mapping points of the query graph's frame into the target's.
     matches: (k,2) int (query index, target index), the final (RANSAC inlier) matches.
     candidates: (m,2) the descriptor matches before rejection; `scores` their similarities.
@@ -63,7 +65,7 @@ class LocalizationResult:
         scale="auto"; None when the scale was given.
     """
 
-    success: bool
+    accepted: bool
     transform: np.ndarray | None
     matches: np.ndarray
     candidates: np.ndarray
@@ -78,6 +80,11 @@ class LocalizationResult:
     fitted: FittedPoints | None = field(default=None, repr=False)
     scale_estimate: ScaleEstimate | None = None
 
+    @property
+    def success(self) -> bool:
+        """Read-only alias of `accepted` (the name of earlier versions; kept for user code)."""
+        return self.accepted
+
     @cached_property
     def config(self) -> dict[str, Any]:
         """The call's settings as a nested dict of plain values (`LocalizerConfig.to_dict`)."""
@@ -90,7 +97,7 @@ class LocalizationResult:
         return None if self.fitted is None else self.fitted.covariance(self.transform)
 
     def raise_if_failed(self) -> LocalizationResult:
-        if not self.success:
+        if not self.accepted:
             raise NotLocalizedError(f"not localized: {self.reason}")
         return self
 
@@ -206,7 +213,7 @@ class Localizer:
             query, prepared, cfg, (dq, dt), matched, pose, streams["acceptance"], timer
         )
         result = LocalizationResult(
-            success=verdict.accepted,
+            accepted=verdict.accepted,
             transform=verdict.transform,
             matches=verdict.matches,
             candidates=c,

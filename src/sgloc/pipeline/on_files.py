@@ -95,10 +95,10 @@ def _write_files(done: FileLocalization, json_out, rerun, inputs: list) -> None:
     if rerun is not None:
         from sgloc.io.rerun_file import write_rerun
 
-        T = res.transform if res.success else np.eye(4)
+        T = res.transform if res.accepted else np.eye(4)
         with staged_file(rerun, inputs, "--rerun") as tmp:
             write_rerun(tmp, done.target, done.query, T,
-                        res.matches if res.success else np.zeros((0, 2)))
+                        res.matches if res.accepted else np.zeros((0, 2)))
     if json_out is not None:
         text = compact_json(document(res, full=True, **done.info))
         write_text_atomic(json_out, text, inputs, "--json", ours=is_result_document)
@@ -125,7 +125,7 @@ def aligned_picture(path: Path, done: FileLocalization, names: list[str] | None 
     from sgloc.io.pictures import plot_aligned_maps
 
     q, t, res = done.query, done.target, done.result
-    if res.success:
+    if res.accepted:
         conf = "" if res.confidence is None else f", confidence {res.confidence:.3f}"
         title = f"{t.name} (A) and {q.name} (B) aligned{conf}"
         if done.truth is not None:
@@ -137,4 +137,4 @@ def aligned_picture(path: Path, done: FileLocalization, names: list[str] | None 
     else:
         title = f"not localized: {res.reason}\nB shown in its own frame (no transform)"
         T = np.eye(4)
-    return plot_aligned_maps(t, q, T, res.matches if res.success else [], path, title, names)
+    return plot_aligned_maps(t, q, T, res.matches if res.accepted else [], path, title, names)

@@ -190,8 +190,8 @@ def demo_picture(done: DemoResult, out: Path) -> Path:
     from sgloc.io.pictures import plot_aligned_maps
 
     res = done.result
-    T = res.transform if res.success else done.truth
-    how = "estimated" if res.success else "ground-truth (not localized)"
+    T = res.transform if res.accepted else done.truth
+    how = "estimated" if res.accepted else "ground-truth (not localized)"
     title = f"B placed in A's map by the {how} transform"
     names, routes = None, None
     if done.run_dir is not None:
@@ -199,7 +199,7 @@ def demo_picture(done: DemoResult, out: Path) -> Path:
         from sgloc.sim.city import CITY_CLASSES
 
         names, routes = CITY_CLASSES, _routes(done.run_dir)
-        if res.success:
+        if res.accepted:
             te, re = transform_error(res.transform, done.truth)
             conf = "" if res.confidence is None else f", confidence {res.confidence:.3f}"
             title = f"B placed in A's map: error {te:.2f} m / {re:.2f}°{conf}"
