@@ -6,7 +6,7 @@ both saw on top of each other all along the stretch they share. Those object pai
 nearest same-class neighbours within a radius, in the fleet frame) are cut into windows of
 `window` metres of the first robot's travel; in each window with enough pairs the objects are
 expressed in the frames of one keyframe of each robot (the middle keyframes that saw them),
-the relative pose of the two keyframes is refitted on them (`refine.refine_link`, the
+the relative pose of the two keyframes is refitted on them (`refine.refit_link`, the
 localizer's motion model) and becomes a link factor with the covariance of that fit. So the
 graph is held where the robots actually met, not only where an attempt happened to align
 them, as an oracle's loop closures would hold it. The factors only join robots the accepted
@@ -22,7 +22,7 @@ import numpy as np
 
 from sgloc import lie
 from sgloc.estimation import MotionModel
-from sgloc.online.refine import co_located, refine_link
+from sgloc.online.refine import co_located, refit_link
 from sgloc.online.robot_map import RobotMap
 
 #: Fewest object pairs a window needs to become a factor (a rigid fit on fewer is weak).
@@ -85,7 +85,7 @@ def pair_factors(
         ii, jj = i[sel], j[sel]
         k_a, k_b = int(np.median(ka[jj])), int(np.median(kb[ii]))
         T0 = lie.between(Xa[k_a], T_ab @ Xb[k_b])
-        r = refine_link(_in_frame(Xb[k_b], pb[ii]), lb[ii], _in_frame(Xa[k_a], pa[jj]), la[jj],
+        r = refit_link(_in_frame(Xb[k_b], pb[ii]), lb[ii], _in_frame(Xa[k_a], pa[jj]), la[jj],
                         T0, motion, radius)
         if r is not None and r.n_pairs >= MIN_PAIRS:
             out.append(Colocation(a, k_a, b, k_b, r.T_a_b, r.covariance, r.n_pairs))
