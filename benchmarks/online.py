@@ -772,12 +772,18 @@ def fleet_goals(results: dict) -> list[str]:
     flip = {k: r["most_reaccepted"] for k, r in done.items() if r["most_reaccepted"] > 1}
     lines.append(line(not flip if done else None, "no link re-accepted more than once after a "
                       "revocation" + (f" (not met: {flip})" if flip else "")))
-    long8 = {k: r["latency"] for k, r in done.items() if r["case"]["length"] >= 8000}
+    long8 = {k: r["latency"] for k, r in done.items()
+             if r["case"]["length"] >= 8000 and r["case"]["robots"] == 8}
+    more = {k: r["latency"] for k, r in done.items()
+            if r["case"]["length"] >= 8000 and r["case"]["robots"] != 8}
     lines.append(line(None if not long8 else all(
         v["median_ms"] <= GOAL_BIG_MEDIAN_MS and v["p99_ms"] <= GOAL_BIG_P99_MS
-        for v in long8.values()), "latency median <= 5 ms and p99 <= 100 ms on 8,000 m routes ("
-        + ", ".join(f"{k} {v['median_ms']:.2f} / {v['p99_ms']:.1f} ms" for k, v in long8.items())
-        + ")"))
+        for v in long8.values()), "latency median <= 5 ms and p99 <= 100 ms with 8 robots on "
+        "8,000 m routes (" + ", ".join(f"{k} {v['median_ms']:.2f} / {v['p99_ms']:.1f} ms"
+                                       for k, v in long8.items())
+        + ")" + ("; with more robots, no goal: " + ", ".join(
+            f"{k} {v['median_ms']:.2f} / {v['p99_ms']:.1f} ms" for k, v in more.items())
+            if more else "")))
     many = {k: r for k, r in results.items() if r["case"]["robots"] == 128}
     lines.append(line(None if not many else all(
         r.get("status") == "done" and r["seconds"] <= GOAL_128_S for r in many.values()),
