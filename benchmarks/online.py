@@ -327,7 +327,7 @@ def batch_kitti(out: Path) -> dict:
     from sgloc.evaluation.fleet_trajectory import fleet_ape
     from sgloc.evaluation.pairs_kitti import kitti_root, kitti_sequence
     from sgloc.evaluation.replay_scenarios import log_from_frames
-    from sgloc.io.plain_layout import write_tum_exact
+    from sgloc.io.poses import write_tum
     from sgloc.online.fleet import localize_fleet
     from sgloc.replay.outputs import fleet_poses
 
@@ -339,9 +339,9 @@ def batch_kitti(out: Path) -> dict:
         scans = np.arange(a, b + 1)
         empty = [(np.zeros((0, 3)), np.zeros(0, np.int64))] * len(scans)
         log = log_from_frames(f"r{i}", scans * 0.1, L[scans], empty, L[a])
-        gt = write_tum_exact(out / f"gt_{i}.tum", log.stamps_ns, *fleet_poses(log, L[a]))
+        gt = write_tum(out / f"gt_{i}.tum", log.stamps_ns, *fleet_poses(log, L[a]))
         if i in res.T_fleet_robot:
-            est = write_tum_exact(out / f"est_{i}.tum", log.stamps_ns,
+            est = write_tum(out / f"est_{i}.tum", log.stamps_ns,
                                   *fleet_poses(log, res.T_fleet_robot[i]))
             pairs.append((est, gt))
     return {"placed": len(res.placed), "n": len(KITTI_FLEET), "ape": fleet_ape(pairs)}
