@@ -61,16 +61,39 @@ def _in_frame(X: np.ndarray, p: np.ndarray) -> np.ndarray:
     return (p - X[:3, 3]) @ X[:3, :3]
 
 
-def pair_factors(
+@dataclass(frozen=True)
+class _Objects:
+    """One placed robot's confirmed objects for the pairing: odometry-frame positions, labels,
+    keyframes (`object_keyframes`), and the xy box of their fleet-frame positions."""
+
+    positions: np.ndarray
+    labels: np.ndarray
+    keyframes: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+
+    @classmethod
+    def of(cls, m: RobotMap, T_fleet_odom: np.ndarray) -> _Objects:
+        p, lab, k = object_keyframes(m)
+        xy = (p @ T_fleet_odom[:3, :3].T + T_fleet_odom[:3, 3])[:, :2]
+        lo, hi = (xy.min(axis=0), xy.max(axis=0)) if len(p) else (np.zeros(2), -np.ones(2))
+        return cls(p, lab, k, lo, hi)
+
+    def near(self, other: _Objects, radius: float) -> bool:
+        """Whether the two xy boxes, grown by `radius`, overlap."""
+        return bool(np.all(self.lo - radius <= other.hi) and np.all(other.lo - radius <= self.hi))
+
+
+def _pair_factors(
     a: int, b: int, maps: list[RobotMap], T_fleet_odom: dict[int, np.ndarray],
-    motion: MotionModel, radius: float, window: float,
+    objects: dict[int, _Objects], motion: MotionModel, radius: float, window: float,
 ) -> list[Colocation]:
     """The co-location factors between placed robots a and b (indices into `maps`; their
-    odometry frames in the fleet frame `T_fleet_odom`); see the module doc."""
-    pa, la, ka = object_keyframes(maps[a])
-    pb, lb, kb = object_keyframes(maps[b])
-    if min(len(pa), len(pb)) < MIN_PAIRS:
+    odometry frames in the fleet frame `T_fleet_odom`, their `objects`); see the module doc."""
+    A, B = objects[a], objects[b]
+    if min(len(A.labels), len(B.labels)) < MIN_PAIRS or not A.near(B, radius):
         return []
+    pa, la, ka, pb, lb, kb = A.positions, A.labels, A.keyframes, B.positions, B.labels, B.keyframes
     T_ab = lie.between(T_fleet_odom[a], T_fleet_odom[b])
     i, j = co_located(pb, lb, pa, la, T_ab, radius)  # b's object i on a's object j
     if len(i) < MIN_PAIRS:
@@ -86,7 +109,7 @@ def pair_factors(
         k_a, k_b = int(np.median(ka[jj])), int(np.median(kb[ii]))
         T0 = lie.between(Xa[k_a], T_ab @ Xb[k_b])
         r = refit_link(_in_frame(Xb[k_b], pb[ii]), lb[ii], _in_frame(Xa[k_a], pa[jj]), la[jj],
-                        T0, motion, radius)
+                       T0, motion, radius)
         if r is not None and r.n_pairs >= MIN_PAIRS:
             out.append(Colocation(a, k_a, b, k_b, r.T_a_b, r.covariance, r.n_pairs))
     return out
@@ -97,7 +120,9 @@ def colocation_factors(
     radius: float, window: float,
 ) -> list[Colocation]:
     """Every co-location factor between the placed robots (`T_fleet_odom`: robot index ->
-    (4,4) its odometry frame in the fleet frame), pairs in index order."""
+    (4,4) its odometry frame in the fleet frame), pairs in index order; robots whose objects
+    lie apart are skipped at once."""
     placed = sorted(T_fleet_odom)
+    objects = {r: _Objects.of(maps[r], T_fleet_odom[r]) for r in placed}
     return [f for n, a in enumerate(placed) for b in placed[n + 1:]
-            for f in pair_factors(a, b, maps, T_fleet_odom, motion, radius, window)]
+            for f in _pair_factors(a, b, maps, T_fleet_odom, objects, motion, radius, window)]
