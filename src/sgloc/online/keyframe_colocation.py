@@ -22,25 +22,12 @@ import numpy as np
 
 from sgloc import lie
 from sgloc.estimation import MotionModel
+from sgloc.online.keyframe_graph import COLOCATION, GraphFactor
 from sgloc.online.refine import co_located, refit_link
 from sgloc.online.robot_map import RobotMap
 
 #: Fewest object pairs a window needs to become a factor (a rigid fit on fewer is weak).
 MIN_PAIRS = 6
-
-
-@dataclass(frozen=True)
-class Colocation:
-    """One co-location factor: the pose of keyframe k_b of robot_b in keyframe k_a of robot_a
-    (T_a_b (4,4)), its covariance (6,6; `Link`'s convention) and the object pairs it rests on."""
-
-    robot_a: int
-    k_a: int
-    robot_b: int
-    k_b: int
-    T_a_b: np.ndarray
-    covariance: np.ndarray
-    n_pairs: int
 
 
 def object_keyframes(m: RobotMap) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -87,7 +74,7 @@ class _Objects:
 def _pair_factors(
     a: int, b: int, maps: list[RobotMap], T_fleet_odom: dict[int, np.ndarray],
     objects: dict[int, _Objects], motion: MotionModel, radius: float, window: float,
-) -> list[Colocation]:
+) -> list[GraphFactor]:
     """The co-location factors between placed robots a and b (indices into `maps`; their
     odometry frames in the fleet frame `T_fleet_odom`, their `objects`); see the module doc."""
     A, B = objects[a], objects[b]
@@ -111,17 +98,17 @@ def _pair_factors(
         r = refit_link(_in_frame(Xb[k_b], pb[ii]), lb[ii], _in_frame(Xa[k_a], pa[jj]), la[jj],
                        T0, motion, radius)
         if r is not None and r.n_pairs >= MIN_PAIRS:
-            out.append(Colocation(a, k_a, b, k_b, r.T_a_b, r.covariance, r.n_pairs))
+            out.append(GraphFactor(COLOCATION, a, k_a, b, k_b, r.T_a_b, r.covariance))
     return out
 
 
 def colocation_factors(
     maps: list[RobotMap], T_fleet_odom: dict[int, np.ndarray], motion: MotionModel,
     radius: float, window: float,
-) -> list[Colocation]:
-    """Every co-location factor between the placed robots (`T_fleet_odom`: robot index ->
-    (4,4) its odometry frame in the fleet frame), pairs in index order; robots whose objects
-    lie apart are skipped at once."""
+) -> list[GraphFactor]:
+    """Every co-location factor (kind COLOCATION) between the placed robots (`T_fleet_odom`:
+    robot index -> (4,4) its odometry frame in the fleet frame), pairs in index order; robots
+    whose objects lie apart are skipped at once."""
     placed = sorted(T_fleet_odom)
     objects = {r: _Objects.of(maps[r], T_fleet_odom[r]) for r in placed}
     return [f for n, a in enumerate(placed) for b in placed[n + 1:]

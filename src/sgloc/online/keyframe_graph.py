@@ -24,7 +24,7 @@ ODOMETRY, LINK, COLOCATION = "odometry", "link", "colocation"
 
 @dataclass(frozen=True)
 class GraphFactor:
-    """A factor of the graph: kind ("odometry" or "link"), its robots and keyframe indices,
+    """A factor of the graph: kind (ODOMETRY, LINK or COLOCATION), its robots and keyframe indices,
     T_a_b (4,4) the pose of keyframe (robot_b, k_b) in keyframe (robot_a, k_a)'s sensor frame,
     covariance (6,6) [rx ry rz tx ty tz], right perturbation (in (robot_b, k_b)'s frame)."""
 
