@@ -304,3 +304,41 @@ def test_co_location_factors_hold_robots_together_all_along_where_they_met():
         kinds = [f.kind for f in s._kf.graph.factors().values()]
         assert (COLOCATION in kinds) == refine
     assert errors[True] < 1.0 < errors[False]
+
+
+def _street_maps():
+    """Two robots (RobotMaps) driving one 200 m street of poles every 10 m (class 0, a
+    repeating layout) and a row of houses and trees every 5 m, each a house or a tree at
+    random (classes 1 and 2: the layout's places repeat, what stands there does not);
+    keyframes every 5 m."""
+    rng = np.random.default_rng(11)
+    poles = np.column_stack([np.arange(0.0, 240.0, 10.0), np.full(24, 6.0), np.zeros(24)])
+    row = np.column_stack([np.arange(0.0, 240.0, 5.0), np.full(48, 15.0), np.zeros(48)])
+    pos, lab = np.vstack([poles, row]), np.concatenate([np.zeros(24, int),
+                                                        rng.integers(1, 3, 48)])
+    maps = []
+    for name in ("a", "b"):
+        m = RobotMap(name, 1.5, 1, 20.0)
+        for k, x in enumerate(np.arange(0.0, 200.0, 5.0)):
+            T = np.eye(4)
+            T[0, 3] = x
+            near = np.linalg.norm(pos[:, :2] - [x, 0.0], axis=1) < 30
+            m.add(float(k), T, pos[near] - T[:3, 3] + rng.normal(0, 0.05, (int(near.sum()), 3)),
+                  lab[near])
+        maps.append(m)
+    return maps
+
+
+def test_a_joining_link_at_another_copy_of_a_repeating_layout_waits():
+    from sgloc.online.keyframe_fleet import JoinAgreement
+
+    maps = _street_maps()
+    check = JoinAgreement(0.75, 10, (1.25, 2.5), 100.0)
+    index = {"a": 0, "b": 1}
+    true = Link("a", "b", np.eye(4), np.eye(6), 1.0, 0.0, keyframe_a=20, keyframe_b=20)
+    shifted = np.eye(4)
+    shifted[0, 3] = 20.0  # two pole periods: every pole lands on a pole, half the row does
+    wrong = Link("a", "b", shifted, np.eye(6), 1.0, 0.0, keyframe_a=20, keyframe_b=20)
+    assert check.check(true, maps, index) == ""
+    why = check.check(wrong, maps, index)
+    assert why.startswith("waits") and "min_agreement" in why
