@@ -266,20 +266,6 @@ def _near_points(pos: np.ndarray, points: np.ndarray, radius: float) -> np.ndarr
     return box[np.isfinite(d)]
 
 
-def overlap_agreement(
-    query: SemanticGraph, target: SemanticGraph, moved: np.ndarray, radii: tuple[float, float]
-) -> tuple[int, int]:
-    """(landed, covered) of check 2: of the query's objects, moved into the target frame
-    (`moved` (n,3)), those within the cover radius of a target object (covered) and of those
-    the ones within the landing radius of a target object of their class (landed); radii =
-    (land, cover) metres."""
-    land_r, cover_r = radii
-    n_classes = max(query.n_classes, target.n_classes)
-    landed, covered = _landing(moved, query.labels, ChanceModel(target, land_r, n_classes),
-                               ChanceModel(target, cover_r, n_classes))
-    return int((landed & covered).sum()), int(covered.sum())
-
-
 def check_repetition(
     query: SemanticGraph,
     target: SemanticGraph,

@@ -12,9 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sgloc import lie
-from sgloc.acceptance.repetition import overlap_agreement
 from sgloc.estimation import MotionModel
-from sgloc.geometry import apply
 from sgloc.maps.graph import SemanticGraph
 from sgloc.online.config import OnlineConfig
 from sgloc.online.keyframe_colocation import colocation_factors
@@ -99,43 +97,6 @@ def link_of(maps: list[RobotMap], names: list[str], task: Query, result: Attempt
                 float(stamp), active=False, n_matches=int(result.n_matches),
                 refined_pairs=0 if refitted is None else int(refitted[2]),
                 keyframe_a=ka, keyframe_b=kb)
-
-
-@dataclass(frozen=True)
-class JoinAgreement:
-    """What a link that joins two robots must show on their grown maps (the localizer's
-    agreement check, `AcceptanceConfig.min_agreement`, on more than the attempt's submap): the
-    objects one robot saw within `length` metres of travel of the link's keyframe, moved by the
-    link into the other robot's map, must land on an object of their class (within radii[0]
-    metres) for at least `min_agreement` of those that come next to one (within radii[1]), when
-    there are at least `min_covered` of them; both ways. A lattice offset of a repeating street
-    grid that a short submap could not tell apart lands only the furniture the grid repeats."""
-
-    min_agreement: float
-    min_covered: int
-    radii: tuple[float, float]
-    length: float
-
-    def check(self, lk: Link, maps: list[RobotMap], index: dict[str, int]) -> str:
-        """"" when link `lk` may join its robots, else why not."""
-        a, b = maps[index[lk.robot_a]], maps[index[lk.robot_b]]
-        T = a.anchors()[lk.keyframe_a] @ lk.T_a_b @ lie.between(b.anchors()[lk.keyframe_b],
-                                                                 np.eye(4))  # b's odom in a's
-        for q, t, k, M in ((b, a, lk.keyframe_b, T),
-                           (a, b, lk.keyframe_a, lie.between(T, np.eye(4)))):
-            d = q.travelled()
-            first = int(np.searchsorted(d, d[k] - self.length, side="left"))
-            last = int(np.searchsorted(d, d[k] + self.length, side="right")) - 1
-            seen = q.seen_between(first, last)
-            near = q.subgraph(seen)
-            landed, covered = overlap_agreement(near, t.graph(), apply(M, near.positions),
-                                                self.radii)
-            if covered >= self.min_covered and landed < self.min_agreement * covered:
-                return (f"waits: it would join {lk.robot_a} and {lk.robot_b}, but of the "
-                        f"{covered} objects of {q.name} it puts next to objects of {t.name}, "
-                        f"{landed} land on one of their class (min_agreement "
-                        f"{self.min_agreement}): another copy of a repeating layout?")
-        return ""
 
 
 class KeyframeFleet:
@@ -246,25 +207,21 @@ class KeyframeFleet:
         self.travel_last[(i, j)] = (travelled[i], travelled[j])
         self.query_last[(target, query)] = travelled[query]
 
-    def select(self, maps: list[RobotMap], names: list[str],
-               join: JoinAgreement | None = None) -> tuple[list[int], dict]:
-        """The link ids the evidence supports now, and why the others are not taken; a link
-        that would join two robots passes `join` first (when given)."""
+    def select(self, maps: list[RobotMap], names: list[str]) -> tuple[list[int], dict]:
+        """The link ids the evidence supports now, and why the others are not taken."""
         index = {n: i for i, n in enumerate(names)}
         odom = {i: m.trajectory()[1] for i, m in enumerate(maps)}
         travelled = {i: m.travelled() for i, m in enumerate(maps)}
         candidates = [i for i, lk in enumerate(self.links) if not lk.revoked]
         o = self.online
-        check = None if join is None else (lambda lid: join.check(self.links[lid], maps, index))
         return select_links(self.links, candidates, index, odom, travelled, o.odometry,
-                            o.loop_translation, o.loop_rotation, check)
+                            o.loop_translation, o.loop_rotation)
 
-    def update(self, maps: list[RobotMap], names: list[str],
-               join: JoinAgreement | None = None) -> tuple[list[int], list[int]]:
+    def update(self, maps: list[RobotMap], names: list[str]) -> tuple[list[int], list[int]]:
         """Re-select the links, move the graph to the selection (links leave it by factor id),
         solve, reanchor the placed robots' maps. Returns (link ids that entered, link ids
         that left, now revoked)."""
-        taken, dropped = self.select(maps, names, join)
+        taken, dropped = self.select(maps, names)
         entered, left = [], []
         for lid in sorted(set(self.fid) - set(taken)):
             self.graph.remove(self.fid.pop(lid))

@@ -13,7 +13,7 @@ Links once in the set and then out of it are revoked by the caller and stay out 
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -102,23 +102,16 @@ def select_links(
     noise: OdometryNoise,
     tol_m: float,
     tol_deg: float,
-    join_check: Callable[[int], str] | None = None,
 ) -> tuple[list[int], dict[int, str]]:
     """(ids taken, {id: why not} for the others) among `candidates` (ids into `links`, each
     with keyframe_a/keyframe_b set); see the module doc. index: robot name -> index; odom,
-    travelled: per robot index, its keyframe poses (k,4,4) and metres travelled (k,);
-    join_check: for a link that would join two robots not yet joined, "" to take it or why
-    not (then it waits: a later selection, on grown maps, may take it)."""
+    travelled: per robot index, its keyframe poses (k,4,4) and metres travelled (k,)."""
     forest, taken, dropped = _Forest(), [], {}
     for lid in evidence_order(links, candidates):
         lk = links[lid]
         a, b = index[lk.robot_a], index[lk.robot_b]
         T_ab = rigid(lk, odom[a], odom[b])
         if not forest.joined(a, b):
-            why = join_check(lid) if join_check is not None else ""
-            if why:
-                dropped[lid] = why
-                continue
             forest.join(a, b, T_ab, lid)
             taken.append(lid)
             continue

@@ -141,13 +141,9 @@ class RobotMap:
     def seen_since(self, first: int) -> np.ndarray:
         """(n,) bool over the association's objects: sighted by keyframe `first` or a later
         one."""
-        return self.seen_between(first, len(self.poses) - 1)
-
-    def seen_between(self, first: int, last: int) -> np.ndarray:
-        """(n,) bool over the association's objects: sighted by a keyframe first..last."""
         k, _, o = self.sightings()
         seen = np.zeros(len(self.builder.counts), bool)
-        seen[o[(k >= first) & (k <= last)]] = True
+        seen[o[k >= first]] = True
         return seen
 
     def subgraph(self, objects: np.ndarray) -> SemanticGraph:

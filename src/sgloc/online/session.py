@@ -16,7 +16,7 @@ from sgloc.maps.graph import SemanticGraph
 from sgloc.online.attempts import run_tasks
 from sgloc.online.config import OnlineConfig
 from sgloc.online.joint import largest_shift, refine_fleet
-from sgloc.online.keyframe_fleet import JoinAgreement, KeyframeFleet, make_query
+from sgloc.online.keyframe_fleet import KeyframeFleet, make_query
 from sgloc.online.keyframe_graph import keyframe_link
 from sgloc.online.link_selection import (
     Edge,
@@ -576,7 +576,7 @@ class OnlineSession:
         if self._kf.graph.root != root:
             self._kf.graph.set_root(root)
         maps = [self._maps[r] for r in names]
-        entered, left = self._kf.update(maps, names, self._join_agreement())
+        entered, left = self._kf.update(maps, names)
         if self.online.refine_fleet and self._kf.colocation_due(
                 maps, self.online.refine_fleet_growth):
             self._kf.colocate(maps, self.config.motion,
@@ -599,17 +599,6 @@ class OnlineSession:
                            "the fleet frame's root" if r == self.root else
                            "placed in the fleet frame")
         self._T = T_new
-
-    def _join_agreement(self) -> JoinAgreement | None:
-        """Backend "keyframes": the agreement a joining link's maps must show
-        (`keyframe_fleet.JoinAgreement`), when the localizer's acceptance checks agreement
-        (`min_agreement` > 0); else None."""
-        acc = self.config.acceptance
-        if not acc.enabled or acc.min_agreement <= 0:
-            return None
-        radii = acc.repetition_radii(acc.radius or self.config.ransac.threshold)
-        return JoinAgreement(acc.min_agreement, acc.min_covered, radii,
-                             self.online.submap_length)
 
     def _held(self, frame, edges: list[Edge], covariances: list[np.ndarray]) -> list[str]:
         """Robots the frame would newly place whose predicted error at their objects is beyond
