@@ -346,7 +346,10 @@ class OnlineSession:
                 self._loop_last[q] = sizes[q]
             else:
                 self._last[(i, j)] = (sizes[i], sizes[j])
-            qu = make_query(maps, t, q, o.submap_length)
+            # a join is decided on the query robot's whole map, as with back-end "robots":
+            # a short submap of a repeating layout can fit another copy of it
+            length = o.submap_length if group[t] == group[q] else math.inf
+            qu = make_query(maps, t, q, length)
             if min(len(qu.query_graph.positions), len(qu.target_graph.positions)) >= \
                     o.min_objects:
                 queries.append(qu)
