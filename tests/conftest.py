@@ -120,6 +120,18 @@ def airsim_graphs() -> tuple[SemanticGraph, SemanticGraph]:
     return airsim_guo()
 
 
+@pytest.fixture(params=["compiled", "reference"])
+def path(request):
+    """Run a test on the compiled kernels and on the numpy references (tests/references)."""
+    from references.paths import on_references
+
+    if request.param == "compiled":
+        yield request.param
+        return
+    with on_references():
+        yield request.param
+
+
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(12345)

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 from references.consistency import local_counts as local_counts_reference
 from references.consistency import prune_local as prune_local_reference
-from references.paths import on_references
 
 from sgloc import SemanticGraph, localize
 from sgloc.consistency.local import RadiusGrid, local_counts, prune_local
@@ -22,16 +21,6 @@ from sgloc.rejection import NeighborRejector
 from sgloc.sim.correspondences import make_correspondences
 from sgloc.sim.object_world import make_two_robot_scene
 from sgloc.validation import MAX_VERTICES, InvalidSettingError
-
-
-@pytest.fixture(params=["compiled", "reference"])
-def path(request):
-    """Run a test on the compiled kernels and on the numpy references."""
-    if request.param == "compiled":
-        yield request.param
-        return
-    with on_references():
-        yield request.param
 
 
 @pytest.mark.parametrize("seed", range(6))

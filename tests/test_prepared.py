@@ -8,7 +8,6 @@ import json
 import numpy as np
 import pytest
 from references.descriptors import distance_histograms, histograms_at
-from references.paths import on_references
 
 import sgloc
 from sgloc import Localizer, LocalizerConfig, PreparedMap, SemanticGraph, localize
@@ -17,16 +16,6 @@ from sgloc.descriptors import DistanceHistogramDescriptor
 from sgloc.matching.candidates import BLOCKS_MIN_OBJECTS
 from sgloc.pipeline.prepared import PreparedMapError
 from sgloc.sim.object_world import make_two_robot_scene
-
-
-@pytest.fixture(params=["compiled", "reference"])
-def path(request):
-    """Run a test on the compiled kernels and on the numpy references."""
-    if request.param == "compiled":
-        yield request.param
-        return
-    with on_references():
-        yield request.param
 
 
 @pytest.fixture(scope="module")
