@@ -59,23 +59,24 @@ def capture_attempts(scenario: Scenario, seed: int) -> list[dict]:
     from sgloc.replay import replay_logs
 
     recorded: list[tuple] = []
-    original = session_module.run_tasks
+    original = session_module.run_attempts
 
-    def recording(tasks, scheduler=None, workers=0):
-        recorded.extend(tasks)
-        return original(tasks, scheduler, workers)
+    def recording(pairs, config, scheduler=None, workers=0):
+        recorded.extend(pairs)
+        return original(pairs, config, scheduler, workers)
 
-    session_module.run_tasks = recording
+    session_module.run_attempts = recording
     try:
         session = OnlineSession(localizer_preset("city"), OnlineConfig(seed=seed))
         replay_logs(scenario.logs, session)
     finally:
-        session_module.run_tasks = original
-    names = session.robots
+        session_module.run_attempts = original
     out = []
-    for (i, j), qpos, qlab, qr, tpos, tlab, tr, _, s in recorded:
-        out.append({"query": names[j], "target": names[i], "qpos": qpos, "qlab": qlab,
-                    "qr": qr, "tpos": tpos, "tlab": tlab, "tr": tr, "seed": list(s)})
+    for q, t, s in recorded:
+        t = getattr(t, "graph", t)  # a prepared map holds its graph
+        out.append({"query": q.name, "target": t.name, "qpos": q.positions,
+                    "qlab": q.labels, "qr": q.edge_radius, "tpos": t.positions,
+                    "tlab": t.labels, "tr": t.edge_radius, "seed": list(s)})
     return out
 
 

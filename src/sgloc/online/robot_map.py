@@ -11,6 +11,8 @@ from sgloc.errors import SglocError
 from sgloc.geometry import apply
 from sgloc.maps.association import AssociationSettings, ObjectAssociation
 from sgloc.maps.graph import SemanticGraph
+from sgloc.pipeline.config import LocalizerConfig
+from sgloc.pipeline.prepared import MIN_VERTICES, PreparedMap, prepare
 from sgloc.validation import check_graph_arrays
 
 
@@ -33,6 +35,7 @@ class RobotMap:
             edge_radius=float(edge_radius),
         ))  # fmt: skip
         self._graph: SemanticGraph | None = None
+        self._prepared: PreparedMap | None = None  # of _graph
         self._confirmed = 0
         self.stamps: list[float] = []
         self.poses: list[np.ndarray] = []
@@ -83,7 +86,19 @@ class RobotMap:
         """The confirmed objects as a SemanticGraph (cached until they change)."""
         if self._graph is None:
             self._graph = self.builder.graph(self.name)
+            self._prepared = None
         return self._graph
+
+    def prepared(self, config: LocalizerConfig) -> SemanticGraph | PreparedMap:
+        """`graph()` prepared for localizations against it with `config`
+        (`sgloc.PreparedMap`), kept until the confirmed objects change or another config asks;
+        the graph itself while it is too small to prepare."""
+        graph = self.graph()
+        if len(graph) < MIN_VERTICES:
+            return graph
+        if self._prepared is None or self._prepared.config is not config:
+            self._prepared = prepare(graph, config)
+        return self._prepared
 
     def sightings(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(keyframe (s,) index, position (s,3) metres in that keyframe's sensor frame, object

@@ -13,7 +13,7 @@ from sgloc.errors import SglocError
 from sgloc.geometry import invert
 from sgloc.io.keyframe_checks import check_keyframe, check_link, check_stamp
 from sgloc.maps.graph import SemanticGraph
-from sgloc.online.attempts import run_tasks
+from sgloc.online.attempts import run_attempts
 from sgloc.online.config import OnlineConfig
 from sgloc.online.joint import largest_shift, refine_fleet
 from sgloc.online.keyframe_fleet import KeyframeFleet, make_query
@@ -39,6 +39,7 @@ from sgloc.online.refine import refit_link
 from sgloc.online.robot_map import RobotMap
 from sgloc.online.schedule import PairSizes, due_pairs
 from sgloc.pipeline.config import LocalizerConfig
+from sgloc.runtime.tasks import runs_here
 
 
 class OnlineSession:
@@ -272,10 +273,9 @@ class OnlineSession:
             changed = self._kf_attempts(due, loops, sizes, travelled, stamp, max_attempts,
                                         scheduler, workers, robot)
         elif due:
-            # Each attempt on graphs rebuilt from arrays, wherever it runs: the localizer's
-            # caches on a reused graph shift results by ~1e-13 with their history, and a
-            # resumed session or a worker process must give the same results bit for bit.
-            results = run_tasks([self._task(i, j) for i, j in due], scheduler, workers)
+            here = runs_here(len(due), workers, scheduler)
+            results = run_attempts([self._pair(i, j, here) for i, j in due], self.config,
+                                   scheduler, workers)
             for (i, j), r in zip(due, results, strict=True):
                 changed |= self._record(i, j, sizes, r, stamp)
         if self._kf is None:
@@ -304,12 +304,18 @@ class OnlineSession:
         k = self._tries.get((i, j), 0)
         return [self.online.seed, i, j] if k == 0 else [self.online.seed, i, j, k]
 
-    def _task(self, i: int, j: int) -> tuple:
-        """Robot j (query) in robot i's map (target), as arrays: the result is T_i_j."""
+    def _pair(self, i: int, j: int, here: bool) -> tuple:
+        """Robot j (query) in robot i's map (target; its prepared map when the attempts run
+        `here`, in this process), with the pair's seed: the result is T_i_j."""
         names = self.robots
-        q, t = self._maps[names[j]].graph(), self._maps[names[i]].graph()
-        return ((i, j), q.positions, q.labels, q.edge_radius, t.positions, t.labels,
-                t.edge_radius, self.config, self._seed(i, j))
+        t = self._target(i, here)
+        return self._maps[names[j]].graph(), t, self._seed(i, j)
+
+    def _target(self, i: int, here: bool):
+        """Robot i's map as an attempt's target: prepared (kept by the robot's map until it
+        changes) when the attempts run in this process, else the graph sent to a worker."""
+        m = self._maps[self.robots[i]]
+        return m.prepared(self.config) if here else m.graph()
 
     def _due_loops(self, sizes, growth_ratio, growth_objects, robot) -> list[int]:
         """Robots (indices) due for a loop-closure attempt under the growth rule."""
@@ -353,16 +359,16 @@ class OnlineSession:
             if min(len(qu.query_graph.positions), len(qu.target_graph.positions)) >= \
                     o.min_objects:
                 queries.append(qu)
-        tasks = []
+        pairs, here = [], runs_here(len(queries), workers, scheduler)
         for qu in queries:
-            a, b = qu.query_graph, qu.target_graph
             key = (min(qu.target, qu.query), max(qu.target, qu.query))
-            tasks.append(((qu.target, qu.query), a.positions, a.labels, a.edge_radius,
-                          b.positions, b.labels, b.edge_radius, self.config,
-                          self._seed(*key)))
+            # a loop closure's target is the robot's own older map, made for this attempt
+            target = qu.target_graph if qu.target == qu.query else self._target(qu.target, here)
+            pairs.append((qu.query_graph, target, self._seed(*key)))
             self._tries[key] = self._tries.get(key, 0) + 1
         changed = False
-        for qu, r in zip(queries, run_tasks(tasks, scheduler, workers), strict=True):
+        results = run_attempts(pairs, self.config, scheduler, workers)
+        for qu, r in zip(queries, results, strict=True):
             r = replace(r, query=names[qu.query], target=names[qu.target], stamp=stamp,
                         sizes=(len(qu.query_graph.positions), len(qu.target_graph.positions)))
             self.attempts.append(r)

@@ -44,15 +44,24 @@ def run_all(
     tick = progress or (lambda n: None)
     if scheduler is not None:
         return _run_dask(tasks, scheduler, tick, fn)
-    workers = (os.cpu_count() or 1) if workers is None else workers
-    if workers <= 1 or len(tasks) <= 1:
+    if runs_here(len(tasks), workers, scheduler):
         rows = []
         for t in tasks:
             rows.append(fn(t))
             tick(1)
         return rows
+    workers = (os.cpu_count() or 1) if workers is None else workers
     with process_pool(min(workers, len(tasks))) as pool:
         return _collect([pool.submit(fn, t) for t in tasks], as_completed, tick)
+
+
+def runs_here(n_tasks: int, workers: int | None = None, scheduler: Any = None) -> bool:
+    """Whether `run_all` runs `n_tasks` tasks in this process with these `workers` and
+    `scheduler` (then a task may hold objects that do not travel well, a prepared map)."""
+    if scheduler is not None:
+        return False
+    workers = (os.cpu_count() or 1) if workers is None else workers
+    return workers <= 1 or n_tasks <= 1
 
 
 def _collect(futures: list[Any], completed: Callable, tick: Progress) -> list[Any]:
