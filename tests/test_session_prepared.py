@@ -22,7 +22,9 @@ def test_a_robot_map_keeps_its_prepared_map_until_its_objects_change():
     m.add(0.0, np.eye(4), pts[:2], lab[:2])
     assert m.prepared(cfg) is m.graph()  # too small to prepare: the graph itself
     m.add(1.0, np.eye(4), pts, lab)
+    assert m.prepared(cfg, uses=1) is m.graph()  # one attempt: preparing would not pay
     p = m.prepared(cfg)
+    assert m.prepared(cfg, uses=1) is p  # kept: it serves every attempt
     assert isinstance(p, PreparedMap) and m.prepared(cfg) is p
     np.testing.assert_array_equal(p.graph.positions, m.graph().positions)
     m.add(2.0, np.eye(4), pts[:0], lab[:0])  # a keyframe that sees nothing
@@ -40,7 +42,7 @@ def test_a_robot_map_keeps_its_prepared_map_until_its_objects_change():
     assert m.prepared(LocalizerConfig()) is not m.prepared(cfg)  # another config
 
 
-def test_a_fleet_prepares_each_target_map_once(monkeypatch):
+def test_a_fleet_prepares_each_map_that_several_attempts_target_once(monkeypatch):
     made = []
     real = robot_map.prepare
 
@@ -51,7 +53,9 @@ def test_a_fleet_prepares_each_target_map_once(monkeypatch):
     monkeypatch.setattr(robot_map, "prepare", counting)
     fleet = localize_fleet(world_fleet(2).graphs[:4], workers=0)
     assert len(fleet.links) == 6  # every pair once
-    assert sorted(made) == sorted({lk.target for lk in fleet.links})  # 3 targets, once each
+    targets = [lk.target for lk in fleet.links]
+    assert sorted(made) == sorted({t for t in targets if targets.count(t) >= 2})  # once each
+    assert len(made) == 2  # robots 0 and 1 (3 and 2 attempts); robot 2's one attempt: its graph
 
 
 def _street_keyframes(pos, lab, xs, seed, view=30.0, step=4.0):
@@ -72,11 +76,18 @@ def _street_keyframes(pos, lab, xs, seed, view=30.0, step=4.0):
 
 
 @pytest.mark.parametrize("backend", ["robots", "keyframes"])
-def test_attempts_on_prepared_maps_equal_attempts_in_worker_processes(backend):
+def test_attempts_on_prepared_maps_equal_attempts_in_worker_processes(backend, monkeypatch):
     pos, lab = make_object_world(np.random.default_rng(5), length=400.0)
     robots = {"a": _street_keyframes(pos, lab, (0.0, 240.0), 1),
-              "b": _street_keyframes(pos, lab, (360.0, 120.0), 2)}
-    sessions = {}
+              "b": _street_keyframes(pos, lab, (360.0, 120.0), 2),
+              "c": _street_keyframes(pos, lab, (60.0, 300.0), 3)}
+    sessions, made, real = {}, [], robot_map.prepare
+
+    def counting(graph, config):
+        made.append(graph.name)
+        return real(graph, config)
+
+    monkeypatch.setattr(robot_map, "prepare", counting)
     for workers in (0, 2):
         s = OnlineSession(online=OnlineConfig(backend=backend, min_observations=1,
                                                max_attempts=0))
@@ -88,6 +99,7 @@ def test_attempts_on_prepared_maps_equal_attempts_in_worker_processes(backend):
         sessions[workers] = s
     here, there = sessions[0], sessions[2]
     assert len(here.attempts) >= 3 and any(a.accepted for a in here.attempts)
+    assert made  # in this process, some map was the target of several attempts at once
     for a, b in zip(here.attempts, there.attempts, strict=True):
         assert (a.query, a.target, a.accepted, a.n_matches, a.reason) == \
                (b.query, b.target, b.accepted, b.n_matches, b.reason)

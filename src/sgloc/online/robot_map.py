@@ -89,16 +89,18 @@ class RobotMap:
             self._prepared = None
         return self._graph
 
-    def prepared(self, config: LocalizerConfig) -> SemanticGraph | PreparedMap:
+    def prepared(self, config: LocalizerConfig, uses: int = 2) -> SemanticGraph | PreparedMap:
         """`graph()` prepared for localizations against it with `config`
-        (`sgloc.PreparedMap`), kept until the confirmed objects change or another config asks;
-        the graph itself while it is too small to prepare."""
+        (`sgloc.PreparedMap`), kept until the confirmed objects change or another config asks.
+        The graph itself while it is too small to prepare, or when no preparation is kept and
+        fewer than `uses` localizations are to use it (preparing costs about one of them)."""
         graph = self.graph()
-        if len(graph) < MIN_VERTICES:
-            return graph
-        if self._prepared is None or self._prepared.config is not config:
-            self._prepared = prepare(graph, config)
-        return self._prepared
+        kept = self._prepared is not None and self._prepared.config is config
+        if kept or (uses >= 2 and len(graph) >= MIN_VERTICES):
+            if not kept:
+                self._prepared = prepare(graph, config)
+            return self._prepared
+        return graph
 
     def sightings(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(keyframe (s,) index, position (s,3) metres in that keyframe's sensor frame, object

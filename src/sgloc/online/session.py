@@ -273,8 +273,8 @@ class OnlineSession:
             changed = self._kf_attempts(due, loops, sizes, travelled, stamp, max_attempts,
                                         scheduler, workers, robot)
         elif due:
-            here = runs_here(len(due), workers, scheduler)
-            results = run_attempts([self._pair(i, j, here) for i, j in due], self.config,
+            uses = self._uses([i for i, _ in due], workers, scheduler)
+            results = run_attempts([self._pair(i, j, uses[i]) for i, j in due], self.config,
                                    scheduler, workers)
             for (i, j), r in zip(due, results, strict=True):
                 changed |= self._record(i, j, sizes, r, stamp)
@@ -304,18 +304,24 @@ class OnlineSession:
         k = self._tries.get((i, j), 0)
         return [self.online.seed, i, j] if k == 0 else [self.online.seed, i, j, k]
 
-    def _pair(self, i: int, j: int, here: bool) -> tuple:
-        """Robot j (query) in robot i's map (target; its prepared map when the attempts run
-        `here`, in this process), with the pair's seed: the result is T_i_j."""
-        names = self.robots
-        t = self._target(i, here)
-        return self._maps[names[j]].graph(), t, self._seed(i, j)
+    def _pair(self, i: int, j: int, uses: int) -> tuple:
+        """Robot j (query) in robot i's map (target, `_target`), with the pair's seed: the
+        result is T_i_j."""
+        return self._maps[self.robots[j]].graph(), self._target(i, uses), self._seed(i, j)
 
-    def _target(self, i: int, here: bool):
-        """Robot i's map as an attempt's target: prepared (kept by the robot's map until it
-        changes) when the attempts run in this process, else the graph sent to a worker."""
+    def _target(self, i: int, uses: int):
+        """Robot i's map as the target of one of `uses` attempts against it in this batch: its
+        prepared map (`RobotMap.prepared`, kept until the map changes) when one is kept or
+        several attempts use it; the graph otherwise (and on worker processes: `uses` 0)."""
         m = self._maps[self.robots[i]]
-        return m.prepared(self.config) if here else m.graph()
+        return m.prepared(self.config, uses) if uses else m.graph()
+
+    @staticmethod
+    def _uses(targets: list[int], workers, scheduler) -> dict[int, int]:
+        """Attempts against each target robot in a batch when it runs in this process; 0 for
+        every target when the batch goes to worker processes (they get arrays)."""
+        here = runs_here(len(targets), workers, scheduler)
+        return {t: targets.count(t) if here else 0 for t in targets}
 
     def _due_loops(self, sizes, growth_ratio, growth_objects, robot) -> list[int]:
         """Robots (indices) due for a loop-closure attempt under the growth rule."""
@@ -359,11 +365,14 @@ class OnlineSession:
             if min(len(qu.query_graph.positions), len(qu.target_graph.positions)) >= \
                     o.min_objects:
                 queries.append(qu)
-        pairs, here = [], runs_here(len(queries), workers, scheduler)
+        pairs = []
+        uses = self._uses([qu.target for qu in queries if qu.target != qu.query], workers,
+                          scheduler)
         for qu in queries:
             key = (min(qu.target, qu.query), max(qu.target, qu.query))
             # a loop closure's target is the robot's own older map, made for this attempt
-            target = qu.target_graph if qu.target == qu.query else self._target(qu.target, here)
+            target = qu.target_graph if qu.target == qu.query else \
+                self._target(qu.target, uses[qu.target])
             pairs.append((qu.query_graph, target, self._seed(*key)))
             self._tries[key] = self._tries.get(key, 0) + 1
         changed = False
