@@ -67,6 +67,8 @@ def run_attempts(
     on the Dask scheduler at `scheduler` / on `workers` local processes
     (`sgloc.runtime.tasks.run_all`; None: CPU count; 0 or 1: in this process)."""
     scheduler = scheduler or None
+    if not pairs:
+        return []
     if runs_here(len(pairs), workers, scheduler):
         localizer = Localizer(config)
         return [localize_pair(localizer, q, t, seed) for q, t, seed in pairs]
