@@ -16,9 +16,11 @@ OBJECTS = np.array([[x, y, 1.0] for x in range(20, 42, 3) for y in (-5.0, 5.0)])
 LABELS = (OBJECTS[:, 1] > 0).astype(np.int64)
 
 
-def _drive(name: str, xs: np.ndarray, offset: float, reach: float = 20.0) -> RobotMap:
-    """A robot driving along x through `xs` (its odometry frame = the world), seeing every
-    object within `reach` metres at `offset` metres short of its centre along the ray."""
+def _drive(name: str, xs: np.ndarray, offset: float, reach: float = 20.0,
+           scale: float = 0.0) -> RobotMap:
+    """A robot driving along x through `xs` (its odometry frame = the world, its odometry's
+    travel too long by the fraction `scale`), seeing every object within `reach` metres at
+    `offset` metres short of its centre along the ray."""
     m = RobotMap(name, 1.5, 2, 20.0)
     for k, x in enumerate(xs):
         T = np.eye(4)
@@ -27,6 +29,7 @@ def _drive(name: str, xs: np.ndarray, offset: float, reach: float = 20.0) -> Rob
         dist = np.linalg.norm(rel, axis=1)
         seen = dist < reach
         p = rel[seen] * (1.0 - offset / dist[seen, None])
+        T[0, 3] = xs[0] + (1.0 + scale) * (x - xs[0])
         m.add(float(k), T, p, LABELS[seen])
     return m
 
@@ -43,6 +46,14 @@ def test_the_view_offset_is_measured_on_the_maps_and_corrected_away():
     exact = _drive("b", np.arange(0.0, 60.0, 1.0), 0.0)
     assert view_offset([exact]) == pytest.approx(0.0, abs=1e-9)
     assert view_offset([_drive("c", np.arange(0.0, 60.0, 1.0), -0.2)]) == 0.0  # never < 0
+
+
+def test_the_view_offset_is_not_confused_with_an_odometry_scale_error():
+    """Odometry 2 % too long moves an object's sightings from ahead against those from behind
+    along the street, as an offset would: the offset is measured across it, and stays."""
+    for offset in (0.0, 0.3):
+        m = _drive("a", np.arange(0.0, 60.0, 1.0), offset, scale=0.02)
+        assert view_offset([m]) == pytest.approx(offset, abs=0.02)
 
 
 def test_robots_that_saw_the_objects_from_opposite_sides_are_not_pulled_apart():
