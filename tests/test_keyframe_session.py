@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from sgloc import lie
-from sgloc.online import Link, OnlineConfig, OnlineSession
+from sgloc.online import Link, OdometryNoise, OnlineConfig, OnlineSession
 from sgloc.online.keyframe_fleet import KeyframeFleet
 from sgloc.online.keyframe_solve import gtsam_available
 from sgloc.online.robot_map import RobotMap
@@ -275,13 +275,14 @@ def test_keyframe_links_are_refitted_on_the_co_located_objects(out_and_back):
     assert refitted and all(n >= m for n, m in refitted)
 
 
-def _together(refine_fleet: bool):
+def _together(refine_fleet: bool, **settings):
     """Two robots driving one 300 m street side by side, their odometry turning opposite ways
     (0.01 deg per metre each): the session, the truth, the trajectories."""
     a, truth = _drive(7, (0.0, 300.0), 0.01)
     b, _ = _drive(7, (0.0, 300.0), -0.01)
     s = OnlineSession(online=OnlineConfig(backend="keyframes", min_observations=1,
-                                          growth_objects=3, refine_fleet=refine_fleet))
+                                          growth_objects=3, refine_fleet=refine_fleet,
+                                          **settings))
     for fa, fb in zip(a, b, strict=True):
         s.add_keyframe("a", *fa)
         s.add_keyframe("b", *fb)
@@ -303,4 +304,18 @@ def test_co_location_factors_hold_robots_together_all_along_where_they_met():
         errors[refine] = np.linalg.norm(Xb[:, :3, 3] - Xa[:, :3, 3], axis=1).max()
         kinds = [f.kind for f in s._kf.graph.factors().values()]
         assert (COLOCATION in kinds) == refine
-    assert errors[True] < 1.0 < errors[False]
+    assert errors[True] < 0.25 and errors[True] < 0.5 * errors[False]
+
+
+def test_drifting_odometry_bends_between_links_as_much_as_it_drifts():
+    """The heading bias is systematic: with every keyframe step taken on its own
+    (correlation_length 0), the many short steps between two links add up to a chain far
+    stiffer than the odometry's drift, and the links cannot bend it: the robots stay metres
+    apart between them. Steps that add up to the per-metre error over the correlation length
+    let the links hold them."""
+    errors = {}
+    for length in (0.0, 100.0):
+        s, _ = _together(False, odometry=OdometryNoise(correlation_length=length))
+        Xa, Xb = s.trajectory("a")[1], s.trajectory("b")[1]
+        errors[length] = np.linalg.norm(Xb[:, :3, 3] - Xa[:, :3, 3], axis=1).max()
+    assert errors[100.0] < 0.6 < 1.5 < errors[0.0]

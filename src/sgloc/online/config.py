@@ -25,22 +25,33 @@ from sgloc.validation import (
 
 @dataclass(frozen=True)
 class OdometryNoise:
-    """How uncertain a robot's odometry is between two keyframes, as the (6,6) covariance of
-    the relative pose T_k_k+1 in gtsam Pose3's tangent order [rx ry rz tx ty tz] (rad, m),
-    right perturbation (in keyframe k+1's frame), diagonal, for a stretch of d metres:
+    """How uncertain a robot's odometry is over a stretch of d metres, (6,6) covariance of the
+    relative pose in gtsam Pose3's tangent order [rx ry rz tx ty tz] (rad, m), right
+    perturbation (in the stretch's last keyframe's frame), diagonal (`sigmas`):
 
         sigma_t(d)^2 = translation_floor^2 + (translation_per_metre * d)^2        (each axis)
         sigma_r(d)^2 = rotation_floor^2 + (rotation_per_metre * d)^2
                        + rotation_per_sqrt_metre^2 * d                            (each axis)
 
+    The per-metre terms are systematic (a scale error, a heading bias): they grow with the
+    stretch, not with its square root. A pose graph joins consecutive keyframes by independent
+    steps, which add up in quadrature; so one step T_k_k+1 of d metres (`covariance`) gets the
+    per-metre variances (per_metre)^2 * d * max(d, correlation_length): the steps over
+    `correlation_length` metres then add up to the per-metre error of that stretch, however
+    densely the keyframes come (with (per_metre * d)^2 per step, n steps would add up to 1 /
+    sqrt(n) of it, and the graph would hold denser odometry ever more rigid against its own
+    drift).
+
     translation_per_metre: metres of error per metre travelled (0.01 = 1 %, scale error and
         the lateral error a heading error makes); rotation_per_metre: degrees per metre (a
         heading bias); rotation_per_sqrt_metre: degrees per sqrt(metre) (a heading random
         walk); translation_floor (m), rotation_floor (degrees): the least uncertainty of any
-        step, also that of a robot standing still. The rotation sigma applies to roll and
-        pitch as well as heading. Defaults: a good LiDAR odometry (0.5 % scale error, a heading
-        error of 0.002 deg per metre and 0.002 deg per sqrt(metre)) with about twice that as
-        margin.
+        step, also that of a robot standing still; correlation_length (m): the stretch over
+        which the per-metre errors are taken as systematic (0: each step on its own; default
+        the default `OnlineConfig.submap_length`, the stretch over which attempts link a
+        robot). The rotation sigma applies to roll and pitch as well as heading. Defaults: a
+        good LiDAR odometry (0.5 % scale error, a heading error of 0.002 deg per metre and
+        0.002 deg per sqrt(metre)) with about twice that as margin.
     """
 
     translation_per_metre: float = setting(0.01, check=real(0.0, 1.0))
@@ -52,6 +63,7 @@ class OdometryNoise:
         0.005, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m")
     )
     rotation_floor: float = setting(0.005, check=real(0.0, 180.0, low_open=True, unit="degrees"))
+    correlation_length: float = setting(100.0, check=real(0.0, MAX_COORDINATE, unit="m"))
 
     def __post_init__(self) -> None:
         validate_settings(self, "OdometryNoise")
@@ -66,10 +78,16 @@ class OdometryNoise:
         return st, sr
 
     def covariance(self, T_steps: np.ndarray) -> np.ndarray:
-        """(..., 6, 6) covariances of the odometry steps T_steps (..., 4, 4) (T_k_k+1), their
-        length d = the norm of each step's translation."""
-        st, sr = self.sigmas(np.linalg.norm(np.asarray(T_steps)[..., :3, 3], axis=-1))
-        var = np.stack([sr, sr, sr, st, st, st], axis=-1) ** 2
+        """(..., 6, 6) covariances of the odometry steps T_steps (..., 4, 4) (T_k_k+1) as
+        independent factors of a pose graph, their length d = the norm of each step's
+        translation: the per-metre variances scaled to d * max(d, correlation_length) (see
+        the class doc)."""
+        d = np.linalg.norm(np.asarray(T_steps, np.float64)[..., :3, 3], axis=-1)
+        dd = d * np.maximum(d, self.correlation_length)
+        vt = self.translation_floor**2 + self.translation_per_metre**2 * dd
+        vr = (np.radians(self.rotation_floor) ** 2 + np.radians(self.rotation_per_metre) ** 2 * dd
+              + np.radians(self.rotation_per_sqrt_metre) ** 2 * d)
+        var = np.stack([vr, vr, vr, vt, vt, vt], axis=-1)
         return var[..., :, None] * np.eye(6)
 
 
@@ -129,6 +147,11 @@ class OnlineConfig:
         robot saw over its last submap_length metres of travel (its local submap).
     loop_closures: backend "keyframes": also match each robot's local submap against its own
         older map (objects last seen before the submap's stretch), intra-robot loop closures.
+    view_correction: backend "keyframes": the link refits and co-location factors use the
+        objects corrected for the viewpoint offset measured on the maps (a sighting is the
+        near side of an object, closer to the sensor than its centre;
+        `sgloc.online.keyframe_views`), so that two robots that saw the same objects from
+        opposite sides are not pulled apart along the way they looked.
     seed: attempt k of the pair (i, j) (robot indices, i < j) uses the seed [seed, i, j]
         (k = 0) or [seed, i, j, k].
     """
@@ -161,6 +184,7 @@ class OnlineConfig:
         100.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m")
     )
     loop_closures: bool = setting(True, check=flag())
+    view_correction: bool = setting(True, check=flag())
 
     def __post_init__(self) -> None:
         validate_settings(self, "OnlineConfig")
@@ -170,7 +194,11 @@ class OnlineConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> OnlineConfig:
+        """The settings `to_dict` gave. Settings saved before `view_correction` and
+        `OdometryNoise.correlation_length` existed keep the behaviour they were saved with
+        (off, 0), so that a resumed session continues as it would have."""
         data = dict(data)
         if isinstance(data.get("odometry"), dict):
-            data["odometry"] = OdometryNoise(**data["odometry"])
+            data["odometry"] = OdometryNoise(**{"correlation_length": 0.0, **data["odometry"]})
+        data.setdefault("view_correction", False)
         return cls(**data)

@@ -23,6 +23,7 @@ import numpy as np
 from sgloc import lie
 from sgloc.estimation import MotionModel
 from sgloc.online.keyframe_graph import COLOCATION, GraphFactor
+from sgloc.online.keyframe_views import view_corrected, view_offset
 from sgloc.online.refine import co_located, refit_link
 from sgloc.online.robot_map import RobotMap
 
@@ -30,17 +31,20 @@ from sgloc.online.robot_map import RobotMap
 MIN_PAIRS = 6
 
 
-def object_keyframes(m: RobotMap) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def object_keyframes(m: RobotMap, offset: float = 0.0
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(positions (n,3) in the robot's odometry frame, labels (n,), keyframe (n,)) of `m`'s
     confirmed objects; an object's keyframe is the middle one of those that saw it (the
-    rounded mean index)."""
+    rounded mean index). offset: metres, the viewpoint offset the positions are corrected for
+    (`keyframe_views.view_corrected`; 0: the map's own positions)."""
     b = m.builder
     k, _, o = m.sightings()
     n = len(b.counts)
     seen = np.bincount(o, minlength=n).astype(np.float64)
     mean_k = np.bincount(o, weights=k, minlength=n) / np.maximum(seen, 1.0)
     keep = (b.counts >= m.min_observations) & (seen > 0)
-    return b.positions[keep], b.labels[keep], np.rint(mean_k[keep]).astype(np.int64)
+    pos = view_corrected(m, offset) if offset else b.positions
+    return pos[keep], b.labels[keep], np.rint(mean_k[keep]).astype(np.int64)
 
 
 def _in_frame(X: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -60,8 +64,8 @@ class _Objects:
     hi: np.ndarray
 
     @classmethod
-    def of(cls, m: RobotMap, T_fleet_odom: np.ndarray) -> _Objects:
-        p, lab, k = object_keyframes(m)
+    def of(cls, m: RobotMap, T_fleet_odom: np.ndarray, offset: float = 0.0) -> _Objects:
+        p, lab, k = object_keyframes(m, offset)
         xy = (p @ T_fleet_odom[:3, :3].T + T_fleet_odom[:3, 3])[:, :2]
         lo, hi = (xy.min(axis=0), xy.max(axis=0)) if len(p) else (np.zeros(2), -np.ones(2))
         return cls(p, lab, k, lo, hi)
@@ -104,12 +108,16 @@ def _pair_factors(
 
 def colocation_factors(
     maps: list[RobotMap], T_fleet_odom: dict[int, np.ndarray], motion: MotionModel,
-    radius: float, window: float,
+    radius: float, window: float, view_correction: bool = False,
 ) -> list[GraphFactor]:
     """Every co-location factor (kind COLOCATION) between the placed robots (`T_fleet_odom`:
     robot index -> (4,4) its odometry frame in the fleet frame), pairs in index order; robots
-    whose objects lie apart are skipped at once."""
+    whose objects lie apart are skipped at once. With `view_correction` the objects are
+    corrected for the viewpoint offset measured on the placed robots' maps
+    (`keyframe_views`), so robots that saw the same objects from opposite sides are not
+    pulled apart along the way they looked."""
     placed = sorted(T_fleet_odom)
-    objects = {r: _Objects.of(maps[r], T_fleet_odom[r]) for r in placed}
+    offset = view_offset([maps[r] for r in placed]) if view_correction else 0.0
+    objects = {r: _Objects.of(maps[r], T_fleet_odom[r], offset) for r in placed}
     return [f for n, a in enumerate(placed) for b in placed[n + 1:]
             for f in _pair_factors(a, b, maps, T_fleet_odom, objects, motion, radius, window)]

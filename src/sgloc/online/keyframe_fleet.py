@@ -12,12 +12,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from sgloc import lie
+from sgloc.errors import SglocError
 from sgloc.estimation import MotionModel
 from sgloc.maps.graph import SemanticGraph
 from sgloc.online.config import OnlineConfig
 from sgloc.online.keyframe_colocation import colocation_factors
 from sgloc.online.keyframe_graph import KeyframeGraph, keyframe_link
 from sgloc.online.keyframe_links import select_links
+from sgloc.online.keyframe_views import view_corrected, view_offset
 from sgloc.online.link_selection import loop_error, loop_tolerance
 from sgloc.online.records import Attempt, Link
 from sgloc.online.refine import refit_link
@@ -35,6 +37,8 @@ class Query:
     first: int
     query_graph: SemanticGraph
     target_graph: SemanticGraph
+    query_objects: np.ndarray | None = None  # (n,) bool over the query's association objects
+    target_objects: np.ndarray | None = None  # likewise over the target's (None: all)
 
 
 def recent_start(m: RobotMap, length: float) -> int:
@@ -49,19 +53,46 @@ def make_query(maps: list[RobotMap], target: int, query: int, length: float) -> 
     first = recent_start(q, length)
     recent = q.seen_since(first)
     tgt = q.subgraph(~recent) if target == query else maps[target].graph()
-    return Query(target, query, first, q.subgraph(recent), tgt)
+    return Query(target, query, first, q.subgraph(recent), tgt, recent,
+                 ~recent if target == query else None)
+
+
+def query_positions(maps: list[RobotMap], task: Query, offset: float
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """(query submap positions, target map positions) of `task`, in the order of its graphs,
+    corrected for the viewpoint offset `offset` (metres; `keyframe_views.view_corrected`)."""
+    out = []
+    for r, sel, g in ((task.query, task.query_objects, task.query_graph),
+                      (task.target, task.target_objects, task.target_graph)):
+        m = maps[r]
+        keep = m.builder.counts >= m.min_observations
+        if sel is not None:
+            keep &= sel
+        pos = view_corrected(m, offset)[keep]
+        if len(pos) != len(g.positions):  # a Query made without its object masks
+            raise SglocError(f"robot {m.name!r}: the attempt's objects are not the map's.")
+        out.append(pos)
+    return out[0], out[1]
 
 
 def refit(task: Query, result: Attempt, motion: MotionModel, radius: float, tol_m: float,
-          tol_deg: float) -> tuple[np.ndarray, np.ndarray, int] | None:
+          tol_deg: float, maps: list[RobotMap] | None = None
+          ) -> tuple[np.ndarray, np.ndarray, int] | None:
     """The accepted attempt's T_target_query refitted on every object pair it co-locates
     between the query submap and the target map (`refine.refit_link`), with the covariance
     of that fit: (T, covariance, pairs), or None when the refit rests on fewer pairs than the
     attempt's matches or moves the query submap by more than the loop tolerance (as a loop
-    of 2) from the attempt's alignment."""
+    of 2) from the attempt's alignment. With `maps` (the session's robot maps), the objects
+    are corrected for the viewpoint offset measured on the two robots' maps
+    (`keyframe_views`)."""
     q, t = task.query_graph, task.target_graph
     T = np.asarray(result.transform, np.float64)
-    r = refit_link(q.positions, q.labels, t.positions, t.labels, T, motion, radius)
+    pq, pt = q.positions, t.positions
+    if maps is not None:
+        both = [maps[task.query]] if task.query == task.target else [maps[task.query],
+                                                                     maps[task.target]]
+        pq, pt = query_positions(maps, task, view_offset(both))
+    r = refit_link(pq, q.labels, pt, t.labels, T, motion, radius)
     if r is None or r.n_pairs < int(result.n_matches):
         return None
     dt, dr = loop_error(lie.between(T, r.T_a_b), q.positions)
@@ -122,8 +153,8 @@ class KeyframeFleet:
         the co-located objects (`refit`) when `OnlineConfig.refine_links` is on; motion: the
         localizer's motion model, radius: the pairing radius (metres)."""
         o = self.online
-        r = (refit(task, result, motion, radius, o.loop_translation, o.loop_rotation)
-             if o.refine_links else None)
+        r = (refit(task, result, motion, radius, o.loop_translation, o.loop_rotation,
+                   maps if o.view_correction else None) if o.refine_links else None)
         return link_of(maps, names, task, result, stamp, r)
 
     def due_by_travel(self, travelled: list[float], sizes: list[int], min_objects: int,
@@ -270,7 +301,8 @@ class KeyframeFleet:
         placed = g.placed
         self.drop_colocated()
         T = {r: g.T_fleet_odom(r) for r in placed}
-        for f in colocation_factors(maps, T, motion, radius, self.online.submap_length / 4):
+        for f in colocation_factors(maps, T, motion, radius, self.online.submap_length / 4,
+                                    self.online.view_correction):
             self.colocated.append(g.add_link(f.robot_a, f.k_a, f.robot_b, f.k_b, f.T_a_b,
                                              f.covariance, f.kind))
         self.colocated_at = (placed, sum(maps[r].n_confirmed for r in placed))
