@@ -141,3 +141,54 @@ def test_fifo_graph_is_refused_without_blocking(tmp_path, data_dir, capsys):
     os.mkfifo(fifo)
     assert main(["localize", str(fifo), str(data_dir / "airsim_guo" / "cloud2.pcd")]) == 2
     assert "not a regular file" in one_line_error(capsys)
+
+
+def test_experiment_help_names_every_experiment():
+    """The help's names are written out in the command module (importing the experiments
+    would slow every command's start); they are the experiments'."""
+    from sgloc.cli.experiment_cmd import NAMES
+    from sgloc.experiments import EXPERIMENTS
+
+    assert tuple(NAMES) == tuple(EXPERIMENTS)
+
+
+def test_command_line_import_leaves_other_commands_work_alone():
+    """`import sgloc.cli` (every command's start) loads no other command's machinery: numba
+    and the kernels load on first use; the experiments, simulator, fleet layer, extraction,
+    scipy.spatial / ndimage / special, YAML and image libraries only when a command uses them."""
+    import subprocess
+    import sys
+
+    heavy = ("numba", "sgloc.maps.canonical_kernels", "sgloc.evaluation", "sgloc.experiments.job",
+             "sgloc.sim.demo", "sgloc.online.fleet", "sgloc.extraction", "scipy.spatial",
+             "scipy.ndimage", "scipy.special", "yaml", "PIL", "matplotlib", "dask")
+    code = f"import sys, sgloc.cli; print([m for m in {heavy!r} if m in sys.modules])"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_main_called_from_python_leaves_the_collector_alone(data_dir, capsys):
+    """Only the `sgloc` program tunes the garbage collector (a short-lived process); a caller
+    of `main(argv)` keeps its own settings and nothing of its is frozen."""
+    import gc
+
+    before = (gc.get_threshold(), gc.get_freeze_count(), gc.isenabled())
+    d = data_dir / "airsim_guo"
+    assert main(["localize", str(d / "cloud1.pcd"), str(d / "cloud2.pcd")]) == 0
+    assert (gc.get_threshold(), gc.get_freeze_count(), gc.isenabled()) == before
+
+
+def test_program_exit_codes_are_the_commands(data_dir):
+    """`python -m sgloc` (the program path: collector tuned, objects frozen at exit) exits with
+    the command's code and prints as `main(argv)` does."""
+    import subprocess
+    import sys
+
+    d = data_dir / "airsim_guo"
+    ok = subprocess.run([sys.executable, "-m", "sgloc", "localize", str(d / "cloud1.pcd"),
+                         str(d / "cloud2.pcd"), "--format", "json"],
+                        capture_output=True, text=True)  # fmt: skip
+    assert ok.returncode == 0 and json.loads(ok.stdout)["accepted"] is True
+    bad = subprocess.run([sys.executable, "-m", "sgloc", "localize", str(d / "missing.pcd"),
+                          str(d / "cloud2.pcd")], capture_output=True, text=True)  # fmt: skip
+    assert bad.returncode == 2 and bad.stderr.startswith("error: ")

@@ -7,6 +7,7 @@ traceback); 130 interrupted (Ctrl-C, SIGINT); 143 terminated (SIGTERM).
 
 from __future__ import annotations
 
+import gc
 import signal
 import sys
 from importlib.metadata import PackageNotFoundError, version
@@ -197,11 +198,32 @@ def _on_signals(handlers):
     return previous
 
 
+def _as_program() -> None:
+    """Collector settings of the `sgloc` program, a short-lived process (not of `main(argv)`
+    called from Python). Its start-up (numba, scipy, typer) leaves ~140,000 long-lived objects,
+    and every full collection walks them all (~0.1 s each, several per run): full collections
+    come after 100 collections of the middle generation instead of 10. The young generations,
+    where most cyclic garbage dies, are collected as before."""
+    young, middle, _ = gc.get_threshold()
+    gc.set_threshold(young, middle, 100)
+
+
+def _exit(rc: int) -> None:
+    """Leave the `sgloc` program with exit code `rc`. The objects alive now are frozen first:
+    the interpreter's last collections at exit then skip them (~0.25 s saved; the process ends,
+    so nothing is left uncollected for long; exit handlers run as usual)."""
+    gc.freeze()
+    sys.exit(rc)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Console entry point. A user error (SglocError, bad usage) becomes one line on stderr and
-    exit 2; "not localized" exits 1; no traceback reaches the user for either."""
+    exit 2; "not localized" exits 1; no traceback reaches the user for either. Without `argv`
+    (the `sgloc` program, `python -m sgloc`) the arguments are the process's and it exits."""
     from sgloc.io.files import written
 
+    if argv is None:
+        _as_program()
     _one_line_summaries(app)
     before = len(written())
     previous = _on_signals(_interrupt)
@@ -226,5 +248,5 @@ def main(argv: list[str] | None = None) -> int:
         _on_signals(previous)
     rc = int(rc) if isinstance(rc, int) else EXIT_OK
     if argv is None:
-        sys.exit(rc)
+        _exit(rc)
     return rc

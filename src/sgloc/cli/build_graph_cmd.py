@@ -14,7 +14,6 @@ from sgloc.cli.app import app
 from sgloc.cli.outputs import claim_output
 from sgloc.cli.progress import progress_bar
 from sgloc.datasets import DATASETS
-from sgloc.extraction.graph_job import graph_job
 
 Dataset = Annotated[str, typer.Argument(help=f"Loader name: {' | '.join(sorted(DATASETS))}.")]
 Folder = Annotated[Path, typer.Argument(help="Dataset folder (or run folder with robot folders).")]
@@ -71,6 +70,8 @@ def build_graph_cmd(
     Example: sgloc build-graph kitti_objects "$(sgloc data path kitti00)" --scans 0-800
     --start-frame -o A.json
     """
+    from sgloc.extraction.graph_job import graph_job  # deferred: scipy.ndimage, extraction
+
     loader = {"robot": robot, "frames": frames, "start_frame": start_frame}
     job = graph_job(
         dataset, preset, loader, association_radius=association_radius,

@@ -11,7 +11,7 @@ object world instead (no rendering).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Console
@@ -30,8 +30,9 @@ from sgloc.cli.outputs import claim_output
 from sgloc.cli.progress import progress_bar
 from sgloc.geometry import transform_error
 from sgloc.io.files import is_sgloc_picture
-from sgloc.sim.demo import DemoResult, city_demo, objects_demo
-from sgloc.sim.run import SyntheticRunConfig
+
+if TYPE_CHECKING:
+    from sgloc.sim.demo import DemoResult
 
 #: Where `sgloc demo` saves its picture unless told otherwise (relative to the current folder).
 DEFAULT_OUT = Path("results") / "demo" / "aligned_maps.png"
@@ -95,6 +96,9 @@ def demo_cmd(
     if not 0.0 <= overlap <= 1.0:
         raise fail(f"--overlap must be in [0, 1], got {overlap}.")
     claim_output(ctx, out, [cache_dir], folder=False, ours=is_sgloc_picture)
+    from sgloc.sim.demo import city_demo, objects_demo  # deferred: the simulator (PIL, ...)
+    from sgloc.sim.run import SyntheticRunConfig
+
     console = Console()
     if objects_only:  # the object world's own settings: the defaults
         done = objects_demo(seed, overlap, localizer_config(preset, None, setting), descriptor,

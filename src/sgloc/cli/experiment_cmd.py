@@ -13,10 +13,13 @@ from sgloc.cli.app import app
 from sgloc.cli.options import ConfigFile, Preset, merged_settings
 from sgloc.cli.outputs import claim_output
 from sgloc.cli.progress import progress_bar
-from sgloc.experiments import EXPERIMENTS, experiment_job
-from sgloc.experiments.job import TRIAL_OPTIONS
 
-Name = Annotated[str, typer.Argument(help=f"One of: {' | '.join(EXPERIMENTS)}.")]
+#: The experiments' names as the help shows them: sgloc.experiments.EXPERIMENTS, written out
+#: because importing the experiments (the evaluation harness, scipy.ndimage, ...) would slow the
+#: start of every command (tests/test_cli.py checks that the two agree).
+NAMES = ("table", "threshold", "pr", "overlap", "matches")
+
+Name = Annotated[str, typer.Argument(help=f"One of: {' | '.join(NAMES)}.")]
 Dataset = Annotated[str, typer.Option(
     "--dataset", "-d", help="airsim-guo | kitti00 | synthetic | a folder."
 )]
@@ -100,6 +103,8 @@ def experiment_cmd(
 
     Example: sgloc experiment table --dataset airsim-guo --trials 100 --out results/table1
     """
+    from sgloc.experiments import experiment_job
+
     job = experiment_job(
         name, dataset, trials=trials, seed=seed, threshold=threshold, thresholds=thresholds,
         overlaps=overlaps, descriptors=descriptors, rejections=rejections, descriptor=descriptor,
@@ -114,6 +119,7 @@ def experiment_cmd(
 
 def _typed(ctx: typer.Context) -> dict[str, Any]:
     """The trial options given on the command line, by name (`--from-csv` refuses them)."""
+    from sgloc.experiments.job import TRIAL_OPTIONS
 
     def typed(name: str) -> bool:  # by the enum's name: typer may bundle its own click
         return getattr(ctx.get_parameter_source(name), "name", "") == "COMMANDLINE"

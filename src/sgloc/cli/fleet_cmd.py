@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import numpy as np
 import typer
@@ -23,8 +23,9 @@ from sgloc.cli.options import (
     localizer_config,
 )
 from sgloc.cli.outputs import claim_output
-from sgloc.online.fleet import FleetConfig, FleetResult
-from sgloc.online.fleet_files import localize_fleet_files
+
+if TYPE_CHECKING:
+    from sgloc.online.fleet import FleetResult
 
 Graphs = Annotated[list[Path], typer.Argument(
     help="Two or more robot graphs (.pcd .ply .csv .txt .json .npz)."
@@ -77,6 +78,9 @@ def fleet_cmd(
     Example: sgloc fleet a.pcd b.pcd c.json d.npz --out results/fleet --scheduler
     tcp://10.0.0.5:8786
     """
+    from sgloc.online.fleet import FleetConfig  # deferred: the fleet layer, scipy.sparse.csgraph
+    from sgloc.online.fleet_files import localize_fleet_files
+
     claim_output(ctx, out, [*graphs, config, colour_table, class_table])
     localizer = localizer_config(preset, config, setting, min_confidence=min_confidence)
     res = localize_fleet_files(

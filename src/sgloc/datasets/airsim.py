@@ -17,7 +17,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from sgloc.datasets.base import (
     Dataset,
@@ -80,6 +79,8 @@ def read_airsim_poses(path: Path) -> np.ndarray:
     norms = np.linalg.norm(q, axis=1)
     if not np.all(np.isfinite(vals)) or np.any(norms < 1e-9):
         raise DatasetError(f"{path}: NaN values or zero quaternions in the pose rows.")
+    from scipy.spatial.transform import Rotation  # deferred: scipy.spatial loads in ~0.2 s
+
     T = np.tile(np.eye(4), (n, 1, 1))
     T[:, :3, :3] = Rotation.from_quat(q[:, [1, 2, 3, 0]] / norms[:, None]).as_matrix()
     T[:, :3, 3] = vals[:, :3]

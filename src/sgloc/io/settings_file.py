@@ -58,6 +58,8 @@ def parse_assignments(items: Sequence[str]) -> dict[str, Any]:
     """{NAME: value} from `NAME=VALUE` strings (`--set`, `--param`); values are read as YAML
     (3 -> int, a,b -> str, {0: 0.1} -> dict; none/None -> None). SglocError on an item
     without `=`."""
+    if not items:  # the usual command line: no YAML reader to load
+        return {}
     import yaml
 
     out: dict[str, Any] = {}
