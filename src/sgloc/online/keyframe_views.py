@@ -33,12 +33,9 @@ from sgloc.online.robot_map import RobotMap
 def sighting_rays(m: RobotMap) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(object (s,) index into the association's objects, position (s,3) and unit ray (s,3)
     from the sensor to the sighting, both in the robot's odometry frame as its keyframes are
-    placed now (`RobotMap.anchors`)) of every sighting of `m`."""
-    k, p, o = m.sightings()
-    X = m.anchors()[k]
-    R = X[:, :3, :3]
-    ray = p / np.maximum(np.linalg.norm(p, axis=1, keepdims=True), 1e-12)
-    return (o, np.einsum("sij,sj->si", R, p) + X[:, :3, 3], np.einsum("sij,sj->si", R, ray))
+    placed now (`RobotMap.views`)) of every sighting of `m`."""
+    w, ray = m.views()
+    return m.sightings()[2], w, ray
 
 
 def _per_object(o: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
@@ -52,8 +49,11 @@ def mean_rays(m: RobotMap) -> np.ndarray:
     """(n,3) per object of `m`'s association (confirmed or not), the mean of the unit rays
     of its sightings in the odometry frame (length 1 for an object seen from one direction
     only, about 0 for one seen from all around)."""
-    o, _, ray = sighting_rays(m)
-    return _per_object(o, ray, len(m.builder.counts))
+    def compute() -> np.ndarray:
+        o, _, ray = sighting_rays(m)
+        return _per_object(o, ray, len(m.builder.counts))
+
+    return m.derived("mean_rays", compute)
 
 
 def _across(m: RobotMap, k: np.ndarray) -> np.ndarray:
@@ -77,15 +77,22 @@ def view_offset(maps: Sequence[RobotMap]) -> float:
     doc)."""
     num = den = 0.0
     for m in maps:
-        o, w, ray = sighting_rays(m)
-        n = len(m.builder.counts)
-        keep = (m.builder.counts >= m.min_observations)[o]
-        across = _across(m, m.sightings()[0])
-        dw = np.sum((w - _per_object(o, w, n)[o]) * across, axis=1)[keep]
-        du = np.sum((ray - _per_object(o, ray, n)[o]) * across, axis=1)[keep]
-        num += float(np.sum(dw * du))
-        den += float(np.sum(du * du))
+        a, b = m.derived("view_terms", lambda m=m: _view_terms(m))
+        num += a
+        den += b
     return max(0.0, -num / den) if den > 0.0 else 0.0
+
+
+def _view_terms(m: RobotMap) -> tuple[float, float]:
+    """`m`'s sums of `view_offset`'s regression: (sum dw du, sum du du) over the sightings of
+    its confirmed objects."""
+    o, w, ray = sighting_rays(m)
+    n = len(m.builder.counts)
+    keep = (m.builder.counts >= m.min_observations)[o]
+    across = _across(m, m.sightings()[0])
+    dw = np.sum((w - _per_object(o, w, n)[o]) * across, axis=1)[keep]
+    du = np.sum((ray - _per_object(o, ray, n)[o]) * across, axis=1)[keep]
+    return float(np.sum(dw * du)), float(np.sum(du * du))
 
 
 def view_corrected(m: RobotMap, offset: float) -> np.ndarray:

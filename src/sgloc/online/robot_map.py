@@ -5,6 +5,9 @@ follows a corrected trajectory (`RobotMap.reanchor`)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 
 from sgloc.errors import SglocError
@@ -43,6 +46,8 @@ class RobotMap:
         self._travel: list[float] = []  # metres travelled to each keyframe
         self._chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self._sightings: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._views: tuple[np.ndarray, np.ndarray] | None = None  # of _sightings, `views`
+        self._derived: dict[str, Any] = {}  # `derived`, of _views
 
     @property
     def n_confirmed(self) -> int:
@@ -70,7 +75,8 @@ class RobotMap:
         ok = went >= 0
         self._chunks.append((np.full(int(ok.sum()), len(self.poses), np.int64), pos[ok],
                              went[ok]))
-        self._sightings = None
+        self._sightings = self._views = None
+        self._derived = {}
         step = float(np.linalg.norm(T[:3, 3] - self.poses[-1][:3, 3])) if self.poses else 0.0
         self._travel.append(self._travel[-1] + step if self._travel else 0.0)
         self.stamps.append(float(stamp))
@@ -114,6 +120,28 @@ class RobotMap:
             self._sightings = (k, p, o)
         return self._sightings
 
+    def views(self) -> tuple[np.ndarray, np.ndarray]:
+        """(position (s,3), unit ray from the sensor (s,3)) of every sighting (`sightings`
+        order) in the odometry frame, its keyframe placed as it is now (`anchors`); kept until
+        a keyframe is added or moved."""
+        if self._views is None:
+            k, p, _ = self.sightings()
+            A = self.anchors()
+            w = A[:, :3, 3][k]
+            for j in range(3):  # R p column by column: far lighter than gathering (s,3,3)
+                w = w + np.ascontiguousarray(A[:, :3, j])[k] * p[:, j:j + 1]
+            t = A[:, :3, 3][k]
+            norm = np.maximum(np.linalg.norm(p, axis=1, keepdims=True), 1e-12)
+            self._views = (w, (w - t) / norm)
+        return self._views
+
+    def derived(self, key: str, compute: Callable[[], Any]) -> Any:
+        """`compute()` (a value derived from `views`, e.g. `sgloc.online.keyframe_views`'s),
+        kept under `key` until a keyframe is added or moved."""
+        if key not in self._derived:
+            self._derived[key] = compute()
+        return self._derived[key]
+
     def anchors(self) -> np.ndarray:
         """(k,4,4) the keyframe poses (odometry frame) the objects are placed with now: the
         odometry's, or the last `reanchor`'s."""
@@ -143,7 +171,8 @@ class RobotMap:
         self.builder.shift(o[sel], delta)
         for i in np.flatnonzero(moved):
             self._anchor[i] = T[i].copy()
-        self._graph = None
+        self._graph = self._views = None
+        self._derived = {}
         return int(moved.sum())
 
     def travelled(self) -> np.ndarray:
@@ -197,6 +226,7 @@ class RobotMap:
                              np.asarray(state["sighting_object"], np.int64).ravel())]
         else:
             self._chunks = []
-        self._sightings = None
+        self._sightings = self._views = None
+        self._derived = {}
         self._confirmed = int(np.count_nonzero(self.builder.counts >= self.min_observations))
         self._graph = None
