@@ -97,20 +97,26 @@ def demo_cmd(
         raise fail(f"--overlap must be in [0, 1], got {overlap}.")
     claim_output(ctx, out, [cache_dir], folder=False, ours=is_sgloc_picture)
     from sgloc.sim.demo import city_demo, objects_demo  # deferred: the simulator (PIL, ...)
-    from sgloc.sim.run import SyntheticRunConfig
 
     console = Console()
     if objects_only:  # the object world's own settings: the defaults
         done = objects_demo(seed, overlap, localizer_config(preset, None, setting), descriptor,
                             rejection, out)
     else:
-        run = SyntheticRunConfig(seed=seed, overlap=overlap, width=width, height=height,
-                                 length=length, step=step)
         config = localizer_config(preset or ("paper" if paper_defaults else "city"), None, setting)
-        demo = city_demo(run, config, descriptor, rejection)  # checked before any display
+        demo = city_demo(_run(seed, overlap, width, height, length, step), config, descriptor,
+                         rejection)  # checked before any display
         with _bar(console) as progress:
             done = demo(cache_dir, refresh, out, progress, console.print)
     _print(console, done, out)
+
+
+def _run(seed: int, overlap: float, width: int, height: int, length: float, step: float):
+    """The synthetic run's settings (`sgloc.sim.run.SyntheticRunConfig`)."""
+    from sgloc.sim.run import SyntheticRunConfig
+
+    return SyntheticRunConfig(seed=seed, overlap=overlap, width=width, height=height,
+                              length=length, step=step)
 
 
 def _bar(console: Console):

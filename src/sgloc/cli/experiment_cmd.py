@@ -103,18 +103,24 @@ def experiment_cmd(
 
     Example: sgloc experiment table --dataset airsim-guo --trials 100 --out results/table1
     """
-    from sgloc.experiments import experiment_job
-
-    job = experiment_job(
-        name, dataset, trials=trials, seed=seed, threshold=threshold, thresholds=thresholds,
+    job = _job(
+        ctx, name, dataset, trials=trials, seed=seed, threshold=threshold, thresholds=thresholds,
         overlaps=overlaps, descriptors=descriptors, rejections=rejections, descriptor=descriptor,
         settings=lambda: merged_settings(preset, config, setting), params=dataset_param or [],
-        repeats=repeats, clock=clock, from_csv=from_csv, typed=_typed(ctx), out=out,
+        repeats=repeats, clock=clock, from_csv=from_csv, out=out,
     )
     claim_output(ctx, job.out, [p for p in (Path(dataset), config, from_csv) if p and p.exists()])
     with _bar(name, dataset) as progress:
         result = job.run(workers=workers, scheduler=scheduler, progress=progress)
     _print(result)
+
+
+def _job(ctx: typer.Context, name: str, dataset: str, **options: Any):
+    """The experiment's job (`sgloc.experiments.experiment_job`, imported when a command runs
+    one) with the trial options given on the command line."""
+    from sgloc.experiments import experiment_job
+
+    return experiment_job(name, dataset, typed=_typed(ctx), **options)
 
 
 def _typed(ctx: typer.Context) -> dict[str, Any]:
