@@ -4,6 +4,7 @@ when their maps have grown enough and keeps one fleet frame over the consistent 
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import replace
 from pathlib import Path
 
@@ -320,8 +321,9 @@ class OnlineSession:
     def _uses(targets: list[int], workers, scheduler) -> dict[int, int]:
         """Attempts against each target robot in a batch when it runs in this process; 0 for
         every target when the batch goes to worker processes (they get arrays)."""
-        here = runs_here(len(targets), workers, scheduler)
-        return {t: targets.count(t) if here else 0 for t in targets}
+        if runs_here(len(targets), workers, scheduler):
+            return Counter(targets)
+        return dict.fromkeys(targets, 0)
 
     def _due_loops(self, sizes, growth_ratio, growth_objects, robot) -> list[int]:
         """Robots (indices) due for a loop-closure attempt under the growth rule."""
