@@ -559,10 +559,9 @@ def report_startup(startup, cli) -> list[str]:
              "is cached, as in an installed package (here in a temporary folder, "
              "`PYTHONPYCACHEPREFIX`, filled by an untimed first process). Each `sgloc` command "
              "loads its own machinery only when it runs, and the program sets Python's garbage "
-             "collector for a "
-             "short-lived process (full collections less often, none of the start-up's "
-             "objects walked at exit); `main(argv)` called from Python leaves the collector "
-             "as it is.", "",
+             "collector for a short-lived process (full collections less often, none of the "
+             "start-up's objects walked at exit); `main(argv)` called from Python leaves the "
+             "collector as it is.", "",
              "| what | s |", "|---|---|"]  # fmt: skip
     lines += [f"| {k} | {_mmm(v)} |" for k, v in startup.items()]
     lines.append(f"| `sgloc localize cloud1.pcd cloud2.pcd`, whole process | {_mmm(cli)} |")

@@ -127,10 +127,9 @@ class RobotMap:
         if self._views is None:
             k, p, _ = self.sightings()
             A = self.anchors()
-            w = A[:, :3, 3][k]
+            t = w = A[:, :3, 3][k]
             for j in range(3):  # R p column by column: far lighter than gathering (s,3,3)
                 w = w + np.ascontiguousarray(A[:, :3, j])[k] * p[:, j:j + 1]
-            t = A[:, :3, 3][k]
             norm = np.maximum(np.linalg.norm(p, axis=1, keepdims=True), 1e-12)
             self._views = (w, (w - t) / norm)
         return self._views
