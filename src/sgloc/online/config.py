@@ -152,6 +152,13 @@ class OnlineConfig:
         near side of an object, closer to the sensor than its centre;
         `sgloc.online.keyframe_views`), so that two robots that saw the same objects from
         opposite sides are not pulled apart along the way they looked.
+    join_tests: backend "keyframes": a link that would join two groups of robots by itself
+        must keep its acceptance evidence when counted against every attempt made between the
+        two groups (its NFA, 1 / confidence - 1, times those attempts, within the NFA the
+        localizer accepts at, 1 / min_confidence - 1); a weaker link waits until other links
+        join the groups and is then taken as a loop closure (`keyframe_links`). Many robots
+        make thousands of attempts between groups that do not overlap, and the rare chance
+        alignment among them would otherwise place a whole group.
     seed: attempt k of the pair (i, j) (robot indices, i < j) uses the seed [seed, i, j]
         (k = 0) or [seed, i, j, k].
     """
@@ -185,6 +192,7 @@ class OnlineConfig:
     )
     loop_closures: bool = setting(True, check=flag())
     view_correction: bool = setting(True, check=flag())
+    join_tests: bool = setting(True, check=flag())
 
     def __post_init__(self) -> None:
         validate_settings(self, "OnlineConfig")
@@ -194,11 +202,12 @@ class OnlineConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> OnlineConfig:
-        """The settings `to_dict` gave. Settings saved before `view_correction` and
-        `OdometryNoise.correlation_length` existed keep the behaviour they were saved with
-        (off, 0), so that a resumed session continues as it would have."""
+        """The settings `to_dict` gave. Settings saved before `view_correction`,
+        `join_tests` and `OdometryNoise.correlation_length` existed keep the behaviour they
+        were saved with (off, 0), so that a resumed session continues as it would have."""
         data = dict(data)
         if isinstance(data.get("odometry"), dict):
             data["odometry"] = OdometryNoise(**{"correlation_length": 0.0, **data["odometry"]})
         data.setdefault("view_correction", False)
+        data.setdefault("join_tests", False)
         return cls(**data)

@@ -238,21 +238,24 @@ class KeyframeFleet:
         self.travel_last[(i, j)] = (travelled[i], travelled[j])
         self.query_last[(target, query)] = travelled[query]
 
-    def select(self, maps: list[RobotMap], names: list[str]) -> tuple[list[int], dict]:
-        """The link ids the evidence supports now, and why the others are not taken."""
+    def select(self, maps: list[RobotMap], names: list[str], max_nfa: float | None = None
+               ) -> tuple[list[int], dict]:
+        """The link ids the evidence supports now, and why the others are not taken (max_nfa:
+        `select_links`')."""
         index = {n: i for i, n in enumerate(names)}
         odom = {i: m.trajectory()[1] for i, m in enumerate(maps)}
         travelled = {i: m.travelled() for i, m in enumerate(maps)}
         candidates = [i for i, lk in enumerate(self.links) if not lk.revoked]
         o = self.online
         return select_links(self.links, candidates, index, odom, travelled, o.odometry,
-                            o.loop_translation, o.loop_rotation)
+                            o.loop_translation, o.loop_rotation, max_nfa)
 
-    def update(self, maps: list[RobotMap], names: list[str]) -> tuple[list[int], list[int]]:
-        """Re-select the links, move the graph to the selection (links leave it by factor id),
-        solve, reanchor the placed robots' maps. Returns (link ids that entered, link ids
-        that left, now revoked)."""
-        taken, dropped = self.select(maps, names)
+    def update(self, maps: list[RobotMap], names: list[str], max_nfa: float | None = None
+               ) -> tuple[list[int], list[int]]:
+        """Re-select the links (max_nfa: `select_links`'), move the graph to the selection
+        (links leave it by factor id), solve, reanchor the placed robots' maps. Returns (link
+        ids that entered, link ids that left, now revoked)."""
+        taken, dropped = self.select(maps, names, max_nfa)
         entered, left = [], []
         for lid in sorted(set(self.fid) - set(taken)):
             self.graph.remove(self.fid.pop(lid))

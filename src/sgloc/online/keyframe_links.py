@@ -9,7 +9,14 @@ link `tol_m` metres / `tol_deg` degrees (sqrt(n) of that for a loop of n links, 
 (`OdometryNoise`) over the metres the loop runs along the robots' trajectories. So a cluster of
 mutually consistent false links cannot push out a link that more evidence supports: the
 better-supported link is taken first and the cluster's links that contradict it are not.
-Links once in the set and then out of it are revoked by the caller and stay out (hysteresis)."""
+Links once in the set and then out of it are revoked by the caller and stay out (hysteresis).
+
+A link that would join two groups of robots alone must also hold its evidence against the
+attempts made between them (`Link.tests`): every attempt between two groups that do not
+overlap is a chance for a false alignment, and a fleet of many robots makes thousands. The
+acceptance test's NFA (1 / confidence - 1) times the tests must stay within the NFA the
+localizer accepts at (`max_nfa`); a weaker link is held: it is taken only to close a loop,
+once other links have joined its robots."""
 
 from __future__ import annotations
 
@@ -34,6 +41,13 @@ def evidence_order(links: Sequence[Link], ids: Sequence[int]) -> list[int]:
     """`ids` strongest evidence first: most matches, highest confidence, oldest, lowest id."""
     return sorted(ids, key=lambda i: (-links[i].n_matches, -round(links[i].confidence, 6),
                                       links[i].stamp, i))
+
+
+def join_chance(link: Link) -> float:
+    """The NFA of `link` as a join of two groups: (1 / confidence - 1) x its tests."""
+    if link.confidence <= 0.0:
+        return float("inf")
+    return (1.0 / link.confidence - 1.0) * max(link.tests, 1)
 
 
 class _Forest:
@@ -102,36 +116,63 @@ def select_links(
     noise: OdometryNoise,
     tol_m: float,
     tol_deg: float,
+    max_nfa: float | None = None,
 ) -> tuple[list[int], dict[int, str]]:
     """(ids taken, {id: why not} for the others) among `candidates` (ids into `links`, each
     with keyframe_a/keyframe_b set); see the module doc. index: robot name -> index; odom,
-    travelled: per robot index, its keyframe poses (k,4,4) and metres travelled (k,)."""
-    forest, taken, dropped = _Forest(), [], {}
+    travelled: per robot index, its keyframe poses (k,4,4) and metres travelled (k,);
+    max_nfa: the NFA a link joining two groups may have, its tests counted (None: no hold)."""
+    forest, taken, dropped, held = _Forest(), [], {}, []
     for lid in evidence_order(links, candidates):
         lk = links[lid]
         a, b = index[lk.robot_a], index[lk.robot_b]
-        T_ab = rigid(lk, odom[a], odom[b])
-        if not forest.joined(a, b):
-            forest.join(a, b, T_ab, lid)
-            taken.append(lid)
+        if forest.joined(a, b):
+            why = _loop_miss(links, lid, forest, index, odom, travelled, noise, tol_m, tol_deg)
+        elif max_nfa is not None and join_chance(lk) > max_nfa:
+            held.append(lid)
             continue
-        path = forest.path(a, b) if a != b else []
-        T_pred = lie.between(forest.T[a], forest.T[b]) if a != b else np.eye(4)
-        E = lie.between(T_pred, T_ab)
-        p = odom[b][lk.keyframe_b][:3, 3]
-        err_m = float(np.linalg.norm(E[:3, :3] @ p + E[:3, 3] - p))
-        err_deg = rotation_angle_deg(E[:3, :3])
-        dist = loop_distance(links, lid, path, index, travelled)
-        st, sr = noise.sigmas(dist)
-        lim_m, lim_deg = loop_tolerance(tol_m, tol_deg, len(path) + 1)
-        lim_m += 3.0 * float(np.hypot(st, sr * dist / 2))
-        lim_deg += 3.0 * float(np.degrees(sr))
-        if err_m <= lim_m and err_deg <= lim_deg:
+        else:
+            forest.join(a, b, rigid(lk, odom[a], odom[b]), lid)
+            why = None
+        if why is None:
             taken.append(lid)
         else:
-            dropped[lid] = (
-                f"contradicted by better-supported links: its loop of {len(path) + 1} link(s) "
-                f"over {dist:.0f} m of travel misses by {err_m:.2f} m / {err_deg:.2f} deg "
-                f"(allowed {lim_m:.2f} m / {lim_deg:.2f} deg)"
-            )
+            dropped[lid] = why
+    for lid in held:  # a held link closes a loop once stronger links have joined its robots
+        lk = links[lid]
+        if forest.joined(index[lk.robot_a], index[lk.robot_b]):
+            why = _loop_miss(links, lid, forest, index, odom, travelled, noise, tol_m, tol_deg)
+        else:
+            why = (f"held: its confidence {lk.confidence:.6f} over the {lk.tests} attempts "
+                   f"between its robots' groups could be chance (NFA {join_chance(lk):.2g} > "
+                   f"{max_nfa:.2g}); it is taken once other links join its robots")
+        if why is None:
+            taken.append(lid)
+        else:
+            dropped[lid] = why
     return sorted(taken), dropped
+
+
+def _loop_miss(links: Sequence[Link], lid: int, forest: _Forest, index: dict[str, int],
+               odom: dict[int, np.ndarray], travelled: dict[int, np.ndarray],
+               noise: OdometryNoise, tol_m: float, tol_deg: float) -> str | None:
+    """None when link `lid` closes its loop through `forest` within what the links and the
+    odometry allow (see the module doc), else why not."""
+    lk = links[lid]
+    a, b = index[lk.robot_a], index[lk.robot_b]
+    path = forest.path(a, b) if a != b else []
+    T_pred = lie.between(forest.T[a], forest.T[b]) if a != b else np.eye(4)
+    E = lie.between(T_pred, rigid(lk, odom[a], odom[b]))
+    p = odom[b][lk.keyframe_b][:3, 3]
+    err_m = float(np.linalg.norm(E[:3, :3] @ p + E[:3, 3] - p))
+    err_deg = rotation_angle_deg(E[:3, :3])
+    dist = loop_distance(links, lid, path, index, travelled)
+    st, sr = noise.sigmas(dist)
+    lim_m, lim_deg = loop_tolerance(tol_m, tol_deg, len(path) + 1)
+    lim_m += 3.0 * float(np.hypot(st, sr * dist / 2))
+    lim_deg += 3.0 * float(np.degrees(sr))
+    if err_m <= lim_m and err_deg <= lim_deg:
+        return None
+    return (f"contradicted by better-supported links: its loop of {len(path) + 1} link(s) "
+            f"over {dist:.0f} m of travel misses by {err_m:.2f} m / {err_deg:.2f} deg "
+            f"(allowed {lim_m:.2f} m / {lim_deg:.2f} deg)")

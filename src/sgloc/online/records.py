@@ -36,6 +36,10 @@ class Link:
         and covariance is in keyframe_b's frame; robot_a == robot_b for a loop closure.
     revoked: the link was in the consistent set and left it; it does not come back (a newer
         attempt of the pair, new evidence, makes a new link).
+    tests: the localization attempts made between the two robots' groups (robots joined by
+        active links) up to and including the one that gave the link: how many chances a
+        false alignment had (back-end "keyframes", `keyframe_links.select_links`; 1 for a
+        link added from elsewhere or saved before this was counted).
     """
 
     robot_a: str
@@ -52,6 +56,7 @@ class Link:
     keyframe_a: int | None = None
     keyframe_b: int | None = None
     revoked: bool = False
+    tests: int = 1
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -60,7 +65,7 @@ class Link:
             "stamp": self.stamp, "active": self.active, "reason": self.reason,
             "n_matches": self.n_matches, "agreed": self.agreed,
             "refined_pairs": self.refined_pairs, "keyframe_a": self.keyframe_a,
-            "keyframe_b": self.keyframe_b, "revoked": self.revoked,
+            "keyframe_b": self.keyframe_b, "revoked": self.revoked, "tests": self.tests,
         }
 
     @classmethod

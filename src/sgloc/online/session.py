@@ -379,16 +379,39 @@ class OnlineSession:
             self._tries[key] = self._tries.get(key, 0) + 1
         changed = False
         results = run_attempts(pairs, self.config, scheduler, workers)
+        tests = self._tests_between(group)
         for qu, r in zip(queries, results, strict=True):
             r = replace(r, query=names[qu.query], target=names[qu.target], stamp=stamp,
                         sizes=(len(qu.query_graph.positions), len(qu.target_graph.positions)))
             self.attempts.append(r)
             if r.accepted:
-                self._kf.links.append(self._kf.link(maps, names, qu, r, stamp,
-                                                    self.config.motion,
-                                                    self.config.ransac.threshold))
+                lk = self._kf.link(maps, names, qu, r, stamp, self.config.motion,
+                                   self.config.ransac.threshold)
+                ga, gb = sorted((group[qu.target], group[qu.query]))
+                lk.tests = tests.get((ga, gb), 1) if ga != gb else \
+                    max(self._tries.get((min(qu.target, qu.query), max(qu.target, qu.query)),
+                                        1), 1)
+                self._kf.links.append(lk)
                 changed = True
         return changed
+
+    def _tests_between(self, group: np.ndarray) -> dict[tuple[int, int], int]:
+        """Attempts made so far between each two groups of robots (`group`: a label per robot
+        index; keys: (lower label, higher label)), loop closures left out."""
+        out: dict[tuple[int, int], int] = {}
+        for (i, j), n in self._tries.items():
+            if i != j:
+                key = (min(group[i], group[j]), max(group[i], group[j]))
+                out[key] = out.get(key, 0) + n
+        return out
+
+    def _max_join_nfa(self) -> float | None:
+        """The NFA a link joining two groups may have, its tests counted
+        (`OnlineConfig.join_tests`): the localizer's, 1 / min_confidence - 1; None: no hold."""
+        acc = self.config.acceptance
+        if not self.online.join_tests or not acc.enabled or acc.min_confidence <= 0.0:
+            return None
+        return 1.0 / acc.min_confidence - 1.0
 
     def _record(self, i: int, j: int, sizes: list[int], r: Attempt, stamp: float) -> bool:
         """Store one attempt (robot j in robot i's map, named here); True when it added or
@@ -596,7 +619,7 @@ class OnlineSession:
         if self._kf.graph.root != root:
             self._kf.graph.set_root(root)
         maps = [self._maps[r] for r in names]
-        entered, left = self._kf.update(maps, names)
+        entered, left = self._kf.update(maps, names, self._max_join_nfa())
         if self.online.refine_fleet and self._kf.colocation_due(
                 maps, self.online.refine_fleet_growth):
             self._kf.colocate(maps, self.config.motion,
