@@ -7,7 +7,7 @@ import pytest
 from sgloc import lie
 from sgloc.errors import SglocError
 from sgloc.online.config import OdometryNoise
-from sgloc.online.keyframe_graph import KeyframeGraph, keyframe_link
+from sgloc.online.keyframe_graph import KeyframeGraph, keyframe_link, odometry_link
 from sgloc.online.keyframe_solve import gtsam_available
 
 needs_gtsam = pytest.mark.skipif(not gtsam_available(), reason="gtsam not installed")
@@ -131,6 +131,9 @@ def test_odometry_noise_grows_with_distance_and_a_link_moves_to_keyframes():
     Ad = lie.adjoint(np.linalg.inv(Tb))
     np.testing.assert_allclose(lie.se3_log(np.linalg.inv(T) @ T2), Ad @ xi, atol=1e-10)
     np.testing.assert_allclose(C, Ad @ cov @ Ad.T, atol=1e-12)
+    T3, C3 = odometry_link(Ta, T, C, Tb)  # and back to the odometry frames
+    np.testing.assert_allclose(T3, T_ab, atol=1e-10)
+    np.testing.assert_allclose(C3, cov, atol=1e-10)
     g = KeyframeGraph()
     g.add_keyframe(0, np.eye(4))
     with pytest.raises(SglocError, match="no keyframe"):

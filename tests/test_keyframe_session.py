@@ -69,6 +69,52 @@ def test_consistent_false_links_do_not_revoke_a_link_more_evidence_supports():
     np.testing.assert_allclose(X2[:, :3, 3], expected[:, :3, 3], atol=1e-3)
 
 
+def test_a_join_that_many_attempts_could_give_by_chance_waits_for_a_loop():
+    """A link that alone would join two robots is held when its confidence, counted against
+    the attempts made between them, could be chance; once a strong link joins them it is
+    taken as a loop closure if it agrees, and left out if it does not."""
+    maps, names = _line_maps(3), ["r0", "r1", "r2"]
+    truth = _world(3)
+    lattice = {**truth, 2: lie.se3_exp([0, 0, np.pi / 2, 296.0, 0, 0]) @ truth[2]}
+    f = _fleet(maps)
+    nfa = 1.0 / 0.9999 - 1.0
+    weak_true = _link(truth, maps, 0, 4, 1, 4, 20, 1.0)
+    weak_true.confidence, weak_true.tests = 0.99996, 300  # NFA 4e-5 x 300 attempts
+    weak_false = _link(lattice, maps, 0, 6, 2, 6, 20, 1.0)
+    weak_false.confidence, weak_false.tests = 0.99996, 300
+    f.links = [weak_true, weak_false]
+    assert f.update(maps, names, nfa) == ([], [])
+    assert f.graph.placed == [0] and "held" in weak_true.reason and "300 attempts" in \
+        weak_false.reason
+    # Fewer tests: the same confidence is within what the localizer accepts at.
+    g = _fleet(maps)
+    g.links = [_link(truth, maps, 0, 4, 1, 4, 20, 1.0)]
+    g.links[0].confidence, g.links[0].tests = 0.99996, 2
+    assert g.update(maps, names, nfa) == ([0], [])
+    # A strong link (fewer matches: evidence order alone would take the weak one first)
+    # joins r0 and r1; the held link then closes a loop and is taken; r2 stays out.
+    strong = _link(truth, maps, 0, 8, 1, 8, 12, 2.0)
+    strong.confidence, strong.tests = 1.0, 300
+    f.links.append(strong)
+    assert f.update(maps, names, nfa) == ([0, 2], [])
+    assert f.graph.placed == [0, 1] and not weak_false.active
+    # Without the hold (max_nfa None), the false link joins r2 at once.
+    h = _fleet(maps)
+    h.links = [weak_false]
+    assert h.update(maps, names) == ([0], []) and h.graph.placed == [0, 2]
+
+
+def test_links_keep_their_tests_and_old_settings_resume_without_the_hold():
+    lk = Link("a", "b", np.eye(4), np.eye(6), 0.9999, 1.0, tests=42)
+    assert Link.from_dict(lk.to_dict()).tests == 42
+    old = {k: v for k, v in lk.to_dict().items() if k != "tests"}
+    assert Link.from_dict(old).tests == 1
+    d = OnlineConfig(backend="keyframes").to_dict()
+    assert d["join_tests"] is True
+    del d["join_tests"]
+    assert OnlineConfig.from_dict(d).join_tests is False
+
+
 def test_a_contradicted_link_leaves_the_graph_and_returns_only_with_new_evidence():
     maps, names = _line_maps(2), ["r0", "r1"]
     truth = _world(2)
@@ -248,8 +294,14 @@ def test_a_meeting_at_the_end_of_one_robot_and_the_start_of_another_is_linked(fi
         for name, f in sorted((("a", fa), ("b", fb)), key=lambda x: x[0] != first):
             s.add_keyframe(name, *f)
     # found while a still drives through the shared stretch, not only at its last keyframe
-    met = [lk.stamp for lk in s.links if lk.active and {lk.robot_a, lk.robot_b} == {"a", "b"}]
-    assert met and min(met) <= half - 5
+    met = [lk for lk in s.links if lk.active and {lk.robot_a, lk.robot_b} == {"a", "b"}]
+    assert met and min(lk.stamp for lk in met) <= half - 5
+    # the first link counted the attempts between the two robots up to it (itself and the
+    # rest of its batch included)
+    first_link = min(met, key=lambda lk: lk.stamp)
+    tried = [x for x in s.attempts if x.query != x.target and x.stamp <= first_link.stamp]
+    made_it = next(k for k, x in enumerate(tried) if x.accepted)
+    assert made_it + 1 <= first_link.tests <= len(tried)
     s.finish("a")
     s.finish("b")
     Xa, Xb = s.trajectory("a")[1], s.trajectory("b")[1]

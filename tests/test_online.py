@@ -1,5 +1,6 @@
 """OnlineSession: association of repeated sightings, scheduling, revocation, save/resume,
-pose graph solvers, g2o export."""
+pose graph solvers, g2o export. The link and frame tests run the back-end "robots" (one rigid
+frame per robot, `ROBOTS`); the keyframe back-end's are in test_keyframe_session.py."""
 
 from __future__ import annotations
 
@@ -14,6 +15,8 @@ from sgloc.online import Event, Link, OnlineConfig, OnlineSession
 from sgloc.online.link_selection import Edge, invert_with_covariance
 from sgloc.online.schedule import due_pairs
 from sgloc.online.solve import solve_pose_graph
+
+ROBOTS = {"backend": "robots"}
 
 
 def _yaw(deg: float, t) -> np.ndarray:
@@ -54,7 +57,7 @@ def test_scheduler_retries_a_pair_only_after_growth():
 
 
 def _session(names=("a", "b", "c", "d")):
-    s = OnlineSession(online=OnlineConfig(min_observations=1, max_attempts=0))
+    s = OnlineSession(online=OnlineConfig(min_observations=1, max_attempts=0, **ROBOTS))
     pts = np.random.default_rng(1).uniform(-20, 20, (10, 3))
     for r in names:
         s.add_keyframe(r, 0.0, np.eye(4), pts, np.zeros(10, np.int64))
@@ -182,7 +185,7 @@ def stream():
 
 def test_save_and_resume_give_the_same_frames(tmp_path, stream):
     scene, frames = stream
-    cfg = OnlineConfig(min_observations=1, max_attempts=None, min_objects=10)
+    cfg = OnlineConfig(min_observations=1, max_attempts=None, min_objects=10, **ROBOTS)
     s = OnlineSession(online=cfg)
     half = len(frames) // 2
     for stamp, r, p, lab in frames[:half]:
@@ -260,7 +263,8 @@ def test_a_newer_link_of_the_same_pair_that_disagrees_revokes_the_old_one():
 
 
 def test_confirmations_hold_a_link_back_until_attempts_agree():
-    s = OnlineSession(online=OnlineConfig(min_observations=1, max_attempts=0, confirmations=2))
+    s = OnlineSession(online=OnlineConfig(min_observations=1, max_attempts=0, confirmations=2,
+                                          **ROBOTS))
     pts = np.random.default_rng(2).uniform(-20, 20, (10, 3))
     for r in ("a", "b"):
         s.add_keyframe(r, 0.0, np.eye(4), pts, np.zeros(10, np.int64))
@@ -289,7 +293,7 @@ def test_finish_tries_once_more_every_pair_whose_maps_changed(stream):
     # robot whose maps changed since, once, and the robots join.
     _, frames = stream
     cfg = OnlineConfig(min_observations=1, max_attempts=None, min_objects=10,
-                       growth_ratio=100.0, growth_objects=100_000)
+                       growth_ratio=100.0, growth_objects=100_000, **ROBOTS)
     s = OnlineSession(online=cfg)
     for stamp, r, p, lab in frames:
         s.add_keyframe(r, stamp, np.eye(4), p, lab)

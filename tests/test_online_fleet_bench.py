@@ -66,6 +66,11 @@ def test_goals_on_stored_runs(bench) -> None:
     assert "**NOT met**: memory under 1 GB" in text
     # the timed-out run is a row of its own
     assert "timed out after 600 s" in bench.fleet_section({"c": _timed_out()})
+    # a run with other settings is a comparison: shown, not judged
+    other = {"a": _run(4, []), "a [backend=robots]": _run(4, ["r1"], settings={
+        "backend": "robots"})}
+    assert any(line.startswith("- met: 0 wrong joins") for line in bench.fleet_goals(other))
+    assert "| backend=robots |" in bench.fleet_section(other)
 
 
 def _timed_out() -> dict:

@@ -136,7 +136,7 @@ def test_the_session_refines_a_chain_placed_robot_on_objects_it_shares_off_its_l
     for refine in (False, True):
         s = OnlineSession(online=OnlineConfig(
             association_radius=0.0, min_observations=1, min_objects=3, max_attempts=0,
-            refine_links=False, refine_fleet=refine))
+            refine_links=False, refine_fleet=refine, backend="robots"))
         for r in (0, 1, 2):
             s.add_keyframe(f"r{r}", 0.0, np.eye(4), *objects[r])
         cov = np.diag([1e-4] * 3 + [1e-2] * 3)

@@ -73,7 +73,7 @@ def _run(refine: bool):
         for k, part in enumerate(np.array_split(order, 6)):
             frames.append((float(k) + 0.1 * r, g.name, g.positions[part], g.labels[part]))
     s = OnlineSession(online=OnlineConfig(min_observations=1, max_attempts=None, min_objects=10,
-                                          refine_links=refine))
+                                          refine_links=refine, backend="robots"))
     errors = []
     for stamp, r, p, lab in sorted(frames):
         s.add_keyframe(r, stamp, np.eye(4), p, lab)
@@ -122,7 +122,7 @@ def test_a_join_is_held_back_until_its_link_predicts_an_error_within_the_limits(
     tight = np.diag(np.r_[[np.radians(0.2) ** 2] * 3, [0.2**2] * 3])
     for sigmas, joins_at_once in ((None, True), (2.0, False)):
         s = OnlineSession(online=OnlineConfig(min_observations=1, max_attempts=0,
-                                              join_sigmas=sigmas))
+                                              join_sigmas=sigmas, backend="robots"))
         for r in ("a", "b"):
             s.add_keyframe(r, 0.0, np.eye(4), pts, np.zeros(10, np.int64))
         ev = s.add_link("a", "b", T, loose, stamp=1.0)

@@ -164,7 +164,7 @@ def _fleet(growth: float, maps: int = 3):
     pts = rng.uniform(-30, 30, (40, 3))
     lab = rng.integers(0, 4, 40)
     s = OnlineSession(online=OnlineConfig(min_observations=1, max_attempts=0,
-                                          refine_fleet_growth=growth))
+                                          refine_fleet_growth=growth, backend="robots"))
     for r in ["a", "b", "c"][:maps]:
         s.add_keyframe(r, 0.0, np.eye(4), pts[:20], lab[:20])
     return s, pts, lab

@@ -62,7 +62,10 @@ def test_replayed_fleet_frame_is_right(replayed, world):
     G0, G1 = world.T_gt_odom["world0"], world.T_gt_odom["world1"]
     gt1 = np.linalg.inv(G0) @ G1 @ world.logs[1].poses
     assert np.abs(xyz1 - gt1[:, :3, 3]).max() < 1.0
-    assert np.allclose(xyz0, world.logs[0].xyz)  # the root's frame is the fleet frame
+    # the root's odometry frame is the fleet frame: its first keyframe stays where its odometry
+    # put it, the rest moves only as much as the pose graph corrects (exact odometry here)
+    assert np.allclose(xyz0[0], world.logs[0].xyz[0])
+    assert np.abs(xyz0 - world.logs[0].xyz).max() < 0.2
 
 
 def test_bag_replay_equals_plain_replay(replayed, world, tmp_path):
@@ -86,7 +89,9 @@ def test_bag_replay_equals_plain_replay(replayed, world, tmp_path):
     assert set(last) == {"world0", "world1"}
     _, xyz1, _ = read_tum(tmp_path / "out" / "fleet" / "world1.tum")
     T1 = last["world1"]
-    np.testing.assert_allclose(xyz1[0], T1[:3, :3] @ world.logs[1].xyz[0] + T1[:3, 3], atol=1e-6)
+    # the last message is T_fleet_odom at the robot's latest keyframe
+    np.testing.assert_allclose(xyz1[-1], T1[:3, :3] @ world.logs[1].xyz[-1] + T1[:3, 3],
+                               atol=1e-6)
 
 
 def test_robot_file_names_never_collide():

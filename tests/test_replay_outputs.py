@@ -18,7 +18,7 @@ from sgloc.io.g2o import read_g2o
 from sgloc.io.keyframes import format_stamp, make_robot_log
 from sgloc.io.plain_layout import write_plain_layout
 from sgloc.io.poses import read_tum
-from sgloc.online import OnlineSession
+from sgloc.online import OnlineConfig, OnlineSession
 from sgloc.replay import outputs
 from sgloc.replay.stream import ReplayRecord
 
@@ -103,15 +103,46 @@ def test_fleet_bag_writer_keeps_the_last_of_repeated_transforms(tmp_path):
     np.testing.assert_array_equal(back[1][2], b)
 
 
+@pytest.fixture(scope="module")
+def replayed_robots(run):
+    """The same replay with the back-end "robots" (one rigid frame per robot)."""
+    d, logs, argv = run
+    out = d / "out_robots"
+    assert main([*argv[:3], str(out), "--backend", "robots", "--quiet"]) == 0
+    return out, logs, json.loads((out / "summary.json").read_text())
+
+
 def test_g2o_vertex_ids_are_named_in_the_summary(replayed):
+    """Back-end keyframes: a vertex per keyframe of a placed robot, named in g2o_keyframes,
+    at that keyframe's pose in fleet/<robot>.tum; odometry and link edges between them."""
     d, logs, summary, _ = replayed
     assert list(summary["robots"]) == sorted(g.name for g in logs)  # the layout's order
+    assert summary["backend"] == "keyframes"
     vertices, edges = read_g2o(d / "out" / "links.g2o")
+    placed = {r: v for r, v in summary["robots"].items() if v["placed"]}
+    named = {vid: (r, k) for vid, r, k in summary["g2o_keyframes"]}
+    assert sorted(vertices) == sorted(named) and {r for r, _ in named.values()} == set(placed)
+    assert all(v["g2o_vertex"] is None for v in placed.values())
+    tum = {r: read_tum(d / "out" / v["file"]) for r, v in placed.items()}
+    by_name = {g.name: g for g in logs}
+    for vid, (r, k) in named.items():
+        _, xyz, quat = tum[r]
+        T = dataclasses.replace(by_name[r], xyz=xyz, quat=quat).poses[k]
+        np.testing.assert_allclose(vertices[vid], T, atol=1e-6)
+    assert edges and all(a in named and b in named for a, b, _, _ in edges)
+    robots_linked = {(named[a][0], named[b][0]) for a, b, _, _ in edges}
+    assert any(ra != rb for ra, rb in robots_linked)  # a link between two robots
+
+
+def test_g2o_vertex_ids_are_named_in_the_summary_with_one_frame_per_robot(replayed_robots):
+    d, logs, summary = replayed_robots
+    assert summary["backend"] == "robots" and summary["g2o_keyframes"] == []
+    vertices, edges = read_g2o(d / "links.g2o")
     placed = {r: v for r, v in summary["robots"].items() if v["placed"]}
     assert sorted(vertices) == sorted(v["g2o_vertex"] for v in placed.values())
     by_name = {g.name: g for g in logs}
     for name, v in placed.items():
-        _, xyz, quat = read_tum(d / "out" / v["file"])
+        _, xyz, quat = read_tum(d / v["file"])
         T_fleet_sensor = dataclasses.replace(by_name[name], xyz=xyz, quat=quat).poses[0]
         T_fleet_odom = T_fleet_sensor @ invert(by_name[name].poses[0])
         np.testing.assert_allclose(vertices[v["g2o_vertex"]], T_fleet_odom, atol=1e-6)
@@ -131,7 +162,7 @@ def test_an_unplaced_robot_gets_its_reason_everywhere(replayed):
 
 
 def test_summary_is_versioned_and_counts_revocations_from_the_events():
-    s = OnlineSession()
+    s = OnlineSession(online=OnlineConfig(backend="robots"))
     rng = np.random.default_rng(0)
     for r in ("a", "b"):
         s.add_keyframe(r, 1.0, np.eye(4), rng.uniform(-20, 20, (20, 3)), rng.integers(0, 4, 20))

@@ -53,9 +53,10 @@ ObjectsTopic = Annotated[str | None, typer.Option(help="Object topic template (d
                                                   "/{robot}/objects), or a plain topic name.")]
 Root = Annotated[str | None, typer.Option(help="Robot whose odometry frame is the fleet frame "
                                           "(default: the first to send a keyframe).")]
-Backend = Annotated[str, typer.Option(help="Fleet back-end: robots (one rigid frame per robot) "
-                                      "or keyframes (a pose graph over every keyframe, for "
-                                      "drifting odometry; docs/online_session.md).")]
+Backend = Annotated[str, typer.Option(help="Fleet back-end: keyframes (a pose graph over every "
+                                      "keyframe: corrects drifting odometry; "
+                                      "docs/online_session.md) or robots (one rigid frame per "
+                                      "robot).")]
 Quiet = Annotated[bool, typer.Option("--quiet", help="No progress bar or table.")]
 
 
@@ -80,7 +81,7 @@ def replay_cmd(
     preset: Preset = None,
     config: ConfigFile = None,
     setting: Settings = None,
-    backend: Backend = "robots",
+    backend: Backend = "keyframes",
     quiet: Quiet = False,
 ) -> None:
     """Stream every robot's keyframes, interleaved by stamp, through one online session and write
@@ -89,7 +90,7 @@ def replay_cmd(
     Examples: sgloc replay runs/campus --out results/campus --out-bag results/campus_bag
     |   sgloc replay alpha.mcap beta.mcap --odom-topic /odom --objects-topic /objects
     |   sgloc replay --kitti00 --robots 4 --every 2 --poses refined
-    |   sgloc replay --city --robots 8 --backend keyframes
+    |   sgloc replay --city --robots 8 --backend robots
     """
     inputs = _claim(ctx, sources or [], robot or [], classes, config, out, out_bag)
     job = replay_job(sources or [], robot or [], _scenarios(kitti00, city), robots=robots,

@@ -113,6 +113,7 @@ def link_rows(scenario: Any, session: Any) -> list[dict]:
     centroid (metres: how far a rotation error of the link is carried)."""
     from sgloc.evaluation.online_oracle import oracle_refit
     from sgloc.geometry import invert
+    from sgloc.online.keyframe_graph import odometry_link
     from sgloc.online.precision import predicted_error
     from sgloc.online.refine import co_located
 
@@ -120,10 +121,14 @@ def link_rows(scenario: Any, session: Any) -> list[dict]:
     for lk in session.links:
         G_a, G_b = scenario.T_gt_odom[lk.robot_a], scenario.T_gt_odom[lk.robot_b]
         a, b = session.map(lk.robot_a), session.map(lk.robot_b)
-        dm, dd = robot_error(lk.T_a_b, G_a, G_b, b.positions)
+        T_ab, cov = lk.T_a_b, lk.covariance
+        if lk.keyframe_a is not None:  # between two keyframes: as a link of the odometry frames
+            T_ab, cov = odometry_link(session.keyframes(lk.robot_a)[1][lk.keyframe_a], T_ab,
+                                      cov, session.keyframes(lk.robot_b)[1][lk.keyframe_b])
+        dm, dd = robot_error(T_ab, G_a, G_b, b.positions)
         T_or = oracle_refit(b.positions, b.labels, a.positions, a.labels, invert(G_a) @ G_b,
                             cfg.ransac.threshold, cfg.motion)
-        i, _ = co_located(b.positions, b.labels, a.positions, a.labels, lk.T_a_b,
+        i, _ = co_located(b.positions, b.labels, a.positions, a.labels, T_ab,
                           cfg.ransac.threshold)
         lever = (float(np.linalg.norm(b.positions - b.positions[i].mean(axis=0), axis=1).max())
                  if len(i) else None)
@@ -132,7 +137,7 @@ def link_rows(scenario: Any, session: Any) -> list[dict]:
                     "wrong": bool(dm > MAX_M or dd > MAX_DEG),
                     "oracle_error": None if T_or is None
                     else robot_error(T_or, G_a, G_b, b.positions),
-                    "predicted_2sigma": predicted_error(lk.covariance, b.positions, 2.0),
+                    "predicted_2sigma": predicted_error(cov, b.positions, 2.0),
                     "matches": int(lk.n_matches), "pairs": int(len(i)), "lever_m": lever})
     return out
 

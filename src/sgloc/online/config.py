@@ -133,15 +133,17 @@ class OnlineConfig:
         as the fleet grows.
     refine_radius: metres, the pairing radius of refine_fleet (None: the localizer's RANSAC
         threshold).
-    join_sigmas: None (off) or k: a robot not yet placed joins only once k standard deviations
-        of its predicted error (its links' covariances composed along its path from the root,
-        at the centroid of its objects, worst direction) are within loop_translation metres
-        and loop_rotation degrees; until then it is held back (placed robots stay placed).
+    join_sigmas: None (off) or k, backend "robots": a robot not yet placed joins only once k
+        standard deviations of its predicted error (its links' covariances composed along its
+        path from the root, at the centroid of its objects, worst direction) are within
+        loop_translation metres and loop_rotation degrees; until then it is held back (placed
+        robots stay placed).
     solver: "auto" (gtsam when installed, else scipy), "gtsam" or "scipy".
-    backend: "robots" (one rigid frame per robot: the pose graph's nodes are the robots'
-        odometry frames) or "keyframes" (a pose graph over every robot's keyframes, odometry
+    backend: "keyframes" (the default: a pose graph over every robot's keyframes, odometry
         factors between consecutive keyframes, links between keyframes; drift is corrected,
-        see docs/online_session.md).
+        see docs/online_session.md) or "robots" (one rigid frame per robot: the pose graph's
+        nodes are the robots' odometry frames; for odometry that does not drift, and what
+        `localize_fleet` uses on finished maps).
     odometry: the odometry's noise model (OdometryNoise), for backend "keyframes".
     submap_length: metres; backend "keyframes": an attempt matches the objects the query
         robot saw over its last submap_length metres of travel (its local submap).
@@ -185,7 +187,7 @@ class OnlineConfig:
     join_sigmas: float | None = setting(None, check=real(0.0, low_open=True, none_ok=True))
     solver: str = setting("auto", check=choice("auto", "gtsam", "scipy", what="the solver"))
     seed: int = setting(0, check=integer(0))
-    backend: str = setting("robots", check=choice("robots", "keyframes", what="the back-end"))
+    backend: str = setting("keyframes", check=choice("keyframes", "robots", what="the back-end"))
     odometry: OdometryNoise = setting(default_factory=OdometryNoise, check=group(OdometryNoise))
     submap_length: float = setting(
         100.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m")
@@ -202,10 +204,11 @@ class OnlineConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> OnlineConfig:
-        """The settings `to_dict` gave. Settings saved before `view_correction`,
+        """The settings `to_dict` gave. Settings saved before `backend`, `view_correction`,
         `join_tests` and `OdometryNoise.correlation_length` existed keep the behaviour they
-        were saved with (off, 0), so that a resumed session continues as it would have."""
+        were saved with (robots, off, 0), so that a resumed session continues as it would."""
         data = dict(data)
+        data.setdefault("backend", "robots")
         if isinstance(data.get("odometry"), dict):
             data["odometry"] = OdometryNoise(**{"correlation_length": 0.0, **data["odometry"]})
         data.setdefault("view_correction", False)

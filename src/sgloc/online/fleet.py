@@ -172,6 +172,7 @@ def fleet_session(
         # placed more robots wrongly in its Guo's-rule-only comparison (city: 5 instead of 1).
         refine_links=False,
         refine_fleet=config.refine_fleet, refine_radius=config.refine_radius,
+        backend="robots",  # finished maps, one keyframe each: one rigid frame per robot
     )
     s = OnlineSession(config.localizer, online, root=root)
     for g, nm in zip(graphs, names, strict=True):

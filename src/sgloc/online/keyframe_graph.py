@@ -50,6 +50,18 @@ def keyframe_link(
     return T, 0.5 * (C + C.T)
 
 
+def odometry_link(
+    T_odom_a: np.ndarray, T_ka_kb: np.ndarray, covariance: np.ndarray, T_odom_b: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The inverse of `keyframe_link`: a keyframe link (T_ka_kb, covariance in keyframe b's
+    frame) between keyframes with odometry poses T_odom_a and T_odom_b as a robot-level link
+    (T_a_b = T_odom_a T_ka_kb inv(T_odom_b), covariance in b's odometry frame)."""
+    T = np.asarray(T_odom_a, np.float64) @ T_ka_kb @ lie.between(T_odom_b, np.eye(4))
+    Ad = lie.adjoint(np.asarray(T_odom_b, np.float64))
+    C = Ad @ np.asarray(covariance, np.float64) @ Ad.T
+    return T, 0.5 * (C + C.T)
+
+
 class KeyframeGraph:
     """Keyframes of robots (integer ids) and the factors between them; see the module doc.
 

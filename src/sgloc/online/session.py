@@ -131,12 +131,12 @@ class OnlineSession:
         return stamps, T @ poses
 
     def keyframe_ids(self) -> list[tuple[int, str, int]]:
-        """(vertex id in `write_g2o`'s file, robot, keyframe index) of every keyframe of the
-        pose graph (backend "keyframes"; empty with backend "robots")."""
+        """(vertex id in `write_g2o`'s file, robot, keyframe index) of every keyframe it writes:
+        those of the placed robots (backend "keyframes"; empty with backend "robots")."""
         if self._kf is None:
             return []
-        names = self.robots
-        return [(key, names[r], k) for key, r, k in self._kf.graph.nodes()]
+        names, placed = self.robots, set(self._kf.graph.placed)
+        return [(key, names[r], k) for key, r, k in self._kf.graph.nodes() if r in placed]
 
     def _now(self) -> float:
         """The newest keyframe stamp of any robot (0.0 before the first)."""

@@ -122,3 +122,28 @@ def check_state(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
         if not isinstance(k, int) or not 0 <= k < n:
             raise SglocError(f"'placed' entry {k!r:.40} is not a robot index below {n}.")
         check_rigid(f"robot {robots[k]!r}", arrays[f"frame{k}"], "fleet frame")
+    if meta.get("keyframes") is not None:
+        _check_keyframes(meta["keyframes"], arrays, robots)
+
+
+def _check_keyframes(kf: dict[str, Any], arrays: dict[str, np.ndarray], robots: list) -> None:
+    """The keyframe back-end's part: links between keyframes the robots have, rigid, with a
+    valid covariance; the graph's factors between keyframes it has, rigid."""
+    sizes = {r: len(arrays[f"map{k}_stamps"]) for k, r in enumerate(robots)}
+    for d in kf["links"]:
+        where = f"keyframe link {d['robot_a']!r:.40}-{d['robot_b']!r:.40}"
+        for r, key in ((d["robot_a"], "keyframe_a"), (d["robot_b"], "keyframe_b")):
+            k = d[key]
+            if r not in sizes or not isinstance(k, int) or not 0 <= k < sizes[r]:
+                raise SglocError(f"{where}: robot {r!r:.40} has no keyframe {k!r:.20}.")
+        check_link(where, d["T_a_b"], d["covariance"], d["confidence"], d["stamp"])
+    count = np.asarray(arrays["kg_count"], np.int64)
+    ends = np.asarray(arrays["kg_ends"], np.int64).reshape(-1, 4)
+    if len(count) != len(kf["robots"]) or len(ends) != len(arrays["kg_T"]):
+        raise SglocError("the keyframe graph's arrays do not match each other.")
+    n_kf = dict(zip(kf["robots"], count.tolist(), strict=True))
+    for (ra, ka, rb, kb), T in zip(ends.tolist(), arrays["kg_T"], strict=True):
+        if not (0 <= ka < n_kf.get(ra, 0) and 0 <= kb < n_kf.get(rb, 0)):
+            raise SglocError(f"a keyframe graph factor joins keyframes it does not have "
+                             f"({ra}:{ka}, {rb}:{kb}).")
+        check_rigid("a keyframe graph factor", T)

@@ -15,7 +15,7 @@ from sgloc.io.keyframes import RobotLog
 from sgloc.pipeline.config import LocalizerConfig
 from sgloc.replay.scenarios import REPLAY_SCENARIOS, ReplayInput
 
-BACKENDS = ("robots", "keyframes")
+BACKENDS = ("keyframes", "robots")
 
 
 @dataclass(frozen=True)
@@ -25,7 +25,7 @@ class ReplayJob:
 
     logs: list[RobotLog]
     preset: str | None = None
-    backend: str = "robots"
+    backend: str = "keyframes"
     root: str | None = None
     seed: int = 0
 
@@ -77,7 +77,7 @@ def replay_job(
     classes: str | Path | None = None,
     odom_topic: str | None = None,
     objects_topic: str | None = None,
-    backend: str = "robots",
+    backend: str = "keyframes",
     root: str | None = None,
     seed: int = 0,
     **options: Any,
@@ -100,7 +100,7 @@ def replay_job(
     else:
         got = ReplayInput(_recorded(sources, named, classes, odom_topic, objects_topic))
     if backend not in BACKENDS:
-        raise SglocError(f"--backend {backend!r}: choose robots or keyframes.")
+        raise SglocError(f"--backend {backend!r}: choose keyframes or robots.")
     if root is not None and root not in {g.name for g in got.logs}:
         raise SglocError(f"--root {root!r} is not a robot of the input; robots: "
                          f"{', '.join(g.name for g in got.logs)}.")

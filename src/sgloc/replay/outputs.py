@@ -104,7 +104,7 @@ def replay_summary(
         T = session.T_fleet_robot(g.name) if g.name in session.robots else None
         robots[g.name] = {
             "file": f"{FLEET_DIR}/{stems[g.name]}.tum" if T is not None else None,
-            "g2o_vertex": None if vertices else k,
+            "g2o_vertex": None if session.online.backend == "keyframes" else k,
             "keyframes": len(g),
             "first_stamp": format_stamp(g.stamps_ns[0]),
             "last_stamp": format_stamp(g.stamps_ns[-1]),
@@ -127,7 +127,7 @@ def replay_summary(
         "links_revoked": events["link_revoked"],
         "events": events,
         "latency": latency_stats(np.concatenate([record.latency_ms[g.name] for g in logs])),
-        "backend": "keyframes" if vertices else "robots",
+        "backend": session.online.backend,
         "g2o_keyframes": [[int(v), r, int(k)] for v, r, k in vertices],
     }
 
