@@ -735,6 +735,7 @@ def fleet_goals(results: dict) -> list[str]:
         text = text.replace(" ()", "")
         return f"- {'not measured' if ok is None else 'met' if ok else '**NOT met**'}: {text}"
 
+    everything = results
     results = {k: r for k, r in results.items() if not r.get("settings")}
     done = {k: r for k, r in results.items() if r.get("status") == "done"}
     wrong = {k: r["wrong_joins"] for k, r in done.items() if r["wrong_joins"]}
@@ -773,6 +774,7 @@ def fleet_goals(results: dict) -> list[str]:
     lines.append(line(bool(city0) and all(v is not None and v <= 0.05 for v in city0.values())
                       if city0 else None, "drift 0: city fleet RMSE <= 0.05 m ("
                       + ", ".join(f"{k} {fmt(v, '.3f')} m" for k, v in city0.items()) + ")"))
+    lines.append(kitti_drift0_line(done, everything, line))
     flip = {k: r["most_reaccepted"] for k, r in done.items() if r["most_reaccepted"] > 1}
     lines.append(line(not flip if done else None, "no link re-accepted more than once after a "
                       "revocation" + (f" (not met: {flip})" if flip else "")))
@@ -798,6 +800,24 @@ def fleet_goals(results: dict) -> list[str]:
     lines.append(line(not heavy if done else None, "memory under 1 GB in every run (peak of the "
                       "run's process)" + (f" (not met: {heavy})" if heavy else "")))
     return lines
+
+
+def kitti_drift0_line(done: dict, everything: dict, line) -> str:
+    """The goal "drift 0: KITTI no worse than today": each default KITTI run at drift 0
+    against the same run with one rigid frame per robot (`backend=robots`, the earlier
+    default), on fleet RMSE and encounter p95."""
+    pairs = {k: (r, everything.get(f"{k} [backend=robots]")) for k, r in done.items()
+             if r["case"]["kind"] == "kitti" and r["case"]["level"] == 0.0
+             and r["case"].get("odometry", "truth") != "raw"}
+    pairs = {k: (r, ref) for k, (r, ref) in pairs.items()
+             if ref is not None and ref.get("status") == "done"}
+    ok = all(r["rmse"] <= ref["rmse"] and r["encounter"]["p95"] <= ref["encounter"]["p95"]
+             for r, ref in pairs.values())
+    return line(ok if pairs else None, "drift 0: KITTI no worse than one rigid frame per robot "
+                "(fleet RMSE, encounter p95: " + "; ".join(
+                    f"{k} {fmt(r['rmse'], '.3f')} m, {fmt(r['encounter']['p95'])} m against "
+                    f"{fmt(ref['rmse'], '.3f')} m, {fmt(ref['encounter']['p95'])} m"
+                    for k, (r, ref) in pairs.items()) + ")")
 
 
 def fleet_section(results: dict) -> str:

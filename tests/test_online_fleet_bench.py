@@ -71,6 +71,16 @@ def test_goals_on_stored_runs(bench) -> None:
         "backend": "robots"})}
     assert any(line.startswith("- met: 0 wrong joins") for line in bench.fleet_goals(other))
     assert "| backend=robots |" in bench.fleet_section(other)
+    # drift 0 on KITTI: against the same run with one rigid frame per robot
+    kitti = {"case": {"title": "t", "robots": 4, "level": 0.0, "kind": "kitti",
+                      "group": "drift", "length": 0.0}}
+    worse = {"k": _run(4, [], level=0.0, **kitti, rmse=0.4),
+             "k [backend=robots]": _run(4, [], level=0.0, **kitti, rmse=0.3,
+                                        settings={"backend": "robots"})}
+    text = "\n".join(bench.fleet_goals(worse))
+    assert "**NOT met**: drift 0: KITTI no worse than one rigid frame per robot" in text
+    worse["k"]["rmse"] = 0.3
+    assert "- met: drift 0: KITTI no worse" in "\n".join(bench.fleet_goals(worse))
 
 
 def _timed_out() -> dict:
