@@ -381,7 +381,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                     help="an OnlineConfig setting for the fleet groups (repeatable); "
                          "localizer.NAME=VALUE: a localizer setting (e.g. "
-                         "localizer.layout_shifts=8)")
+                         "localizer.layout_shifts=8); odometry.NAME=VALUE: the odometry's "
+                         "noise model (e.g. odometry.translation_per_metre=0.001)")
     ap.add_argument("--timeout", type=float, default=600.0,
                     help="seconds one fleet-group run may take (then reported as timed out)")
     ap.add_argument("--list", action="store_true", help="list the chosen groups' runs and stop")
@@ -660,15 +661,17 @@ def parse_settings(items: list[str]) -> dict:
             out[name] = json.loads(value)
         except json.JSONDecodeError:
             out[name] = value
+    from sgloc.errors import SglocError
     from sgloc.evaluation.fleet_cases import split_settings
 
-    online, localizer = split_settings(out)
     try:  # a bad name or value fails here, before any run
+        online, localizer = split_settings(out)
         OnlineConfig(**online)
         localizer_preset("city-objects").with_overrides(**localizer)
-    except TypeError as e:
-        raise SystemExit(f"error: --set: {e}; the settings are OnlineConfig's fields, or the "
-                         "localizer's as localizer.NAME") from None
+    except (TypeError, SglocError) as e:
+        raise SystemExit(f"error: --set: {e}; the settings are OnlineConfig's fields, the "
+                         "localizer's as localizer.NAME, the odometry noise model's as "
+                         "odometry.NAME") from None
     return out
 
 

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from sgloc.errors import SglocError
-from sgloc.evaluation.fleet_cases import Case, case_scenario
+from sgloc.evaluation.fleet_cases import Case, case_scenario, split_settings
 from sgloc.evaluation.replay_scenarios import drifted, world_scenario
+from sgloc.online import OdometryNoise
 
 
 @pytest.fixture(scope="module")
@@ -92,8 +93,14 @@ def _timed_out() -> dict:
 def test_settings_are_checked_and_the_part_replaced(bench) -> None:
     assert bench.parse_settings(["max_attempts=null", "confirmations=2", "solver=scipy"]) == {
         "max_attempts": None, "confirmations": 2, "solver": "scipy"}
-    with pytest.raises(SglocError):
+    with pytest.raises(SystemExit, match="confirmations"):
         bench.parse_settings(["confirmations=0"])
+    odo = bench.parse_settings(["odometry.translation_per_metre=0.001"])
+    online, _ = split_settings(odo)
+    assert online["odometry"].translation_per_metre == 0.001
+    assert online["odometry"].rotation_per_metre == OdometryNoise().rotation_per_metre
+    with pytest.raises(SystemExit, match="odometry"):
+        bench.parse_settings(["odometry.no_such_term=1"])
     with pytest.raises(SystemExit):
         bench.parse_settings(["confirmations"])
     with pytest.raises(SystemExit, match="OnlineConfig"):

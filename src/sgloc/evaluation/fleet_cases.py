@@ -85,15 +85,23 @@ def run_case(case: Case, settings: dict, oracle: bool = True) -> dict:
 
 
 #: A setting named with this prefix goes to the localizer (`LocalizerConfig.with_overrides`),
-#: e.g. "localizer.layout_shifts"; the others are OnlineConfig's.
-LOCALIZER_PREFIX = "localizer."
+#: e.g. "localizer.layout_shifts"; one with ODOMETRY_PREFIX to the odometry's noise model
+#: (`OdometryNoise`, e.g. "odometry.translation_per_metre"); the others are OnlineConfig's.
+LOCALIZER_PREFIX, ODOMETRY_PREFIX = "localizer.", "odometry."
 
 
 def split_settings(settings: dict) -> tuple[dict, dict]:
-    """(OnlineConfig settings, localizer overrides) of a run's `settings`."""
-    n = len(LOCALIZER_PREFIX)
-    localizer = {k[n:]: v for k, v in settings.items() if k.startswith(LOCALIZER_PREFIX)}
-    return {k: v for k, v in settings.items() if not k.startswith(LOCALIZER_PREFIX)}, localizer
+    """(OnlineConfig keyword arguments, localizer overrides) of a run's `settings`."""
+    from sgloc.online import OdometryNoise
+
+    def part(prefix: str) -> dict:
+        return {k[len(prefix):]: v for k, v in settings.items() if k.startswith(prefix)}
+
+    online = {k: v for k, v in settings.items()
+              if not k.startswith((LOCALIZER_PREFIX, ODOMETRY_PREFIX))}
+    if part(ODOMETRY_PREFIX):
+        online["odometry"] = OdometryNoise(**part(ODOMETRY_PREFIX))
+    return online, part(LOCALIZER_PREFIX)
 
 
 def _child(case: Case, settings: dict, oracle: bool, queue: Any) -> None:
