@@ -388,9 +388,9 @@ class OnlineSession:
                 lk = self._kf.link(maps, names, qu, r, stamp, self.config.motion,
                                    self.config.ransac.threshold)
                 ga, gb = sorted((group[qu.target], group[qu.query]))
-                lk.tests = tests.get((ga, gb), 1) if ga != gb else \
-                    max(self._tries.get((min(qu.target, qu.query), max(qu.target, qu.query)),
-                                        1), 1)
+                pair = (min(qu.target, qu.query), max(qu.target, qu.query))
+                lk.tests = max(tests.get((ga, gb), 1) if ga != gb else
+                               self._tries.get(pair, 1), 1)
                 self._kf.links.append(lk)
                 changed = True
         return changed
