@@ -124,13 +124,24 @@ def oracle_refit(
         return None
 
 
+def link_of_odometry_frames(session, lk) -> tuple[np.ndarray, np.ndarray]:
+    """(T_a_b, covariance) of the session's link `lk` between its robots' odometry frames: as
+    it is for the back-end "robots"; a keyframe link through its two keyframes' odometry
+    poses (`keyframe_graph.odometry_link`)."""
+    from sgloc.online.keyframe_graph import odometry_link
+
+    if lk.keyframe_a is None:
+        return lk.T_a_b, lk.covariance
+    return odometry_link(session.keyframes(lk.robot_a)[1][lk.keyframe_a], lk.T_a_b,
+                         lk.covariance, session.keyframes(lk.robot_b)[1][lk.keyframe_b])
+
+
 def oracle_link_frames(session, T_gt_odom: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """{robot: T_fleet_robot} of the session's fleet frame re-solved with every active link's
     transform replaced by its `oracle_refit` (same links, covariances, root and solver; a link
     without 3 true pairs is left out): the best the same links could give. Keyframe links
     (back-end "keyframes") enter as links of the two odometry frames, loop closures not: one
     rigid frame per robot."""
-    from sgloc.online.keyframe_graph import odometry_link
     from sgloc.online.link_selection import Edge
     from sgloc.online.posegraph import fleet_frame
 
@@ -139,10 +150,7 @@ def oracle_link_frames(session, T_gt_odom: dict[str, np.ndarray]) -> dict[str, n
     for lk in session.links:
         if not lk.active or lk.robot_a == lk.robot_b:
             continue
-        cov = lk.covariance
-        if lk.keyframe_a is not None:
-            _, cov = odometry_link(session.keyframes(lk.robot_a)[1][lk.keyframe_a], lk.T_a_b,
-                                   cov, session.keyframes(lk.robot_b)[1][lk.keyframe_b])
+        _, cov = link_of_odometry_frames(session, lk)
         a, b = session.map(lk.robot_a), session.map(lk.robot_b)
         T_gt = invert(T_gt_odom[lk.robot_a]) @ T_gt_odom[lk.robot_b]
         T = oracle_refit(b.positions, b.labels, a.positions, a.labels, T_gt,

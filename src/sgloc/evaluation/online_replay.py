@@ -111,9 +111,8 @@ def link_rows(scenario: Any, session: Any) -> list[dict]:
     error its covariance predicts there (2 sigma, worst direction: `predicted_2sigma`), the
     object pairs it co-locates and `lever_m`, the farthest of robot_b's objects from their
     centroid (metres: how far a rotation error of the link is carried)."""
-    from sgloc.evaluation.online_oracle import oracle_refit
+    from sgloc.evaluation.online_oracle import link_of_odometry_frames, oracle_refit
     from sgloc.geometry import invert
-    from sgloc.online.keyframe_graph import odometry_link
     from sgloc.online.precision import predicted_error
     from sgloc.online.refine import co_located
 
@@ -121,10 +120,7 @@ def link_rows(scenario: Any, session: Any) -> list[dict]:
     for lk in session.links:
         G_a, G_b = scenario.T_gt_odom[lk.robot_a], scenario.T_gt_odom[lk.robot_b]
         a, b = session.map(lk.robot_a), session.map(lk.robot_b)
-        T_ab, cov = lk.T_a_b, lk.covariance
-        if lk.keyframe_a is not None:  # between two keyframes: as a link of the odometry frames
-            T_ab, cov = odometry_link(session.keyframes(lk.robot_a)[1][lk.keyframe_a], T_ab,
-                                      cov, session.keyframes(lk.robot_b)[1][lk.keyframe_b])
+        T_ab, cov = link_of_odometry_frames(session, lk)
         dm, dd = robot_error(T_ab, G_a, G_b, b.positions)
         T_or = oracle_refit(b.positions, b.labels, a.positions, a.labels, invert(G_a) @ G_b,
                             cfg.ransac.threshold, cfg.motion)
