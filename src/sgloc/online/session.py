@@ -379,7 +379,7 @@ class OnlineSession:
             self._tries[key] = self._tries.get(key, 0) + 1
         changed = False
         results = run_attempts(pairs, self.config, scheduler, workers)
-        tests = self._tests_between(group)
+        tests = None  # attempts between groups: counted once, when a link needs them
         for qu, r in zip(queries, results, strict=True):
             r = replace(r, query=names[qu.query], target=names[qu.target], stamp=stamp,
                         sizes=(len(qu.query_graph.positions), len(qu.target_graph.positions)))
@@ -389,6 +389,8 @@ class OnlineSession:
                                    self.config.ransac.threshold)
                 ga, gb = sorted((group[qu.target], group[qu.query]))
                 pair = (min(qu.target, qu.query), max(qu.target, qu.query))
+                if ga != gb and tests is None:
+                    tests = self._tests_between(group)
                 lk.tests = max(tests.get((ga, gb), 1) if ga != gb else
                                self._tries.get(pair, 1), 1)
                 self._kf.links.append(lk)
@@ -398,12 +400,13 @@ class OnlineSession:
     def _tests_between(self, group: np.ndarray) -> dict[tuple[int, int], int]:
         """Attempts made so far between each two groups of robots (`group`: a label per robot
         index; keys: (lower label, higher label)), loop closures left out."""
-        out: dict[tuple[int, int], int] = {}
-        for (i, j), n in self._tries.items():
-            if i != j:
-                key = (min(group[i], group[j]), max(group[i], group[j]))
-                out[key] = out.get(key, 0) + n
-        return out
+        ij = np.array(list(self._tries), np.int64).reshape(-1, 2)
+        n = np.fromiter(self._tries.values(), np.int64, len(self._tries))
+        between = ij[:, 0] != ij[:, 1]
+        g = np.sort(np.asarray(group)[ij[between]], axis=1)
+        keys, inv = np.unique(g, axis=0, return_inverse=True)
+        sums = np.bincount(inv.ravel(), weights=n[between], minlength=len(keys))
+        return {(int(a), int(b)): int(c) for (a, b), c in zip(keys, sums, strict=True)}
 
     def _max_join_nfa(self) -> float | None:
         """The NFA a link joining two groups may have, its tests counted
