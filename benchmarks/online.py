@@ -811,7 +811,7 @@ def kitti_drift0_line(done: dict, everything: dict, line) -> str:
     default), on fleet RMSE and encounter p95."""
     pairs = {k: (r, everything.get(f"{k} [backend=robots]")) for k, r in done.items()
              if r["case"]["kind"] == "kitti" and r["case"]["level"] == 0.0
-             and r["case"].get("odometry", "truth") != "raw"}
+             and r["case"].get("odometry", "drift") != "raw"}
     pairs = {k: (r, ref) for k, (r, ref) in pairs.items()
              if ref is not None and ref.get("status") == "done"}
     ok = all(r["rmse"] <= ref["rmse"] and r["encounter"]["p95"] <= ref["encounter"]["p95"]
