@@ -101,7 +101,8 @@ def refit(task: Query, result: Attempt, motion: MotionModel, radius: float, tol_
 
 
 def link_of(maps: list[RobotMap], names: list[str], task: Query, result: Attempt,
-            stamp: float, refitted: tuple | None = None) -> Link:
+            stamp: float, refitted: tuple | None = None,
+            anchors: tuple[np.ndarray, np.ndarray] | None = None) -> Link:
     """The keyframe link of an accepted attempt, between the two keyframes nearest the place
     the attempt aligned (the query submap's centroid): the query keyframe of the submap's
     stretch nearest it, and the target keyframe nearest it moved into the target map (for a
@@ -110,20 +111,22 @@ def link_of(maps: list[RobotMap], names: list[str], task: Query, result: Attempt
     submap. T and covariance from the localization's T_target_query (T: `refitted`'s when
     given, the (T, covariance, pairs) of `refit`) through the two keyframes' current poses in
     their maps. The localizer's covariance is kept: calibrated on real data, it holds the
-    offset two maps share, which more pairs do not remove."""
+    offset two maps share, which more pairs do not remove. `anchors`: the (target's, query's)
+    keyframe anchors the task's graphs were made with, when the maps moved since."""
     qm, tm = maps[task.query], maps[task.target]
+    at, aq = (tm.anchors(), qm.anchors()) if anchors is None else anchors
     T, C = np.asarray(result.transform, np.float64), result.covariance
     if refitted is not None:
         T = refitted[0]
     c = task.query_graph.positions.mean(axis=0)
     c_t = T[:3, :3] @ c + T[:3, 3]
-    anchors_t = tm.anchors()
+    anchors_t = at
     if task.target == task.query:
         anchors_t = anchors_t[:max(task.first, 1)]
     ka = int(np.argmin(np.linalg.norm(anchors_t[:, :3, 3] - c_t, axis=1)))
-    anchors_q = qm.anchors()[task.first:]
+    anchors_q = aq[task.first:]
     kb = task.first + int(np.argmin(np.linalg.norm(anchors_q[:, :3, 3] - c, axis=1)))
-    T_kk, cov = keyframe_link(tm.anchors()[ka], T, C, qm.anchors()[kb])
+    T_kk, cov = keyframe_link(at[ka], T, C, aq[kb])
     return Link(names[task.target], names[task.query], T_kk, cov, float(result.confidence),
                 float(stamp), active=False, n_matches=int(result.n_matches),
                 refined_pairs=0 if refitted is None else int(refitted[2]),
@@ -148,14 +151,18 @@ class KeyframeFleet:
         self.colocated_at: tuple[list[int], int] | None = None
 
     def link(self, maps: list[RobotMap], names: list[str], task: Query, result: Attempt,
-             stamp: float, motion: MotionModel, radius: float) -> Link:
+             stamp: float, motion: MotionModel, radius: float,
+             anchors: tuple[np.ndarray, np.ndarray] | None = None) -> Link:
         """The keyframe link of an accepted attempt (`link_of`), its alignment refitted on
         the co-located objects (`refit`) when `OnlineConfig.refine_links` is on; motion: the
-        localizer's motion model, radius: the pairing radius (metres)."""
+        localizer's motion model, radius: the pairing radius (metres). `anchors`: the
+        (target's, query's) keyframe anchors at planning when the maps moved since (the refit
+        then on the task's own graphs)."""
         o = self.online
-        r = (refit(task, result, motion, radius, o.loop_translation, o.loop_rotation,
-                   maps if o.view_correction else None) if o.refine_links else None)
-        return link_of(maps, names, task, result, stamp, r)
+        view = maps if o.view_correction and anchors is None else None
+        r = (refit(task, result, motion, radius, o.loop_translation, o.loop_rotation, view)
+             if o.refine_links else None)
+        return link_of(maps, names, task, result, stamp, r, anchors)
 
     def due_by_travel(self, travelled: list[float], sizes: list[int], min_objects: int,
                       robot: int | None) -> list[tuple[int, int]]:

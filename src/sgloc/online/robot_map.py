@@ -48,6 +48,7 @@ class RobotMap:
         self._sightings: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._views: tuple[np.ndarray, np.ndarray] | None = None  # of _sightings, `views`
         self._derived: dict[str, Any] = {}  # `derived`, of _views
+        self.version = 0  # counts the changes of the objects' or keyframes' placement
 
     @property
     def n_confirmed(self) -> int:
@@ -77,6 +78,7 @@ class RobotMap:
                              went[ok]))
         self._sightings = self._views = None
         self._derived = {}
+        self.version += 1
         step = float(np.linalg.norm(T[:3, 3] - self.poses[-1][:3, 3])) if self.poses else 0.0
         self._travel.append(self._travel[-1] + step if self._travel else 0.0)
         self.stamps.append(float(stamp))
@@ -172,6 +174,7 @@ class RobotMap:
             self._anchor[i] = T[i].copy()
         self._graph = self._views = None
         self._derived = {}
+        self.version += 1
         return int(moved.sum())
 
     def travelled(self) -> np.ndarray:

@@ -14,7 +14,7 @@ from sgloc.errors import SglocError
 from sgloc.geometry import invert
 from sgloc.io.keyframe_checks import check_keyframe, check_link, check_stamp
 from sgloc.maps.graph import SemanticGraph
-from sgloc.online.attempts import run_attempts
+from sgloc.online.batch import AttemptBatch, run_batch
 from sgloc.online.config import OnlineConfig
 from sgloc.online.joint import largest_shift, refine_fleet
 from sgloc.online.keyframe_fleet import KeyframeFleet, make_query
@@ -81,6 +81,8 @@ class OnlineSession:
         self._revoked: dict[tuple[int, int], int] = {}
         self._finished: set[str] = set()  # robots whose `finish` came after their last keyframe
         self._loop_memo = LoopMemo()  # loop verdicts of unchanged links and maps (a cache)
+        self._in_flight: set[tuple[int, int]] = set()  # pairs of planned, unapplied batches
+        self._revision = 0  # `revision`
 
     # -- what the session knows ---------------------------------------------------------------
     @property
@@ -217,13 +219,16 @@ class OnlineSession:
         since its last run. Returns the events."""
         r = self._index(robot)
         n_events = len(self.events)
-        self._run(stamp, None, math.inf, 1, r, scheduler, workers)
+        self._run(stamp, None, math.inf, 1, r, scheduler, workers, robot)
+        return self.events[n_events:]
+
+    def _finish_applied(self, robot: str, stamp: float) -> None:
+        """`robot`'s finishing attempts are applied: it is finished; once every robot is, the
+        joint refinement runs when due."""
         self._finished.add(robot)
         if self.online.refine_fleet and len(self._finished) == len(self._maps) \
                 and self._final_refinement_due():
-            self._refresh(check_stamp("the update", stamp) if stamp is not None
-                          else self._now())
-        return self.events[n_events:]
+            self._refresh(stamp)
 
     def _final_refinement_due(self) -> bool:
         """Once every robot finished: whether the maps changed since the joint refinement
@@ -250,40 +255,111 @@ class OnlineSession:
                                                          for r in self._T)
 
     def _run(self, stamp, max_attempts, growth_ratio, growth_objects, robot, scheduler,
-             workers) -> list[Event]:
+             workers, finishing: str | None = None) -> list[Event]:
         """Attempt the pairs due under the growth rule (growth_ratio, growth_objects), only
         those with robot index `robot` when given, then refit the links due under the same
-        rule (at most `max_attempts` of each; None: all)."""
+        rule (at most `max_attempts` of each; None: all): plan, run, apply."""
+        batch = self._plan(stamp, max_attempts, growth_ratio, growth_objects, robot, scheduler,
+                           workers, finishing)
+        return self._apply(batch, run_batch(batch, self.config, scheduler, workers))
+
+    # -- attempts in batches: plan (here), run (anywhere), apply (here) ------------------------
+    def plan_attempts(self, stamp: float | None = None, max_attempts: int | None = None,
+                      finishing: str | None = None) -> AttemptBatch | None:
+        """The attempts due now (at most `max_attempts`; None: all), as `run_pending` would
+        run them, in a picklable batch for `run_batch` anywhere and `apply_attempts` here;
+        None when there is nothing to do. With `finishing` (a robot name): the attempts
+        `finish(robot)` would run, the robot marked finished when the batch is applied.
+        Planning changes nothing the session saves; the batch's pairs are not planned again
+        until it is applied. stamp: the events' stamp (default: the newest keyframe's)."""
+        o = self.online
+        if finishing is not None:
+            batch = self._plan(stamp, None, math.inf, 1, self._index(finishing), None, 0,
+                               finishing)
+        else:
+            batch = self._plan(stamp, max_attempts, o.growth_ratio, o.growth_objects, None,
+                               None, 0)
+        if not batch.tasks and not batch.tried and finishing is None \
+                and not self._refits_due(batch):
+            return None
+        self._in_flight.update(batch.pairs)
+        return batch
+
+    def apply_attempts(self, batch: AttemptBatch, results: list[Attempt]) -> list[Event]:
+        """Record the results of `batch` (`run_batch`'s, in its order): attempts, links, the
+        fleet frame re-solved; returns the events. Call it on the session's own thread, once
+        per planned batch."""
+        if len(results) != len(batch.tasks):
+            raise SglocError(f"apply_attempts: {len(results)} results for a batch of "
+                             f"{len(batch.tasks)} attempts; pass run_batch's results.")
+        self._in_flight.difference_update(batch.pairs)
+        return self._apply(batch, results)
+
+    @property
+    def revision(self) -> int:
+        """Increases whenever the fleet frame changes (corrections, active links, placed
+        robots); equal revisions: the same corrections."""
+        return self._revision
+
+    def corrections(self) -> dict[str, np.ndarray]:
+        """robot -> (4,4) T_fleet_odom (map -> odom, `T_fleet_robot`) of every placed robot,
+        in the order of the robots."""
+        return {r: self._T[r].copy() for r in self.robots if r in self._T}
+
+    def _plan(self, stamp, max_attempts, growth_ratio, growth_objects, robot, scheduler,
+              workers, finishing: str | None = None) -> AttemptBatch:
+        """The batch `_run` runs: the due pairs (and loops) not in flight, in budget order."""
         stamp = check_stamp("the update", stamp) if stamp is not None else self._now()
-        n_events = len(self.events)
         sizes = [self._maps[r].n_confirmed for r in self.robots]
         o = self.online
         due = due_pairs(sizes, self._last, o.min_objects, growth_ratio, growth_objects, robot)
-        changed = False
+        batch = AttemptBatch(stamp, o.backend, sizes=sizes, finishing=finishing,
+                             versions=[self._maps[r].version for r in self.robots])
         if self._kf is not None:  # also every half submap of travel; loop closures too
             travelled = [self._maps[r].distance for r in self.robots]
             more = self._kf.due_by_travel(travelled, sizes, o.min_objects, robot)
             loops = self._due_loops(sizes, growth_ratio, growth_objects, robot)
             due += [p for p in more if p[0] != p[1] and p not in due]
             loops += [i for i, j in more if i == j and i not in loops]
-        if due and self._kf is None:
+            due = [p for p in due if p not in self._in_flight]
+            loops = [r for r in loops if (r, r) not in self._in_flight]
+            self._kf_plan(batch, due, loops, travelled, max_attempts, scheduler, workers, robot)
+            return batch
+        due = [p for p in due if p not in self._in_flight]
+        if due:
             group = self._groups()
             due.sort(key=lambda p: group[p[0]] == group[p[1]])  # stable: growth order within
             due = due if max_attempts is None else due[:max_attempts]
-        if self._kf is not None:
-            changed = self._kf_attempts(due, loops, sizes, travelled, stamp, max_attempts,
-                                        scheduler, workers, robot)
-        elif due:
             uses = self._uses([i for i, _ in due], workers, scheduler)
-            results = run_attempts([self._pair(i, j, uses[i]) for i, j in due], self.config,
-                                   scheduler, workers)
-            for (i, j), r in zip(due, results, strict=True):
-                changed |= self._record(i, j, sizes, r, stamp)
-        if self._kf is None:
-            changed |= self._refit_due(sizes, max_attempts, growth_ratio, growth_objects,
-                                       robot)
+            batch.tasks = [self._pair(i, j, uses[i]) for i, j in due]
+        batch.pairs = batch.targets = due
+        batch.refit = (max_attempts, growth_ratio, growth_objects, robot)
+        return batch
+
+    def _refits_due(self, batch: AttemptBatch) -> bool:
+        """Back-end "robots": whether applying `batch` would refit a link."""
+        o = self.online
+        if self._kf is not None or not o.refine_links or not self._links:
+            return False
+        _, ratio, objects, robot = batch.refit
+        due = due_pairs(batch.sizes, self._refitted, o.min_objects, ratio, objects, robot)
+        return any(p in self._links for p in due)
+
+    def _apply(self, batch: AttemptBatch, results: list[Attempt]) -> list[Event]:
+        """Note the batch's attempts and results, refit (back-end "robots"), re-solve."""
+        n_events, stamp = len(self.events), batch.stamp
+        if self._kf is not None:
+            changed = self._kf_apply(batch, results)
+        else:
+            changed = False
+            for (i, j), r in zip(batch.targets, results, strict=True):
+                changed |= self._record(i, j, batch.sizes, r, stamp)
+            sizes = [self._maps[r].n_confirmed for r in self.robots]
+            changed |= self._refit_due(sizes, *batch.refit)
         if changed:
             self._refresh(stamp)
+        if batch.finishing is not None:
+            self._finish_applied(batch.finishing, stamp)
         return self.events[n_events:]
 
     def _groups(self) -> np.ndarray:
@@ -301,8 +377,9 @@ class OnlineSession:
         adj = sparse.coo_array((np.ones(len(ij)), (ij[:, 0], ij[:, 1])), shape=(n, n))
         return connected_components(adj, directed=False)[1]
 
-    def _seed(self, i: int, j: int) -> list[int]:
-        k = self._tries.get((i, j), 0)
+    def _seed(self, i: int, j: int, earlier: int = 0) -> list[int]:
+        """The seed of the pair's next attempt after `earlier` more planned ones."""
+        k = self._tries.get((i, j), 0) + earlier
         return [self.online.seed, i, j] if k == 0 else [self.online.seed, i, j, k]
 
     def _pair(self, i: int, j: int, uses: int) -> tuple:
@@ -339,54 +416,71 @@ class OnlineSession:
                 out.append(r)
         return out
 
-    def _kf_attempts(self, due, loops, sizes, travelled, stamp, budget, scheduler,
-                     workers, finishing: int | None = None) -> bool:
-        """Backend "keyframes": attempt the due pairs (each robot of a pair that travelled
-        half a submap since its last try is a query, its recent submap in the other's map:
-        `KeyframeFleet.directions`; a `finishing` robot's last stretch in every other map)
-        and loop closures, at most `budget` in all, in `KeyframeFleet.ordered`'s order; keep
-        the accepted ones as keyframe links."""
-        o, names = self.online, self.robots
-        maps = [self._maps[r] for r in names]
+    def _kf_plan(self, batch: AttemptBatch, due, loops, travelled, budget, scheduler, workers,
+                 finishing: int | None = None) -> None:
+        """Backend "keyframes": plan the due pairs' attempts into `batch` (each robot of a pair
+        that travelled half a submap since its last try is a query, its recent submap in the
+        other's map: `KeyframeFleet.directions`; a `finishing` robot's last stretch in every
+        other map) and loop closures, at most `budget` in all, in `KeyframeFleet.ordered`'s
+        order. Nothing is noted until `_kf_apply`."""
+        o = self.online
+        maps = [self._maps[r] for r in self.robots]
         group = self._groups()
         pairs = self._kf.ordered(
             self._kf.directions([*due, *((r, r) for r in loops)], travelled, finishing),
             travelled, group)
-        queries = []
-        for t, q in pairs if budget is None else pairs[:budget]:
-            i, j = min(t, q), max(t, q)
-            self._kf.tried(t, q, travelled)
-            if t == q:
-                self._loop_last[q] = sizes[q]
-            else:
-                self._last[(i, j)] = (sizes[i], sizes[j])
+        batch.tried = pairs if budget is None else pairs[:budget]
+        batch.travelled = travelled
+        batch.pairs = sorted({(min(t, q), max(t, q)) for t, q in batch.tried})
+        for t, q in batch.tried:
             # a join is decided on the query robot's whole map, as with back-end "robots":
             # a short submap of a repeating layout can fit another copy of it
             length = o.submap_length if group[t] == group[q] else math.inf
             qu = make_query(maps, t, q, length)
             if min(len(qu.query_graph.positions), len(qu.target_graph.positions)) >= \
                     o.min_objects:
-                queries.append(qu)
-        pairs = []
-        uses = self._uses([qu.target for qu in queries if qu.target != qu.query], workers,
-                          scheduler)
-        for qu in queries:
+                batch.queries.append(qu)
+        uses = self._uses([qu.target for qu in batch.queries if qu.target != qu.query],
+                          workers, scheduler)
+        tries: Counter = Counter()  # this batch's earlier attempts of a pair
+        for qu in batch.queries:
             key = (min(qu.target, qu.query), max(qu.target, qu.query))
             # a loop closure's target is the robot's own older map, made for this attempt
             target = qu.target_graph if qu.target == qu.query else \
                 self._target(qu.target, uses[qu.target])
-            pairs.append((qu.query_graph, target, self._seed(*key)))
+            batch.tasks.append((qu.query_graph, target, self._seed(*key, tries[key])))
+            tries[key] += 1
+            for r in key:
+                if r not in batch.anchors:
+                    batch.anchors[r] = maps[r].anchors()
+
+    def _kf_apply(self, batch: AttemptBatch, results: list[Attempt]) -> bool:
+        """Backend "keyframes": note the batch's tries; keep the accepted attempts as keyframe
+        links (from the maps as planned when they changed since). True when a link was
+        added."""
+        names, sizes, stamp = self.robots, batch.sizes, batch.stamp
+        maps = [self._maps[r] for r in names]
+        for t, q in batch.tried:
+            self._kf.tried(t, q, batch.travelled)
+            if t == q:
+                self._loop_last[q] = sizes[q]
+            else:
+                self._last[(min(t, q), max(t, q))] = (sizes[min(t, q)], sizes[max(t, q)])
+        for qu in batch.queries:
+            key = (min(qu.target, qu.query), max(qu.target, qu.query))
             self._tries[key] = self._tries.get(key, 0) + 1
+        group = self._groups()
         changed = False
-        results = run_attempts(pairs, self.config, scheduler, workers)
         tests = None  # attempts between groups: counted once, when a link needs them
-        for qu, r in zip(queries, results, strict=True):
+        for qu, r in zip(batch.queries, results, strict=True):
             r = replace(r, query=names[qu.query], target=names[qu.target], stamp=stamp,
                         sizes=(len(qu.query_graph.positions), len(qu.target_graph.positions)))
             self.attempts.append(r)
             if r.accepted:
+                same = all(maps[k].version == batch.versions[k] for k in (qu.query, qu.target))
+                anchors = None if same else (batch.anchors[qu.target], batch.anchors[qu.query])
                 lk = self._kf.link(maps, names, qu, r, stamp, self.config.motion,
-                                   self.config.ransac.threshold)
+                                   self.config.ransac.threshold, anchors)
                 ga, gb = sorted((group[qu.target], group[qu.query]))
                 pair = (min(qu.target, qu.query), max(qu.target, qu.query))
                 if ga != gb and tests is None:
@@ -562,10 +656,28 @@ class OnlineSession:
 
     # -- the fleet frame -----------------------------------------------------------------------
     def _refresh(self, stamp: float, emit: bool = True) -> None:
-        """Re-select the consistent links, re-solve the fleet frame, emit what changed."""
+        """Re-select the consistent links, re-solve the fleet frame, emit what changed; the
+        revision moves on when the frame changed."""
+        before = self._frame_now()
         if self._kf is not None:
             self._kf_refresh(stamp, emit)
-            return
+        else:
+            self._robots_refresh(stamp, emit)
+        if not self._same_frame(before):
+            self._revision += 1
+
+    def _frame_now(self) -> tuple[dict[str, np.ndarray], list[bool]]:
+        """The fleet frame as it stands: the corrections and the links' active flags."""
+        return dict(self._T), [lk.active for lk in self.links]
+
+    def _same_frame(self, before: tuple[dict[str, np.ndarray], list[bool]]) -> bool:
+        T, active = before
+        return active == [lk.active for lk in self.links] and T.keys() == self._T.keys() \
+            and all(np.array_equal(T[r], self._T[r]) for r in T)
+
+    def _robots_refresh(self, stamp: float, emit: bool) -> None:
+        """Backend "robots": re-select the consistent links, re-solve the robots' frames, emit
+        what changed."""
         names = self.robots
         o = self.online
         for lk in self._links.values():
