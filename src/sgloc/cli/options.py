@@ -39,6 +39,25 @@ EdgeRadius = Annotated[float | None, typer.Option(
 )]
 
 
+ONLINE_PREFIX = "online."
+ONLINE_SET_HELP = (f"{SET_HELP} online.NAME=VALUE sets the online session's OnlineConfig field "
+                   "NAME (e.g. --set online.submap_length=60), odometry.NAME=VALUE the odometry "
+                   "noise model's (e.g. --set odometry.translation_per_metre=0.002).")
+OnlineSettings = Annotated[
+    list[str] | None, typer.Option("--set", metavar="NAME=VALUE", help=ONLINE_SET_HELP)
+]
+
+
+def split_online_settings(items: list[str] | None) -> tuple[list[str], dict[str, Any]]:
+    """(the localizer's --set items, the online session's settings) of `--set` items:
+    `online.NAME` -> NAME, `odometry.NAME` kept (`OnlineConfig.with_overrides` reads both)."""
+    from sgloc.online.config import ODOMETRY_PREFIX
+
+    mine = [i for i in items or [] if i.startswith((ONLINE_PREFIX, ODOMETRY_PREFIX))]
+    online = {k.removeprefix(ONLINE_PREFIX): v for k, v in parse_settings(mine).items()}
+    return [i for i in items or [] if i not in mine], online
+
+
 def parse_settings(items: list[str] | None) -> dict[str, Any]:
     """{NAME: value} from `NAME=VALUE` strings (`sgloc.io.settings_file.parse_assignments`)."""
     from sgloc.io.settings_file import parse_assignments

@@ -11,7 +11,14 @@ from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsed
 from rich.table import Table
 
 from sgloc.cli.app import app, not_localized
-from sgloc.cli.options import CLASSES_HELP, ConfigFile, Preset, Settings, localizer_config
+from sgloc.cli.options import (
+    CLASSES_HELP,
+    ConfigFile,
+    OnlineSettings,
+    Preset,
+    localizer_config,
+    split_online_settings,
+)
 from sgloc.cli.outputs import claim_output
 from sgloc.cli.progress import progress_bar
 from sgloc.replay.job import replay_job
@@ -80,7 +87,7 @@ def replay_cmd(
     root: Root = None,
     preset: Preset = None,
     config: ConfigFile = None,
-    setting: Settings = None,
+    setting: OnlineSettings = None,
     backend: Backend = "keyframes",
     quiet: Quiet = False,
 ) -> None:
@@ -92,10 +99,12 @@ def replay_cmd(
     |   sgloc replay --kitti00 --robots 4 --every 2 --poses refined
     |   sgloc replay --city --robots 8 --backend robots
     """
+    setting, online = split_online_settings(setting)
     inputs = _claim(ctx, sources or [], robot or [], classes, config, out, out_bag)
     job = replay_job(sources or [], robot or [], _scenarios(kitti00, city), robots=robots,
                      scans=scans, every=every, poses=poses, seed=seed, classes=classes,
-                     odom_topic=odom_topic, objects_topic=objects_topic, backend=backend, root=root)
+                     odom_topic=odom_topic, objects_topic=objects_topic, backend=backend, root=root,
+                     online=online)
     cfg = localizer_config(preset or job.preset, config, setting)
     with _bar(quiet) as progress:
         summary = job.run(cfg, out, out_bag, inputs, progress)

@@ -3,11 +3,13 @@ the fleet frame consistent."""
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+import difflib
+from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
 import numpy as np
 
+from sgloc.errors import UnknownNameError
 from sgloc.maps.graph import DEFAULT_EDGE_RADIUS
 from sgloc.validation import (
     MAX_COORDINATE,
@@ -21,6 +23,9 @@ from sgloc.validation import (
     setting,
     validate_settings,
 )
+
+#: The prefix naming an OdometryNoise field among flat online settings.
+ODOMETRY_PREFIX = "odometry."
 
 
 @dataclass(frozen=True)
@@ -201,6 +206,25 @@ class OnlineConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+    def with_overrides(self, **settings: Any) -> OnlineConfig:
+        """A copy with flat `settings` applied: OnlineConfig's field names, and
+        `odometry.NAME` for the odometry noise model's (OdometryNoise) fields. Each value is
+        checked; an unknown name raises UnknownNameError naming the nearest one."""
+        own = [f.name for f in fields(self) if f.name != "odometry"]
+        odometry = [f"{ODOMETRY_PREFIX}{f.name}" for f in fields(OdometryNoise)]
+        top = {k: v for k, v in settings.items() if k in own}
+        odo = {k[len(ODOMETRY_PREFIX):]: v for k, v in settings.items() if k in odometry}
+        unknown = [k for k in settings if k not in own and k not in odometry]
+        if unknown:
+            close = difflib.get_close_matches(unknown[0], own + odometry, n=1)
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            raise UnknownNameError(
+                f"unknown online setting {unknown[0]!r}; {hint}the online settings are "
+                f"OnlineConfig's fields ({', '.join(own)}) and the odometry noise model's as "
+                f"{ODOMETRY_PREFIX}NAME ({', '.join(f.name for f in fields(OdometryNoise))}).")
+        noise = replace(self.odometry, **odo) if odo else self.odometry
+        return replace(self, **top, odometry=noise)
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> OnlineConfig:

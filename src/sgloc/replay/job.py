@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +28,13 @@ class ReplayJob:
     backend: str = "keyframes"
     root: str | None = None
     seed: int = 0
+    online: dict[str, Any] = field(default_factory=dict)  # OnlineConfig.with_overrides's
+
+    def online_config(self) -> Any:
+        """The online session's settings: the job's seed and back-end, then `online`."""
+        from sgloc.online import OnlineConfig
+
+        return OnlineConfig(seed=self.seed, backend=self.backend).with_overrides(**self.online)
 
     def run(self, config: LocalizerConfig, out: str | Path, out_bag: str | Path | None = None,
             inputs: Sequence[str | Path | None] = (),
@@ -35,12 +42,11 @@ class ReplayJob:
         """Stream every keyframe through one online session localizing with `config`, write the
         results folder `out` (never over `inputs`) and, when given, the fleet frames as a ROS 2
         bag `out_bag`; returns the summary. `progress(done, total)` follows the keyframes."""
-        from sgloc.online import OnlineConfig, OnlineSession
+        from sgloc.online import OnlineSession
         from sgloc.replay.outputs import write_replay
         from sgloc.replay.stream import replay_logs
 
-        online = OnlineConfig(seed=self.seed, backend=self.backend)
-        session = OnlineSession(config, online, root=self.root)
+        session = OnlineSession(config, self.online_config(), root=self.root)
         total, done = sum(len(g) for g in self.logs), [0]
 
         def step(n: int) -> None:
@@ -80,12 +86,21 @@ def replay_job(
     backend: str = "keyframes",
     root: str | None = None,
     seed: int = 0,
+    online: dict[str, Any] | None = None,
     **options: Any,
 ) -> ReplayJob:
     """The checked replay of exactly one input: recorded `sources` and `named` robots (NAME=PATH
     items; `sgloc.replay.inputs`), or one of `scenarios` (REPLAY_SCENARIOS names, with the
-    `options` and `seed` each takes; `poses` only for kitti00). SglocError on a bad input,
-    back-end or root robot."""
+    `options` and `seed` each takes; `poses` only for kitti00); `online`: the online
+    session's settings (`OnlineConfig.with_overrides`). SglocError on a bad input, back-end,
+    root robot or online setting, before any input is read."""
+    online = dict(online or {})
+    for name, option in (("seed", "--seed"), ("backend", "--backend")):
+        if name in online:
+            raise SglocError(f"--set online.{name}: give {option} instead.")
+    if backend not in BACKENDS:
+        raise SglocError(f"--backend {backend!r}: choose keyframes or robots.")
+    ReplayJob([], backend=backend, seed=seed, online=online).online_config()  # checked now
     if bool(sources or named) + len(scenarios) != 1:
         raise SglocError("give exactly one input: a layout folder or bag (or one bag per robot), "
                          "--kitti00, or --city.")
@@ -99,12 +114,10 @@ def replay_job(
         got = scenario_input(scenarios[0], seed=seed, **options)
     else:
         got = ReplayInput(_recorded(sources, named, classes, odom_topic, objects_topic))
-    if backend not in BACKENDS:
-        raise SglocError(f"--backend {backend!r}: choose keyframes or robots.")
     if root is not None and root not in {g.name for g in got.logs}:
         raise SglocError(f"--root {root!r} is not a robot of the input; robots: "
                          f"{', '.join(g.name for g in got.logs)}.")
-    return ReplayJob(got.logs, got.preset, backend, root, seed)
+    return ReplayJob(got.logs, got.preset, backend, root, seed, online)
 
 
 def scenario_input(name: str, **options: Any) -> ReplayInput:
