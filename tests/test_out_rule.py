@@ -107,6 +107,26 @@ def test_every_writing_command_refuses_before_any_work(proj, argv, capsys):
     assert _snapshot(proj.parent) == before and sorted(os.listdir(proj.parent)) == ["proj"]
 
 
+@pytest.mark.parametrize("where, argv", [
+    ("run", ["replay", "."]),  # from inside: the default results/replay lies in the input
+    (".", ["replay", "run", "--out", "run/results"]),
+    (".", ["replay", "--robot", "a=run/world0", "--robot", "b=run/world1", "--out",
+           "run/world0/res"]),
+])  # fmt: skip
+def test_a_results_folder_inside_an_input_folder_is_refused_at_once(proj, where, argv, capsys,
+                                                                    monkeypatch):
+    from sgloc.evaluation.replay_scenarios import world_scenario
+    from sgloc.io.plain_layout import write_plain_layout
+
+    write_plain_layout(proj / "run", world_scenario().logs)
+    before = _snapshot(proj.parent)
+    monkeypatch.chdir(proj / where)
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "lies inside the input folder" in err[0], err
+    assert _snapshot(proj.parent) == before
+
+
 def test_a_folder_of_the_users_files_is_refused_an_empty_one_written_into(proj, capsys):
     (proj / "mine").mkdir()
     (proj / "mine" / "data.csv").write_text("1,2\n")

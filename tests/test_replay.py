@@ -94,6 +94,18 @@ def test_bag_replay_equals_plain_replay(replayed, world, tmp_path):
                                atol=1e-6)
 
 
+def test_a_results_folder_inside_a_layout_is_no_robot(replayed, tmp_path):
+    """An sgloc results folder (its manifest inside) moved into a run folder is not read as a
+    robot; the run still reads as its two robots."""
+    import shutil
+
+    from sgloc.io.plain_layout import read_plain_layout
+
+    shutil.copytree(replayed / "run", tmp_path / "run")
+    shutil.copytree(replayed / "out", tmp_path / "run" / "results")
+    assert [g.name for g in read_plain_layout(tmp_path / "run")] == ["world0", "world1"]
+
+
 def test_robot_file_names_never_collide():
     names = ["team/r1", "team-r1", "Team-R1", "team-r1-2", ".hidden", "a b", "a/b", ""]
     stems = robot_file_stems(names)
