@@ -127,6 +127,29 @@ def test_a_results_folder_inside_an_input_folder_is_refused_at_once(proj, where,
     assert _snapshot(proj.parent) == before
 
 
+@pytest.mark.parametrize("argv, blocked, says", [
+    (["replay", "run", "--out", "A", "--out-bag", "B"], "rosbags", "--out-bag"),
+    (["replay", "run", "--out", "A", "--backend", "robot"], None, "--backend"),
+])  # fmt: skip
+def test_an_option_that_is_refused_is_refused_before_the_replay(proj, argv, blocked, says,
+                                                                 capsys, monkeypatch):
+    """An output option whose extra is missing (--out-bag without rosbags), a bad back-end:
+    one line at once, nothing written."""
+    from sgloc.evaluation.replay_scenarios import world_scenario
+    from sgloc.io.plain_layout import write_plain_layout
+
+    write_plain_layout(proj / "run", world_scenario().logs)
+    if blocked:
+        monkeypatch.setitem(sys.modules, blocked, None)
+    before = _snapshot(proj.parent)
+    calls = []
+    monkeypatch.setattr("sgloc.replay.inputs.read_logs", lambda *a, **k: calls.append(a))
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and says in err[0], err
+    assert _snapshot(proj.parent) == before and not calls  # the input not even read
+
+
 def test_a_folder_of_the_users_files_is_refused_an_empty_one_written_into(proj, capsys):
     (proj / "mine").mkdir()
     (proj / "mine" / "data.csv").write_text("1,2\n")

@@ -14,6 +14,7 @@ from sgloc.cli.app import app, not_localized
 from sgloc.cli.options import CLASSES_HELP, ConfigFile, Preset, Settings, localizer_config
 from sgloc.cli.outputs import claim_output
 from sgloc.cli.progress import progress_bar
+from sgloc.optional import require
 from sgloc.replay.job import replay_job
 
 Sources = Annotated[list[Path] | None, typer.Argument(
@@ -106,7 +107,8 @@ def _claim(ctx: typer.Context, sources, robot, classes, config, out, out_bag) ->
     """Claim the outputs; returns the inputs they must not touch."""
     inputs = [*sources, *(r.partition("=")[2] for r in robot), classes, config]
     claim_output(ctx, out, inputs)
-    claim_output(ctx, out_bag, inputs, "--out-bag")
+    if claim_output(ctx, out_bag, inputs, "--out-bag") is not None:
+        require("rosbags", "ros", "--out-bag (a ROS 2 bag)")  # refused before the replay
     return inputs
 
 
