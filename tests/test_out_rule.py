@@ -96,6 +96,8 @@ def test_the_root_folder_is_refused():  # checked without a command: nothing cou
     ["localize", "maps/B.json", "maps/A.json", "--json", "maps/A.json"],
     ["localize", "maps/B.json", "maps/A.json", "--out", "r", "--json", "r/full.json"],
     ["replay", "--city", "--robots", "2", "--out", "r", "--out-bag", "r"],
+    ["replay", "--city", "--robots", "2", "--out", "b2/res", "--out-bag", "b2"],
+    ["replay", "--city", "--robots", "2", "--out", "b2", "--out-bag", "b2/bag"],
 ])  # fmt: skip
 def test_every_writing_command_refuses_before_any_work(proj, argv, capsys):
     before = _snapshot(proj.parent)
@@ -104,6 +106,8 @@ def test_every_writing_command_refuses_before_any_work(proj, argv, capsys):
     assert time.perf_counter() - t0 < 10  # refused at once, not after the work
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: "), err
+    if "--out-bag" in argv:
+        assert "would overlap" in err[0], err
     assert _snapshot(proj.parent) == before and sorted(os.listdir(proj.parent)) == ["proj"]
 
 
