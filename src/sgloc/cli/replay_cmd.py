@@ -140,5 +140,8 @@ def _print(console: Console, summary: dict, out: Path, out_bag: Path | None, rob
     console.print(f"{summary['placed']} of {len(summary['robots'])} robots placed in the frame of "
                   f"{summary['root']}; {ev['link_accepted']} links accepted, "
                   f"{ev['link_revoked']} revoked -> {out}" + (f", {out_bag}" if out_bag else ""))
-    if robots > 1 and summary["placed"] < 2:
+    if robots < 2:
+        raise not_localized(f"the input holds one robot ({summary['root']}): a replay joins two "
+                            "or more robots in one fleet frame.")
+    if summary["placed"] < 2:
         raise not_localized(f"no robot joined the fleet frame of {summary['root']}.")
