@@ -112,7 +112,10 @@ def check_output_path(
         _replaceable_folder(out, option)
     elif _is(out, stat.S_ISDIR):
         raise OutputPathError(f"{out}: is a folder; {option} takes a file path.")
-    elif _is(out, lambda mode: True) and not (ours is not None and ours(out)):
+    elif _is(out, lambda mode: True) and ours is None:
+        raise OutputPathError(f"{out}: exists; {option} writes a new file only, never over an "
+                              f"existing one; give a new path or move the file away first.")
+    elif _is(out, lambda mode: True) and not ours(out):
         raise OutputPathError(f"{out}: exists and was not written by sgloc; give a new path for "
                               f"{option} or move the file away first.")
     return out
