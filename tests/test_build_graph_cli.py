@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from PIL import Image
 
 from sgloc import SemanticGraph
@@ -44,6 +45,24 @@ def test_build_graph_airsim_robot_folder(tmp_path, capsys):
     g = SemanticGraph.load(out)
     assert g.labels.tolist() == [5]  # the same block seen twice, 1 m apart: one vertex
     assert abs(g.positions[0, 0] - (20 / 255 * 100 + 0.5)) < 0.5
+
+
+def test_build_graph_output_is_checked_before_the_extraction(tmp_path, capsys, monkeypatch):
+    """An unknown format and an existing file (its own earlier graph too) are refused before
+    any frame is read, naming the path given, with a message that is true."""
+    import sgloc.extraction.graph_job as graph_job
+
+    monkeypatch.setattr(graph_job.GraphJob, "run", lambda *a, **k: pytest.fail("work started"))
+    (tmp_path / "run").mkdir()
+    argv = ["build-graph", "airsim", str(tmp_path / "run"), "-q", "-o"]
+    assert main([*argv, str(tmp_path / "A.xyz")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"error: {tmp_path / 'A.xyz'}: unknown graph format") and "\n" not in err
+    (tmp_path / "A.json").write_text('{"positions": [[0, 0, 0]], "labels": [1]}')
+    assert main([*argv, str(tmp_path / "A.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "exists; --out writes a new file only" in err and "not written by sgloc" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["A.json", "run"]
 
 
 def test_build_graph_user_errors_exit_2(tmp_path, capsys):

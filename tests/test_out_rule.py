@@ -96,6 +96,8 @@ def test_the_root_folder_is_refused():  # checked without a command: nothing cou
     ["localize", "maps/B.json", "maps/A.json", "--json", "maps/A.json"],
     ["localize", "maps/B.json", "maps/A.json", "--out", "r", "--json", "r/full.json"],
     ["replay", "--city", "--robots", "2", "--out", "r", "--out-bag", "r"],
+    ["replay", "--city", "--robots", "2", "--out", "b2/res", "--out-bag", "b2"],
+    ["replay", "--city", "--robots", "2", "--out", "b2", "--out-bag", "b2/bag"],
 ])  # fmt: skip
 def test_every_writing_command_refuses_before_any_work(proj, argv, capsys):
     before = _snapshot(proj.parent)
@@ -104,7 +106,52 @@ def test_every_writing_command_refuses_before_any_work(proj, argv, capsys):
     assert time.perf_counter() - t0 < 10  # refused at once, not after the work
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: "), err
+    if "--out-bag" in argv:
+        assert "would overlap" in err[0], err
     assert _snapshot(proj.parent) == before and sorted(os.listdir(proj.parent)) == ["proj"]
+
+
+@pytest.mark.parametrize("where, argv", [
+    ("run", ["replay", "."]),  # from inside: the default results/replay lies in the input
+    (".", ["replay", "run", "--out", "run/results"]),
+    (".", ["replay", "--robot", "a=run/world0", "--robot", "b=run/world1", "--out",
+           "run/world0/res"]),
+])  # fmt: skip
+def test_a_results_folder_inside_an_input_folder_is_refused_at_once(proj, where, argv, capsys,
+                                                                    monkeypatch):
+    from sgloc.evaluation.replay_scenarios import world_scenario
+    from sgloc.io.plain_layout import write_plain_layout
+
+    write_plain_layout(proj / "run", world_scenario().logs)
+    before = _snapshot(proj.parent)
+    monkeypatch.chdir(proj / where)
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "lies inside the input folder" in err[0], err
+    assert _snapshot(proj.parent) == before
+
+
+@pytest.mark.parametrize("argv, blocked, says", [
+    (["replay", "run", "--out", "A", "--out-bag", "B"], "rosbags", "--out-bag"),
+    (["replay", "run", "--out", "A", "--backend", "robot"], None, "--backend"),
+])  # fmt: skip
+def test_an_option_that_is_refused_is_refused_before_the_replay(proj, argv, blocked, says,
+                                                                 capsys, monkeypatch):
+    """An output option whose extra is missing (--out-bag without rosbags), a bad back-end:
+    one line at once, nothing written."""
+    from sgloc.evaluation.replay_scenarios import world_scenario
+    from sgloc.io.plain_layout import write_plain_layout
+
+    write_plain_layout(proj / "run", world_scenario().logs)
+    if blocked:
+        monkeypatch.setitem(sys.modules, blocked, None)
+    before = _snapshot(proj.parent)
+    calls = []
+    monkeypatch.setattr("sgloc.replay.inputs.read_logs", lambda *a, **k: calls.append(a))
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and says in err[0], err
+    assert _snapshot(proj.parent) == before and not calls  # the input not even read
 
 
 def test_a_folder_of_the_users_files_is_refused_an_empty_one_written_into(proj, capsys):

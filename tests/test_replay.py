@@ -94,6 +94,28 @@ def test_bag_replay_equals_plain_replay(replayed, world, tmp_path):
                                atol=1e-6)
 
 
+def test_a_results_folder_inside_a_layout_is_no_robot(replayed, tmp_path):
+    """An sgloc results folder (its manifest inside) moved into a run folder is not read as a
+    robot; the run still reads as its two robots."""
+    import shutil
+
+    from sgloc.io.plain_layout import read_plain_layout
+
+    shutil.copytree(replayed / "run", tmp_path / "run")
+    shutil.copytree(replayed / "out", tmp_path / "run" / "results")
+    assert [g.name for g in read_plain_layout(tmp_path / "run")] == ["world0", "world1"]
+
+
+def test_a_one_robot_replay_is_not_localized(replayed, tmp_path, capsys):
+    """docs/replay.md: exit 0 only when at least two robots share the fleet frame."""
+    from sgloc.cli.app import EXIT_NOT_LOCALIZED
+
+    argv = ["replay", str(replayed / "run" / "world0"), "--out", str(tmp_path / "one"), "--quiet"]
+    assert main(argv) == EXIT_NOT_LOCALIZED
+    assert "holds one robot" in capsys.readouterr().err
+    assert (tmp_path / "one" / "summary.json").is_file()  # the outputs still written
+
+
 def test_robot_file_names_never_collide():
     names = ["team/r1", "team-r1", "Team-R1", "team-r1-2", ".hidden", "a b", "a/b", ""]
     stems = robot_file_stems(names)

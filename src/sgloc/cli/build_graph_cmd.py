@@ -14,6 +14,7 @@ from sgloc.cli.app import app
 from sgloc.cli.outputs import claim_output
 from sgloc.cli.progress import progress_bar
 from sgloc.datasets import DATASETS
+from sgloc.io.graph_files import check_graph_suffix
 
 Dataset = Annotated[str, typer.Argument(help=f"Loader name: {' | '.join(sorted(DATASETS))}.")]
 Folder = Annotated[Path, typer.Argument(
@@ -81,6 +82,7 @@ def build_graph_cmd(
         position=position, max_range=max_range, edge_radius=edge_radius,
     )
     claim_output(ctx, out, [path], folder=False)
+    check_graph_suffix(out)  # the format: before the extraction
     columns = (TextColumn("[bold]extracting"), BarColumn(), MofNCompleteColumn(),
                TimeRemainingColumn())
     with progress_bar(*columns, console=Console(stderr=True), disable=quiet) as progress:

@@ -25,13 +25,13 @@ def claim_output(
     ends, so that a second run writing the same path is refused at once. None: no output."""
     if out is None:
         return None
-    check_output_path(out, inputs, option, folder, ours)
     claimed = ctx.meta.setdefault("sgloc.outputs", [])
     here = out.resolve()
-    for other, other_option in claimed:
+    for other, other_option in claimed:  # first: an earlier output's lock may lie in `out`
         if here == other or here.is_relative_to(other) or other.is_relative_to(here):
             raise OutputPathError(f"{out}: {option} and {other_option} would overlap; give "
                                   "each output its own path.")
+    check_output_path(out, inputs, option, folder, ours)
     ctx.with_resource(claimed_output(out, option))
     claimed.append((here, option))
     return out

@@ -21,6 +21,7 @@ from sgloc.cli.options import (
 )
 from sgloc.cli.outputs import claim_output
 from sgloc.cli.progress import progress_bar
+from sgloc.optional import require
 from sgloc.replay.job import replay_job
 
 Sources = Annotated[list[Path] | None, typer.Argument(
@@ -115,7 +116,8 @@ def _claim(ctx: typer.Context, sources, robot, classes, config, out, out_bag) ->
     """Claim the outputs; returns the inputs they must not touch."""
     inputs = [*sources, *(r.partition("=")[2] for r in robot), classes, config]
     claim_output(ctx, out, inputs)
-    claim_output(ctx, out_bag, inputs, "--out-bag")
+    if claim_output(ctx, out_bag, inputs, "--out-bag") is not None:
+        require("rosbags", "ros", "--out-bag (a ROS 2 bag)")  # refused before the replay
     return inputs
 
 
@@ -147,5 +149,8 @@ def _print(console: Console, summary: dict, out: Path, out_bag: Path | None, rob
     console.print(f"{summary['placed']} of {len(summary['robots'])} robots placed in the frame of "
                   f"{summary['root']}; {ev['link_accepted']} links accepted, "
                   f"{ev['link_revoked']} revoked -> {out}" + (f", {out_bag}" if out_bag else ""))
-    if robots > 1 and summary["placed"] < 2:
+    if robots < 2:
+        raise not_localized(f"the input holds one robot ({summary['root']}): a replay joins two "
+                            "or more robots in one fleet frame.")
+    if summary["placed"] < 2:
         raise not_localized(f"no robot joined the fleet frame of {summary['root']}.")

@@ -86,7 +86,8 @@ def check_output_path(
     not exist, an empty folder, or an earlier output of sgloc (a folder holding only what its
     MANIFEST lists; a file `ours(path)` recognises). OutputPathError (naming `out`, what it
     holds and the fix) when it is the working folder or holds it, the home or root folder, an
-    input or a folder holding one, or anything else that exists."""
+    input or a folder holding one, a results folder inside an input folder, or anything else
+    that exists."""
     out = Path(out)
     fix = f"give a new path for {option}, such as results/NAME"
     where = _real(out)
@@ -102,13 +103,19 @@ def check_output_path(
             what = "is the input" if src == where else "holds the input"
             raise OutputPathError(f"{out}: {what} {given}; sgloc never writes over its inputs; "
                                   f"{fix}.")
+        if folder and where.is_relative_to(src) and os.path.isdir(src):
+            raise OutputPathError(f"{out}: lies inside the input folder {given}, where it would "
+                                  f"be read as input; give {option} a path outside it.")
     if os.path.islink(out):
         raise OutputPathError(f"{out}: is a symbolic link; give the path it points to or {fix}.")
     if folder:
         _replaceable_folder(out, option)
     elif _is(out, stat.S_ISDIR):
         raise OutputPathError(f"{out}: is a folder; {option} takes a file path.")
-    elif _is(out, lambda mode: True) and not (ours is not None and ours(out)):
+    elif _is(out, lambda mode: True) and ours is None:
+        raise OutputPathError(f"{out}: exists; {option} writes a new file only, never over an "
+                              f"existing one; give a new path or move the file away first.")
+    elif _is(out, lambda mode: True) and not ours(out):
         raise OutputPathError(f"{out}: exists and was not written by sgloc; give a new path for "
                               f"{option} or move the file away first.")
     return out

@@ -238,17 +238,24 @@ def read_graph(path: str | Path) -> GraphArrays:
     return check_graph_arrays(str(path), positions, labels)
 
 
+def check_graph_suffix(path: str | Path) -> str:
+    """The lower-case suffix of a graph file to write; GraphFileError naming `path` when
+    write_graph has no format for it."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in SUFFIXES:
+        raise GraphFileError(
+            f"{path}: unknown graph format {suffix!r}; use one of {', '.join(SUFFIXES)}."
+        )
+    return suffix
+
+
 def write_graph(
     path: str | Path, positions: np.ndarray, labels: np.ndarray, edge_radius: float | None = None
 ) -> Path:
     """Write a graph; the format follows the suffix (.pcd, .json, .npz, .ply, .csv, .txt);
     only .json keeps `edge_radius`."""
     path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in SUFFIXES:
-        raise GraphFileError(
-            f"{path}: unknown graph format {suffix!r}; use one of {', '.join(SUFFIXES)}."
-        )
+    suffix = check_graph_suffix(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     if suffix == ".pcd":
         from sgloc.io.pcd import write_pcd

@@ -24,6 +24,7 @@ import numpy as np
 
 from sgloc.errors import DatasetError
 from sgloc.io.class_table import read_class_table, resolve_class, write_class_table
+from sgloc.io.files import MANIFEST
 from sgloc.io.keyframes import RobotLog, float_text, format_stamp, make_robot_log, parse_stamp
 from sgloc.io.poses import read_tum, write_tum
 from sgloc.io.text import read_text_file
@@ -44,7 +45,8 @@ def read_plain_layout(
     if classes is None and (folder / CLASSES_FILE).is_file():
         classes = folder / CLASSES_FILE
     table = read_class_table(classes) if classes is not None else None
-    robots = sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith("."))
+    robots = sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith(".")
+                    and not (p / MANIFEST).is_file())  # an sgloc results folder: no robot
     if not robots:
         raise DatasetError(
             f"{folder}: no robot folders; give one folder per robot holding {ODOMETRY_FILE} and "

@@ -12,6 +12,7 @@ from typing import Any
 
 from sgloc.errors import SglocError
 from sgloc.io.keyframes import RobotLog
+from sgloc.optional import require
 from sgloc.pipeline.config import LocalizerConfig
 from sgloc.replay.scenarios import REPLAY_SCENARIOS, ReplayInput
 
@@ -110,6 +111,10 @@ def replay_job(
     if poses != "raw" and list(scenarios) != ["kitti00"]:
         raise SglocError(f"--poses {poses}: only for --kitti00 (other inputs bring their own "
                          "poses).")
+    if backend not in BACKENDS:
+        raise SglocError(f"--backend {backend!r}: choose keyframes or robots.")
+    if poses == "refined":
+        require("gtsam", "gtsam", "--poses refined (the refined KITTI trajectory)")
     if scenarios:
         got = scenario_input(scenarios[0], seed=seed, **options)
     else:
