@@ -93,7 +93,8 @@ def replay_cmd(
     quiet: Quiet = False,
 ) -> None:
     """Stream every robot's keyframes, interleaved by stamp, through one online session and write
-    the fleet: fleet/<robot>.tum, events.csv, links.g2o, summary.json, timeline.png, fleet.png.
+    the fleet: fleet/<robot>.tum, maps/<robot>.json, merged.json, events.csv, links.g2o,
+    g2o_keyframes.csv, summary.json, timeline.png, fleet.png.
 
     Examples: sgloc replay runs/campus --out results/campus --out-bag results/campus_bag
     |   sgloc replay alpha.mcap beta.mcap --odom-topic /odom --objects-topic /objects

@@ -168,6 +168,8 @@ class OnlineConfig:
         alignment among them would otherwise place a whole group.
     seed: attempt k of the pair (i, j) (robot indices, i < j) uses the seed [seed, i, j]
         (k = 0) or [seed, i, j, k].
+    fuse_radius: metres; in the merged fleet map (`sgloc replay`'s merged.json), same-class
+        objects of different robots closer than this are fused (as `FleetConfig.fuse_radius`).
     """
 
     association_radius: float = setting(1.5, check=real(0.0, MAX_COORDINATE, unit="m"))
@@ -200,6 +202,7 @@ class OnlineConfig:
     loop_closures: bool = setting(True, check=flag())
     view_correction: bool = setting(True, check=flag())
     join_tests: bool = setting(True, check=flag())
+    fuse_radius: float = setting(2.0, check=real(0.0, MAX_COORDINATE, unit="m"))
 
     def __post_init__(self) -> None:
         validate_settings(self, "OnlineConfig")

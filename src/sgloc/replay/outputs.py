@@ -1,10 +1,14 @@
 """The replay output folder, written atomically (`sgloc.io.files.staged_folder`).
 
     fleet/<robot>.tum   each PLACED robot's keyframe poses in the fleet frame (real stamps)
+    maps/<robot>.json   each PLACED robot's corrected map: its objects in the fleet frame
+    merged.json         the placed robots' maps fused into one graph, fleet frame
     events.csv          stamp,kind,robots,detail (robots joined by `;`; exact input stamps)
     links.g2o           the session's inter-robot factors and fleet poses (vertex id = the
                         robot's place in summary.json's `robots`, also its `g2o_vertex`)
-    summary.json        per robot: file stem, keyframes, stamp joined, why not placed, latency
+    g2o_keyframes.csv   vertex,robot,keyframe,stamp of every keyframe vertex of links.g2o
+                        (backend "keyframes" only)
+    summary.json        per robot: its files, keyframes, stamp joined, why not placed, latency
     timeline.png        events over stamps, one row per robot
     fleet.png           the placed robots' paths and objects, top-down, fleet frame
 """
@@ -19,15 +23,19 @@ from typing import Any
 
 import numpy as np
 
+from sgloc.geometry import apply
 from sgloc.io.files import staged_folder
 from sgloc.io.keyframes import RobotLog, format_stamp
 from sgloc.io.names import robot_file_stems
 from sgloc.io.poses import write_tum
+from sgloc.maps.graph import SemanticGraph
+from sgloc.online.merge import merge_graphs
 from sgloc.replay.stream import ReplayRecord
 
 SUMMARY, EVENTS, LINKS, FLEET_DIR = "summary.json", "events.csv", "links.g2o", "fleet"
+MAPS_DIR, MERGED, KEYFRAMES = "maps", "merged.json", "g2o_keyframes.csv"
 #: Version of summary.json (docs/fleet_outputs.md lists its keys).
-SCHEMA = "sgloc.replay/1"
+SCHEMA = "sgloc.replay/2"
 #: The events.csv row kind of a robot that was never placed (after the session's events).
 NOT_PLACED = "robot_not_placed"
 
@@ -93,18 +101,20 @@ def unplaced_reason(session: Any, robot: str) -> str:
 
 
 def replay_summary(
-    logs: Sequence[RobotLog], session: Any, record: ReplayRecord, stems: dict[str, str]
+    logs: Sequence[RobotLog], session: Any, record: ReplayRecord, stems: dict[str, str],
+    merged_objects: int = 0,
 ) -> dict[str, Any]:
     """The summary.json content (robots in the order of `logs`, which is also their vertex
-    ids in links.g2o)."""
+    ids in links.g2o with backend "robots"); `merged_objects`: the objects of merged.json."""
     robots = {}
-    vertices = session.keyframe_ids()  # the keyframe back-end: a vertex per keyframe
+    keyframes = session.online.backend == "keyframes"  # then a g2o vertex per keyframe
     for k, g in enumerate(logs):
         j = record.joined_ns.get(g.name)
         T = session.T_fleet_robot(g.name) if g.name in session.robots else None
         robots[g.name] = {
             "file": f"{FLEET_DIR}/{stems[g.name]}.tum" if T is not None else None,
-            "g2o_vertex": None if session.online.backend == "keyframes" else k,
+            "map": f"{MAPS_DIR}/{stems[g.name]}.json" if T is not None else None,
+            "g2o_vertex": None if keyframes else k,
             "keyframes": len(g),
             "first_stamp": format_stamp(g.stamps_ns[0]),
             "last_stamp": format_stamp(g.stamps_ns[-1]),
@@ -128,7 +138,9 @@ def replay_summary(
         "events": events,
         "latency": latency_stats(np.concatenate([record.latency_ms[g.name] for g in logs])),
         "backend": session.online.backend,
-        "g2o_keyframes": [[int(v), r, int(k)] for v, r, k in vertices],
+        "g2o_keyframes": KEYFRAMES if keyframes else None,
+        "merged": MERGED,
+        "merged_objects": merged_objects,
     }
 
 
@@ -166,6 +178,50 @@ def write_links_g2o(path: Path, session: Any, names: Sequence[str]) -> Path:
     return write_g2o(path, vertices, edges)
 
 
+def fleet_maps(session: Any, names: Sequence[str]) -> dict[str, SemanticGraph]:
+    """{robot: its corrected map}, each PLACED robot of `names` with its confirmed objects
+    moved into the fleet frame (metres; with backend "keyframes" the objects rest on the
+    corrected keyframes, `RobotMap.reanchor`)."""
+    maps = {}
+    for r in names:
+        T = session.T_fleet_robot(r) if r in session.robots else None
+        if T is not None:
+            g = session.map(r)
+            maps[r] = SemanticGraph(apply(T, g.positions), g.labels, g.edge_radius, name=r)
+    return maps
+
+
+def merged_map(maps: dict[str, SemanticGraph], fuse_radius: float) -> SemanticGraph:
+    """The corrected maps (fleet frame) fused into one graph: same-class objects of different
+    robots closer than `fuse_radius` metres merged (`sgloc.online.merge.merge_graphs`)."""
+    graphs = list(maps.values())
+    return merge_graphs(graphs, {k: np.eye(4) for k in range(len(graphs))}, fuse_radius)[0]
+
+
+def write_keyframe_table(path: Path, session: Any, logs: Sequence[RobotLog]) -> Path:
+    """g2o_keyframes.csv: `vertex,robot,keyframe,stamp` of every keyframe vertex of links.g2o
+    (backend "keyframes"; keyframe = its index in the robot's log, stamp exact seconds)."""
+    stamps = {g.name: g.stamps_ns for g in logs}
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["vertex", "robot", "keyframe", "stamp"])
+        for v, r, k in session.keyframe_ids():
+            w.writerow([int(v), r, int(k), format_stamp(stamps[r][k])])
+    return path
+
+
+def write_maps(folder: Path, session: Any, stems: dict[str, str]) -> SemanticGraph:
+    """maps/<stem>.json (each placed robot's corrected map) and merged.json (the fleet map)
+    into `folder`, in the graph JSON format `sgloc fleet` writes; returns the merged map."""
+    corrected = fleet_maps(session, list(stems))
+    (folder / MAPS_DIR).mkdir()
+    for r, g in corrected.items():
+        g.save(folder / MAPS_DIR / f"{stems[r]}.json")
+    merged = merged_map(corrected, session.online.fuse_radius)
+    merged.save(folder / MERGED)
+    return merged
+
+
 def write_replay(out: str | Path, logs: Sequence[RobotLog], session: Any,
                  record: ReplayRecord, inputs: Sequence[str | Path | None] = ()) -> dict[str, Any]:
     """Write the output folder `out` atomically (`sgloc.io.files.staged_folder`: new, empty or
@@ -197,7 +253,8 @@ def _write_all(tmp: Path, logs: Sequence[RobotLog], session: Any, record: Replay
         maps[g.name] = session.map(g.name).positions
         write_tum(tmp / FLEET_DIR / f"{stems[g.name]}.tum", g.stamps_ns,
                         *fleet_poses(g, T, corrected_keyframes(session, g)))
-    summary = replay_summary(logs, session, record, stems)
+    merged = write_maps(tmp, session, stems)
+    summary = replay_summary(logs, session, record, stems, len(merged))
     end = max(int(g.stamps_ns[-1]) for g in logs)
     unplaced = [(end, name, r["unplaced_reason"]) for name, r in summary["robots"].items()
                 if not r["placed"]]
@@ -206,6 +263,8 @@ def _write_all(tmp: Path, logs: Sequence[RobotLog], session: Any, record: Replay
         session.write_g2o(tmp / LINKS)
     else:
         write_links_g2o(tmp / LINKS, session, [g.name for g in logs])
+    if session.online.backend == "keyframes":
+        write_keyframe_table(tmp / KEYFRAMES, session, logs)
     (tmp / SUMMARY).write_text(json.dumps(summary, indent=2) + "\n")
     plot_timeline(logs, session.events, tmp / "timeline.png")
     plot_replay_fleet(logs, frames, maps, tmp / "fleet.png")
