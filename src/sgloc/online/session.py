@@ -98,6 +98,11 @@ class OnlineSession:
         return next(iter(self._maps), None)
 
     @property
+    def finished(self) -> set[str]:
+        """Robots whose `finish` came after their last keyframe."""
+        return set(self._finished)
+
+    @property
     def links(self) -> list[Link]:
         """Every accepted link (one per robot pair, the newest), active or not; with backend
         "keyframes", every accepted keyframe link in the order found (revoked ones included)."""
@@ -294,6 +299,11 @@ class OnlineSession:
                              f"{len(batch.tasks)} attempts; pass run_batch's results.")
         self._in_flight.difference_update(batch.pairs)
         return self._apply(batch, results)
+
+    def release(self, batch: AttemptBatch) -> None:
+        """Forget a planned batch that will not be applied (its run failed): its pairs may be
+        planned again."""
+        self._in_flight.difference_update(batch.pairs)
 
     @property
     def revision(self) -> int:
