@@ -85,17 +85,16 @@ def serve_cmd(
     console = Console(quiet=quiet)
     options = ServeOptions(listen, state, save_every, sync, workers, scheduler, max_attempts)
     online = OnlineConfig(seed=seed, backend=backend)
-    console.print(f"serving on {listen} ({'sync' if sync else 'async'})"
-                  + (f", state {state}" if state else ""))
     server = serve(localizer_config(preset, config, setting), online, options, seconds,
-                   lambda s: console.print(_status(s)))
+                   lambda s: console.print(_status(s)), root)
     console.print(_status(server))
 
 
 def _status(server) -> str:
-    s, c = server.session, server.counts
+    s, c, o = server.session, server.counts, server.options
+    where = f"serving on {o.listen} ({'sync' if o.sync else 'async'})"
     drops = ", ".join(f"{k} {c[k]}" for k in sorted(c) if k not in ("received", "keyframes"))
-    return (f"{len(s.robots)} robots ({len(s.corrections())} placed), {c['keyframes']} "
+    return (f"{where}: {len(s.robots)} robots ({len(s.corrections())} placed), {c['keyframes']} "
             f"keyframes, {sum(lk.active for lk in s.links)} active links; dropped: "
             f"{drops or 'none'}")
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from sgloc.errors import SglocError
 from sgloc.live import messages as msg
-from sgloc.live.transport import DEFAULT_ENDPOINT, PREFIX, check_robot, key, open_session
+from sgloc.live.transport import DEFAULT_ENDPOINT, PREFIX, check_robot, key, open_session, zenoh
 
 
 class RobotClient:
@@ -32,7 +32,9 @@ class RobotClient:
         self._changed = threading.Condition()
         self._callback = on_correction
         self._session = open_session("client", connect=connect)
-        self._pub = self._session.declare_publisher(key(robot, "keyframe", prefix))
+        # a full link slows the robot down rather than losing its keyframes
+        self._pub = self._session.declare_publisher(
+            key(robot, "keyframe", prefix), congestion_control=zenoh().CongestionControl.BLOCK)
         self._sub = self._session.declare_subscriber(key(robot, "correction", prefix),
                                                      self._receive)
 

@@ -71,13 +71,15 @@ class LiveServer:
         config / online: the session's settings when it starts fresh (a resumed session
             keeps those of its state file).
         options: `ServeOptions`.
+        root: the robot whose odometry frame is the fleet frame (default: the first to send
+            a keyframe).
     """
 
     def __init__(self, config: LocalizerConfig | None = None, online: OnlineConfig | None = None,
-                 options: ServeOptions | None = None) -> None:
+                 options: ServeOptions | None = None, root: str | None = None) -> None:
         self.options = o = options or ServeOptions()
         check_endpoint(o.listen)
-        self.session = self._session(config, online)
+        self.session = self._session(config, online, root)
         self.counts: Counter = Counter()
         self._queue: queue.Queue = queue.Queue(o.queue)
         self._waiting: Counter = Counter()  # robot -> its messages in the queue
@@ -88,14 +90,16 @@ class LiveServer:
         self._rev = -1  # the session's revision when the corrections were last published
         self._sent: dict[str, Any] = {}  # robot -> the correction it was last sent
         self._flight: list[tuple[Any, Any]] = []  # (batch, future)
+        self._finishing: list[tuple[str, float]] = []  # (robot, stamp) of Ends not planned
         self._stop = threading.Event()
         self._idle = threading.Event()
         self._saved_at = time.monotonic()
         self._dirty = False
+        self._dirty_plan = True  # something changed since the last plan found nothing
         self._n_events = len(self.session.events)
         self._pool = self._zenoh = self._thread = None
 
-    def _session(self, config, online) -> OnlineSession:
+    def _session(self, config, online, root) -> OnlineSession:
         o = self.options
         budget = (online or OnlineConfig()).max_attempts if o.sync else 0
         if o.state is not None and Path(o.state).exists():
@@ -103,7 +107,7 @@ class LiveServer:
             log.info("resumed %s: %d robots, %d links", o.state, len(s.robots), len(s.links))
             budget = OnlineConfig().max_attempts if o.sync else 0
         else:
-            s = OnlineSession(config, online)
+            s = OnlineSession(config, online, root)
         s.online = replace(s.online, max_attempts=budget)
         return s
 
@@ -178,7 +182,7 @@ class LiveServer:
             self._schedule()
             self._publish_changes()
             self._save_when_due()
-            if self._queue.empty() and not self._flight:
+            if self._queue.empty() and not self._flight and not self._finishing:
                 self._idle.set()
         self._collect(wait=True)
         self._publish_changes()
@@ -223,12 +227,13 @@ class LiveServer:
                 self.counts["keyframes"] += 1
             elif robot in s.robots and self.options.sync:
                 s.finish(robot, m.stamp_ns * 1e-9)
-            elif robot in s.robots:
-                self._submit(s.plan_attempts(m.stamp_ns * 1e-9, finishing=robot))
+            elif robot in s.robots:  # planned once no attempt of the robot is in flight
+                self._finishing = [f for f in self._finishing if f[0] != robot]
+                self._finishing.append((robot, m.stamp_ns * 1e-9))
         except SglocError as e:
             self._drop("rejected", robot, str(e))
             return
-        self._dirty = True
+        self._dirty = self._dirty_plan = True
 
     def _answer(self, robot: str, seq: int) -> None:
         """Send `robot` its correction now (answering its message `seq`)."""
@@ -259,9 +264,19 @@ class LiveServer:
 
     # -- attempts off the ingest path ----------------------------------------------------------
     def _schedule(self) -> None:
-        if self._pool is None or len(self._flight) >= self._pool.size:
+        """Plan the next batch when a worker is free and the session changed since the last
+        plan that found nothing due."""
+        if self._pool is None or len(self._flight) >= self._pool.size or not self._dirty_plan:
             return
-        self._submit(self.session.plan_attempts(max_attempts=self.options.max_attempts))
+        busy = {k for b, _ in self._flight for pair in b.pairs for k in pair}
+        for robot, stamp in self._finishing:
+            if self.session.robots.index(robot) not in busy:
+                self._finishing.remove((robot, stamp))
+                self._submit(self.session.plan_attempts(stamp, finishing=robot))
+                return
+        batch = self.session.plan_attempts(max_attempts=self.options.max_attempts)
+        self._dirty_plan = batch is not None
+        self._submit(batch)
 
     def _submit(self, batch) -> None:
         if batch is not None:
@@ -276,9 +291,10 @@ class LiveServer:
             except Exception as e:  # a worker that died: the pairs are planned again
                 log.warning("a batch of %d attempts failed (%s); planned again", len(batch), e)
                 self.session.release(batch)
+                self._dirty_plan = True
                 continue
             self.session.apply_attempts(batch, results)
-            self._dirty = True
+            self._dirty = self._dirty_plan = True
 
     # -- state ---------------------------------------------------------------------------------
     def _save_when_due(self) -> None:
@@ -337,13 +353,15 @@ class _Workers:
 
 def serve(config: LocalizerConfig | None = None, online: OnlineConfig | None = None,
           options: ServeOptions | None = None, seconds: float | None = None,
-          report: Any = None) -> LiveServer:
+          report: Any = None, root: str | None = None) -> LiveServer:
     """Run a `LiveServer` until interrupted (Ctrl-C, SIGTERM: it then saves and closes) or for
     `seconds`; `report(server)` every few seconds when given. Returns the stopped server."""
-    server = LiveServer(config, online, options)
+    server = LiveServer(config, online, options, root)
     end = None if seconds is None else time.monotonic() + seconds
     with server:
         shown = time.monotonic()
+        if report is not None:
+            report(server)
         while end is None or time.monotonic() < end:
             time.sleep(0.1)
             if report is not None and time.monotonic() - shown >= 5.0:

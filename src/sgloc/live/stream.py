@@ -60,11 +60,12 @@ class _Robot:
 def stream_logs(
     logs: Sequence[RobotLog], to: str, rate: float = 1.0, lockstep: bool = False,
     timeout: float = 30.0, prefix: str = PREFIX,
-    progress: Callable[[int], None] | None = None,
+    progress: Callable[[int], None] | None = None, restart_timeout: float = 120.0,
 ) -> StreamRecord:
     """Play `logs` to the server at `to` (see the module); returns the `StreamRecord`.
     rate: speed-up over the stamps (1: real time; 0: no waiting); lockstep: wait for each
-    correction (`timeout` seconds per message before resynchronising, then failing)."""
+    correction (`timeout` seconds per message, then resynchronising with a server that is
+    back within `restart_timeout` seconds)."""
     check_names(logs)
     if rate < 0 or not np.isfinite(rate):
         raise SglocError(f"--rate {rate}: give a speed-up >= 0 (1: real time, 0: at once).")
@@ -75,7 +76,7 @@ def stream_logs(
             r.client.sync(timeout)
         order = keyframe_order(logs)
         if lockstep:
-            _lockstep(robots, order, timeout, rec, progress)
+            _lockstep(robots, order, (timeout, restart_timeout), rec, progress)
         else:
             _timed(robots, order, rate, progress)
             for r in robots:  # the last corrections
@@ -102,11 +103,11 @@ def _timed(robots: list[_Robot], order: np.ndarray, rate: float, progress) -> No
             progress(1)
 
 
-def _lockstep(robots: list[_Robot], order: np.ndarray, timeout: float, rec: StreamRecord,
-              progress) -> None:
+def _lockstep(robots: list[_Robot], order: np.ndarray, timeouts: tuple[float, float],
+              rec: StreamRecord, progress) -> None:
     """Each message answered before the next; when an answer does not come (the server
     restarted), resynchronise on what the server holds and carry on from there."""
-    p = 0
+    p, (timeout, restart) = 0, timeouts
     while p < len(order):
         i, k = (int(v) for v in order[p])
         r = robots[i]
@@ -118,7 +119,7 @@ def _lockstep(robots: list[_Robot], order: np.ndarray, timeout: float, rec: Stre
             if k == len(r.log) - 1 and not rec.corrections[r.log.name].finished:
                 r.client.wait_correction(r.client.end(stamp), timeout)
         except SglocError:
-            p = _resync(robots, order, timeout, rec)
+            p = _resync(robots, order, restart, rec)
             continue
         p += 1
         if progress is not None:

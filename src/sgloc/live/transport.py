@@ -58,5 +58,6 @@ def open_session(mode: str, listen: str | None = None, connect: str | None = Non
         return z.open(conf)
     except Exception as e:  # zenoh raises its own ZError
         where = listen or connect
-        raise SglocError(f"cannot open a zenoh session on {where}: {str(e)[:120]}; is the port "
+        why = str(e).split(" at /")[0][:120]
+        raise SglocError(f"cannot open a zenoh session on {where}: {why} Is the port "
                          "free (server) or the server running (robot)?") from None
