@@ -80,6 +80,15 @@ def test_every_command_help_has_an_example(command, capsys):
     assert "Example" in capsys.readouterr().out
 
 
+@pytest.mark.parametrize("command", [c.name for c in app.registered_commands])
+def test_usage_lines_read_as_usual(command, capsys):
+    """`QUERY`, `[SOURCE]...`, `GRAPH...`: no braces, no doubled brackets or dots."""
+    assert main([command, "--help"]) == 0
+    usage = next(ln for ln in capsys.readouterr().out.splitlines() if "Usage:" in ln).strip()
+    assert re.fullmatch(r"Usage: sgloc [\w-]+ \[OPTIONS\]( \[?[A-Z][A-Z0-9_]*\]?(\.\.\.)?)*",
+                        usage), usage
+
+
 def usage_error(capsys) -> str:
     """Assert the usage line plus one error line on stderr; return the error line."""
     captured = capsys.readouterr()

@@ -114,6 +114,14 @@ def _odometry(d, text: str) -> None:
     (d / "objects.csv").write_text("stamp,x,y,z,class\n")
 
 
+def _repeat_second_stamp(d) -> None:
+    """odometry.tum's third pose given the second's stamp (a comment line first); objects.csv
+    still names the third stamp, so a reader that checks objects first blames objects.csv."""
+    lines = (d / "odometry.tum").read_text().splitlines()
+    lines[2] = lines[1].split()[0] + " " + lines[2].split(" ", 1)[1]
+    (d / "odometry.tum").write_text("# poses\n" + "\n".join(lines) + "\n")
+
+
 def _layout(tmp_path):
     write_plain_layout(tmp_path / "run", random_logs(), NAMES)
     return tmp_path / "run", tmp_path / "run" / "alpha"
@@ -133,7 +141,8 @@ def _layout(tmp_path):
          r"objects.csv:2: stamp, x, y, z must be numbers"),
         (lambda d: _odometry(d, "1 2 3\n"), r"odometry.tum:1: expected 8 values"),
         (lambda d: _odometry(d, "2 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 1\n"),
-         r"alpha: keyframe 2 \(stamp 1.000000000\) does not come after"),
+         r"alpha/odometry.tum:2: stamp 1 comes before the stamp of line 1"),
+        (_repeat_second_stamp, r"alpha/odometry.tum:4: stamp \S+ repeats the stamp of line 3"),
         (lambda d: _odometry(d, "1 0 0 0 0 0 0 0\n"), r"alpha: a zero quaternion"),
         (lambda d: (d / "objects.csv").unlink(), r"no objects.csv; write one"),
     ],
@@ -156,3 +165,13 @@ def test_robot_names_that_cannot_be_folders_are_refused(tmp_path):
     logs = random_logs(names=("team/r1",))
     with pytest.raises(SglocError, match="cannot be a folder name"):
         write_plain_layout(tmp_path / "run", logs)
+
+
+def test_a_robot_file_given_as_the_source_is_named_a_file(tmp_path):
+    from sgloc.replay.inputs import read_logs
+
+    root, robot = _layout(tmp_path)
+    with pytest.raises(DatasetError, match=r"odometry.tum: is a file, not a source; .* its folder"):
+        read_logs(robot / "odometry.tum")
+    with pytest.raises(DatasetError, match=r"is a file, not a folder"):
+        read_plain_layout(robot / "odometry.tum")

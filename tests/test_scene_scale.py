@@ -130,3 +130,16 @@ def test_hard_case_scene_categories_split_and_truth(benchmark_module):
     assert hc.local_residual(pair, pair.T_target_query, np.array([[0, 0]])) < 0.2
     row = hc.run_spec(tuning[0], {"scene": {}})[0]
     assert row["config"] == "scene" and row["outcome"] in ("localized", "refused", "wrong")
+
+
+def test_hint_of_a_query_at_one_point_is_no_error():
+    """A query whose objects all stand at one point (zero spacing) gets a refusal, not a
+    math domain error from the scale hint."""
+    from sgloc.maps.graph import SemanticGraph
+
+    rng = np.random.default_rng(3)
+    target = SemanticGraph(rng.uniform(0, 300, (200, 3)) * [1, 1, 0.01], rng.integers(0, 4, 200))
+    point = SemanticGraph(np.zeros((12, 3)), rng.integers(0, 4, 12))
+    assert isinstance(scene_hint(point, target, STREET_UNIT), str)
+    result = localize(point, target)
+    assert not result.accepted

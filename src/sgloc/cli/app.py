@@ -53,6 +53,27 @@ def _plain_help_types() -> None:
 
 _plain_help_types()
 
+
+def _plain_usage() -> None:
+    """Usage lines in the usual form: `QUERY`, `[SOURCE]...`, `GRAPH...` (typer writes a
+    required argument `{name}`)."""
+    try:
+        from typer.core import TyperArgument
+    except ImportError:
+        return
+    if not hasattr(TyperArgument, "_usage_display_name"):
+        return
+
+    def usage_name(self) -> str:
+        name = (self.metavar or self.name or "").upper()
+        name = name if self.required else f"[{name}]"
+        return name + ("..." if self.nargs != 1 else "")
+
+    TyperArgument._usage_display_name = usage_name
+
+
+_plain_usage()
+
 EXIT_OK = 0
 EXIT_NOT_LOCALIZED = 1
 EXIT_USER_ERROR = 2

@@ -16,7 +16,9 @@ from sgloc.cli.progress import progress_bar
 from sgloc.datasets import DATASETS
 
 Dataset = Annotated[str, typer.Argument(help=f"Loader name: {' | '.join(sorted(DATASETS))}.")]
-Folder = Annotated[Path, typer.Argument(help="Dataset folder (or run folder with robot folders).")]
+Folder = Annotated[Path, typer.Argument(
+    metavar="FOLDER", help="Dataset folder (or run folder with robot folders)."
+)]
 Out = Annotated[Path, typer.Option(
     "-o", "--out", help="Graph file to write (.pcd .json .npz .ply .csv .txt); a new "
     "path: sgloc never writes over an existing file."

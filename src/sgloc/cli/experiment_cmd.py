@@ -19,7 +19,7 @@ from sgloc.cli.progress import progress_bar
 #: start of every command (tests/test_cli.py checks that the two agree).
 NAMES = ("table", "threshold", "pr", "overlap", "matches")
 
-Name = Annotated[str, typer.Argument(help=f"One of: {' | '.join(NAMES)}.")]
+Name = Annotated[str, typer.Argument(metavar="NAME", help=f"One of: {' | '.join(NAMES)}.")]
 Dataset = Annotated[str, typer.Option(
     "--dataset", "-d", help="airsim-guo | kitti00 | synthetic | a folder."
 )]

@@ -28,6 +28,7 @@ if TYPE_CHECKING:
     from sgloc.online.fleet import FleetResult
 
 Graphs = Annotated[list[Path], typer.Argument(
+    metavar="GRAPH",
     help="Two or more robot graphs (.pcd .ply .csv .txt .json .npz)."
 )]
 Scheduler = Annotated[str | None, typer.Option(

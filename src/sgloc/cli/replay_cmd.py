@@ -17,7 +17,7 @@ from sgloc.cli.progress import progress_bar
 from sgloc.replay.job import replay_job
 
 Sources = Annotated[list[Path] | None, typer.Argument(
-    metavar="[SOURCE]...", help="A plain layout folder (one folder per robot: "
+    metavar="SOURCE", help="A plain layout folder (one folder per robot: "
     "odometry.tum, objects.csv), a rosbag2 folder or an .mcap/.db3 file; or one bag (or "
     "robot folder) per robot, each robot named by its file's stem."
 )]

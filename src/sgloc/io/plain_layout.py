@@ -39,7 +39,8 @@ def read_plain_layout(
     layout's classes.txt when present)."""
     folder = Path(folder)
     if not folder.is_dir():
-        raise DatasetError(f"{folder}: no such folder; give a folder with one folder per robot.")
+        what = "is a file, not a folder" if folder.exists() else "no such folder"
+        raise DatasetError(f"{folder}: {what}; give a folder with one folder per robot.")
     if classes is None and (folder / CLASSES_FILE).is_file():
         classes = folder / CLASSES_FILE
     table = read_class_table(classes) if classes is not None else None
@@ -64,7 +65,7 @@ def read_robot_folder(path: Path, table: dict[str, int] | None = None) -> RobotL
             f"{path}: no {OBJECTS_FILE}; write one (header `stamp,x,y,z,class`; header only if "
             "the robot saw nothing)."
         )
-    stamps, xyz, quat = read_tum(path / ODOMETRY_FILE)
+    stamps, xyz, quat = read_tum(path / ODOMETRY_FILE, increasing=True)
     kf, pos, lab = read_objects_csv(path / OBJECTS_FILE, stamps, table)
     return make_robot_log(path.name, stamps, xyz, quat, kf, pos, lab, where=str(path))
 

@@ -28,10 +28,11 @@ def write_kitti_poses(path: str | Path, poses: np.ndarray) -> Path:
     return p
 
 
-def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def read_tum(path: Path, increasing: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(stamps_ns (N,), xyz (N,3), quat (N,4), x-first) of a TUM file (`stamp tx ty tz qx qy qz
-    qw` rows, `#` comments), stamps exact: the one TUM reader."""
-    stamps, vals = [], []
+    qw` rows, `#` comments), stamps exact: the one TUM reader. `increasing`: a stamp that
+    repeats or goes back is refused naming its line (keyframe poses)."""
+    stamps, vals, lines = [], [], []
     for n, line in enumerate(read_text_file(path, "TUM odometry file").splitlines(), 1):
         s = line.split("#", 1)[0].split()
         if not s:
@@ -51,6 +52,11 @@ def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             raise DatasetError(f"{path}:{n}: NaN or infinite value; fix or drop the line.")
         if len(vals) == 1:
             check_quaternion_order(vals[0][3:], f"{path}:{n}")
+        elif increasing and stamps[-1] <= stamps[-2]:
+            how = "repeats" if stamps[-1] == stamps[-2] else "comes before"
+            raise DatasetError(f"{path}:{n}: stamp {s[0]} {how} the stamp of line {lines[-1]}; "
+                               "give one pose per stamp, in increasing order.")
+        lines.append(n)
     if not stamps:
         raise DatasetError(f"{path}: no poses; give `stamp tx ty tz qx qy qz qw` lines.")
     v = np.array(vals, dtype=np.float64)

@@ -142,9 +142,10 @@ def association_radius(unit: float) -> float:
 
 def scene_hint(query: SemanticGraph, target: SemanticGraph, unit: float) -> str:
     """Empty, or a sentence for a refusal when the maps' objects stand much closer together
-    than a scene of unit length `unit` (m) assumes (rooms or forests with street settings)."""
-    spacing = min(median_spacing(query), median_spacing(target))
-    if not spacing < CLOSE_SPACING_UNITS * unit:
+    than a scene of unit length `unit` (m) assumes (rooms or forests with street settings).
+    A map whose objects stand at one point (zero spacing) has no scale to compare."""
+    spacing = min([s for s in (median_spacing(query), median_spacing(target)) if s > 0] or [0])
+    if not 0 < spacing < CLOSE_SPACING_UNITS * unit:
         return ""
     closest = min(TYPICAL_SPACING, key=lambda k: abs(math.log(spacing / TYPICAL_SPACING[k])))
     suggestion = closest if SCENES[closest] < unit else "room"

@@ -40,6 +40,14 @@ def _exists(path: Path) -> Path:
     return path
 
 
+def _not_a_source(path: Path) -> str:
+    """The refusal of a file that is neither a bag nor a folder (e.g. a robot's odometry.tum)."""
+    parent = path.parent
+    hint = (f" (for one robot, give its folder {parent}; for every robot, the layout folder "
+            f"{parent.parent})") if path.name in ("odometry.tum", "objects.csv") else ""
+    return f"{path}: is a file, not a source; give {SOURCE_KINDS}{hint}."
+
+
 def read_logs(
     path: Path,
     classes: Path | None = None,
@@ -53,6 +61,8 @@ def read_logs(
 
     path = _exists(Path(path))
     if not is_bag(path):
+        if not path.is_dir():
+            raise DatasetError(_not_a_source(path))
         if odom_topic or objects_topic:
             raise DatasetError(f"{path}: not a bag, so --odom-topic/--objects-topic do not apply.")
         if (path / ODOMETRY_FILE).is_file():  # one robot's folder
