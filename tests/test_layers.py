@@ -49,6 +49,7 @@ LAYERS: dict[str, int] = {
     "sgloc.sim": 8,
     "sgloc.evaluation": 8,
     "sgloc.experiments": 8,  # the paper's experiments, checked and run (on evaluation)
+    "sgloc.live": 8,  # the live server over Zenoh, its robot client and messages
     "sgloc.replay": 8,
     "sgloc.warmup": 8,
     # the command line

@@ -9,8 +9,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
-
 from sgloc.online.attempts import run_attempts
 from sgloc.online.records import Attempt
 from sgloc.pipeline.config import LocalizerConfig
@@ -29,8 +27,7 @@ class AttemptBatch:
     Back-end "robots": `targets` (i, j) per task (robot j in robot i's map) and `refit`, the
     (budget, growth_ratio, growth_objects, robot) of the link refits that follow.
     Back-end "keyframes": `queries` (`keyframe_fleet.Query`) per task, `tried` every (target,
-    query) the budget took, `travelled` metres per robot, `anchors` robot -> its keyframe
-    anchors (k,4,4) at planning for the robots of the queries.
+    query) the budget took, `travelled` metres per robot.
     finishing: the robot name whose `finish` this batch is (None: a scheduling step).
     """
 
@@ -45,7 +42,6 @@ class AttemptBatch:
     queries: list[Any] = field(default_factory=list)
     tried: list[tuple[int, int]] = field(default_factory=list)
     travelled: list[float] = field(default_factory=list)
-    anchors: dict[int, np.ndarray] = field(default_factory=dict)
     finishing: str | None = None
 
     def __len__(self) -> int:

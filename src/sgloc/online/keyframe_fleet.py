@@ -49,8 +49,13 @@ def recent_start(m: RobotMap, length: float) -> int:
 
 def make_query(maps: list[RobotMap], target: int, query: int, length: float) -> Query:
     """The attempt of `query`'s recent submap (last `length` metres) in `target`'s map."""
+    return query_from(maps, target, query, recent_start(maps[query], length))
+
+
+def query_from(maps: list[RobotMap], target: int, query: int, first: int) -> Query:
+    """The attempt of `query`'s objects seen since keyframe `first` in `target`'s map, from
+    the maps as they stand."""
     q = maps[query]
-    first = recent_start(q, length)
     recent = q.seen_since(first)
     tgt = q.subgraph(~recent) if target == query else maps[target].graph()
     return Query(target, query, first, q.subgraph(recent), tgt, recent,
@@ -101,8 +106,7 @@ def refit(task: Query, result: Attempt, motion: MotionModel, radius: float, tol_
 
 
 def link_of(maps: list[RobotMap], names: list[str], task: Query, result: Attempt,
-            stamp: float, refitted: tuple | None = None,
-            anchors: tuple[np.ndarray, np.ndarray] | None = None) -> Link:
+            stamp: float, refitted: tuple | None = None) -> Link:
     """The keyframe link of an accepted attempt, between the two keyframes nearest the place
     the attempt aligned (the query submap's centroid): the query keyframe of the submap's
     stretch nearest it, and the target keyframe nearest it moved into the target map (for a
@@ -111,10 +115,9 @@ def link_of(maps: list[RobotMap], names: list[str], task: Query, result: Attempt
     submap. T and covariance from the localization's T_target_query (T: `refitted`'s when
     given, the (T, covariance, pairs) of `refit`) through the two keyframes' current poses in
     their maps. The localizer's covariance is kept: calibrated on real data, it holds the
-    offset two maps share, which more pairs do not remove. `anchors`: the (target's, query's)
-    keyframe anchors the task's graphs were made with, when the maps moved since."""
+    offset two maps share, which more pairs do not remove."""
     qm, tm = maps[task.query], maps[task.target]
-    at, aq = (tm.anchors(), qm.anchors()) if anchors is None else anchors
+    at, aq = tm.anchors(), qm.anchors()
     T, C = np.asarray(result.transform, np.float64), result.covariance
     if refitted is not None:
         T = refitted[0]
@@ -151,18 +154,14 @@ class KeyframeFleet:
         self.colocated_at: tuple[list[int], int] | None = None
 
     def link(self, maps: list[RobotMap], names: list[str], task: Query, result: Attempt,
-             stamp: float, motion: MotionModel, radius: float,
-             anchors: tuple[np.ndarray, np.ndarray] | None = None) -> Link:
+             stamp: float, motion: MotionModel, radius: float) -> Link:
         """The keyframe link of an accepted attempt (`link_of`), its alignment refitted on
         the co-located objects (`refit`) when `OnlineConfig.refine_links` is on; motion: the
-        localizer's motion model, radius: the pairing radius (metres). `anchors`: the
-        (target's, query's) keyframe anchors at planning when the maps moved since (the refit
-        then on the task's own graphs)."""
+        localizer's motion model, radius: the pairing radius (metres)."""
         o = self.online
-        view = maps if o.view_correction and anchors is None else None
-        r = (refit(task, result, motion, radius, o.loop_translation, o.loop_rotation, view)
-             if o.refine_links else None)
-        return link_of(maps, names, task, result, stamp, r, anchors)
+        r = (refit(task, result, motion, radius, o.loop_translation, o.loop_rotation,
+                   maps if o.view_correction else None) if o.refine_links else None)
+        return link_of(maps, names, task, result, stamp, r)
 
     def due_by_travel(self, travelled: list[float], sizes: list[int], min_objects: int,
                       robot: int | None) -> list[tuple[int, int]]:

@@ -17,7 +17,7 @@ from sgloc.maps.graph import SemanticGraph
 from sgloc.online.batch import AttemptBatch, run_batch
 from sgloc.online.config import OnlineConfig
 from sgloc.online.joint import largest_shift, refine_fleet
-from sgloc.online.keyframe_fleet import KeyframeFleet, make_query
+from sgloc.online.keyframe_fleet import KeyframeFleet, make_query, query_from
 from sgloc.online.keyframe_graph import keyframe_link
 from sgloc.online.link_selection import (
     Edge,
@@ -96,6 +96,11 @@ class OnlineSession:
         if self._root is not None:
             return self._root
         return next(iter(self._maps), None)
+
+    @property
+    def finished(self) -> set[str]:
+        """Robots whose `finish` came after their last keyframe."""
+        return set(self._finished)
 
     @property
     def links(self) -> list[Link]:
@@ -295,6 +300,11 @@ class OnlineSession:
         self._in_flight.difference_update(batch.pairs)
         return self._apply(batch, results)
 
+    def release(self, batch: AttemptBatch) -> None:
+        """Forget a planned batch that will not be applied (its run failed): its pairs may be
+        planned again."""
+        self._in_flight.difference_update(batch.pairs)
+
     @property
     def revision(self) -> int:
         """Increases whenever the fleet frame changes (corrections, active links, placed
@@ -450,9 +460,6 @@ class OnlineSession:
                 self._target(qu.target, uses[qu.target])
             batch.tasks.append((qu.query_graph, target, self._seed(*key, tries[key])))
             tries[key] += 1
-            for r in key:
-                if r not in batch.anchors:
-                    batch.anchors[r] = maps[r].anchors()
 
     def _kf_apply(self, batch: AttemptBatch, results: list[Attempt]) -> bool:
         """Backend "keyframes": note the batch's tries; keep the accepted attempts as keyframe
@@ -477,10 +484,13 @@ class OnlineSession:
                         sizes=(len(qu.query_graph.positions), len(qu.target_graph.positions)))
             self.attempts.append(r)
             if r.accepted:
-                same = all(maps[k].version == batch.versions[k] for k in (qu.query, qu.target))
-                anchors = None if same else (batch.anchors[qu.target], batch.anchors[qu.query])
-                lk = self._kf.link(maps, names, qu, r, stamp, self.config.motion,
-                                   self.config.ransac.threshold, anchors)
+                # maps that changed since planning: the link from them as they stand, the
+                # attempt's alignment the refit's start
+                now = qu if all(maps[k].version == batch.versions[k] for k in
+                                (qu.query, qu.target)) else query_from(maps, qu.target,
+                                                                       qu.query, qu.first)
+                lk = self._kf.link(maps, names, now, r, stamp, self.config.motion,
+                                   self.config.ransac.threshold)
                 ga, gb = sorted((group[qu.target], group[qu.query]))
                 pair = (min(qu.target, qu.query), max(qu.target, qu.query))
                 if ga != gb and tests is None:

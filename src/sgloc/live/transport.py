@@ -1,0 +1,63 @@
+"""Zenoh, imported lazily (extra `sgloc[live]`): sessions on explicit endpoints only (no
+multicast scouting, nothing listening unless asked), and sgloc's key expressions."""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+from sgloc.errors import SglocError
+from sgloc.optional import require
+
+#: Where a server listens unless told otherwise: loopback only.
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+#: The first part of every sgloc key expression.
+PREFIX = "sgloc"
+_ENDPOINT = re.compile(r"^(tcp|udp|tls|quic)/(\[[0-9a-fA-F:.]+\]|[A-Za-z0-9_.-]+):\d{1,5}$")
+_ROBOT = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+
+
+def zenoh() -> Any:
+    """The zenoh module, or a one-line error naming `pip install 'sgloc[live]'`."""
+    return require("zenoh", "live", "the live server and robot clients")
+
+
+def check_endpoint(endpoint: str, option: str = "--listen") -> str:
+    """`endpoint` when it reads PROTOCOL/HOST:PORT (tcp/127.0.0.1:7447); SglocError otherwise."""
+    if not isinstance(endpoint, str) or not _ENDPOINT.match(endpoint) \
+            or not 0 < int(endpoint.rpartition(":")[2]) < 65536:
+        raise SglocError(f"{option} {endpoint!r}: give PROTOCOL/HOST:PORT, e.g. "
+                         f"{DEFAULT_ENDPOINT}.")
+    return endpoint
+
+
+def check_robot(robot: str) -> str:
+    """A robot name usable in a key expression: 1-64 of A-Z a-z 0-9 _ -."""
+    if not isinstance(robot, str) or not _ROBOT.match(robot):
+        raise SglocError(f"robot name {robot!r}: use 1-64 letters, digits, '_' or '-'.")
+    return robot
+
+
+def key(robot: str, what: str, prefix: str = PREFIX) -> str:
+    """The key expression of `robot`'s `what` (keyframe, correction)."""
+    return f"{prefix}/{check_robot(robot)}/{what}"
+
+
+def open_session(mode: str, listen: str | None = None, connect: str | None = None) -> Any:
+    """A zenoh session in `mode` ("router" for a server, "client" for a robot) listening on
+    `listen` only and connecting to `connect` only (no scouting)."""
+    z = zenoh()
+    conf = z.Config()
+    conf.insert_json5("mode", f'"{mode}"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("scouting/gossip/enabled", "false")
+    conf.insert_json5("listen/endpoints", f'["{check_endpoint(listen)}"]' if listen else "[]")
+    if connect:
+        conf.insert_json5("connect/endpoints", f'["{check_endpoint(connect, "--to")}"]')
+    try:
+        return z.open(conf)
+    except Exception as e:  # zenoh raises its own ZError
+        where = listen or connect
+        why = str(e).split(" at /")[0][:120]
+        raise SglocError(f"cannot open a zenoh session on {where}: {why} Is the port "
+                         "free (server) or the server running (robot)?") from None
