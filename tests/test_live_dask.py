@@ -1,0 +1,51 @@
+"""Attempts of the live server on a Dask cluster (`--scheduler`): a real LocalCluster on
+loopback and real Zenoh sessions; the robots the replay places are placed, and every
+trajectory lands within a tenth of a metre of the replay's."""
+
+from __future__ import annotations
+
+import socket
+
+import numpy as np
+import pytest
+
+pytest.importorskip("zenoh")
+distributed = pytest.importorskip("distributed")
+
+from sgloc.evaluation.replay_scenarios import city_scenario  # noqa: E402
+from sgloc.live.client import RobotClient  # noqa: E402
+from sgloc.live.server import LiveServer, ServeOptions  # noqa: E402
+from sgloc.live.stream import stream_logs  # noqa: E402
+from sgloc.online import OnlineConfig, OnlineSession  # noqa: E402
+from sgloc.pipeline.presets import localizer_preset  # noqa: E402
+from sgloc.replay.stream import replay_logs  # noqa: E402
+
+
+def _port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_attempts_on_a_dask_cluster_place_the_replays_robots():
+    logs = city_scenario(4, 0).logs
+    config = localizer_preset("city-objects")
+    ref = OnlineSession(config, OnlineConfig())
+    replay_logs(logs, ref)
+    assert len(ref.corrections()) == 4
+    ep = f"tcp/127.0.0.1:{_port()}"
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                                  host="127.0.0.1", dashboard_address=None) as cluster:
+        options = ServeOptions(listen=ep, scheduler=cluster.scheduler_address)
+        with LiveServer(config, OnlineConfig(), options, root=ref.root) as srv:
+            stream_logs(logs, ep, rate=4.0, timeout=60)
+            assert srv.wait_idle(180)
+            s = srv.session
+            assert s.corrections().keys() == ref.corrections().keys()
+            for r in ref.corrections():
+                a, b = ref.trajectory(r)[1][:, :3, 3], s.trajectory(r)[1][:, :3, 3]
+                assert np.linalg.norm(a - b, axis=1).max() <= 0.1, r
+            for r in ref.corrections():
+                with RobotClient(r, ep) as c:
+                    got = c.sync()
+                assert got.placed and np.array_equal(got.T_fleet_odom, s.T_fleet_robot(r))
