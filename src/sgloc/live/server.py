@@ -50,6 +50,8 @@ class ServeOptions:
     workers: processes for attempts (asynchronous mode); scheduler: a Dask scheduler address
         instead. max_attempts: attempts per planned batch (None: all due).
     queue: messages waiting at most (all robots); robot_queue: per robot.
+    plan_every: seconds between plans of attempts at most while keyframes are waiting (a
+        plan weighs every pair of robots; with no keyframe waiting, one after each message).
     """
 
     listen: str = DEFAULT_ENDPOINT
@@ -61,6 +63,7 @@ class ServeOptions:
     max_attempts: int | None = 2
     queue: int = 4096
     robot_queue: int = 256
+    plan_every: float = 0.05
     prefix: str = PREFIX
 
 
@@ -93,7 +96,7 @@ class LiveServer:
         self._finishing: list[tuple[str, float]] = []  # (robot, stamp) of Ends not planned
         self._stop = threading.Event()
         self._idle = threading.Event()
-        self._saved_at = time.monotonic()
+        self._saved_at = self._planned_at = time.monotonic()
         self._dirty = False
         self._dirty_plan = True  # something changed since the last plan found nothing
         self._n_events = len(self.session.events)
@@ -268,6 +271,10 @@ class LiveServer:
         plan that found nothing due."""
         if self._pool is None or len(self._flight) >= self._pool.size or not self._dirty_plan:
             return
+        now = time.monotonic()
+        if not self._queue.empty() and now - self._planned_at < self.options.plan_every:
+            return  # keyframes first: a plan weighs every pair of robots
+        self._planned_at = now
         busy = {k for b, _ in self._flight for pair in b.pairs for k in pair}
         for robot, stamp in self._finishing:
             if self.session.robots.index(robot) not in busy:

@@ -23,12 +23,15 @@ from sgloc.replay.stream import check_names, keyframe_order
 class StreamRecord:
     """What a stream measured: keyframes sent; per robot, the latency (ms) from each keyframe
     sent to its correction received (lockstep or when it came); the last correction; how many
-    times the server was resynchronised (lockstep, after a restart)."""
+    times the server was resynchronised (lockstep, after a restart); when the stream began and,
+    per robot, when its first placed correction came (`time.perf_counter()` seconds)."""
 
     sent: int = 0
     latency_ms: dict[str, list[float]] = field(default_factory=dict)
     corrections: dict[str, object] = field(default_factory=dict)
     resyncs: int = 0
+    started: float = float("nan")
+    first_placed: dict[str, float] = field(default_factory=dict)
 
 
 class _Robot:
@@ -47,6 +50,8 @@ class _Robot:
         for seq in [s for s in self.sent if s <= c.seq]:
             self.rec.latency_ms[self.log.name].append((now - self.sent.pop(seq)) * 1e3)
         self.rec.corrections[self.log.name] = c
+        if c.placed:
+            self.rec.first_placed.setdefault(self.log.name, now)
 
     def send(self, k: int) -> int:
         _, pos, lab = self.obs[k]
@@ -75,6 +80,7 @@ def stream_logs(
         for r in robots:
             r.client.sync(timeout)
         order = keyframe_order(logs)
+        rec.started = time.perf_counter()
         if lockstep:
             _lockstep(robots, order, (timeout, restart_timeout), rec, progress)
         else:
