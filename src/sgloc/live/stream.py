@@ -66,15 +66,17 @@ def stream_logs(
     logs: Sequence[RobotLog], to: str, rate: float = 1.0, lockstep: bool = False,
     timeout: float = 30.0, prefix: str = PREFIX,
     progress: Callable[[int], None] | None = None, restart_timeout: float = 120.0,
+    record: StreamRecord | None = None,
 ) -> StreamRecord:
-    """Play `logs` to the server at `to` (see the module); returns the `StreamRecord`.
+    """Play `logs` to the server at `to` (see the module); returns the `StreamRecord`
+    (`record` when given: it holds what was measured even when this raises).
     rate: speed-up over the stamps (1: real time; 0: no waiting); lockstep: wait for each
     correction (`timeout` seconds per message, then resynchronising with a server that is
     back within `restart_timeout` seconds)."""
     check_names(logs)
     if rate < 0 or not np.isfinite(rate):
         raise SglocError(f"--rate {rate}: give a speed-up >= 0 (1: real time, 0: at once).")
-    rec = StreamRecord()
+    rec = StreamRecord() if record is None else record
     robots = [_Robot(g, to, prefix, rec) for g in logs]
     try:
         for r in robots:

@@ -169,19 +169,45 @@ class KeyframeFleet:
         with >= min_objects, of which a robot travelled half a submap (submap_length / 2)
         since its last try as the pair's query; those never attempted first, then most
         travelled."""
-        step = self.online.submap_length / 2
-        scored = []
-        for j in range(len(sizes)):
-            for i in range(j + 1):
-                if sizes[i] < min_objects or sizes[j] < min_objects or robot not in (None, i, j):
-                    continue
-                if i == j and not self.online.loop_closures:
-                    continue
-                moved = max(self.moved(t, q, travelled, 0.0) for t, q in ((i, j), (j, i)))
-                if moved >= step:
-                    scored.append(((i, j) not in self.travel_last, moved, i, j))
-        scored.sort(key=lambda x: (not x[0], -x[1], x[2], x[3]))
-        return [(i, j) for _, _, i, j in scored]
+        n = len(sizes)
+        moved = self._moved_matrix(travelled, 0.0)
+        moved = np.maximum(moved, moved.T)
+        i, j = np.triu_indices(n, 0 if self.online.loop_closures else 1)
+        big = np.asarray(sizes) >= min_objects
+        keep = big[i] & big[j] & (moved[i, j] >= self.online.submap_length / 2)
+        if robot is not None:
+            keep &= (i == robot) | (j == robot)
+        i, j = i[keep], j[keep]
+        tried = np.zeros((n, n), bool)
+        for a, c in self.travel_last:
+            tried[a, c] = True
+        order = np.lexsort((j, i, -moved[i, j], tried[i, j]))
+        return [(int(i[k]), int(j[k])) for k in order]
+
+    def _moved_matrix(self, travelled: list[float], never: float) -> np.ndarray:
+        """(n, n) `moved(t, q, travelled, never)` for every target t and query q."""
+        trav = np.asarray(travelled, np.float64)
+        last = self._last_matrix(len(travelled))
+        for (t, q), v in self.query_last.items():
+            last[t, q] = v
+        moved = trav[None, :] - last
+        if np.isfinite(never):
+            return np.where(np.isnan(moved), trav[None, :] - never, moved)
+        return np.where(np.isnan(moved), never, moved)
+
+    def _last_matrix(self, n: int) -> np.ndarray:
+        """(n, n): where the pair was tried, each query q's travel at the pair's last
+        attempt (target t = row); NaN elsewhere."""
+        last = np.full((n, n), np.nan)
+        for (i, j), (ti, tj) in self.travel_last.items():
+            last[i, j], last[j, i] = tj, ti
+        return last
+
+    def _since_matrix(self, travelled: list[float], never: float) -> np.ndarray:
+        """(n, n) metres each query q travelled since the pair's last attempt (target t =
+        row); `never` where the pair was never tried."""
+        since = np.asarray(travelled, np.float64)[None, :] - self._last_matrix(len(travelled))
+        return np.where(np.isnan(since), never, since)
 
     def directions(self, pairs: list[tuple[int, int]], travelled: list[float],
                    finishing: int | None = None) -> list[tuple[int, int]]:
@@ -193,21 +219,24 @@ class KeyframeFleet:
         pair's last attempt. A `finishing` robot (`OnlineSession.finish`) is a query whenever
         it travelled at all since its last try in the other's map: what it saw last is tried.
         A loop closure (i, i) is (i, i)."""
+        if not pairs:
+            return []
         step = self.online.submap_length / 2
-        out = []
-        for i, j in pairs:
-            if i == j:
-                out.append((i, i))
-                continue
-            both = [(t, q) for t, q in ((i, j), (j, i))
-                    if (moved := self.moved(t, q, travelled)) >= step
-                    or (q == finishing and moved > 0)]
-            if not both:
-                prev = self.travel_last.get((i, j), (0.0, 0.0))
-                moved_i, moved_j = travelled[i] - prev[0], travelled[j] - prev[1]
-                both = [(i, j) if moved_j >= moved_i else (j, i)]
-            out += both
-        return out
+        moved = self._moved_matrix(travelled, np.inf)
+        since = np.asarray(travelled)[None, :] - np.nan_to_num(
+            self._last_matrix(len(travelled)), nan=0.0)
+        i, j = np.asarray(pairs).T
+        fin = -1 if finishing is None else finishing
+        fwd = (moved[i, j] >= step) | ((j == fin) & (moved[i, j] > 0))  # j the query
+        back = (moved[j, i] >= step) | ((i == fin) & (moved[j, i] > 0))
+        neither = ~fwd & ~back
+        fwd |= neither & (since[i, j] >= since[j, i])
+        back |= neither & ~(since[i, j] >= since[j, i])
+        back &= i != j  # a loop closure once
+        take = np.stack([fwd, back], axis=1).ravel()
+        t = np.stack([i, j], axis=1).ravel()[take]
+        q = np.stack([j, i], axis=1).ravel()[take]
+        return [(int(a), int(b)) for a, b in zip(t, q, strict=True)]
 
     def ordered(self, attempts: list[tuple[int, int]], travelled: list[float],
                 group: np.ndarray) -> list[tuple[int, int]]:
@@ -216,15 +245,15 @@ class KeyframeFleet:
         pair before the other side of any (first the side whose query travelled more since
         the pair's last attempt; ties: the higher robot index as query), then the pairs never
         tried, then those whose robots travelled most since the pair's last attempt."""
-        def since(t: int, q: int) -> float:
-            prev = self.travel_last.get((min(t, q), max(t, q)))
-            return np.inf if prev is None else travelled[q] - prev[0 if q == min(t, q) else 1]
-
-        rank = [sorted(((t, q), (q, t)), key=lambda d: (-since(*d), -d[1])).index((t, q))
-                for t, q in attempts]
-        keys = sorted(range(len(attempts)), key=lambda k: (
-            bool(group[attempts[k][0]] == group[attempts[k][1]]), rank[k],
-            -max(since(*attempts[k]), since(*attempts[k][::-1])), k))
+        if not attempts:
+            return []
+        t, q = np.asarray(attempts).T
+        since = self._since_matrix(travelled, np.inf)
+        fwd, back = since[t, q], since[q, t]
+        first = (t == q) | (fwd > back) | ((fwd == back) & (q > t))
+        group = np.asarray(group)
+        keys = np.lexsort((np.arange(len(t)), -np.maximum(fwd, back), ~first,
+                           group[t] == group[q]))
         return [attempts[k] for k in keys]
 
     def moved(self, target: int, query: int, travelled: list[float],

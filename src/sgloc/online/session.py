@@ -329,7 +329,8 @@ class OnlineSession:
             travelled = [self._maps[r].distance for r in self.robots]
             more = self._kf.due_by_travel(travelled, sizes, o.min_objects, robot)
             loops = self._due_loops(sizes, growth_ratio, growth_objects, robot)
-            due += [p for p in more if p[0] != p[1] and p not in due]
+            seen = set(due)
+            due += [p for p in more if p[0] != p[1] and p not in seen]
             loops += [i for i, j in more if i == j and i not in loops]
             due = [p for p in due if p not in self._in_flight]
             loops = [r for r in loops if (r, r) not in self._in_flight]
