@@ -7,7 +7,7 @@ import numpy as np
 from sgloc import lie
 from sgloc.online import Link, OnlineConfig, OnlineSession
 from sgloc.online.config import OdometryNoise
-from sgloc.online.keyframe_checks import (
+from sgloc.online.keyframe_consistency import (
     Chains,
     bend_chi2,
     consistent_sets,

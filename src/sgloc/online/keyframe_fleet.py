@@ -16,8 +16,8 @@ from sgloc.errors import SglocError
 from sgloc.estimation import MotionModel
 from sgloc.maps.graph import SemanticGraph
 from sgloc.online.config import OnlineConfig
-from sgloc.online.keyframe_checks import Chains, check_links
 from sgloc.online.keyframe_colocation import colocation_factors
+from sgloc.online.keyframe_consistency import Chains, check_links
 from sgloc.online.keyframe_graph import KeyframeGraph, keyframe_link
 from sgloc.online.keyframe_links import select_links
 from sgloc.online.keyframe_views import view_corrected, view_offset
@@ -249,7 +249,7 @@ class KeyframeFleet:
 
     def update(self, maps: list[RobotMap], names: list[str], max_nfa: float | None = None
                ) -> tuple[list[int], list[int]]:
-        """Check and select the links (`keyframe_checks.check_links` around
+        """Check and select the links (`keyframe_consistency.check_links` around
         `keyframe_links.select_links`, max_nfa its), move the graph to the selection (links
         leave it by factor id), solve, reanchor the placed robots' maps. Returns (link ids
         that entered, link ids that left, now revoked); `newly_held` then lists the link ids
@@ -267,7 +267,7 @@ class KeyframeFleet:
                                 o.loop_translation, o.loop_rotation, max_nfa)
 
         checked = check_links(self.links, candidates, chains, select,
-                              lambda ids: self._move(ids, index))
+                              lambda ids: self._move(ids, index), enabled=o.link_checks)
         taken = set(checked.taken)
         left = sorted(before - taken)
         for lid in left:

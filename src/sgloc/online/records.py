@@ -10,7 +10,7 @@ import numpy as np
 #: Event kinds.
 ROBOT_JOINED, LINK_ACCEPTED, LINK_REVOKED = "robot_joined", "link_accepted", "link_revoked"
 #: A link the checks against the odometry keep out of the pose graph before it ever entered
-#: (keyframe back-end; `keyframe_checks`).
+#: (keyframe back-end; `keyframe_consistency`).
 LINK_HELD = "link_held"
 
 

@@ -303,12 +303,17 @@ def bent_link(graph, links: Sequence[Link], taken: Sequence[int], chains: Chains
 def check_links(links: Sequence[Link], candidates: Sequence[int], chains: Chains,
                 select: Callable[[list[int]], tuple[list[int], dict[int, str]]],
                 solve: Callable[[list[int]], object],
-                threshold: float = CHI2_6DOF_99) -> Checked:
+                threshold: float = CHI2_6DOF_99, enabled: bool = True) -> Checked:
     """The links that enter the pose graph: `candidates` (ids into `links`) through the
     pairwise consistency check (`consistent_sets`), then `select` (ids -> (taken, {id: why
     not})), then `solve` (taken ids -> the graph holding exactly them, solved) and the bend
     check (`bent_link`), a bending link out and the selection and solve again, until no
-    robot is bent. Returns the `Checked` verdicts; the graph is left solved on `taken`."""
+    robot is bent. Returns the `Checked` verdicts; the graph is left solved on `taken`.
+    enabled False: the selection and solve alone (`OnlineConfig.link_checks` off)."""
+    if not enabled:
+        taken, dropped = select(list(candidates))
+        solve(taken)
+        return Checked(taken, dropped, {}, [])
     kept, held = consistent_sets(links, candidates, chains, threshold)
     bent: list[int] = []
     while True:
