@@ -386,7 +386,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--timeout", type=float, default=600.0,
                     help="seconds one fleet-group run may take (then reported as timed out)")
     ap.add_argument("--list", action="store_true", help="list the chosen groups' runs and stop")
+    ap.add_argument("--city-levels", action="store_true",
+                    help="run the 12x12-block city with 10 robots at drift 0, 1 and 2 over "
+                         "--seeds instead (table: docs/online_city_seeds.md)")
+    ap.add_argument("--part", default="development",
+                    help="--city-levels: what the seeds are (e.g. development, held out)")
+    ap.add_argument("--preset", default="city", help="--city-levels: the localizer preset")
+    ap.add_argument("--workers", type=int, default=1,
+                    help="--city-levels: runs at once (each in its own process)")
     args = ap.parse_args(argv)
+    if args.city_levels:
+        return main_city_levels(args)
     groups = {g for g, on in (("drift", args.drift), ("big-city", args.big_city),
                               ("many", args.many)) if on}
     if groups:
@@ -456,6 +466,143 @@ def main_fleet(args: argparse.Namespace, groups: set[str]) -> int:
     text = page_path.read_text() if page_path.is_file() else "# Online fleet localization\n"
     page_path.write_text(splice(text, fleet_section(results)))
     return 0
+
+
+# -- the 12x12-block city over seeds at drift 0, 1 and 2 ----------------------------------------
+CITY_RESULTS, CITY_PAGE = "online_city_seeds.json", "online_city_seeds.md"
+CITY_LEVELS = (0.0, 1.0, 2.0)
+GOAL_BEND_M = 0.05
+
+
+def city_level_cases(seeds, preset: str, part: str) -> list:
+    """The --city-levels runs: city `seed`, 12x12 blocks, 2,000 m routes, 10 robots, each drift
+    level of CITY_LEVELS."""
+    from sgloc.evaluation.fleet_cases import Case
+
+    return [Case(f"city12_10r_{preset}_d{lv:g}_s{sd}", "city levels", f"12x12-block city {sd}, "
+                 f"10 robots, drift {lv:g}", "city", 10, lv, sd, 2000.0, 12, part=part,
+                 localizer=preset) for sd in seeds for lv in CITY_LEVELS]
+
+
+def main_city_levels(args: argparse.Namespace) -> int:
+    """Run the --city-levels cases (at most --workers at once, each in a child process),
+    store their results after each and rewrite docs/online_city_seeds.md."""
+    from concurrent.futures import ThreadPoolExecutor, as_completed
+
+    from sgloc.evaluation.fleet_cases import run_isolated
+
+    cases = city_level_cases(args.seeds, args.preset, args.part)
+    if args.list:
+        print("\n".join(f"{c.key}: {c.title}" for c in cases))
+        return 0
+    settings = parse_settings(args.set)
+    args.out.mkdir(parents=True, exist_ok=True)
+    store = args.out / CITY_RESULTS
+    results = load_results(store)
+    suffix = "".join(f" [{k}={v}]" for k, v in sorted(settings.items()))
+    with ThreadPoolExecutor(max(1, min(args.workers, 2))) as pool:
+        jobs = {pool.submit(run_isolated, c, settings, args.timeout, c.level > 0): c
+                for c in cases}
+        for job in as_completed(jobs):
+            c, res = jobs[job], job.result()
+            results[c.key + suffix] = res
+            save_results(store, results)
+            print(f"{c.title}{suffix}: {res['status']}, {city_brief(res)}", file=sys.stderr)
+    (args.out / CITY_PAGE).write_text(city_page(results))
+    return 0
+
+
+def city_brief(res: dict) -> str:
+    """One line of a --city-levels run."""
+    if res.get("status") != "done":
+        return brief(res)
+    b = res["bend"]
+    return (f"{len(res['outside'])} outside, bend {fmt(b['max'], '.3f')} / "
+            f"{fmt(b['median'], '.3f')} m, " + brief(res))
+
+
+def city_goal_cells(r: dict) -> tuple[str, bool | None]:
+    """(cell, met) of one drift 1-2 run's fleet goals: encounter p95 <= max(0.5 m, 3 x the
+    oracle's), fleet RMSE <= 1.25 x the oracle's + 0.25 m, every overlapping robot joined
+    within 10 % of its run on average (as the fleet groups' goals)."""
+    o = r.get("oracle")
+    if o is None:
+        return "no oracle", None
+    enc, rmse = r["encounter"]["p95"], r["rmse"]
+    lim_enc = max(0.5, 3 * (o["encounter"]["p95"] or 0.0))
+    lim_rmse = 1.25 * (o["rmse"] or 0.0) + 0.25
+    delay = None if r["mean_delay"] is None else 100 * r["mean_delay"]
+    ok = [enc is not None and enc <= lim_enc, rmse is not None and rmse <= lim_rmse,
+          r["joined"] >= r["overlapping"] and (delay or 0.0) <= 100 * GOAL_DELAY]
+    cell = (f"p95 {fmt(enc)} ({fmt(lim_enc)}), RMSE {fmt(rmse)} ({fmt(lim_rmse)}), "
+            f"{r['joined']}/{r['overlapping']} joined, {fmt(delay, '+.1f')} %")
+    return cell + ("" if all(ok) else " **not met**"), all(ok)
+
+
+def city_row(seed: int, runs: dict) -> list:
+    """One seed's row: per level the robots outside the truth group at the end (and wrong at
+    their join), drift 0's bend, drift 1-2's goals."""
+    row = [seed]
+    for lv in CITY_LEVELS:
+        r = runs.get(lv)
+        if r is None or r.get("status") != "done":
+            row += ["-" if r is None else r["status"]] * 2
+            continue
+        out = f"{len(r['outside'])} / {len(r['wrong_joins'])}"
+        if lv == 0:
+            b = r["bend"]
+            row += [out, f"{fmt(b['max'], '.3f')} / {fmt(b['median'], '.3f')}"]
+        else:
+            row += [out, city_goal_cells(r)[0]]
+    return row
+
+
+CITY_HEADER = ["seed", "drift 0: outside / wrong at join", "drift 0: bend max / median (m)",
+               "drift 1: outside / wrong at join", "drift 1: fleet goals (limit)",
+               "drift 2: outside / wrong at join", "drift 2: fleet goals (limit)"]
+
+
+def city_page(results: dict) -> str:
+    """docs/online_city_seeds.md from the stored --city-levels runs (default settings only in
+    the tables of goals; runs with settings in their own tables)."""
+    groups: dict[tuple[str, str, str], dict[int, dict]] = {}
+    for r in results.values():
+        c = r["case"]
+        settings = ", ".join(f"{k}={v}" for k, v in sorted(r.get("settings", {}).items()))
+        groups.setdefault((c["part"], c["localizer"], settings), {}).setdefault(
+            c["seed"], {})[c["level"]] = r
+    parts = []
+    for (part, preset, settings), seeds in sorted(groups.items()):
+        done = [r for runs in seeds.values() for r in runs.values() if r.get("status") == "done"]
+        outside = sum(len(r["outside"]) for r in done)
+        bends = [r["bend"]["max"] for r in done if r["case"]["level"] == 0
+                 and r["bend"]["max"] is not None]
+        goals = [city_goal_cells(r)[1] for r in done if r["case"]["level"] > 0]
+        parts.append(
+            f"## {part} seeds, preset `{preset}`" + (f", settings {settings}" if settings else "")
+            + f"\n\n- robots outside the truth group at the end, all runs: {outside}"
+            f"\n- drift 0 bend <= {GOAL_BEND_M:g} m: {sum(b <= GOAL_BEND_M for b in bends)} "
+            f"of {len(bends)} seeds (worst {fmt(max(bends, default=None), '.3f')} m)"
+            f"\n- drift 1-2 fleet goals met: {sum(g is True for g in goals)} of {len(goals)} "
+            "runs\n\n" + markdown_table(CITY_HEADER, [city_row(sd, seeds[sd])
+                                                      for sd in sorted(seeds)]) + "\n")
+    return (
+        "# Online fleet localization: the 12x12-block city over seeds\n\n"
+        "Regenerate with `python benchmarks/online.py --city-levels --seeds 0 1 2 --part "
+        "development --workers 2` (`--preset` the localizer preset, default `city`; `--set` "
+        "as for the fleet groups). Each run: the synthetic city of that seed, 12x12 blocks, two "
+        "2,000 m routes cut into 10 robots, replayed through the keyframe back-end at drift "
+        "level 0 (exact odometry), 1 and 2 (see the drift levels on the "
+        "[online benchmark page](online.md)), each in a child process of its own.\n\n"
+        "*Outside*: the placed robots outside the largest group one rigid alignment puts on the "
+        "truth (median keyframe error within 3 m) at the end of the run; *wrong at join*: the "
+        "robots whose placement was wrong when they joined (the fleet groups' wrong joins; a "
+        "later correction does not clear it). *Bend* (drift 0): each placed robot's corrected "
+        "keyframe positions against its exact odometry after one rigid fit, the largest "
+        f"distance per robot; max and median over the robots (goal <= {GOAL_BEND_M:g} m). "
+        "*Fleet goals* (drift 1 and 2): encounter p95 <= max(0.5 m, 3 x the oracle's), fleet "
+        "RMSE <= 1.25 x the oracle's + 0.25 m, every overlapping robot joined within 10 % of "
+        "its run on average; the limits in brackets.\n\n" + "\n".join(parts))
 
 
 def run_one(sc, key: str, title: str, out: Path, preset: str, online: OnlineConfig):

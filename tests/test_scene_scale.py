@@ -109,7 +109,8 @@ def test_cli_room_preset(tmp_path, capsys):
     pair = room_pair(np.random.default_rng(4))
     q, t = pair.query.save(tmp_path / "q.npz"), pair.target.save(tmp_path / "t.npz")
     assert main(["localize", str(q), str(t)]) == EXIT_NOT_LOCALIZED
-    assert "preset='room'" in capsys.readouterr().err
+    err = " ".join(capsys.readouterr().err.split())
+    assert "try --preset room" in err and "--set scale=auto" in err  # advice in CLI form
     out = tmp_path / "res.json"
     assert main(["localize", str(q), str(t), "--preset", "room", "--json", str(out)]) == 0
     import json

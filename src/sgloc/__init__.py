@@ -9,15 +9,26 @@ reg = register(src, dst, rejection="neighbor", noise_bound=2.5)  # matched point
 reg.transform  # T_dst_src (4x4) or None when reg.success is False
 """
 
-from sgloc.errors import SglocError
-from sgloc.maps.graph import SemanticGraph
-from sgloc.pipeline.config import LocalizerConfig
-from sgloc.pipeline.localizer import LocalizationResult, Localizer, NotLocalizedError, localize
-from sgloc.pipeline.prepared import PreparedMap, prepare
-from sgloc.pipeline.registration import RegistrationResult, register
+TYPE_CHECKING = False  # typing is not imported: `import sgloc` stays light
 
 __version__ = "0.1.0"
 
+#: The public names and the module each comes from: imported on first use (PEP 562), so that
+#: `import sgloc` (and the `sgloc` program's start-up) loads no numeric library.
+_EXPORTS = {
+    "LocalizationResult": "sgloc.pipeline.localizer",
+    "Localizer": "sgloc.pipeline.localizer",
+    "LocalizerConfig": "sgloc.pipeline.config",
+    "NotLocalizedError": "sgloc.pipeline.localizer",
+    "PreparedMap": "sgloc.pipeline.prepared",
+    "RegistrationResult": "sgloc.pipeline.registration",
+    "SemanticGraph": "sgloc.maps.graph",
+    "SglocError": "sgloc.errors",
+    "localize": "sgloc.pipeline.localizer",
+    "localize_fleet": "sgloc.online.fleet",  # the fleet layer: beside localize
+    "prepare": "sgloc.pipeline.prepared",
+    "register": "sgloc.pipeline.registration",
+}
 
 __all__ = [
     "LocalizationResult",
@@ -34,12 +45,27 @@ __all__ = [
     "register",
 ]
 
+if TYPE_CHECKING:
+    from sgloc.errors import SglocError
+    from sgloc.maps.graph import SemanticGraph
+    from sgloc.online.fleet import localize_fleet  # noqa: F401
+    from sgloc.pipeline.config import LocalizerConfig
+    from sgloc.pipeline.localizer import LocalizationResult, Localizer, NotLocalizedError, localize
+    from sgloc.pipeline.prepared import PreparedMap, prepare
+    from sgloc.pipeline.registration import RegistrationResult, register
+
 
 def __getattr__(name: str):
-    """`sgloc.localize_fleet`, re-exported beside localize: the fleet layer (online session,
-    pose graph) is imported on first use, not by `import sgloc`."""
-    if name == "localize_fleet":
-        from sgloc.online.fleet import localize_fleet
+    """A public name, imported from its module on first use."""
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'sgloc' has no attribute {name!r}")
+    import importlib
 
-        return localize_fleet
-    raise AttributeError(f"module 'sgloc' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))

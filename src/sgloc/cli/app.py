@@ -15,6 +15,8 @@ from importlib.metadata import PackageNotFoundError, version
 import typer
 
 from sgloc.errors import SglocError
+from sgloc.runtime import interrupts
+from sgloc.runtime.interrupts import Interrupted
 
 app = typer.Typer(
     name="sgloc",
@@ -81,25 +83,11 @@ EXIT_INTERRUPTED = 130
 EXIT_TERMINATED = 143
 
 
-class Interrupted(BaseException):
-    """Ctrl-C (SIGINT) or SIGTERM: raised in the main thread so that every cleanup runs (no
-    half-written output stays). A BaseException but no KeyboardInterrupt, which the command
-    framework would turn into a silent exit code."""
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
-
-
-def _interrupt(signum, frame) -> None:
-    raise Interrupted(signum)
-
-
 def _interrupted(e: BaseException, before: int) -> int:
     """Print what an interruption left (one line); return the exit code."""
     from sgloc.io.files import written
 
-    signum = getattr(e, "signum", signal.SIGINT)
+    signum = getattr(e, "signum", 0) or interrupts.received() or signal.SIGINT
     done = written()[before:]
     how = "terminated (SIGTERM)" if signum == signal.SIGTERM else "interrupted (SIGINT)"
     what = ("nothing was written" if not done
@@ -206,19 +194,6 @@ def _one_line_summaries(typer_app: typer.Typer) -> None:
             _one_line_summaries(group.typer_instance)
 
 
-def _on_signals(handlers):
-    """Install a handler for SIGINT and SIGTERM (one callable, or a dict by signal as this
-    returns), in the main thread only; return the handlers replaced."""
-    previous = {}
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        handler = handlers.get(signum) if isinstance(handlers, dict) else handlers
-        try:
-            previous[signum] = signal.signal(signum, handler)
-        except (ValueError, TypeError):  # not the main thread, or nothing to restore
-            pass
-    return previous
-
-
 def _as_program() -> None:
     """Collector settings of the `sgloc` program, a short-lived process (not of `main(argv)`
     called from Python). Its start-up (numba, scipy, typer) leaves ~140,000 long-lived objects,
@@ -230,24 +205,50 @@ def _as_program() -> None:
 
 
 def _exit(rc: int) -> None:
-    """Leave the `sgloc` program with exit code `rc`. The objects alive now are frozen first:
+    """Leave the `sgloc` program with exit code `rc`; a signal from now on is ignored (the run
+    has ended: its outcome is `rc`, its outputs complete). The objects alive now are frozen first:
     the interpreter's last collections at exit then skip them (~0.25 s saved; the process ends,
     so nothing is left uncollected for long; exit handlers run as usual)."""
+    interrupts.ignore()  # a signal now comes after the run's end (its outputs are complete)
     gc.freeze()
     sys.exit(rc)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Console entry point. A user error (SglocError, bad usage) becomes one line on stderr and
-    exit 2; "not localized" exits 1; no traceback reaches the user for either. Without `argv`
-    (the `sgloc` program, `python -m sgloc`) the arguments are the process's and it exits."""
+    exit 2; "not localized" exits 1; no traceback reaches the user for either. Ctrl-C or SIGTERM
+    at any moment ends it with 130 or 143, one line, and no output moved into place after the
+    signal (`sgloc.runtime.interrupts`). Without `argv` (the `sgloc` program, `python -m
+    sgloc`) the arguments are the process's and it exits."""
     from sgloc.io.files import written
 
     if argv is None:
         _as_program()
-    _one_line_summaries(app)
     before = len(written())
-    previous = _on_signals(_interrupt)
+    previous = interrupts.install()
+    try:
+        try:
+            interrupts.check()  # a signal while the program started
+            rc = _run(argv, before)
+        except Interrupted as e:  # landed after the command's own handling
+            rc = _interrupted(e, before)
+        finally:
+            interrupts.hold()  # from here on a signal is only recorded
+        signum = interrupts.received()
+        if signum and rc not in (EXIT_INTERRUPTED, EXIT_TERMINATED):  # its raise was lost
+            rc = _interrupted(Interrupted(signum), before)
+    finally:
+        if argv is not None:  # called from Python: the caller's handlers again
+            interrupts.uninstall(previous)
+    rc = int(rc) if isinstance(rc, int) else EXIT_OK
+    if argv is None:
+        _exit(rc)  # signals stay recorded only, up to the process's end
+    return rc
+
+
+def _run(argv: list[str] | None, before: int) -> int:
+    """Run the command line `argv`; its exit code, every error printed as one line."""
+    _one_line_summaries(app)
     try:
         rc = app(args=argv, prog_name="sgloc", standalone_mode=False)
     except SglocError as e:
@@ -265,9 +266,4 @@ def main(argv: list[str] | None = None) -> int:
         if not _is_framework_exception(e):
             raise
         rc = _framework_exit(e, before)
-    finally:
-        _on_signals(previous)
-    rc = int(rc) if isinstance(rc, int) else EXIT_OK
-    if argv is None:
-        _exit(rc)
     return rc

@@ -61,7 +61,7 @@ def check_match_count(m: int) -> None:
             f"{m:,} matches are too many for the pairwise consistency check (it would need "
             f"{m * m / 8e9:.1f} GB; at most {MAX_MATCHES:,}): keep fewer candidates (lower "
             "top_k or max_candidates, or raise min_similarity), pass fewer correspondences, "
-            "or use the neighbor rejector's local scope (scope='local')."
+            "or use the neighbor rejector's local scope (--set scope=local; Python: scope='local')."
         )
 
 

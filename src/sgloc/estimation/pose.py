@@ -163,6 +163,6 @@ def tilt_reason(tilt: float, max_tilt: float) -> str:
     """Why an alignment tilting the up axis by `tilt` degrees (> `max_tilt`) is refused."""
     return (
         f"the alignment tilts the up axis by {tilt:.0f} deg (> max_tilt {max_tilt} deg): the "
-        "maps do not share gravity (set max_tilt=None and dof=6 for any orientation), or one "
-        "is mirrored or upside down"
+        "maps do not share gravity (--set max_tilt=null --set dof=6 for any orientation; "
+        "Python: max_tilt=None, dof=6), or one is mirrored or upside down"
     )

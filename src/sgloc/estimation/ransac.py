@@ -222,7 +222,7 @@ def _check_settings(cfg: RansacConfig, compiled: bool) -> None:
             raise ValueError("the compiled RANSAC draws minimal samples: use ransac_reference")
         raise InvalidSettingError(
             f"setting ransac.sampler='guo' needs ransac.dof=6 (got dof={cfg.dof}): Guo's samples "
-            "fix any rigid motion; use sampler='minimal' for dof=4."
+            "fix any rigid motion; use --set sampler=minimal for dof=4 (Python: sampler='minimal')."
         )
 
 

@@ -17,7 +17,9 @@ class Case:
     """One benchmark run. kind "city": the synthetic city `seed` (`blocks` x `blocks`, routes
     of `length` m) cut into `robots`; kind "kitti": KITTI 00 scans first..last cut into
     `robots`, every `every` scan a keyframe, truth = `truth` poses ("refined" or "raw") and
-    odometry = the truth drifting at `level`, or KITTI's raw poses (`odometry="raw"`)."""
+    odometry = the truth drifting at `level`, or KITTI's raw poses (`odometry="raw"`);
+    localizer: the localizer preset (default "city-objects" for a city, else
+    "kitti-objects")."""
 
     key: str
     group: str
@@ -34,9 +36,13 @@ class Case:
     truth: str = "refined"
     odometry: str = "drift"
     part: str = ""
+    localizer: str = ""
 
     @property
     def preset(self) -> str:
+        """The localizer preset: `localizer` when given, else the kind's."""
+        if self.localizer:
+            return self.localizer
         return "city-objects" if self.kind == "city" else "kitti-objects"
 
 

@@ -166,3 +166,38 @@ def closure_pairs(
 def _arc_length(p: np.ndarray) -> np.ndarray:
     """(k,) metres travelled up to each position."""
     return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+
+
+def odometry_bend(est: np.ndarray, odom: np.ndarray) -> np.ndarray:
+    """(k,) metres each keyframe of one robot's corrected trajectory (est (k,4,4), fleet frame)
+    lies off its odometry (odom (k,4,4)) after one rigid fit of the two: how far the fleet's
+    solution bent the robot's odometry (0 for a robot the solution moved rigidly)."""
+    from sgloc.estimation.fits import fit_rigid
+
+    E, P = np.asarray(est)[:, :3, 3], np.asarray(odom)[:, :3, 3]
+    if len(E) < 3:
+        return np.zeros(len(E))
+    T = fit_rigid(E, P)
+    return np.linalg.norm(E @ T[:3, :3].T + T[:3, 3] - P, axis=1)
+
+
+def outside_truth_group(est: Sequence[np.ndarray | None], gt: Sequence[np.ndarray],
+                        tol: float = 3.0) -> list[int]:
+    """Indices of the placed robots (est[k] not None: (k,4,4) fleet-frame poses; gt[k] the true
+    ones) outside the largest group that one rigid alignment puts on the truth: each placed
+    robot's own rigid fit (fleet -> truth) is a candidate alignment; a robot is in its group
+    when the median error of its keyframe positions under it is within `tol` metres; the
+    candidate holding the most robots (ties: the lowest index) is the alignment."""
+    from sgloc.estimation.fits import fit_rigid
+
+    placed = [k for k, e in enumerate(est) if e is not None and len(e) >= 3]
+    if not placed:
+        return []
+    fits = [fit_rigid(est[k][:, :3, 3], gt[k][:, :3, 3]) for k in placed]
+    best: list[int] = []
+    for T in fits:
+        group = [k for k in placed if float(np.median(np.linalg.norm(
+            est[k][:, :3, 3] @ T[:3, :3].T + T[:3, 3] - gt[k][:, :3, 3], axis=1))) <= tol]
+        if len(group) > len(best):
+            best = group
+    return [k for k in placed if k not in best]

@@ -19,6 +19,8 @@ from sgloc.evaluation.fleet_metrics import (
     encounter_errors,
     error_stats,
     fleet_keyframe_poses,
+    odometry_bend,
+    outside_truth_group,
     placement_error,
     rigid_rmse,
 )
@@ -65,9 +67,25 @@ def score_fleet(scenario: Any, session: Any, record: Any, level: float,
         **join_figures(scenario, session, record),
         **attempt_figures(scenario, session),
         **revocation_figures(session),
+        **bend_figures(scenario, est, names),
     }
     out["oracle"] = oracle_figures(scenario, session.root, level) if oracle else None
     return out
+
+
+def bend_figures(scenario: Any, est: list, names: list[str]) -> dict:
+    """How far the solution bent each placed robot's odometry (`odometry_bend`: max over its
+    keyframes, metres; "bend" max / median over the robots) and the robots outside the group
+    one rigid alignment puts on the truth (`outside_truth_group`, "outside")."""
+    gt = scenario.gt_poses()
+    bends = {names[k]: float(odometry_bend(e, scenario.logs[k].poses).max())
+             for k, e in enumerate(est) if e is not None and len(e)}
+    out = outside_truth_group(est, [gt[r] for r in names])
+    values = list(bends.values())
+    return {"bend": {"max": max(values, default=None),
+                     "median": float(np.median(values)) if values else None,
+                     "robots": bends},
+            "outside": [names[k] for k in out]}
 
 
 def join_figures(scenario: Any, session: Any, record: Any) -> dict:

@@ -17,6 +17,7 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 from sgloc.errors import GraphFileError, OutputPathError, SglocError
+from sgloc.runtime import interrupts
 
 #: Largest graph file read (bytes). A million objects in ASCII PCD is about 60 MB.
 MAX_GRAPH_FILE_BYTES = 512 * 2**20
@@ -210,21 +211,29 @@ def claimed_output(out: str | Path, option: str = "--out") -> Iterator[Path]:
         finally:
             _HELD[key] -= 1
         return
-    created = _make_parents(out.parent)
+    interrupts.hold()  # the lock and the folders made for it are undone whatever lands
     try:
-        fd, lock = _lock(out, option)
+        interrupts.check()
+        created = _make_parents(out.parent)
+        try:
+            fd, lock = _lock(out, option)
+        except BaseException:
+            _remove_empty(created)
+            raise
     except BaseException:
-        _remove_empty(created)
+        interrupts.release()
         raise
     _HELD[key] = 1
     try:
+        interrupts.release()
         _remove_stale(out)
         yield out
     finally:
-        del _HELD[key]
-        lock.unlink(missing_ok=True)
-        os.close(fd)
-        _remove_empty(created)
+        with interrupts.held():
+            del _HELD[key]
+            lock.unlink(missing_ok=True)
+            os.close(fd)
+            _remove_empty(created)
 
 
 #: The outputs this process holds the lock of (real path -> nesting depth).
@@ -329,18 +338,20 @@ def staged_folder(
     with claimed_output(out, option):
         stage = None
         try:
-            stage = Path(tempfile.mkdtemp(prefix=f".{out.name[:100]}.partial-{os.getpid()}-",
-                                          dir=out.parent))
+            with interrupts.held():
+                stage = Path(tempfile.mkdtemp(
+                    prefix=f".{out.name[:100]}.partial-{os.getpid()}-", dir=out.parent))
             yield stage
             with _signals_held():
                 _commit(stage, out, option)
-            stage = None
+                stage = None
+                written(out)
         except OSError as e:
             raise SglocError(_write_error(e, stage, out)) from None
         finally:
-            if stage is not None:
-                shutil.rmtree(stage, ignore_errors=True)
-        written(out)
+            with interrupts.held():
+                if stage is not None:
+                    shutil.rmtree(stage, ignore_errors=True)
 
 
 def _commit(stage: Path, out: Path, option: str) -> None:
@@ -375,21 +386,11 @@ def _commit(stage: Path, out: Path, option: str) -> None:
 @contextlib.contextmanager
 def _signals_held() -> Iterator[None]:
     """SIGINT / SIGTERM wait for the end of the block (a few renames), so that an output is
-    moved into place whole or not at all."""
-    import signal
-    import threading
-
-    if threading.current_thread() is not threading.main_thread() or not hasattr(
-        signal, "pthread_sigmask"
-    ):  # signals reach the main thread only; no signal masks on Windows
+    moved into place whole or not at all; in the `sgloc` program, a signal received before
+    (even one whose raise was lost) stops the block before it moves anything."""
+    with interrupts.held():
+        interrupts.check()
         yield
-        return
-    held = {signal.SIGINT, signal.SIGTERM}
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 @contextlib.contextmanager
@@ -404,22 +405,26 @@ def staged_file(
     path = Path(path)
     check_output_path(path, inputs, option, folder=False, ours=ours)
     with claimed_output(path, option):
-        fd, name = tempfile.mkstemp(prefix=f".{path.name[:100]}.partial-{os.getpid()}-",
-                                    suffix=path.suffix, dir=path.parent)
-        os.close(fd)
-        tmp: Path | None = Path(name)
+        tmp: Path | None = None
         try:
+            with interrupts.held():
+                fd, name = tempfile.mkstemp(prefix=f".{path.name[:100]}.partial-{os.getpid()}-",
+                                            suffix=path.suffix, dir=path.parent)
+                os.close(fd)
+                tmp = Path(name)
             yield tmp
             os.chmod(tmp, _umask_mode(0o666))
             check_output_path(path, (), option, folder=False, ours=ours)
-            os.replace(tmp, path)
-            tmp = None
+            with _signals_held():
+                os.replace(tmp, path)
+                tmp = None
+                written(path)
         except OSError as e:
             raise SglocError(f"{path}: cannot write ({e.strerror or e}); " + _hint(e)) from None
         finally:
-            if tmp is not None:
-                tmp.unlink(missing_ok=True)
-        written(path)
+            with interrupts.held():
+                if tmp is not None:
+                    tmp.unlink(missing_ok=True)
 
 
 def write_text_atomic(

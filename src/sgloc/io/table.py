@@ -44,6 +44,8 @@ def read_table(
     if not rows:
         raise GraphFileError(f"{path}: empty table; expected rows `x y z label`.")
     header = None if _is_number(rows[0][0]) else [h.strip().lower() for h in rows[0]]
+    if header is not None and "stamp" in header:
+        raise GraphFileError(_keyframe_table_refusal(path))
     body = rows[1:] if header else rows
     if not body:
         raise GraphFileError(
@@ -66,6 +68,22 @@ def read_table(
     if np.any(~np.isfinite(lab)) or np.any(lab != np.round(lab)):
         raise GraphFileError(f"{path}: the class column must hold integer class ids.")
     return vals[:, :3].reshape(-1, 3), lab.astype(np.int64)
+
+
+def _keyframe_table_refusal(path: Path) -> str:
+    """Why a table with a `stamp` column is not a map: it is a recorded run's keyframe table
+    (`objects.csv` of the plain layout, docs/replay.md), each row in its keyframe's sensor
+    frame; the message names the command that reads it."""
+    robot = path.parent
+    run = robot.parent if (robot / "odometry.tum").is_file() else None
+    command = f"`sgloc replay {run}`" if run is not None else (
+        "`sgloc replay RUN` (RUN: the folder holding the robot folders)"
+    )
+    return (
+        f"{path}: a `stamp` column: this is a recorded run's keyframe table (each row an "
+        "object seen from one keyframe, in that keyframe's sensor frame), not a map; replay "
+        f"the run with {command} (docs/replay.md)."
+    )
 
 
 def _is_number(text: str) -> bool:

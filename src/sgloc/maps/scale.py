@@ -101,8 +101,8 @@ def estimate_scale(graph: SemanticGraph) -> ScaleEstimate:
     if not math.isfinite(spacing) or spacing <= 0:
         raise SglocError(
             f"scale='auto': map {graph.name!r} has no two distinct object positions to "
-            "estimate its scene scale from; give the scale (preset='street'|'forest'|'room' "
-            "or scale=<metres>)."
+            "estimate its scene scale from; give the scale (--preset street|forest|room or "
+            "--set scale=<metres>; Python: preset='room', scale=<metres>)."
         )
     scene = min(TYPICAL_SPACING, key=lambda k: abs(math.log(spacing / TYPICAL_SPACING[k])))
     smaller = sorted((k for k in SCENES if SCENES[k] < SCENES[scene]), key=SCENES.__getitem__)
@@ -152,7 +152,7 @@ def scene_hint(query: SemanticGraph, target: SemanticGraph, unit: float) -> str:
     return (
         f"; objects stand a median {spacing:.2f} m from their nearest neighbour, closer than "
         f"the settings' scene scale ({unit:g} m) assumes: its lengths (inlier distance, "
-        f"min_spread, radii) are too long for this map; try preset={suggestion!r} (scene "
-        f"scale {SCENES[suggestion]:g} m), scale='auto' (the scale of the target map) or "
-        "scale=<metres> (docs/scenes.md)"
+        f"min_spread, radii) are too long for this map; try --preset {suggestion} (scene "
+        f"scale {SCENES[suggestion]:g} m), --set scale=auto (the scale of the target map) or "
+        f"--set scale=<metres> (Python: preset={suggestion!r}, scale='auto'; docs/scenes.md)"
     )

@@ -166,6 +166,12 @@ class OnlineConfig:
         join the groups and is then taken as a loop closure (`keyframe_links`). Many robots
         make thousands of attempts between groups that do not overlap, and the rare chance
         alignment among them would otherwise place a whole group.
+    link_checks: backend "keyframes": every link is checked against the robots' odometry
+        under `odometry` before it enters the pose graph (pairwise consistency of each robot
+        pair's links, loop closures against their robot's own odometry) and after each solve
+        (a link whose solution bends a robot's odometry beyond its noise leaves);
+        `sgloc.online.keyframe_consistency`. A link that fails is held (event "link_held")
+        or revoked.
     seed: attempt k of the pair (i, j) (robot indices, i < j) uses the seed [seed, i, j]
         (k = 0) or [seed, i, j, k].
     fuse_radius: metres; in the merged fleet map (`sgloc replay`'s merged.json), same-class
@@ -202,6 +208,7 @@ class OnlineConfig:
     loop_closures: bool = setting(True, check=flag())
     view_correction: bool = setting(True, check=flag())
     join_tests: bool = setting(True, check=flag())
+    link_checks: bool = setting(True, check=flag())
     fuse_radius: float = setting(2.0, check=real(0.0, MAX_COORDINATE, unit="m"))
 
     def __post_init__(self) -> None:
@@ -232,12 +239,14 @@ class OnlineConfig:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> OnlineConfig:
         """The settings `to_dict` gave. Settings saved before `backend`, `view_correction`,
-        `join_tests` and `OdometryNoise.correlation_length` existed keep the behaviour they
-        were saved with (robots, off, 0), so that a resumed session continues as it would."""
+        `join_tests`, `link_checks` and `OdometryNoise.correlation_length` existed keep the
+        behaviour they were saved with (robots, off, off, off, 0), so that a resumed session
+        continues as it would."""
         data = dict(data)
         data.setdefault("backend", "robots")
         if isinstance(data.get("odometry"), dict):
             data["odometry"] = OdometryNoise(**{"correlation_length": 0.0, **data["odometry"]})
         data.setdefault("view_correction", False)
         data.setdefault("join_tests", False)
+        data.setdefault("link_checks", False)
         return cls(**data)

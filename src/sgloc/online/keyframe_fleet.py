@@ -17,6 +17,7 @@ from sgloc.estimation import MotionModel
 from sgloc.maps.graph import SemanticGraph
 from sgloc.online.config import OnlineConfig
 from sgloc.online.keyframe_colocation import colocation_factors
+from sgloc.online.keyframe_consistency import Chains, check_links
 from sgloc.online.keyframe_graph import KeyframeGraph, keyframe_link
 from sgloc.online.keyframe_links import select_links
 from sgloc.online.keyframe_views import view_corrected, view_offset
@@ -152,6 +153,8 @@ class KeyframeFleet:
         self.colocated: list[int] = []  # factor ids of the co-location factors in the graph
         # (placed robots, their confirmed objects) when the co-location factors were derived
         self.colocated_at: tuple[list[int], int] | None = None
+        self.held: set[int] = set()  # link ids the checks hold out (never in the graph)
+        self.newly_held: list[int] = []  # those the last `update` newly held
 
     def link(self, maps: list[RobotMap], names: list[str], task: Query, result: Attempt,
              stamp: float, motion: MotionModel, radius: float) -> Link:
@@ -273,47 +276,67 @@ class KeyframeFleet:
         self.travel_last[(i, j)] = (travelled[i], travelled[j])
         self.query_last[(target, query)] = travelled[query]
 
-    def select(self, maps: list[RobotMap], names: list[str], max_nfa: float | None = None
-               ) -> tuple[list[int], dict]:
-        """The link ids the evidence supports now, and why the others are not taken (max_nfa:
-        `select_links`')."""
+    def update(self, maps: list[RobotMap], names: list[str], max_nfa: float | None = None
+               ) -> tuple[list[int], list[int]]:
+        """Check and select the links (`keyframe_consistency.check_links` around
+        `keyframe_links.select_links`, max_nfa its), move the graph to the selection (links
+        leave it by factor id), solve, reanchor the placed robots' maps. Returns (link ids
+        that entered, link ids that left, now revoked); `newly_held` then lists the link ids
+        the checks newly hold out that were never in the graph."""
         index = {n: i for i, n in enumerate(names)}
         odom = {i: m.trajectory()[1] for i, m in enumerate(maps)}
         travelled = {i: m.travelled() for i, m in enumerate(maps)}
-        candidates = [i for i, lk in enumerate(self.links) if not lk.revoked]
         o = self.online
-        return select_links(self.links, candidates, index, odom, travelled, o.odometry,
-                            o.loop_translation, o.loop_rotation, max_nfa)
+        chains = Chains(index, odom, travelled, o.odometry)
+        before = set(self.fid)
+        candidates = [i for i, lk in enumerate(self.links) if not lk.revoked]
 
-    def update(self, maps: list[RobotMap], names: list[str], max_nfa: float | None = None
-               ) -> tuple[list[int], list[int]]:
-        """Re-select the links (max_nfa: `select_links`'), move the graph to the selection
-        (links leave it by factor id), solve, reanchor the placed robots' maps. Returns (link
-        ids that entered, link ids that left, now revoked)."""
-        taken, dropped = self.select(maps, names, max_nfa)
-        entered, left = [], []
-        for lid in sorted(set(self.fid) - set(taken)):
-            self.graph.remove(self.fid.pop(lid))
+        def select(ids: list[int]) -> tuple[list[int], dict[int, str]]:
+            return select_links(self.links, ids, index, odom, travelled, o.odometry,
+                                o.loop_translation, o.loop_rotation, max_nfa)
+
+        checked = check_links(self.links, candidates, chains, select,
+                              lambda ids: self._move(ids, index), enabled=o.link_checks)
+        taken = set(checked.taken)
+        left = sorted(before - taken)
+        for lid in left:
             lk = self.links[lid]
-            lk.active, lk.revoked, lk.reason = False, True, dropped.get(lid, "")
-            left.append(lid)
-        if left:  # derived from a solution the link held: they leave with it
+            lk.active, lk.revoked = False, True
+            lk.reason = checked.held.get(lid, checked.dropped.get(lid, ""))
+        entered = sorted(taken - before)
+        for lid in entered:
+            self.links[lid].active, self.links[lid].reason = True, ""
+        for lid, why in checked.dropped.items():
+            if not self.links[lid].revoked:
+                self.links[lid].reason = why
+        held = []
+        for lid, why in sorted(checked.held.items()):
+            lk = self.links[lid]
+            lk.reason = why
+            lk.revoked = lk.revoked or lid in checked.bent  # a bending link does not come back
+            if lid not in before and lid not in self.held:
+                held.append(lid)
+        self.held = {lid for lid in checked.held if lid not in before}
+        self.newly_held = held
+        self.reanchor(maps)
+        return entered, left
+
+    def _move(self, ids: list[int], index: dict[str, int]) -> KeyframeGraph:
+        """The graph holding exactly the links `ids` (co-location factors dropped when a link
+        leaves: they were derived from a solution it held), solved."""
+        gone = sorted(set(self.fid) - set(ids))
+        for lid in gone:
+            self.graph.remove(self.fid.pop(lid))
+        if gone:
             self.drop_colocated()
-        index = {n: i for i, n in enumerate(names)}
-        for lid in taken:
+        for lid in ids:
             if lid not in self.fid:
                 lk = self.links[lid]
                 self.fid[lid] = self.graph.add_link(index[lk.robot_a], lk.keyframe_a,
                                                     index[lk.robot_b], lk.keyframe_b,
                                                     lk.T_a_b, lk.covariance)
-                lk.active, lk.reason = True, ""
-                entered.append(lid)
-        for lid, why in dropped.items():
-            if not self.links[lid].revoked:
-                self.links[lid].reason = why
         self.graph.solve()
-        self.reanchor(maps)
-        return entered, left
+        return self.graph
 
     def drop_colocated(self) -> None:
         """Remove the co-location factors from the graph (derived again when next due)."""
@@ -365,6 +388,7 @@ class KeyframeFleet:
         meta["query_last"] = [[t, q, d] for (t, q), d in sorted(self.query_last.items())]
         meta["colocated"] = list(self.colocated)
         meta["colocated_at"] = self.colocated_at
+        meta["held"] = sorted(self.held)
         return meta, arrays
 
     @classmethod
@@ -380,4 +404,5 @@ class KeyframeFleet:
         f.colocated = [int(x) for x in meta.get("colocated", [])]
         at = meta.get("colocated_at")
         f.colocated_at = None if at is None else ([int(r) for r in at[0]], int(at[1]))
+        f.held = {int(x) for x in meta.get("held", [])}
         return f

@@ -9,6 +9,9 @@ import numpy as np
 
 #: Event kinds.
 ROBOT_JOINED, LINK_ACCEPTED, LINK_REVOKED = "robot_joined", "link_accepted", "link_revoked"
+#: A link the checks against the odometry keep out of the pose graph before it ever entered
+#: (keyframe back-end; `keyframe_consistency`).
+LINK_HELD = "link_held"
 
 
 @dataclass
@@ -79,7 +82,8 @@ class Link:
 @dataclass(frozen=True)
 class Event:
     """Something that changed the fleet: kind in {"robot_joined", "link_accepted",
-    "link_revoked"}, the robots concerned, a sentence of detail; stamp = the keyframe's."""
+    "link_revoked", "link_held"}, the robots concerned, a sentence of detail; stamp = the
+    keyframe's."""
 
     stamp: float
     kind: str

@@ -30,6 +30,7 @@ from sgloc.online.posegraph import fleet_frame
 from sgloc.online.precision import chain_covariance, predicted_error
 from sgloc.online.records import (
     LINK_ACCEPTED,
+    LINK_HELD,
     LINK_REVOKED,
     ROBOT_JOINED,
     Attempt,
@@ -746,6 +747,7 @@ class OnlineSession:
             self._kf.graph.set_root(root)
         maps = [self._maps[r] for r in names]
         entered, left = self._kf.update(maps, names, self._max_join_nfa())
+        held = self._kf.newly_held
         if self.online.refine_fleet and self._kf.colocation_due(
                 maps, self.online.refine_fleet_growth):
             self._kf.colocate(maps, self.config.motion,
@@ -757,6 +759,11 @@ class OnlineSession:
             lk = self._kf.links[lid]
             note = f"; no longer placed: {', '.join(lost)}" if lost else ""
             self._emit(emit, stamp, LINK_REVOKED, (lk.robot_a, lk.robot_b), lk.reason + note)
+        for lid in held:
+            lk = self._kf.links[lid]
+            self._emit(emit, stamp, LINK_HELD, (lk.robot_a, lk.robot_b),
+                       f"{lk.reason}; keyframes {lk.keyframe_a} and {lk.keyframe_b}, "
+                       f"{lk.n_matches} matches")
         for lid in entered:
             lk = self._kf.links[lid]
             self._emit(emit, stamp, LINK_ACCEPTED, (lk.robot_a, lk.robot_b),

@@ -403,7 +403,7 @@ FLAT_AMBIGUOUS = {
     "acceptance test's strictness)",
     "radius": "acceptance_radius (the acceptance test's inlier radius) or descriptor_radius (the "
     "distance descriptors' radius); the graph edge radius is set when a graph is built or loaded",
-    "enabled": "acceptance_enabled or acceptance=False",
+    "enabled": "acceptance_enabled or acceptance=false (Python: acceptance=False)",
 }
 #: The stage configs whose fields are routed by flat name (evidence and verification: groups
 #: of the acceptance stage).
