@@ -52,6 +52,8 @@ class ServeOptions:
     queue: messages waiting at most (all robots); robot_queue: per robot.
     plan_every: seconds between plans of attempts at most while keyframes are waiting (a
         plan weighs every pair of robots; with no keyframe waiting, one after each message).
+    solve_every: seconds between re-solves of the fleet frame at most while keyframes are
+        waiting (the batches of attempts that finished meanwhile are solved at once).
     """
 
     listen: str = DEFAULT_ENDPOINT
@@ -64,6 +66,7 @@ class ServeOptions:
     queue: int = 4096
     robot_queue: int = 256
     plan_every: float = 0.05
+    solve_every: float = 0.5
     prefix: str = PREFIX
 
 
@@ -96,7 +99,7 @@ class LiveServer:
         self._finishing: list[tuple[str, float]] = []  # (robot, stamp) of Ends not planned
         self._stop = threading.Event()
         self._idle = threading.Event()
-        self._saved_at = self._planned_at = time.monotonic()
+        self._saved_at = self._planned_at = self._solved_at = time.monotonic()
         self._dirty = False
         self._dirty_plan = True  # something changed since the last plan found nothing
         self._n_events = len(self.session.events)
@@ -300,8 +303,13 @@ class LiveServer:
                 self.session.release(batch)
                 self._dirty_plan = True
                 continue
-            self.session.apply_attempts(batch, results)
+            self.session.apply_attempts(batch, results, solve=False)
             self._dirty = self._dirty_plan = True
+        now = time.monotonic()
+        if self.session.solve_due and (wait or self._queue.empty()
+                                       or now - self._solved_at >= self.options.solve_every):
+            self._solved_at = now  # one solve for the batches that came meanwhile
+            self.session.solve_pending()
 
     # -- state ---------------------------------------------------------------------------------
     def _save_when_due(self) -> None:

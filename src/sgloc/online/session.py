@@ -83,6 +83,7 @@ class OnlineSession:
         self._finished: set[str] = set()  # robots whose `finish` came after their last keyframe
         self._loop_memo = LoopMemo()  # loop verdicts of unchanged links and maps (a cache)
         self._in_flight: set[tuple[int, int]] = set()  # pairs of planned, unapplied batches
+        self._solve_stamp: float | None = None  # batches applied, not yet solved
         self._revision = 0  # `revision`
 
     # -- what the session knows ---------------------------------------------------------------
@@ -291,15 +292,30 @@ class OnlineSession:
         self._in_flight.update(batch.pairs)
         return batch
 
-    def apply_attempts(self, batch: AttemptBatch, results: list[Attempt]) -> list[Event]:
+    def apply_attempts(self, batch: AttemptBatch, results: list[Attempt],
+                       solve: bool = True) -> list[Event]:
         """Record the results of `batch` (`run_batch`'s, in its order): attempts, links, the
         fleet frame re-solved; returns the events. Call it on the session's own thread, once
-        per planned batch."""
+        per planned batch. solve=False: the fleet frame is re-solved by the next
+        `solve_pending` (one solve for several batches; a finishing batch solves at once)."""
         if len(results) != len(batch.tasks):
             raise SglocError(f"apply_attempts: {len(results)} results for a batch of "
                              f"{len(batch.tasks)} attempts; pass run_batch's results.")
         self._in_flight.difference_update(batch.pairs)
-        return self._apply(batch, results)
+        return self._apply(batch, results, solve or batch.finishing is not None)
+
+    @property
+    def solve_due(self) -> bool:
+        """Whether batches applied with solve=False wait for `solve_pending`."""
+        return self._solve_stamp is not None
+
+    def solve_pending(self) -> list[Event]:
+        """Re-solve the fleet frame for the batches applied with solve=False; the events."""
+        n_events, stamp = len(self.events), self._solve_stamp
+        if stamp is not None:
+            self._solve_stamp = None
+            self._refresh(stamp)
+        return self.events[n_events:]
 
     def release(self, batch: AttemptBatch) -> None:
         """Forget a planned batch that will not be applied (its run failed): its pairs may be
@@ -357,8 +373,10 @@ class OnlineSession:
         due = due_pairs(batch.sizes, self._refitted, o.min_objects, ratio, objects, robot)
         return any(p in self._links for p in due)
 
-    def _apply(self, batch: AttemptBatch, results: list[Attempt]) -> list[Event]:
-        """Note the batch's attempts and results, refit (back-end "robots"), re-solve."""
+    def _apply(self, batch: AttemptBatch, results: list[Attempt], solve: bool = True
+               ) -> list[Event]:
+        """Note the batch's attempts and results, refit (back-end "robots"), re-solve (now,
+        or at `solve_pending` when not `solve`)."""
         n_events, stamp = len(self.events), batch.stamp
         if self._kf is not None:
             changed = self._kf_apply(batch, results)
@@ -368,7 +386,11 @@ class OnlineSession:
                 changed |= self._record(i, j, batch.sizes, r, stamp)
             sizes = [self._maps[r].n_confirmed for r in self.robots]
             changed |= self._refit_due(sizes, *batch.refit)
-        if changed:
+        if changed and not solve:
+            due = self._solve_stamp
+            self._solve_stamp = stamp if due is None else max(stamp, due)
+        elif changed or (solve and self._solve_stamp is not None):
+            self._solve_stamp = None
             self._refresh(stamp)
         if batch.finishing is not None:
             self._finish_applied(batch.finishing, stamp)
