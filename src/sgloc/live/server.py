@@ -3,10 +3,12 @@
 `sgloc/<robot>/correction` at once after each of its messages and whenever it changes; the
 session's events go to `sgloc/events`.
 
-One thread owns the session: it takes messages from one bounded queue (a robot with more than
-`robot_queue` waiting is dropped with a warning, so a flood never exhausts memory), checks
-them (malformed, duplicated, out-of-order and late messages are counted, logged and dropped),
-adds keyframes, and plans attempts that run off that thread on worker processes or a Dask
+Zenoh's thread checks each message (malformed, duplicated, out-of-order and late messages are
+counted, logged and dropped), answers it at once with the robot's correction as last published
+(never waiting on the session), and queues it: one bounded queue (a robot with more than
+`robot_queue` waiting is dropped with a warning, so a flood never exhausts memory). One thread
+owns the session: it takes the queued keyframes, publishes the corrections that change, and
+plans attempts that run off that thread on worker processes or a Dask
 cluster (`plan_attempts` / `run_batch` / `apply_attempts`), or inline with `sync` (exactly as
 `sgloc replay`). The state is saved atomically on a schedule and on stop, and a server started
 on an existing state file resumes from it."""
@@ -26,7 +28,14 @@ from typing import Any
 
 from sgloc.errors import SglocError
 from sgloc.live import messages as msg
-from sgloc.live.transport import DEFAULT_ENDPOINT, PREFIX, check_endpoint, key, open_session
+from sgloc.live.transport import (
+    DEFAULT_ENDPOINT,
+    PREFIX,
+    check_endpoint,
+    check_robot,
+    key,
+    open_session,
+)
 from sgloc.online import OnlineConfig, OnlineSession
 from sgloc.online.batch import run_batch
 from sgloc.pipeline.config import LocalizerConfig
@@ -89,12 +98,15 @@ class LiveServer:
         self.counts: Counter = Counter()
         self._queue: queue.Queue = queue.Queue(o.queue)
         self._waiting: Counter = Counter()  # robot -> its messages in the queue
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # counts, seqs, stamps, published corrections
         self._seq: dict[str, int] = {}
-        self._stamp = {r: int(round(self.session.keyframes(r)[0][-1] * 1e9))
-                       for r in self.session.robots}  # robot -> its last keyframe's stamp ns
-        self._rev = -1  # the session's revision when the corrections were last published
-        self._sent: dict[str, Any] = {}  # robot -> the correction it was last sent
+        self._held = {r: int(round(self.session.keyframes(r)[0][-1] * 1e9))
+                      for r in self.session.robots}  # robot -> the session's last stamp ns
+        self._stamp = dict(self._held)  # robot -> the last keyframe stamp admitted (ns)
+        self._revision = self.session.revision  # of the corrections last published
+        T_now, done = self.session.corrections(), self.session.finished
+        self._current: dict[str, tuple] = {r: (T_now.get(r), r in done)
+                                           for r in self.session.robots}  # (T, finished)
         self._flight: list[tuple[Any, Any]] = []  # (batch, future)
         self._finishing: list[tuple[str, float]] = []  # (robot, stamp) of Ends not planned
         self._stop = threading.Event()
@@ -151,20 +163,38 @@ class LiveServer:
         self._idle.clear()
         return self._idle.wait(timeout)
 
-    # -- Zenoh's thread: take, never wait ------------------------------------------------------
+    # -- Zenoh's thread: check, answer, queue; never wait on the session ---------------------
     def _receive(self, sample) -> None:
         parts = str(sample.key_expr).split("/")
         robot = parts[1] if len(parts) == 3 else ""
+        data = sample.payload.to_bytes()
         with self._lock:
             if self._waiting[robot] >= self.options.robot_queue:
                 self._drop("flood", robot, "slow down: messages dropped")
                 return
-            try:
-                self._queue.put_nowait((robot, sample.payload.to_bytes()))
-            except queue.Full:
+            if self._queue.full():  # only this thread puts: the check holds
                 self._drop("flood", robot, "the server's queue is full: messages dropped")
                 return
-            self._waiting[robot] += 1
+            m = self._admit(robot, data)
+            queued = isinstance(m, msg.Keyframe | msg.End)
+            if queued:
+                self._queue.put_nowait((robot, m))
+                self._waiting[robot] += 1
+            if _named(robot) and not (self.options.sync and queued):  # sync: once taken
+                self._answer(robot)  # at once: the correction as it stands now
+
+    def _admit(self, robot: str, data: bytes):
+        """The decoded message when it is valid and new (else None, counted and logged)."""
+        try:
+            key(robot, "keyframe")
+            m = msg.decode(data)
+        except SglocError as e:
+            self._drop("bad_key" if not robot or "robot name" in str(e) else "malformed",
+                       robot, str(e))
+            return None
+        self.counts["received"] += 1
+        return m if isinstance(m, msg.Hello) or (
+            isinstance(m, msg.Keyframe | msg.End) and self._fresh(robot, m)) else None
 
     def _drop(self, kind: str, robot: str, why: str) -> None:
         self.counts[kind] += 1
@@ -172,42 +202,6 @@ class LiveServer:
         if n <= 10 or n % 1000 == 0:
             log.warning("robot %r: %s dropped (%s; %d so far): %s", robot, kind.replace("_", " "),
                         DROPS[kind], n, why)
-
-    # -- the session's thread ------------------------------------------------------------------
-    def _loop(self) -> None:
-        while not self._stop.is_set():
-            try:
-                robot, data = self._queue.get(timeout=0.01)
-            except queue.Empty:
-                robot = None
-            if robot is not None:
-                with self._lock:
-                    self._waiting[robot] -= 1
-                self._handle(robot, data)
-            self._collect()
-            self._schedule()
-            self._publish_changes()
-            self._save_when_due()
-            if self._queue.empty() and not self._flight and not self._finishing:
-                self._idle.set()
-        self._collect(wait=True)
-        self._publish_changes()
-        self.save()
-
-    def _handle(self, robot: str, data: bytes) -> None:
-        """One message of `robot`: checked, taken, answered with the robot's correction."""
-        try:
-            key(robot, "keyframe")
-            m = msg.decode(data)
-        except SglocError as e:
-            self._drop("bad_key" if not robot or "robot name" in str(e) else "malformed",
-                       robot, str(e))
-            return
-        self.counts["received"] += 1
-        seq = getattr(m, "seq", self._seq.get(robot, 0))
-        if isinstance(m, msg.Keyframe | msg.End) and self._fresh(robot, m):
-            self._take(robot, m)
-        self._answer(robot, seq)
 
     def _fresh(self, robot: str, m) -> bool:
         """Whether `m` is new: a seq after the robot's last, a keyframe stamp after its last."""
@@ -219,54 +213,85 @@ class LiveServer:
             self._drop("out_of_order", robot, f"seq {m.seq} after seq {last}")
             return False
         self._seq[robot] = m.seq
-        if isinstance(m, msg.Keyframe) and m.stamp_ns <= self._stamp.get(robot, -1):
-            self._drop("late", robot, f"stamp {m.stamp_ns} ns")
-            return False
+        if isinstance(m, msg.Keyframe):
+            if m.stamp_ns <= self._stamp.get(robot, -1):
+                self._drop("late", robot, f"stamp {m.stamp_ns} ns")
+                return False
+            self._stamp[robot] = m.stamp_ns
         return True
 
+    def _answer(self, robot: str) -> None:
+        """Send `robot` its correction as last published (answering its latest message);
+        called with the lock held."""
+        T, finished = self._current.get(robot, (None, False))
+        self._zenoh.put(key(robot, "correction", self.options.prefix), msg.encode_correction(
+            self._seq.get(robot, 0), self._held.get(robot, -1), self._revision, T, finished))
+
+    # -- the session's thread ------------------------------------------------------------------
+    def _loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                robot, m = self._queue.get(timeout=0.01)
+            except queue.Empty:
+                robot = None
+            if robot is not None:
+                with self._lock:
+                    self._waiting[robot] -= 1
+                self._take(robot, m)
+            self._collect()
+            self._schedule()
+            self._publish_changes()
+            self._save_when_due()
+            if self._queue.empty() and not self._flight and not self._finishing:
+                self._idle.set()
+        self._collect(wait=True)
+        self._publish_changes()
+        self.save()
+
     def _take(self, robot: str, m) -> None:
+        """One checked message of `robot` into the session (then, with `sync`, answered)."""
         s = self.session
         try:
             if isinstance(m, msg.Keyframe):
                 s.add_keyframe(robot, m.stamp_ns * 1e-9, m.T_odom_sensor, m.positions, m.labels)
-                self._stamp[robot] = m.stamp_ns
-                self.counts["keyframes"] += 1
+                with self._lock:
+                    self.counts["keyframes"] += 1
+                    self._held[robot] = m.stamp_ns
             elif robot in s.robots and self.options.sync:
                 s.finish(robot, m.stamp_ns * 1e-9)
             elif robot in s.robots:  # planned once no attempt of the robot is in flight
                 self._finishing = [f for f in self._finishing if f[0] != robot]
                 self._finishing.append((robot, m.stamp_ns * 1e-9))
         except SglocError as e:
-            self._drop("rejected", robot, str(e))
-            return
-        self._dirty = self._dirty_plan = True
-
-    def _answer(self, robot: str, seq: int) -> None:
-        """Send `robot` its correction now (answering its message `seq`)."""
-        if robot not in self.session.robots:
-            T = None
+            with self._lock:
+                self._drop("rejected", robot, str(e))
         else:
-            T = self.session.T_fleet_robot(robot)
-        self._sent[robot] = T
-        s = self.session
-        self._zenoh.put(key(robot, "correction", self.options.prefix), msg.encode_correction(
-            seq, self._stamp.get(robot, -1), s.revision, T, robot in s.finished))
+            self._dirty = self._dirty_plan = True
+        if self.options.sync:
+            self._publish_changes(robot)
 
-    def _publish_changes(self) -> None:
-        """The corrections that changed since each robot's last, and the new events."""
+    def _publish_changes(self, asked: str | None = None) -> None:
+        """The new events; the corrections that changed since last published (and `asked`'s
+        in any case, answering its latest message)."""
         s = self.session
         events = s.events[self._n_events:]
         self._n_events = len(s.events)
         for e in events:
             self._zenoh.put(f"{self.options.prefix}/events", msg.encode_event(e.to_dict()))
-        if s.revision == self._rev:
-            return
-        self._rev = s.revision
-        now = s.corrections()
-        for robot, last in list(self._sent.items()):
-            T = now.get(robot)
-            if (T is None) != (last is None) or (T is not None and (T != last).any()):
-                self._answer(robot, self._seq.get(robot, 0))
+        changed = [] if asked is None else [asked]
+        if s.revision != self._revision or asked is not None:
+            now, finished = s.corrections(), s.finished
+            with self._lock:
+                self._revision = s.revision
+                for robot in s.robots:
+                    c = (now.get(robot), robot in finished)
+                    last = self._current.get(robot, (None, False))
+                    if (c[0] is None) != (last[0] is None) or c[1] != last[1] or (
+                            c[0] is not None and (c[0] != last[0]).any()):
+                        self._current[robot] = c
+                        changed.append(robot)
+                for robot in dict.fromkeys(changed):
+                    self._answer(robot)
 
     # -- attempts off the ingest path ----------------------------------------------------------
     def _schedule(self) -> None:
@@ -331,6 +356,14 @@ class LiveServer:
             tmp.unlink(missing_ok=True)
         self._dirty = False
         return path
+
+
+def _named(robot: str) -> bool:
+    try:
+        check_robot(robot)
+    except SglocError:
+        return False
+    return True
 
 
 class _Workers:
