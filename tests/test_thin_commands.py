@@ -26,6 +26,7 @@ def test_graph_job_routes_loader_options_and_settings():
 
 
 def test_replay_job_checks_the_input_before_reading_it():
+    import sgloc.evaluation.replay_scenarios  # noqa: F401  (adds kitti00 and city)
     from sgloc.replay.job import replay_job
     from sgloc.replay.scenarios import REPLAY_SCENARIOS
 
