@@ -113,8 +113,9 @@ def accept(
     verdict = Verdict(transform is not None, transform, matches, None, reason)
     if transform is not None and cfg.enabled:
         t0 = clock()
-        verdict = _assessed(verdict, query, target, desc_q, desc_t, candidates, distinct_flags,
-                            radius, cfg, matching, motion, rng, prepared)  # fmt: skip
+        tested = select_evidence(query, target, desc_q, desc_t, candidates, distinct_flags,
+                                 matching, cfg.evidence, prepared)  # fmt: skip
+        verdict = _assessed(verdict, query, target, tested, radius, cfg, rng, motion, prepared)
         verdict.timings["acceptance"] = clock() - t0
     if not verdict.accepted and verifies(cfg, motion, len(query)):
         t0 = clock()
@@ -131,27 +132,19 @@ def _assessed(
     verdict: Verdict,
     query: SemanticGraph,
     target: SemanticGraph,
-    desc_q,
-    desc_t,
-    candidates: np.ndarray,
-    distinct_flags: np.ndarray | None,
+    tested: np.ndarray,
     radius: float,
     cfg: AcceptanceConfig,
-    matching: MatchingConfig,
-    motion: MotionModel,
     rng: np.random.Generator | None,
+    motion: MotionModel,
     prepared: PreparedGraph | None,
 ) -> Verdict:
-    """The chance test of `verdict`'s estimate on the evidence matches (`assess`), then the
-    mirror check of an accepted one: a new Verdict carrying the assessment."""
-    transform, matches = verdict.transform, verdict.matches
-    tested = select_evidence(
-        query, target, desc_q, desc_t, candidates, distinct_flags, matching, cfg.evidence,
-        prepared,
-    )
+    """The chance test of `verdict`'s estimate on the evidence matches `tested` (`assess`),
+    then the mirror check of an accepted one: a new Verdict carrying the assessment."""
+    transform = verdict.transform
     a = assess(query, target, tested, transform, radius, cfg, rng, motion, prepared)
-    verdict = Verdict(a.accepted, transform if a.accepted else None, matches, a.confidence,
-                      a.reason, assessment=a)  # fmt: skip
+    verdict = Verdict(a.accepted, transform if a.accepted else None, verdict.matches,
+                      a.confidence, a.reason, assessment=a)  # fmt: skip
     if verdict.accepted:  # a self-similar strip of a mirrored map (acceptance.mirror)
         known = a.landed if a.radius_m == radius else None
         _refuse_mirrored(verdict, query, target, radius, known, prepared)
