@@ -6,7 +6,7 @@ import pytest
 
 from sgloc import lie
 from sgloc.online import Link, OdometryNoise, OnlineConfig, OnlineSession
-from sgloc.online.keyframe_fleet import KeyframeFleet
+from sgloc.online.keyframe_fleet import KeyframeBackend
 from sgloc.online.keyframe_solve import gtsam_available
 from sgloc.online.robot_map import RobotMap
 from sgloc.sim.object_world import make_object_world
@@ -35,7 +35,7 @@ def _link(world, maps, a, ka, b, kb, n, stamp, cov=None):
 
 
 def _fleet(maps):
-    f = KeyframeFleet(OnlineConfig(backend="keyframes", solver="scipy"))
+    f = KeyframeBackend(OnlineConfig(backend="keyframes", solver="scipy"))
     for r, m in enumerate(maps):
         for T in m.poses:
             f.graph.add_keyframe(r, T)

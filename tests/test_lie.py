@@ -66,3 +66,24 @@ def test_right_jacobian_inverse_is_the_derivative_of_log():
                     for e in np.eye(6)], axis=1)
     np.testing.assert_allclose(J, num, atol=1e-6)
     np.testing.assert_allclose(lie.se3_ad(xi) @ xi, np.zeros(6), atol=1e-15)
+
+
+def test_product_chart_keeps_rotation_and_translation_apart():
+    rng = np.random.default_rng(4)
+    d = _random_xi(rng, 20, 2.0)
+    T = lie.product_exp(d)
+    assert T.shape == (20, 4, 4)
+    np.testing.assert_allclose(T[:, :3, :3], lie.so3_exp(d[:, :3]), atol=0)
+    np.testing.assert_array_equal(T[:, :3, 3], d[:, 3:])
+    np.testing.assert_allclose(lie.product_log(T), d, atol=1e-9)
+    np.testing.assert_array_equal(lie.product_exp(d[5]), T[5])
+
+
+def test_axis_rotation_is_exp_of_the_scaled_axis():
+    rng = np.random.default_rng(5)
+    axis = rng.normal(size=3)
+    angle = np.concatenate([[0.0], rng.uniform(-3, 3, size=30)])
+    R = lie.axis_rotation(2.0 * axis, angle)
+    omega = angle[:, None] * axis / np.linalg.norm(axis)
+    np.testing.assert_allclose(R, lie.so3_exp(omega), atol=1e-12)
+    np.testing.assert_array_equal(R[0], np.eye(3))  # angle 0: the identity, bit for bit

@@ -14,7 +14,7 @@ from sgloc.online.keyframe_consistency import (
     max_clique,
     stretch_covariance,
 )
-from sgloc.online.keyframe_fleet import KeyframeFleet
+from sgloc.online.keyframe_fleet import KeyframeBackend
 from sgloc.online.keyframe_links import select_links
 from sgloc.online.records import LINK_HELD
 from sgloc.online.robot_map import RobotMap
@@ -55,7 +55,7 @@ def _link(world, maps, a, ka, b, kb, n, stamp, off=None, cov=COV):
 
 
 def _fleet(maps, noise=None):
-    f = KeyframeFleet(OnlineConfig(backend="keyframes", solver="scipy",
+    f = KeyframeBackend(OnlineConfig(backend="keyframes", solver="scipy",
                                    odometry=noise or OdometryNoise()))
     for r, m in enumerate(maps):
         for T in m.poses:

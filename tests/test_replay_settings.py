@@ -5,6 +5,7 @@ import json
 
 import pytest
 
+import sgloc.evaluation.replay_scenarios  # noqa: F401  (adds the city scenario)
 from sgloc.cli import main
 from sgloc.errors import SglocError, UnknownNameError
 from sgloc.online import OnlineConfig

@@ -26,6 +26,7 @@ def test_graph_job_routes_loader_options_and_settings():
 
 
 def test_replay_job_checks_the_input_before_reading_it():
+    import sgloc.evaluation.replay_scenarios  # noqa: F401  (adds kitti00 and city)
     from sgloc.replay.job import replay_job
     from sgloc.replay.scenarios import REPLAY_SCENARIOS
 
@@ -104,3 +105,14 @@ def test_objects_demo_localizes_the_object_world(tmp_path):
     assert np.array_equal(done.result.transform, direct.transform)
     assert np.array_equal(done.truth, scene.T_target_query) and done.run_dir is None
     assert (tmp_path / "o.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_a_named_scenario_without_the_evaluation_loaded_says_what_to_import():
+    """The replay keeps only the registry; the evaluation adds kitti00 and city to it."""
+    import subprocess
+    import sys
+
+    code = ("from sgloc.errors import SglocError\nfrom sgloc.replay.job import replay_job\n"
+            "try:\n    replay_job(scenarios=['city'])\nexcept SglocError as e:\n    print(e)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert "import sgloc.evaluation.replay_scenarios first" in out.stdout

@@ -1,4 +1,5 @@
-"""SO(3) and SE(3): the one place for skew matrices, exponential and logarithm maps, adjoints.
+"""SO(3) and SE(3): the one place for skew matrices, exponential and logarithm maps (also the
+SO(3) x R^3 chart and rotations about one axis), adjoints.
 
 Conventions (gtsam's `Pose3`): a tangent vector is xi = [rx, ry, rz, tx, ty, tz] (rad, m),
 rotation first; a perturbation is on the right, T_true = T @ Exp(xi), xi in T's source frame.
@@ -44,6 +45,16 @@ def so3_exp(omega: np.ndarray) -> np.ndarray:
     return np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
 
 
+def axis_rotation(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotations by `angle` (...,) rad about one `axis` (3,), normalised here:
+    Rodrigues, I + sin(a) [u]x + (1 - cos a) [u]x^2 (no small-angle series: a = 0 is exact)."""
+    u = np.asarray(axis, dtype=np.float64)
+    K = skew(u / np.linalg.norm(u))
+    angle = np.asarray(angle, dtype=np.float64)
+    s, c = np.sin(angle)[..., None, None], np.cos(angle)[..., None, None]
+    return np.eye(3) + s * K + (1.0 - c) * (K @ K)
+
+
 def so3_log(R: np.ndarray) -> np.ndarray:
     """(..., 3) rotation vectors (rad) of rotation matrices R (..., 3, 3); angle in [0, pi]."""
     from scipy.spatial.transform import Rotation  # robust near pi
@@ -77,6 +88,23 @@ def se3_log(T: np.ndarray) -> np.ndarray:
     omega = so3_log(T[..., :3, :3])
     v = np.linalg.solve(left_jacobian(omega), T[..., :3, 3][..., None])[..., 0]
     return np.concatenate([omega, v], axis=-1)
+
+
+def product_exp(delta: np.ndarray) -> np.ndarray:
+    """(..., 4, 4) the SO(3) x R^3 chart of delta (..., 6) = [rx ry rz tx ty tz]: rotation
+    Exp(r) and translation t apart (not SE(3)'s Exp, whose translation is V(r) t)."""
+    delta = np.asarray(delta, dtype=np.float64)
+    T = np.zeros((*delta.shape[:-1], 4, 4))
+    T[..., :3, :3] = so3_exp(delta[..., :3])
+    T[..., :3, 3] = delta[..., 3:]
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def product_log(T: np.ndarray) -> np.ndarray:
+    """(..., 6) the inverse of `product_exp`: [Log(R), t] of transforms T (..., 4, 4)."""
+    T = np.asarray(T, dtype=np.float64)
+    return np.concatenate([so3_log(T[..., :3, :3]), T[..., :3, 3]], axis=-1)
 
 
 def retract(T: np.ndarray, delta: np.ndarray) -> np.ndarray:

@@ -113,16 +113,9 @@ def accept(
     verdict = Verdict(transform is not None, transform, matches, None, reason)
     if transform is not None and cfg.enabled:
         t0 = clock()
-        tested = select_evidence(
-            query, target, desc_q, desc_t, candidates, distinct_flags, matching, cfg.evidence,
-            prepared,
-        )
-        a = assess(query, target, tested, transform, radius, cfg, rng, motion, prepared)
-        verdict = Verdict(a.accepted, transform if a.accepted else None, matches, a.confidence,
-                          a.reason, assessment=a)  # fmt: skip
-        if verdict.accepted:  # a self-similar strip of a mirrored map (acceptance.mirror)
-            known = a.landed if a.radius_m == radius else None
-            _refuse_mirrored(verdict, query, target, radius, known, prepared)
+        tested = select_evidence(query, target, desc_q, desc_t, candidates, distinct_flags,
+                                 matching, cfg.evidence, prepared)  # fmt: skip
+        verdict = _assessed(verdict, query, target, tested, radius, cfg, rng, motion, prepared)
         verdict.timings["acceptance"] = clock() - t0
     if not verdict.accepted and verifies(cfg, motion, len(query)):
         t0 = clock()
@@ -133,6 +126,29 @@ def accept(
         _refuse_elsewhere(verdict, query, target, float(cfg.radius or radius), cfg, motion)
         verdict.timings["acceptance"] = verdict.timings.get("acceptance", 0.0) + clock() - t0
     return _settled(verdict, len(candidates), matching.min_similarity)
+
+
+def _assessed(
+    verdict: Verdict,
+    query: SemanticGraph,
+    target: SemanticGraph,
+    tested: np.ndarray,
+    radius: float,
+    cfg: AcceptanceConfig,
+    rng: np.random.Generator | None,
+    motion: MotionModel,
+    prepared: PreparedGraph | None,
+) -> Verdict:
+    """The chance test of `verdict`'s estimate on the evidence matches `tested` (`assess`),
+    then the mirror check of an accepted one: a new Verdict carrying the assessment."""
+    transform = verdict.transform
+    a = assess(query, target, tested, transform, radius, cfg, rng, motion, prepared)
+    verdict = Verdict(a.accepted, transform if a.accepted else None, verdict.matches,
+                      a.confidence, a.reason, assessment=a)  # fmt: skip
+    if verdict.accepted:  # a self-similar strip of a mirrored map (acceptance.mirror)
+        known = a.landed if a.radius_m == radius else None
+        _refuse_mirrored(verdict, query, target, radius, known, prepared)
+    return verdict
 
 
 def _refuse_elsewhere(

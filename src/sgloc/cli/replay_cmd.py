@@ -103,7 +103,7 @@ def replay_cmd(
     """
     setting, online = split_online_settings(setting)
     inputs = _claim(ctx, sources or [], robot or [], classes, config, out, out_bag)
-    job = replay_job(sources or [], robot or [], _scenarios(kitti00, city), robots=robots,
+    job = replay_job(sources or [], robot or [], scenario_names(kitti00, city), robots=robots,
                      scans=scans, every=every, poses=poses, seed=seed, classes=classes,
                      odom_topic=odom_topic, objects_topic=objects_topic, backend=backend, root=root,
                      online=online)
@@ -122,9 +122,13 @@ def _claim(ctx: typer.Context, sources, robot, classes, config, out, out_bag) ->
     return inputs
 
 
-def _scenarios(kitti00: bool, city: bool) -> list[str]:
-    """The scenarios asked for (`sgloc.replay.scenarios`)."""
-    return [name for name, on in (("kitti00", kitti00), ("city", city)) if on]
+def scenario_names(kitti00: bool, city: bool) -> list[str]:
+    """The scenarios asked for, their makers loaded (`sgloc.evaluation.replay_scenarios` adds
+    them to the replay's `REPLAY_SCENARIOS`)."""
+    names = [name for name, on in (("kitti00", kitti00), ("city", city)) if on]
+    if names:
+        import sgloc.evaluation.replay_scenarios  # noqa: F401
+    return names
 
 
 def _bar(quiet: bool):

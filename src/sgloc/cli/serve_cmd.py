@@ -26,6 +26,7 @@ from sgloc.cli.replay_cmd import (
     Scans,
     Seed,
     Sources,
+    scenario_names,
 )
 
 Listen = Annotated[str, typer.Option(help="Zenoh endpoint to listen on (loopback by default; "
@@ -129,8 +130,7 @@ def stream_cmd(
     from sgloc.live.stream import stream_logs
     from sgloc.replay.job import replay_job
 
-    scenarios = [name for name, on in (("kitti00", kitti00), ("city", city)) if on]
-    job = replay_job(sources or [], robot or [], scenarios, robots=robots,
+    job = replay_job(sources or [], robot or [], scenario_names(kitti00, city), robots=robots,
                      scans=scans, every=every, poses=poses, seed=seed, classes=classes,
                      odom_topic=odom_topic, objects_topic=objects_topic)
     rec = stream_logs(job.logs, to, rate, lockstep)

@@ -1,5 +1,7 @@
 """Recorded or simulated runs cut into robots, with ground truth: the KITTI 00 run, the
-synthetic city and a small object world, each as RobotLogs ready to replay.
+synthetic city and a small object world, each as RobotLogs ready to replay. The first two are
+also `sgloc replay`'s named scenarios (`kitti00`, `city`), added here to the replay's
+REPLAY_SCENARIOS.
 
 Every robot's odometry frame is its first keyframe's sensor frame (the KITTI and city cuts) or
 a random rigid frame (the object world); T_gt_odom places it in the ground-truth frame, so the
@@ -18,6 +20,7 @@ import numpy as np
 from sgloc.errors import SglocError
 from sgloc.geometry import apply, invert, random_rigid_transform
 from sgloc.io.keyframes import RobotLog, make_robot_log
+from sgloc.replay.scenarios import REPLAY_SCENARIOS, ReplayInput
 
 
 @dataclass
@@ -192,3 +195,23 @@ def world_scenario(
         logs.append(log_from_frames(name, np.arange(len(x)) * period, T, det, T_world_odom))
         gt[name] = T_world_odom
     return Scenario(logs, gt, None, f"object world {seed}: {len(stretches)} robots")
+
+
+@REPLAY_SCENARIOS.register("kitti00")
+def kitti00(robots: int = 4, scans: str = "0-2999", every: int = 1,
+            poses: str = "raw") -> ReplayInput:
+    """KITTI 00 (data `kitti00`) scans `first-last` cut into `robots` consecutive segments,
+    every `every`-th scan a keyframe; `poses` raw (poses_00.txt) or refined (needs gtsam)
+    (`kitti_scenario`)."""
+    try:
+        first, last = (int(v) for v in scans.split("-"))
+    except ValueError:
+        raise SglocError(f"--scans {scans!r}: give first-last, e.g. 0-2999.") from None
+    return ReplayInput(kitti_scenario(robots, first, last, every, poses).logs, "kitti-objects")
+
+
+@REPLAY_SCENARIOS.register("city")
+def city(robots: int = 4, seed: int = 0) -> ReplayInput:
+    """The synthetic city `seed`'s two routes cut into `robots` robots, objects only
+    (`city_scenario`)."""
+    return ReplayInput(city_scenario(robots, seed).logs, "city-objects")

@@ -137,8 +137,9 @@ def link_of(maps: list[RobotMap], names: list[str], task: Query, result: Attempt
                 keyframe_a=ka, keyframe_b=kb)
 
 
-class KeyframeFleet:
-    """The keyframe pose graph and its links, for an `OnlineSession`."""
+class KeyframeBackend:
+    """The keyframe back-end's state for an `OnlineSession`: the keyframe pose graph, its links
+    and what each robot pair was last tried at."""
 
     def __init__(self, online: OnlineConfig, root: int = 0) -> None:
         self.online = online
@@ -392,7 +393,7 @@ class KeyframeFleet:
         return meta, arrays
 
     @classmethod
-    def from_state(cls, online: OnlineConfig, meta: dict, arrays: dict) -> KeyframeFleet:
+    def from_state(cls, online: OnlineConfig, meta: dict, arrays: dict) -> KeyframeBackend:
         """The back-end `state` described, its graph holding the saved solution."""
         f = cls(online)
         f.graph = KeyframeGraph.from_state(online.odometry, meta, arrays)

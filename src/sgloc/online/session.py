@@ -17,7 +17,7 @@ from sgloc.maps.graph import SemanticGraph
 from sgloc.online.batch import AttemptBatch, run_batch
 from sgloc.online.config import OnlineConfig
 from sgloc.online.joint import largest_shift, refine_fleet
-from sgloc.online.keyframe_fleet import KeyframeFleet, make_query, query_from
+from sgloc.online.keyframe_fleet import KeyframeBackend, make_query, query_from
 from sgloc.online.keyframe_graph import keyframe_link
 from sgloc.online.link_selection import (
     Edge,
@@ -72,7 +72,7 @@ class OnlineSession:
         self.attempts: list[Attempt] = []
         self.events: list[Event] = []
         # backend "keyframes": the keyframe pose graph, its links, each robot's last loop try
-        self._kf = KeyframeFleet(self.online) if self.online.backend == "keyframes" else None
+        self._kf = KeyframeBackend(self.online) if self.online.backend == "keyframes" else None
         self._loop_last: dict[int, int] = {}
         # the joint refinement's last run: (its robots, their objects) and its corrections
         self._joint_at: tuple[list[str], int] | None = None
@@ -454,8 +454,8 @@ class OnlineSession:
                  finishing: int | None = None) -> None:
         """Backend "keyframes": plan the due pairs' attempts into `batch` (each robot of a pair
         that travelled half a submap since its last try is a query, its recent submap in the
-        other's map: `KeyframeFleet.directions`; a `finishing` robot's last stretch in every
-        other map) and loop closures, at most `budget` in all, in `KeyframeFleet.ordered`'s
+        other's map: `KeyframeBackend.directions`; a `finishing` robot's last stretch in every
+        other map) and loop closures, at most `budget` in all, in `KeyframeBackend.ordered`'s
         order. Nothing is noted until `_kf_apply`."""
         o = self.online
         maps = [self._maps[r] for r in self.robots]
@@ -919,7 +919,7 @@ class OnlineSession:
         s._joint_fix = {r: np.array(arrays[f"joint_fix{s.robots.index(r)}"], np.float64)
                         for r in meta.get("joint_fixed", [])}
         if s._kf is not None:  # the saved solution as it was (not re-solved)
-            s._kf = KeyframeFleet.from_state(o, meta["keyframes"], arrays)
+            s._kf = KeyframeBackend.from_state(o, meta["keyframes"], arrays)
             g = s._kf.graph
             s._T = {s.robots[r]: g.T_fleet_odom(r) for r in g.placed}
         elif "placed" in meta:

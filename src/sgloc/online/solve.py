@@ -9,7 +9,7 @@ import numpy as np
 
 from sgloc.errors import SglocError
 from sgloc.geometry import invert, regularized_covariance
-from sgloc.lie import so3_exp, so3_log
+from sgloc.lie import product_exp, product_log
 from sgloc.online.link_selection import Edge
 
 
@@ -59,20 +59,6 @@ def _solve_gtsam(initial, edges, covariances, root):
     return {k: result.atPose3(k).matrix() for k in initial}
 
 
-def _exp(delta: np.ndarray) -> np.ndarray:
-    """The scipy solver's chart, [rx ry rz tx ty tz] -> (Exp(r), t): rotation and translation
-    apart (`sgloc.lie.so3_exp`), not SE(3)'s Exp (whose translation is V(r) t)."""
-    T = np.eye(4)
-    T[:3, :3] = so3_exp(delta[:3])
-    T[:3, 3] = delta[3:]
-    return T
-
-
-def _log(T: np.ndarray) -> np.ndarray:
-    """The inverse of `_exp`: (Log(R), t) (`sgloc.lie.so3_log`)."""
-    return np.concatenate([so3_log(T[:3, :3]), T[:3, 3]])
-
-
 def _solve_scipy(initial, edges, covariances, root):
     from scipy.optimize import least_squares
 
@@ -83,13 +69,13 @@ def _solve_scipy(initial, edges, covariances, root):
     inv_meas = [invert(e.T_a_b) for e in edges]
 
     def poses(x):
-        return {k: initial[k] if k == root else initial[k] @ _exp(x[6 * slot[k]: 6 * slot[k] + 6])
-                for k in initial}
+        return {k: initial[k] if k == root
+                else initial[k] @ product_exp(x[6 * slot[k]: 6 * slot[k] + 6]) for k in initial}
 
     def residuals(x):
         X = poses(x)
         return np.concatenate([
-            U @ _log(Mi @ invert(X[e.a]) @ X[e.b])
+            U @ product_log(Mi @ invert(X[e.a]) @ X[e.b])
             for e, Mi, U in zip(edges, inv_meas, whiten, strict=True)
         ])
 

@@ -109,6 +109,19 @@ class LocalizationResult:
         return document(self, full=True)
 
 
+def _canonical_pair(
+    query: SemanticGraph, target: SemanticGraph | PreparedMap, config: LocalizerConfig
+) -> CanonicalPair:
+    """The pair in canonical vertex order and class ids 0..L-1 (`sgloc.maps.canonical`; its
+    restore() undoes it): the prepared map's own when it has every class of the query."""
+    canonical = target.pair(query, config) if isinstance(target, PreparedMap) else None
+    if canonical is None:  # a graph, or a query with a class the prepared map lacks
+        target = target.graph if isinstance(target, PreparedMap) else target
+        _check_graph(target, "target")
+        canonical = CanonicalPair(query, target, config)
+    return canonical
+
+
 def _check_graph(graph: SemanticGraph, role: str) -> None:
     if not isinstance(graph, SemanticGraph):
         raise InvalidGraphError(f"{role} must be a SemanticGraph, got {type(graph).__name__}.")
@@ -177,21 +190,13 @@ class Localizer:
         _check_graph(query, "query")
         if self.config.scale == AUTO:
             return self._at_estimated_scale(query, target, rng, clock)
-        # Canonical vertex order and class ids 0..L-1 (sgloc.maps.canonical); undone by restore().
-        canonical = target.pair(query, self.config) if isinstance(target, PreparedMap) else None
-        if canonical is None:  # a graph, or a query with a class the prepared map lacks
-            target = target.graph if isinstance(target, PreparedMap) else target
-            _check_graph(target, "target")
-            canonical = CanonicalPair(query, target, self.config)
+        canonical = _canonical_pair(query, target, self.config)  # undone by restore()
         query, target, cfg = canonical.query, canonical.target, canonical.config
         streams, timer = stage_streams(rng), StageTimer(clock)
         n_classes = max(query.n_classes, target.n_classes)
         prepared = canonical.prepared_target or PreparedGraph(target)  # kept or for this call
         with timer("descriptors"):
-            dq = self.descriptor(query, n_classes, streams["descriptors"])
-            if prepared.descriptors is None:
-                prepared.descriptors = self.descriptor(target, n_classes, streams["descriptors"])
-            dt = prepared.descriptors
+            dq, dt = self._describe(query, target, prepared, n_classes, streams["descriptors"])
         prepared_query = PreparedGraph(query, dq)
         with timer("matching"):
             matched = _match(prepared_query, prepared, cfg)
@@ -226,6 +231,17 @@ class Localizer:
             fitted=_fitted(query, target, verdict, pose, weights, cfg),
         )
         return canonical.restore(result)  # the caller's vertex indices and config
+
+    def _describe(
+        self, query: SemanticGraph, target: SemanticGraph, prepared: PreparedGraph,
+        n_classes: int, rng: np.random.Generator,
+    ) -> tuple:
+        """(query descriptors, target descriptors): the target's kept on `prepared` (computed
+        there when missing), both drawn from the one descriptors stream `rng`, query first."""
+        dq = self.descriptor(query, n_classes, rng)
+        if prepared.descriptors is None:
+            prepared.descriptors = self.descriptor(target, n_classes, rng)
+        return dq, prepared.descriptors
 
     def _at_estimated_scale(
         self,

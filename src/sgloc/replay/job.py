@@ -1,6 +1,7 @@
 """A replay from inputs to outputs (`sgloc replay`): the input chosen (recorded sources, or a
-scenario of `sgloc.replay.scenarios`) and checked with the session's options, then streamed
-through one online session and written (`sgloc.replay.outputs`, and a ROS 2 bag)."""
+scenario of `sgloc.replay.scenarios`, which the evaluation's runs fill) and checked with the
+session's options, then streamed through one online session and written
+(`sgloc.replay.outputs`, and a ROS 2 bag)."""
 
 from __future__ import annotations
 
@@ -126,7 +127,11 @@ def replay_job(
 
 
 def scenario_input(name: str, **options: Any) -> ReplayInput:
-    """The scenario `name` of REPLAY_SCENARIOS with those of `options` it takes."""
+    """The scenario `name` of REPLAY_SCENARIOS with those of `options` it takes (the scenarios
+    are added by `sgloc.evaluation.replay_scenarios`: import it first)."""
+    if not REPLAY_SCENARIOS:
+        raise SglocError(f"replay scenario {name!r}: no scenarios are loaded; import "
+                         "sgloc.evaluation.replay_scenarios first (it adds kitti00 and city).")
     make = REPLAY_SCENARIOS.lookup(name)
     takes = inspect.signature(make).parameters
     return make(**{k: v for k, v in options.items() if k in takes})

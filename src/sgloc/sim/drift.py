@@ -17,6 +17,7 @@ import numpy as np
 
 from sgloc.errors import SglocError
 from sgloc.io.keyframes import RobotLog
+from sgloc.lie import axis_rotation
 
 
 @dataclass(frozen=True)
@@ -52,14 +53,6 @@ def heading_and_positions(
     # drifted = true + accumulated error, so that level 0 leaves every position bit-identical
     error = np.concatenate([np.zeros((1, 3)), np.cumsum(moved - step, axis=0)])
     return psi, xyz + error
-
-
-def axis_rotation(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """(k,3,3) rotations by `angle` (k,) radians about the unit `axis` (3,) (Rodrigues)."""
-    u = axis / np.linalg.norm(axis)
-    K = np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
-    s, c = np.sin(angle)[:, None, None], np.cos(angle)[:, None, None]
-    return np.eye(3) + s * K + (1.0 - c) * (K @ K)
 
 
 def drift_poses(
