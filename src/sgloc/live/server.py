@@ -27,6 +27,7 @@ from typing import Any
 from sgloc.errors import SglocError
 from sgloc.live import messages as msg
 from sgloc.live.transport import DEFAULT_ENDPOINT, PREFIX, check_endpoint, key, open_session
+from sgloc.live.view import DEFAULT_VIEW_HOST, DEFAULT_VIEW_PORT, FleetView
 from sgloc.online import OnlineConfig, OnlineSession
 from sgloc.online.batch import run_batch
 from sgloc.pipeline.config import LocalizerConfig
@@ -54,6 +55,9 @@ class ServeOptions:
         plan weighs every pair of robots; with no keyframe waiting, one after each message).
     solve_every: seconds between re-solves of the fleet frame at most while keyframes are
         waiting (the batches of attempts that finished meanwhile are solved at once).
+    view: also serve the live view to Foxglove (`sgloc.live.view.FleetView`) on
+        ws://`view_host`:`view_port` (loopback unless told otherwise; port 0: any free port),
+        updated `view_rate` times a second at most.
     """
 
     listen: str = DEFAULT_ENDPOINT
@@ -68,6 +72,10 @@ class ServeOptions:
     plan_every: float = 0.05
     solve_every: float = 0.5
     prefix: str = PREFIX
+    view: bool = False
+    view_host: str = DEFAULT_VIEW_HOST
+    view_port: int = DEFAULT_VIEW_PORT
+    view_rate: float = 2.0
 
 
 class LiveServer:
@@ -104,6 +112,7 @@ class LiveServer:
         self._dirty_plan = True  # something changed since the last plan found nothing
         self._n_events = len(self.session.events)
         self._pool = self._zenoh = self._thread = None
+        self.view: FleetView | None = None
 
     def _session(self, config, online, root) -> OnlineSession:
         o = self.options
@@ -119,12 +128,19 @@ class LiveServer:
 
     # -- life cycle ----------------------------------------------------------------------------
     def start(self) -> LiveServer:
-        """Open the Zenoh session, subscribe, start the session's thread."""
+        """Start the view (with `view`), open the Zenoh session, subscribe, start the
+        session's thread."""
         o = self.options
-        if not o.sync:
-            self._pool = _Workers(o.workers, o.scheduler)
-        self._zenoh = open_session("router", listen=o.listen)
-        self._sub = self._zenoh.declare_subscriber(f"{o.prefix}/*/keyframe", self._receive)
+        try:  # what started is closed again when a later step fails (a port in use)
+            if o.view:
+                self.view = FleetView(o.view_host, o.view_port, o.view_rate).start()
+            if not o.sync:
+                self._pool = _Workers(o.workers, o.scheduler)
+            self._zenoh = open_session("router", listen=o.listen)
+            self._sub = self._zenoh.declare_subscriber(f"{o.prefix}/*/keyframe", self._receive)
+        except BaseException:
+            self.stop()
+            raise
         self._thread = threading.Thread(target=self._loop, name="sgloc-live", daemon=True)
         self._thread.start()
         log.info("listening on %s (%s)", o.listen, "sync" if o.sync else "async")
@@ -139,6 +155,8 @@ class LiveServer:
             self._zenoh.close()
         if self._pool is not None:
             self._pool.close()
+        if self.view is not None:
+            self.view.stop()
 
     def __enter__(self) -> LiveServer:
         return self.start()
@@ -188,10 +206,14 @@ class LiveServer:
             self._schedule()
             self._publish_changes()
             self._save_when_due()
+            if self.view is not None:
+                self.view.update(self.session)
             if self._queue.empty() and not self._flight and not self._finishing:
                 self._idle.set()
         self._collect(wait=True)
         self._publish_changes()
+        if self.view is not None:
+            self.view.update(self.session, force=True)
         self.save()
 
     def _handle(self, robot: str, data: bytes) -> None:
