@@ -61,7 +61,7 @@ class FleetView:
         self._ctx = fg.Context()
         try:
             self._server = fg.start_server(name="sgloc", host=self.host, port=self._port,
-                                           context=self._ctx, server_listener=_Listener(self))
+                                           context=self._ctx, server_listener=_listener(self))
         except RuntimeError as e:
             why = str(e).rsplit(": ", 1)[-1]
             raise SglocError(f"the live view cannot listen on {self.host}:{self._port} ({why}): "
@@ -184,11 +184,12 @@ class FleetView:
             self._cv.notify_all()
 
 
-class _Listener:
+def _listener(view: FleetView) -> Any:
     """foxglove's callbacks (on its own thread): a new subscription asks for a resend."""
+    ws = require("foxglove.websocket", "live", "--view (the live view in Foxglove)")
 
-    def __init__(self, view: FleetView) -> None:
-        self._view = view
+    class Listener(ws.ServerListener):  # the protocol's defaults for every other callback
+        def on_subscribe(self, client: Any, channel: Any) -> None:
+            view._subscribed(channel.topic)
 
-    def on_subscribe(self, client: Any, channel: Any) -> None:
-        self._view._subscribed(channel.topic)
+    return Listener()
