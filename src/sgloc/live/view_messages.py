@@ -18,6 +18,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cache
 from typing import Any
 
 import numpy as np
@@ -93,6 +94,7 @@ def _link_segments(links: Sequence[Any], traj: dict, T: dict) -> tuple[np.ndarra
     return np.asarray(segs, float).reshape(-1, 2, 3), np.asarray(active, bool)
 
 
+@cache
 def _fm():
     return require("foxglove.messages", "live", "--view (the live view in Foxglove)")
 
@@ -143,9 +145,13 @@ def map_message(s: FleetSnapshot, object_size: float = 1.0):
     fm = _fm()
     m = merged_map(s.maps, s.fuse_radius)
     size = fm.Vector3(x=object_size, y=object_size, z=object_size)
-    spheres = [fm.SpherePrimitive(pose=_pose(position=p), size=size, color=c)
-               for p, c in zip(m.positions.tolist(), _hex_rgba(class_colours(m.labels)),
-                               strict=True)]
+    upright = fm.Quaternion(w=1.0)
+    classes = np.unique(m.labels).tolist()
+    colour = dict(zip(classes, _hex_rgba(class_colours(classes)), strict=True))
+    spheres = [fm.SpherePrimitive(pose=fm.Pose(position=fm.Vector3(x=x, y=y, z=z),
+                                               orientation=upright),
+                                  size=size, color=colour[c])
+               for (x, y, z), c in zip(m.positions.tolist(), m.labels.tolist(), strict=True)]
     meta = [fm.KeyValuePair(key="objects", value=str(len(m)))]
     return fm.SceneUpdate(entities=[fm.SceneEntity(
         timestamp=_stamp(s), frame_id="map", id="fleet_map", spheres=spheres, metadata=meta)])
