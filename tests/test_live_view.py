@@ -222,6 +222,20 @@ def test_the_messages_decode_without_a_socket(session):
     assert vm.event_messages(vm.snapshot(s, len(s.events))) == []  # only the new ones
 
 
+def test_an_update_sends_only_the_topics_that_changed(session):
+    s = session
+    first = vm.snapshot(s)
+    assert vm.changed(first, None) == set(vm.messages(first)) == TOPICS - {vm.EVENTS}
+    assert vm.changed(vm.snapshot(s), first) == {vm.TF}  # nothing moved: only /tf again
+    _add(s, "c", 4, s.map("a").positions[:2], s.map("a").labels[:2])  # c is not placed
+    assert vm.changed(vm.snapshot(s), first) == {vm.TF}
+    _add(s, "a", 4, s.map("a").positions[:2], s.map("a").labels[:2])
+    now = vm.snapshot(s)
+    assert {vm.trajectory_topic("a"), vm.TF} <= vm.changed(now, first)
+    assert vm.trajectory_topic("c") not in vm.changed(now, first)
+    assert set(vm.messages(now, before=first)) == vm.changed(now, first)
+
+
 def _listening(port: int) -> list[str]:
     """The local addresses of the sockets listening on `port` (Linux /proc/net/tcp*)."""
     out = []

@@ -44,6 +44,7 @@ class FleetView:
         self._server = self._thread = None
         self._channels: dict[str, Any] = {}
         self._last: dict[str, Any] = {}  # topic -> its latest message
+        self._sent: vm.FleetSnapshot | None = None  # the last snapshot sent
         self._events: deque = deque(maxlen=backlog)
         self._cv = threading.Condition()
         self._pending: vm.FleetSnapshot | None = None
@@ -154,9 +155,11 @@ class FleetView:
                 self._cv.notify_all()
 
     def _publish(self, snap: vm.FleetSnapshot) -> None:
-        for topic, m in vm.messages(snap, self.object_size).items():
+        """Send the topics that changed since the last snapshot sent, and the new events."""
+        for topic, m in vm.messages(snap, self.object_size, self._sent).items():
             self._channel(topic).log(m, log_time=snap.stamp_ns)
             self._last[topic] = m
+        self._sent = snap
         for m in vm.event_messages(snap):
             self._channel(vm.EVENTS).log(m, log_time=snap.stamp_ns)
             self._events.append(m)

@@ -211,9 +211,39 @@ def event_messages(s: FleetSnapshot) -> list:
             for e in s.events]
 
 
-def messages(s: FleetSnapshot, object_size: float = 1.0) -> dict[str, Any]:
-    """topic -> the message of each drawn topic (not the events: `event_messages`)."""
-    out = {MAP: map_message(s, object_size), LINKS: links_message(s), TF: tf_message(s)}
+def _same(a: np.ndarray | None, b: np.ndarray | None) -> bool:
+    return (a is None) == (b is None) and (a is None or (a.shape == b.shape
+                                                         and np.array_equal(a, b)))
+
+
+def changed(s: FleetSnapshot, before: FleetSnapshot | None) -> set[str]:
+    """The topics whose message differs between `before` and `s` (all of them without
+    `before`; /tf always: it is small)."""
+    if before is None:
+        return {MAP, LINKS, TF} | {trajectory_topic(r) for r in s.robots}
+    topics = {TF}
+    same_map = s.maps.keys() == before.maps.keys() and all(
+        _same(g.positions, before.maps[r].positions) and _same(g.labels, before.maps[r].labels)
+        for r, g in s.maps.items())
+    if not same_map:
+        topics.add(MAP)
+    if not (_same(s.links, before.links) and _same(s.active, before.active)):
+        topics.add(LINKS)
     for r in s.robots:
-        out[trajectory_topic(r)] = trajectory_message(s, r)
+        if r not in before.trajectories or not _same(s.trajectories[r], before.trajectories[r]):
+            topics.add(trajectory_topic(r))
+    return topics
+
+
+def messages(s: FleetSnapshot, object_size: float = 1.0,
+             before: FleetSnapshot | None = None) -> dict[str, Any]:
+    """topic -> the message of each drawn topic that changed since `before` (all without it;
+    not the events: `event_messages`)."""
+    topics = changed(s, before)
+    build = {MAP: lambda: map_message(s, object_size), LINKS: lambda: links_message(s),
+             TF: lambda: tf_message(s)}
+    out = {t: build[t]() for t in (MAP, LINKS, TF) if t in topics}
+    for r in s.robots:
+        if trajectory_topic(r) in topics:
+            out[trajectory_topic(r)] = trajectory_message(s, r)
     return out
