@@ -4,9 +4,12 @@ ws://127.0.0.1:8765); the topics and frames are `sgloc.live.view_messages`'s.
 
 The session's owner calls `update(session)` as often as it likes: at most `rate` times a second
 it takes a snapshot (plain arrays; only when the session changed) and hands it to the view's
-own thread, which builds and sends the messages. The hand-off holds one snapshot (a newer one
-replaces it, its events kept), so a slow viewer never holds up the session. A viewer that
-subscribes late is sent each topic's latest message and the last `backlog` events."""
+own thread, which builds and sends the messages of the topics that changed. The hand-off holds
+one snapshot (a newer one replaces it, its events kept), so a slow viewer never holds up the
+session, and after each update the view rests twice as long as it worked (building messages
+holds the GIL: a large fleet's map is then updated less often, not at the session's expense).
+A viewer that subscribes late is sent each topic's latest message and the last `backlog`
+events."""
 
 from __future__ import annotations
 
@@ -52,6 +55,7 @@ class FleetView:
         self._closing = False
         self._busy = False
         self._at = -float("inf")
+        self._rest_until = -float("inf")  # the view thread's own limit (`_run`)
         self._key: tuple | None = None
         self._n_events = 0
 
@@ -110,7 +114,7 @@ class FleetView:
         the session changed (`force`: now, whatever changed). Never waits for the viewers;
         call it on the thread that owns the session. True when a snapshot was taken."""
         now = time.monotonic()
-        if not force and now - self._at < 1.0 / self.rate:
+        if not force and (now - self._at < 1.0 / self.rate or now < self._rest_until):
             return False
         self._at = now
         key = (session.revision, len(session.events),
@@ -143,6 +147,7 @@ class FleetView:
                 if snap is None and not resend and self._closing:
                     return
                 self._busy = True
+            t0 = time.monotonic()
             try:
                 if snap is not None:
                     self._publish(snap)
@@ -150,6 +155,9 @@ class FleetView:
                     self._send_again(topic)
             except Exception as e:  # noqa: BLE001 - the view must not take the server down
                 log.warning("the live view could not send an update: %s", e)
+            # Building messages holds the GIL: on a large fleet the view rests twice as long
+            # as it worked, so it takes a third of the session thread's time at most.
+            self._rest_until = time.monotonic() + 2.0 * (time.monotonic() - t0)
             with self._cv:
                 self._busy = False
                 self._cv.notify_all()
