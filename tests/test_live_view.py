@@ -301,6 +301,12 @@ def test_a_port_in_use_is_a_one_line_error():
     assert len(lines) == 1 and f"127.0.0.1:{port}" in lines[0], lines
 
 
+def test_a_host_that_cannot_be_listened_on_is_a_one_line_error():
+    with pytest.raises(SglocError, match="--view-host") as e:
+        FleetView(host="no-such-host.invalid", port=0).start()
+    assert "no-such-host.invalid" in str(e.value) and "\n" not in str(e.value)
+
+
 def test_without_foxglove_the_view_names_the_extra(monkeypatch):
     monkeypatch.setitem(sys.modules, "foxglove", None)  # import foxglove: ImportError
     with pytest.raises(MissingExtraError, match=r"pip install 'sgloc\[live\]'"):

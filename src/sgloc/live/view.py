@@ -69,9 +69,11 @@ class FleetView:
                                            context=self._ctx, server_listener=_listener(self))
         except RuntimeError as e:
             why = str(e).rsplit(": ", 1)[-1]
+            fix = ("choose another --view-port (Python: ServeOptions.view_port) or stop what "
+                   "uses it" if "in use" in why else "check --view-host and --view-port "
+                   "(Python: ServeOptions.view_host, view_port)")
             raise SglocError(f"the live view cannot listen on {self.host}:{self._port} ({why}): "
-                             "choose another --view-port (ServeOptions.view_port) or stop what "
-                             "uses it.") from None
+                             f"{fix}.") from None
         for topic in (vm.MAP, vm.LINKS, vm.TF, vm.EVENTS):
             self._channel(topic)
         self._thread = threading.Thread(target=self._run, name="sgloc-view", daemon=True)
