@@ -63,18 +63,18 @@ class FleetSnapshot:
 def snapshot(session: Any, events_from: int = 0) -> FleetSnapshot:
     """What the view shows of `session` now (its events from index `events_from` on).
     Call it on the thread that owns the session."""
-    from sgloc.replay.outputs import fleet_maps  # deferred, as the view is: a server option
+    from sgloc.replay.outputs import fleet_maps  # deferred: loads the replay's writers
 
-    robots = session.robots
+    robots, T = session.robots, session.corrections()
     traj, odom = {}, {}
     for r in robots:
         odom[r] = session.keyframes(r)[1][-1]
         t = session.trajectory(r)
         traj[r] = None if t is None else t[1][:, :3, 3].copy()
-    links, active = _link_segments(session.links, traj, session.corrections())
+    links, active = _link_segments(session.links, traj, T)
     return FleetSnapshot(robots, fleet_maps(session, robots), float(session.online.fuse_radius),
-                         traj, session.corrections(), odom, links, active,
-                         list(session.events[events_from:]), time.time_ns())
+                         traj, T, odom, links, active, list(session.events[events_from:]),
+                         time.time_ns())
 
 
 def _link_segments(links: Sequence[Any], traj: dict, T: dict) -> tuple[np.ndarray, np.ndarray]:
@@ -108,9 +108,9 @@ def _colour(rgba: Sequence[float]):
     return _fm().Color(r=r, g=g, b=b, a=a)
 
 
-def _hex_rgba(hexes: Sequence[str], alpha: float = 1.0) -> list:
-    return [_colour((int(h[1:3], 16) / 255, int(h[3:5], 16) / 255, int(h[5:7], 16) / 255,
-                     alpha)) for h in hexes]
+def _hex_rgba(hexes: Sequence[str]) -> list:
+    return [_colour((int(h[1:3], 16) / 255, int(h[3:5], 16) / 255, int(h[5:7], 16) / 255, 1.0))
+            for h in hexes]
 
 
 def _points(xyz: np.ndarray) -> list:
@@ -128,14 +128,10 @@ def _frame(T: np.ndarray) -> tuple[Any, Any]:
     return fm.Vector3(x=x, y=y, z=z), fm.Quaternion(x=qx, y=qy, z=qz, w=qw)
 
 
-def _pose(T: np.ndarray | None = None, position: Sequence[float] | None = None):
-    """A Foxglove Pose from a (4,4) transform or a position (identity rotation)."""
-    fm = _fm()
-    if T is None:
-        x, y, z = position
-        return fm.Pose(position=fm.Vector3(x=x, y=y, z=z), orientation=fm.Quaternion(w=1.0))
+def _pose(T: np.ndarray):
+    """A Foxglove Pose of a (4,4) transform."""
     t, q = _frame(T)
-    return fm.Pose(position=t, orientation=q)
+    return _fm().Pose(position=t, orientation=q)
 
 
 def map_message(s: FleetSnapshot, object_size: float = 1.0):
@@ -166,10 +162,10 @@ def trajectory_message(s: FleetSnapshot, robot: str, thickness: float = 0.3):
     if xyz is None:
         return fm.SceneUpdate(deletions=[fm.SceneEntityDeletion(
             timestamp=_stamp(s), type=fm.SceneEntityDeletionType.MatchingId, id=entity)])
-    hexes = CLASS_PALETTE[s.robots.index(robot) % len(CLASS_PALETTE)]
+    colour = CLASS_PALETTE[s.robots.index(robot) % len(CLASS_PALETTE)]
     line = fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineStrip, pose=_pose(np.eye(4)),
                             thickness=thickness, points=_points(xyz),
-                            color=_hex_rgba([hexes])[0])
+                            color=_hex_rgba([colour])[0])
     return fm.SceneUpdate(entities=[fm.SceneEntity(
         timestamp=_stamp(s), frame_id="map", id=entity, lines=[line])])
 
