@@ -195,9 +195,9 @@ def test_a_viewer_decodes_the_sessions_fleet_and_follows_it(session):
             # the session moves on: a's new keyframe reaches the viewer at the next update
             n = len(s.keyframes("a")[0])
             _add(s, "a", n, s.map("a").positions[:3], s.map("a").labels[:3])
-            assert not view.update(s)  # within 1/rate s of the last: no snapshot yet
             time.sleep(1.0 / view.rate)
             assert view.update(s)
+            assert not view.update(s)  # within 1/rate s of the last: no snapshot
             traj = vm.trajectory_topic("a")
             await c.until(lambda got: len(got[traj][-1].entities[0].lines[0].points) == n + 1)
             _check_scene(c.got, s)
