@@ -2,7 +2,8 @@
 (tornado, subprotocol foxglove.sdk.v1) takes the advertise, subscribes, and decodes each
 message with the schema the server advertised (protobuf); what it decodes is the session's
 fleet map, trajectories, links, transforms and events. The server listens on loopback unless
-told otherwise, and a port in use or a missing extra is a one-line error."""
+told otherwise, and a port in use or a missing extra is a one-line error. The city streamed
+over Zenoh to a server with the view reaches a viewer whole."""
 
 from __future__ import annotations
 
@@ -346,3 +347,45 @@ def test_a_server_with_view_shows_the_robots_it_serves():
                                    atol=1e-9)
         np.testing.assert_allclose(tf["r0/odom", "r0/base_link"],
                                    srv.session.keyframes("r0")[1][-1], atol=1e-9)
+
+
+def test_the_city_streamed_to_a_server_with_view_is_seen_whole():
+    """Four robots of the city over Zenoh (lockstep, --sync) while a viewer watches: at the
+    end it holds the server's fleet map, every link, transform and event."""
+    pytest.importorskip("zenoh")
+    from sgloc.evaluation.replay_scenarios import city_scenario
+    from sgloc.live.server import LiveServer, ServeOptions
+    from sgloc.live.stream import stream_logs
+    from sgloc.pipeline.presets import localizer_preset
+
+    ep = f"tcp/127.0.0.1:{_port()}"
+    opts = ServeOptions(listen=ep, sync=True, view=True, view_port=0)
+    logs = city_scenario(4, 0).logs
+    with LiveServer(localizer_preset("city-objects"), OnlineConfig(), opts) as srv:
+        s = srv.session
+
+        async def run():
+            c = Client(srv.view.port)
+            await c.connect({vm.MAP, vm.LINKS, vm.TF, vm.EVENTS})
+            await asyncio.to_thread(stream_logs, logs, ep, rate=0, lockstep=True, timeout=30)
+            assert await asyncio.to_thread(srv.wait_idle, 30)
+            n = len(merged_map(fleet_maps(s, s.robots), s.online.fuse_radius))
+            await c.until(lambda got: len(got.get(vm.EVENTS, [])) == len(s.events)
+                          and {vm.MAP, vm.TF} <= got.keys()
+                          and len(got[vm.MAP][-1].entities[0].spheres) == n
+                          and len(got[vm.TF][-1].transforms) == 2 * len(s.robots), timeout=15)
+            c.close()
+            return c.got
+
+        got = asyncio.run(run())
+    exp = merged_map(fleet_maps(s, s.robots), s.online.fuse_radius)
+    assert len(s.corrections()) == 4 and len(s.links) > 0
+    spheres = got[vm.MAP][-1].entities[0].spheres
+    np.testing.assert_allclose(_xyz([sp.pose.position for sp in spheres]), exp.positions,
+                               atol=1e-9)
+    assert len(got[vm.LINKS][-1].entities[0].lines[0].points) == 2 * sum(
+        not lk.revoked for lk in s.links)
+    tf = {(t.parent_frame_id, t.child_frame_id): _matrix(t.translation, t.rotation)
+          for t in got[vm.TF][-1].transforms}
+    for r, T in s.corrections().items():
+        np.testing.assert_allclose(tf["map", f"{r}/odom"], T, atol=1e-9)
