@@ -44,6 +44,12 @@ MaxAttempts = Annotated[int, typer.Option(min=1, help="Attempts per scheduled ba
 Seconds = Annotated[float | None, typer.Option(min=0.0, help="Stop after this many seconds "
                                                "(default: run until Ctrl-C).")]
 Quiet = Annotated[bool, typer.Option("--quiet", help="No status lines.")]
+View = Annotated[bool, typer.Option("--view", help="Also serve the live view to Foxglove: open "
+                                    "ws://127.0.0.1:8765 in the Foxglove app (docs/live.md).")]
+ViewHost = Annotated[str, typer.Option(help="Address the live view listens on (loopback by "
+                                       "default; 0.0.0.0 for every interface).")]
+ViewPort = Annotated[int, typer.Option(min=0, max=65535, help="Port of the live view "
+                                       "(0: any free port, printed).")]
 To = Annotated[str, typer.Option(help="The server's Zenoh endpoint.")]
 Rate = Annotated[float, typer.Option(min=0.0, help="Speed-up over the recorded stamps (1: real "
                                      "time, 0: as fast as possible).")]
@@ -68,6 +74,9 @@ def serve_cmd(
     config: ConfigFile = None,
     setting: Settings = None,
     seconds: Seconds = None,
+    view: View = False,
+    view_host: ViewHost = "127.0.0.1",
+    view_port: ViewPort = 8765,
     quiet: Quiet = False,
 ) -> None:
     """Host one online session for robots streaming over Zenoh: keyframes on
@@ -75,7 +84,7 @@ def serve_cmd(
     events on sgloc/events (docs/live.md).
 
     Examples: sgloc serve --state base.npz   |   sgloc serve --preset city-objects --sync
-    |   sgloc serve --listen tcp/0.0.0.0:7447 --workers 2
+    |   sgloc serve --listen tcp/0.0.0.0:7447 --workers 2   |   sgloc serve --view
     """
     from sgloc.live.server import ServeOptions, serve
     from sgloc.online import OnlineConfig
@@ -84,7 +93,8 @@ def serve_cmd(
     if backend not in BACKENDS:
         raise typer.BadParameter(f"--backend {backend!r}: choose keyframes or robots.")
     console = Console(quiet=quiet)
-    options = ServeOptions(listen, state, save_every, sync, workers, scheduler, max_attempts)
+    options = ServeOptions(listen, state, save_every, sync, workers, scheduler, max_attempts,
+                           view=view, view_host=view_host, view_port=view_port)
     online = OnlineConfig(seed=seed, backend=backend)
     server = serve(localizer_config(preset, config, setting), online, options, seconds,
                    lambda s: console.print(_status(s)), root)
@@ -94,6 +104,8 @@ def serve_cmd(
 def _status(server) -> str:
     s, c, o = server.session, server.counts, server.options
     where = f"serving on {o.listen} ({'sync' if o.sync else 'async'})"
+    if server.view is not None:
+        where += f", live view on {server.view.url}"
     drops = ", ".join(f"{k} {c[k]}" for k in sorted(c) if k not in ("received", "keyframes"))
     return (f"{where}: {len(s.robots)} robots ({len(s.corrections())} placed), {c['keyframes']} "
             f"keyframes, {sum(lk.active for lk in s.links)} active links; dropped: "

@@ -36,6 +36,7 @@ from sgloc.live.transport import (
     key,
     open_session,
 )
+from sgloc.live.view import DEFAULT_VIEW_HOST, DEFAULT_VIEW_PORT, FleetView
 from sgloc.online import OnlineConfig, OnlineSession
 from sgloc.online.batch import run_batch
 from sgloc.pipeline.config import LocalizerConfig
@@ -63,6 +64,9 @@ class ServeOptions:
         plan weighs every pair of robots; with no keyframe waiting, one after each message).
     solve_every: seconds between re-solves of the fleet frame at most while keyframes are
         waiting (the batches of attempts that finished meanwhile are solved at once).
+    view: also serve the live view to Foxglove (`sgloc.live.view.FleetView`) on
+        ws://`view_host`:`view_port` (loopback unless told otherwise; port 0: any free port),
+        updated `view_rate` times a second at most.
     """
 
     listen: str = DEFAULT_ENDPOINT
@@ -77,6 +81,10 @@ class ServeOptions:
     plan_every: float = 0.05
     solve_every: float = 0.5
     prefix: str = PREFIX
+    view: bool = False
+    view_host: str = DEFAULT_VIEW_HOST
+    view_port: int = DEFAULT_VIEW_PORT
+    view_rate: float = 2.0
 
 
 class LiveServer:
@@ -116,6 +124,7 @@ class LiveServer:
         self._dirty_plan = True  # something changed since the last plan found nothing
         self._n_events = len(self.session.events)
         self._pool = self._zenoh = self._thread = None
+        self.view: FleetView | None = None
 
     def _session(self, config, online, root) -> OnlineSession:
         o = self.options
@@ -131,12 +140,19 @@ class LiveServer:
 
     # -- life cycle ----------------------------------------------------------------------------
     def start(self) -> LiveServer:
-        """Open the Zenoh session, subscribe, start the session's thread."""
+        """Start the view (with `view`), open the Zenoh session, subscribe, start the
+        session's thread."""
         o = self.options
-        if not o.sync:
-            self._pool = _Workers(o.workers, o.scheduler)
-        self._zenoh = open_session("router", listen=o.listen)
-        self._sub = self._zenoh.declare_subscriber(f"{o.prefix}/*/keyframe", self._receive)
+        try:  # what started is closed again when a later step fails (a port in use)
+            if o.view:
+                self.view = FleetView(o.view_host, o.view_port, o.view_rate).start()
+            if not o.sync:
+                self._pool = _Workers(o.workers, o.scheduler)
+            self._zenoh = open_session("router", listen=o.listen)
+            self._sub = self._zenoh.declare_subscriber(f"{o.prefix}/*/keyframe", self._receive)
+        except BaseException:
+            self.stop()
+            raise
         self._thread = threading.Thread(target=self._loop, name="sgloc-live", daemon=True)
         self._thread.start()
         log.info("listening on %s (%s)", o.listen, "sync" if o.sync else "async")
@@ -151,6 +167,8 @@ class LiveServer:
             self._zenoh.close()
         if self._pool is not None:
             self._pool.close()
+        if self.view is not None:
+            self.view.stop()
 
     def __enter__(self) -> LiveServer:
         return self.start()
@@ -176,7 +194,8 @@ class LiveServer:
                 self._drop("flood", robot, "the server's queue is full: messages dropped")
                 return
             m = self._admit(robot, data)
-            queued = isinstance(m, msg.Keyframe | msg.End)
+            # sync: a hello waits its turn too, answered once what came before it is taken
+            queued = isinstance(m, msg.Keyframe | msg.End) or (m is not None and self.options.sync)
             if queued:
                 self._queue.put_nowait((robot, m))
                 self._waiting[robot] += 1
@@ -242,10 +261,14 @@ class LiveServer:
             self._schedule()
             self._publish_changes()
             self._save_when_due()
+            if self.view is not None:
+                self.view.update(self.session)
             if self._queue.empty() and not self._flight and not self._finishing:
                 self._idle.set()
         self._collect(wait=True)
         self._publish_changes()
+        if self.view is not None:
+            self.view.update(self.session, force=True)
         self.save()
 
     def _take(self, robot: str, m) -> None:
@@ -257,6 +280,8 @@ class LiveServer:
                 with self._lock:
                     self.counts["keyframes"] += 1
                     self._held[robot] = m.stamp_ns
+            elif isinstance(m, msg.Hello):
+                pass
             elif robot in s.robots and self.options.sync:
                 s.finish(robot, m.stamp_ns * 1e-9)
             elif robot in s.robots:  # planned once no attempt of the robot is in flight
