@@ -141,7 +141,9 @@ def _print(console: Console, done: DemoResult, out: Path) -> None:
         f"{len(res.candidates)} candidates, {len(res.survivors)} after rejection, "
         f"{len(res.matches)} final",
     )
-    table.add_row("time", f"{res.timings['total'] * 1e3:.1f} ms {compile_note()}".rstrip())
+    table.add_row("time", f"{res.timings['total'] * 1e3:.1f} ms")
+    if note := compile_note():
+        table.add_row("", note)
     if res.accepted:
         te, re = transform_error(res.transform, done.truth)
         table.add_row("error vs ground truth", f"translation {te:.2f} m, rotation {re:.2f} deg")
