@@ -56,9 +56,10 @@ PaperDefaults = Annotated[bool, typer.Option(
     help="Localize with the paper's defaults only (no city class weights)."
 )]
 Out = Annotated[str, typer.Option(
+    metavar="PATH",
     help="Picture of the aligned maps: .png, .jpg, .pdf, .svg, ... (the format follows the "
     "ending), or a folder (existing, or ending in '/') to get aligned_maps.png in it. Its "
-    "folder is created; an existing picture is replaced only if sgloc drew it."
+    "folder is created; an existing picture is replaced only if sgloc drew it.",
 )]
 ObjectsOnly = Annotated[bool, typer.Option(
     "--objects-only", help="Use the tiny object world (no rendering, instant)."
