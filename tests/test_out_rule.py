@@ -91,7 +91,7 @@ def test_the_root_folder_is_refused():  # checked without a command: nothing cou
     ["experiment", "table", "--trials", "1", "--out", "."],
     ["replay", "--city", "--robots", "2", "--out", ".."],
     ["replay", "maps", "--out", "maps"],
-    ["demo", "--objects-only", "--out", "."],
+    ["demo", "--objects-only", "--out", "notes.txt"],
     ["build-graph", "airsim", "maps", "-o", "maps"],
     ["localize", "maps/B.json", "maps/A.json", "--json", "maps/A.json"],
     ["localize", "maps/B.json", "maps/A.json", "--out", "r", "--json", "r/full.json"],

@@ -10,7 +10,6 @@ the stage decides, the caller keeps its own fitting.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -26,6 +25,7 @@ from sgloc.estimation import GROUND_VEHICLE, MotionModel
 from sgloc.maps.graph import SemanticGraph
 from sgloc.maps.prepared_graph import PreparedGraph
 from sgloc.matching.candidates import MatchingConfig
+from sgloc.runtime.timing import run_clock
 
 #: Fewer candidate matches than this fix no transform (a triple).
 MIN_CANDIDATES = 3
@@ -85,7 +85,7 @@ def accept(
     motion: MotionModel = GROUND_VEHICLE,
     refit: Callable[[np.ndarray], np.ndarray | None] | None = None,
     rng: np.random.Generator | None = None,
-    clock: Callable[[], float] = time.perf_counter,
+    clock: Callable[[], float] = run_clock,
     prepared: PreparedGraph | None = None,
 ) -> Verdict:
     """Accept or refuse the estimate `transform` (T_target_query, None when estimation failed

@@ -129,15 +129,16 @@ def fail(message: str) -> typer.Exit:
 
 
 def compile_note() -> str:
-    """A note that the times shown include compiling the numba kernels on first use (once per
-    install; later runs load them from the cache); the empty string when nothing compiled."""
+    """A line saying how long this run compiled the numba kernels on first use (once per
+    install; later runs load them from the cache), time the stage times shown leave out; the
+    empty string when nothing compiled."""
     from sgloc.kernels import compile_seconds
 
     wall = compile_seconds()[0]
     if wall < 0.05:
         return ""
-    return (f"(the times include {wall:.1f} s compiling the numba kernels on first use; later "
-            "runs load them from the cache)")
+    return (f"compiling the numba kernels on first use: {wall:.1f} s more, not in the times "
+            "above (later runs load them from the cache)")
 
 
 def not_localized(message: str) -> typer.Exit:

@@ -30,6 +30,7 @@ from sgloc.cli.outputs import claim_output
 from sgloc.cli.progress import progress_bar
 from sgloc.geometry import transform_error
 from sgloc.io.files import is_sgloc_picture
+from sgloc.io.pictures import picture_path
 
 if TYPE_CHECKING:
     from sgloc.sim.demo import DemoResult
@@ -54,9 +55,11 @@ Refresh = Annotated[bool, typer.Option(help="Render again even if the run is cac
 PaperDefaults = Annotated[bool, typer.Option(
     help="Localize with the paper's defaults only (no city class weights)."
 )]
-Out = Annotated[Path, typer.Option(
-    help="PNG of the aligned maps (its folder is created; an existing file is "
-    "replaced only if sgloc drew it)."
+Out = Annotated[str, typer.Option(
+    metavar="PATH",
+    help="Picture of the aligned maps: .png, .jpg, .pdf, .svg, ... (the format follows the "
+    "ending), or a folder (existing, or ending in '/') to get aligned_maps.png in it. Its "
+    "folder is created; an existing picture is replaced only if sgloc drew it.",
 )]
 ObjectsOnly = Annotated[bool, typer.Option(
     "--objects-only", help="Use the tiny object world (no rendering, instant)."
@@ -83,7 +86,7 @@ def demo_cmd(
     cache_dir: CacheDir = None,
     refresh: Refresh = False,
     paper_defaults: PaperDefaults = False,
-    out: Out = DEFAULT_OUT,
+    out: Out = str(DEFAULT_OUT),
     objects_only: ObjectsOnly = False,
     preset: Preset = None,
     setting: Setting = None,
@@ -95,20 +98,21 @@ def demo_cmd(
     """
     if not 0.0 <= overlap <= 1.0:
         raise fail(f"--overlap must be in [0, 1], got {overlap}.")
-    claim_output(ctx, out, [cache_dir], folder=False, ours=is_sgloc_picture)
+    picture = claim_output(ctx, picture_path(out, DEFAULT_OUT.name), [cache_dir], folder=False,
+                           ours=is_sgloc_picture)
     from sgloc.sim.demo import city_demo, objects_demo  # deferred: the simulator (PIL, ...)
 
     console = Console()
     if objects_only:  # the object world's own settings: the defaults
         done = objects_demo(seed, overlap, localizer_config(preset, None, setting), descriptor,
-                            rejection, out)
+                            rejection, picture)
     else:
         config = localizer_config(preset or ("paper" if paper_defaults else "city"), None, setting)
         demo = city_demo(_run(seed, overlap, width, height, length, step), config, descriptor,
                          rejection)  # checked before any display
         with _bar(console) as progress:
-            done = demo(cache_dir, refresh, out, progress, console.print)
-    _print(console, done, out)
+            done = demo(cache_dir, refresh, picture, progress, console.print)
+    _print(console, done, picture)
 
 
 def _run(seed: int, overlap: float, width: int, height: int, length: float, step: float):
@@ -138,7 +142,9 @@ def _print(console: Console, done: DemoResult, out: Path) -> None:
         f"{len(res.candidates)} candidates, {len(res.survivors)} after rejection, "
         f"{len(res.matches)} final",
     )
-    table.add_row("time", f"{res.timings['total'] * 1e3:.1f} ms {compile_note()}".rstrip())
+    table.add_row("time", f"{res.timings['total'] * 1e3:.1f} ms")
+    if note := compile_note():
+        table.add_row("", note)
     if res.accepted:
         te, re = transform_error(res.transform, done.truth)
         table.add_row("error vs ground truth", f"translation {te:.2f} m, rotation {re:.2f} deg")

@@ -438,18 +438,66 @@ def write_text_atomic(
     return Path(path)
 
 
-#: The `Software` text of the PNG pictures sgloc draws (`is_sgloc_picture` tells them apart).
-PNG_SOFTWARE = "sgloc"
+#: The mark of the pictures sgloc draws, in each format's own field for the program that made
+#: it (`sgloc.io.pictures.save_picture`); `is_sgloc_picture` reads it back.
+PICTURE_MARK = "sgloc"
+#: EXIF tag 0x0131, Software: the mark of JPEG, TIFF, WebP and AVIF pictures.
+EXIF_SOFTWARE = 0x0131
+_SVG_MARK = re.compile(rb"<dc:creator>\s*<cc:Agent>\s*<dc:title>" + PICTURE_MARK.encode()
+                       + rb"</dc:title>")
 
 
 def is_sgloc_picture(path: Path) -> bool:
-    """True if `path` is a PNG picture sgloc drew (its `Software` text chunk says sgloc)."""
+    """True if `path` is a picture sgloc drew, in any format it draws: PNG (Software text), PDF,
+    PostScript and SVG (creator), JPEG, TIFF, WebP, AVIF (EXIF Software) or GIF (comment)."""
+    mark = PICTURE_MARK.encode()
     try:
         with open(path, "rb") as f:
             head = f.read(1 << 16)
+            f.seek(max(0, os.fstat(f.fileno()).st_size - (1 << 16)))
+            tail = f.read()
     except OSError:
         return False
-    return head[:8] == b"\x89PNG\r\n\x1a\n" and b"tEXtSoftware\x00" + PNG_SOFTWARE.encode() in head
+    if head[:8] == b"\x89PNG\r\n\x1a\n":
+        return b"tEXtSoftware\x00" + mark in head
+    if head[:5] == b"%PDF-":  # the document information comes last
+        return b"/Creator (" + mark + b")" in tail
+    if head[:4] == b"%!PS":
+        return re.search(rb"^%%Creator: " + mark + rb"\r?$", head, re.M) is not None
+    if head[:2] == b"\x1f\x8b":  # svgz
+        head = _gunzipped_head(path)
+    if head.lstrip()[:5] in (b"<?xml", b"<svg "):
+        return _SVG_MARK.search(head) is not None
+    return _pil_mark(path) == PICTURE_MARK
+
+
+def _gunzipped_head(path: Path) -> bytes:
+    import gzip
+
+    try:
+        with gzip.open(path, "rb") as f:
+            return f.read(1 << 16)
+    except (OSError, EOFError):
+        return b""
+
+
+def _pil_mark(path: Path) -> str | None:
+    """The mark of a raster picture Pillow reads (EXIF Software, or a GIF's comment)."""
+    import warnings
+
+    from PIL import Image
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # a user's huge or odd picture: not ours either way
+            with Image.open(path) as im:
+                if im.format == "GIF":
+                    comment = im.info.get("comment")
+                    return comment.decode("utf-8", "replace") if comment else None
+                software = im.getexif().get(EXIF_SOFTWARE)
+                return software if isinstance(software, str) else None
+    except Exception:  # anything Pillow cannot read is not a picture sgloc drew
+        return None
 
 
 #: The outputs this process has moved into place (for the interruption message).

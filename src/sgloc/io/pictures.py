@@ -6,17 +6,92 @@ the matches."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import contextlib
+import logging
+import os
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
 
+from sgloc.errors import OutputPathError
 from sgloc.geometry import apply
-from sgloc.io.files import PNG_SOFTWARE
+from sgloc.io.files import EXIF_SOFTWARE, PICTURE_MARK
 from sgloc.maps.classes import CLASS_PALETTE, class_colours
 from sgloc.maps.graph import SemanticGraph
 
 ROBOT_MARKERS: tuple[str, ...] = ("o", "^", "s", "D", "v", "P", "X", "*")
+
+#: The picture formats sgloc draws, by file ending: matplotlib's but raw pixels (raw, rgba),
+#: which have no room to say that sgloc drew them, and pgf, which needs a LaTeX installation.
+PICTURE_FORMATS: tuple[str, ...] = ("png", "jpg", "jpeg", "tif", "tiff", "webp", "avif", "gif",
+                                    "pdf", "svg", "svgz", "eps", "ps")
+#: How each format carries sgloc's mark (`sgloc.io.files.is_sgloc_picture` reads it back).
+_MARK_FIELD = {"png": "Software", "pdf": "Creator", "svg": "Creator", "svgz": "Creator",
+               "eps": "Creator", "ps": "Creator"}
+
+
+def picture_formats() -> tuple[str, ...]:
+    """PICTURE_FORMATS this installation writes (webp and avif need Pillow built with them)."""
+    from PIL import features
+
+    return tuple(f for f in PICTURE_FORMATS if f not in ("webp", "avif") or features.check(f))
+
+
+def picture_path(out: str | Path, name: str = "aligned_maps.png", option: str = "--out") -> Path:
+    """Where a picture asked for as `out` is drawn: `out`, or `out`/`name` when `out` is a
+    folder (an existing one, or a path ending in '/'). OutputPathError, naming the formats
+    sgloc draws, when the name's ending is not one of them."""
+    text = os.fspath(out)
+    path = Path(text)
+    if text.endswith(("/", os.sep)) or path.is_dir():
+        path = path / name
+    fmt = path.suffix[1:].lower()
+    formats = picture_formats()
+    if fmt not in formats:
+        what = f"'.{fmt}' is not a picture format sgloc draws" if fmt else "names no format"
+        raise OutputPathError(
+            f"{out}: {what}; give {option} a file ending in "
+            + ", ".join("." + f for f in formats)
+            + " (or a folder ending in '/', to get " + name + " in it)."
+        )
+    return path
+
+
+def save_picture(fig, path: str | Path, **options) -> Path:
+    """Save the matplotlib figure `fig` to `path` in the format its ending names, marked as
+    drawn by sgloc (so that the next run may replace it); `options` go to `savefig` (dpi, ...)."""
+    path = Path(path)
+    fmt = path.suffix[1:].lower()
+    if fmt in ("jpg", "jpeg", "tif", "tiff", "webp", "avif"):
+        from PIL import Image
+
+        exif = Image.Exif()
+        exif[EXIF_SOFTWARE] = PICTURE_MARK
+        options["pil_kwargs"] = {"exif": exif.tobytes()}
+    elif fmt == "gif":
+        options["pil_kwargs"] = {"comment": PICTURE_MARK.encode()}
+    elif fmt in _MARK_FIELD:
+        options["metadata"] = {_MARK_FIELD[fmt]: PICTURE_MARK}
+    with _quiet_postscript(fmt):
+        fig.savefig(path, format=fmt or None, **options)
+    return path
+
+
+@contextlib.contextmanager
+def _quiet_postscript(fmt: str) -> Iterator[None]:
+    """PostScript has no transparency: its backend logs that it draws the maps' translucent
+    dots opaque, which is all the picture needs; that note is not the user's concern."""
+    if fmt not in ("eps", "ps"):
+        yield
+        return
+    log = logging.getLogger("matplotlib.backends.backend_ps")
+    level = log.level
+    log.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        log.setLevel(level)
 
 
 def top_down(ax, points_xy: np.ndarray | None = None) -> None:
@@ -84,11 +159,12 @@ def plot_aligned_maps(
     class_names: Sequence[str] | None = None,
     routes: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Path:
-    """PNG: robot A's map (target, circles) and robot B's map (query, triangles, on top), classes
-    in colour and named by `class_names`. With final matches, two panels: the matches as lines
-    from B (in its own frame, set beside A) to A, and B placed in A's map by `T_target_query`;
-    without, the one panel. Optional routes (positions (n,3) in each robot's own frame).
-    Top-down on every panel: x right, y up, metres."""
+    """The picture `path` (any of `picture_formats`): robot A's map (target, circles) and
+    robot B's map (query, triangles, on top), classes in colour and named by `class_names`.
+    With final matches, two panels: the matches as lines from B (in its own frame, set beside
+    A) to A, and B placed in A's map by `T_target_query`; without, the one panel. Optional
+    routes (positions (n,3) in each robot's own frame). Top-down on every panel: x right,
+    y up, metres."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -126,7 +202,7 @@ def plot_aligned_maps(
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
-    fig.savefig(path, dpi=110, metadata={"Software": PNG_SOFTWARE})
+    save_picture(fig, path, dpi=110)
     plt.close(fig)
     return path
 
@@ -192,9 +268,10 @@ def _draw_routes(ax, routes: tuple[np.ndarray, np.ndarray], T_target_query: np.n
 
 
 def plot_fleet(result, graphs: Sequence, path) -> Path:
-    """PNG of a fleet result's merged map, top-down (x right, y up): each placed robot's
-    objects (`graphs`, each in its own frame) with its own marker and colour, the fused objects
-    as rings; unplaced robots named in the title."""
+    """The picture `path` (any of `picture_formats`) of a fleet result's merged map,
+    top-down (x right, y up): each placed robot's objects (`graphs`, each in its own frame) with
+    its own marker and colour, the fused objects as rings; unplaced robots named in the
+    title."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -224,6 +301,6 @@ def plot_fleet(result, graphs: Sequence, path) -> Path:
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, metadata={"Software": PNG_SOFTWARE})
+    save_picture(fig, path)
     plt.close(fig)
     return path

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -96,6 +97,7 @@ class _CompileNotice:
     def __init__(self) -> None:
         self.depth, self.start, self.total = 0, 0.0, 0.0
         self.cpu_start, self.cpu = 0.0, 0.0
+        self.by_thread: dict[int, float] = {}  # wall seconds compiling, by thread
         self.kernels: set[str] = set()
         self.said = False
 
@@ -122,8 +124,11 @@ class _CompileNotice:
         if _ours(ev):  # not numba's own helpers compiled on the way
             self.kernels.add(ev.data["dispatcher"].py_func.__qualname__)
         if self.depth == 0:
-            self.total += time.perf_counter() - self.start
+            took = time.perf_counter() - self.start
+            self.total += took
             self.cpu += time.process_time() - self.cpu_start
+            tid = threading.get_ident()
+            self.by_thread[tid] = self.by_thread.get(tid, 0.0) + took
             if self.said:
                 _touch(compiled_marker())
 
@@ -168,6 +173,11 @@ def watch_compiles() -> None:
 def compile_seconds() -> tuple[float, float]:
     """(wall, CPU) seconds this process has spent compiling kernels ((0, 0): none compiled)."""
     return (_NOTICE[0].total, _NOTICE[0].cpu) if _NOTICE else (0.0, 0.0)
+
+
+def thread_compile_seconds() -> float:
+    """Wall seconds the calling thread has spent compiling kernels (0: none compiled)."""
+    return _NOTICE[0].by_thread.get(threading.get_ident(), 0.0) if _NOTICE else 0.0
 
 
 def one_blas_thread():

@@ -8,7 +8,6 @@ Nothing is kept between calls anywhere else, so a result does not depend on what
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -31,7 +30,7 @@ from sgloc.pipeline.config import LocalizerConfig
 from sgloc.pipeline.prepared import PreparedMap, prepare
 from sgloc.pipeline.presets import at_estimated_scale
 from sgloc.rejection import make_rejector
-from sgloc.runtime.timing import StageTimer
+from sgloc.runtime.timing import StageTimer, run_clock
 from sgloc.validation import check_seed
 
 MIN_VERTICES = 3
@@ -181,11 +180,12 @@ class Localizer:
         query: SemanticGraph,
         target: SemanticGraph | PreparedMap,
         rng: np.random.Generator | int | None = 0,
-        clock: Callable[[], float] = time.perf_counter,
+        clock: Callable[[], float] = run_clock,
     ) -> LocalizationResult:
         """Localize `query` in `target`. `rng`: a seed or generator, split into one stream
-        per random stage (`stage_streams`); `clock` (seconds) times the stages (e.g.
-        time.thread_time for CPU time). `target` may be a PreparedMap (the same result).
+        per random stage (`stage_streams`); `clock` (seconds) times the stages (default: wall
+        time without compiling the kernels on first use; e.g. time.thread_time for CPU time).
+        `target` may be a PreparedMap (the same result).
         With scale="auto" the scene scale is estimated from the target map first."""
         _check_graph(query, "query")
         if self.config.scale == AUTO:

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sgloc.io.pictures import picture_path
 from sgloc.maps.graph import SemanticGraph
 from sgloc.pipeline.config import LocalizerConfig
 from sgloc.pipeline.localizer import LocalizationResult, localize
@@ -67,8 +68,10 @@ class CityDemo:
     ) -> DemoResult:
         """Render the run (or reuse it from `cache_dir`, default `default_cache_dir()`;
         `refresh`: render and extract again), extract both graphs, localize B in A (seed: the
-        run's) and draw the aligned maps to the PNG `out` (replaced only if sgloc drew it).
-        `note` hears that a cached run is used."""
+        run's) and draw the aligned maps to the picture `out` (`demo_picture`). `note` hears
+        that a cached run is used."""
+        if out is not None:
+            out = picture_path(out)  # a format sgloc cannot draw: refused before the work
         run_dir = cached_run(self.run, cache_dir, refresh, progress, note)
         target, query = run_graphs(run_dir, refresh, progress)
         res = localize(query, target, self.descriptor, self.rejection, seed=self.run.seed,
@@ -174,6 +177,9 @@ def objects_demo(
     """The demo on the tiny object world (`make_two_robot_scene`): localize, draw to `out`."""
     from sgloc.sim.object_world import make_two_robot_scene
 
+    if out is not None:
+        out = picture_path(out)
+
     scene = make_two_robot_scene(seed=seed, overlap=overlap)
     res = localize(scene.query, scene.target, descriptor, rejection, seed=seed, config=config)
     done = DemoResult(scene.target, scene.query, res, scene.T_target_query)
@@ -185,9 +191,13 @@ def objects_demo(
 def demo_picture(done: DemoResult, out: Path) -> Path:
     """Top-down view (x right, y up) of robot A's map and robot B's map placed by the estimated
     transform (the true one when not localized), classes coloured, final matches as lines and,
-    for a rendered run, the two routes and the error in the title (`sgloc.io.pictures`)."""
+    for a rendered run, the two routes and the error in the title (`sgloc.io.pictures`).
+    `out`: a picture file of any of `picture_formats` (an earlier picture of sgloc is
+    replaced), or a folder to draw aligned_maps.png in (`picture_path`); the path drawn."""
     from sgloc.io.files import is_sgloc_picture, staged_file
     from sgloc.io.pictures import plot_aligned_maps
+
+    out = picture_path(out)
 
     res = done.result
     T = res.transform if res.accepted else done.truth
