@@ -228,7 +228,7 @@ def write(rows: list[dict], path: Path = DOC) -> None:
     verdicts.update({r["config"]: _verdict(r) for r in rows})
     text = ("# Live server under load\n\nRegenerate with `python benchmarks/live.py` "
             "(`--config 16x10` or `64x2`, `--minutes M`); what each column means is in the "
-            "benchmark's docstring. Server and robots on one 2-core machine. Goals: "
+            "benchmark's docstring. Server and robots on one computer (x86_64, 2 cores). Goals: "
             f"{GOALS}.\n\n{HEAD}\n" + "\n".join(keep[k] for k in sorted(keep)) + "\n\n"
             + "\n".join(verdicts[k] for k in sorted(verdicts)) + "\n")
     path.write_text(text)
