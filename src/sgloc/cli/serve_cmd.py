@@ -51,6 +51,9 @@ ViewHost = Annotated[str, typer.Option(help="Address the live view listens on (l
 ViewPort = Annotated[int, typer.Option(min=0, max=65535, help="Port of the live view "
                                        "(0: any free port, printed).")]
 To = Annotated[str, typer.Option(help="The server's Zenoh endpoint.")]
+ZenohConfig = Annotated[Path | None, typer.Option(help="A Zenoh configuration file (JSON5) for "
+                                                  "TLS, access control or authentication "
+                                                  "(docs/live.md, \"Who may connect\").")]
 Rate = Annotated[float, typer.Option(min=0.0, help="Speed-up over the recorded stamps (1: real "
                                      "time, 0: as fast as possible).")]
 Lockstep = Annotated[bool, typer.Option("--lockstep", help="Wait for each keyframe's correction "
@@ -77,6 +80,7 @@ def serve_cmd(
     view: View = False,
     view_host: ViewHost = "127.0.0.1",
     view_port: ViewPort = 8765,
+    zenoh_config: ZenohConfig = None,
     quiet: Quiet = False,
 ) -> None:
     """Host one online session for robots streaming over Zenoh: keyframes on
@@ -94,7 +98,8 @@ def serve_cmd(
         raise typer.BadParameter(f"--backend {backend!r}: choose keyframes or robots.")
     console = Console(quiet=quiet)
     options = ServeOptions(listen, state, save_every, sync, workers, scheduler, max_attempts,
-                           view=view, view_host=view_host, view_port=view_port)
+                           view=view, view_host=view_host, view_port=view_port,
+                           zenoh_config=zenoh_config)
     online = OnlineConfig(seed=seed, backend=backend)
     server = serve(localizer_config(preset, config, setting), online, options, seconds,
                    lambda s: console.print(_status(s)), root)
@@ -129,6 +134,7 @@ def stream_cmd(
     to: To = "tcp/127.0.0.1:7447",
     rate: Rate = 1.0,
     lockstep: Lockstep = False,
+    zenoh_config: ZenohConfig = None,
     quiet: Quiet = False,
 ) -> None:
     """Play a recorded run (as `sgloc replay` reads it) to a server, one Zenoh session per
@@ -145,7 +151,7 @@ def stream_cmd(
     job = replay_job(sources or [], robot or [], scenario_names(kitti00, city), robots=robots,
                      scans=scans, every=every, poses=poses, seed=seed, classes=classes,
                      odom_topic=odom_topic, objects_topic=objects_topic)
-    rec = stream_logs(job.logs, to, rate, lockstep)
+    rec = stream_logs(job.logs, to, rate, lockstep, zenoh_config=zenoh_config)
     lat = np.concatenate([np.asarray(v, float) for v in rec.latency_ms.values()] or [[]])
     placed = sum(c.placed for c in rec.corrections.values())
     Console(quiet=quiet).print(

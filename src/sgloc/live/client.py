@@ -11,6 +11,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 
@@ -22,16 +23,17 @@ from sgloc.live.transport import DEFAULT_ENDPOINT, PREFIX, check_robot, key, ope
 class RobotClient:
     """One robot's Zenoh session to a server at `connect`: `send_keyframe`, `end`, `hello`;
     the server's corrections arrive on its own thread (`on_correction(c)` when given) and the
-    latest is `correction`."""
+    latest is `correction`. zenoh_config: a Zenoh configuration file (TLS, access control)."""
 
     def __init__(self, robot: str, connect: str = DEFAULT_ENDPOINT, prefix: str = PREFIX,
-                 on_correction: Callable[[msg.Correction], None] | None = None) -> None:
+                 on_correction: Callable[[msg.Correction], None] | None = None,
+                 zenoh_config: str | Path | None = None) -> None:
         self.robot = check_robot(robot)
         self.seq = 0
         self.correction: msg.Correction | None = None
         self._changed = threading.Condition()
         self._callback = on_correction
-        self._session = open_session("client", connect=connect)
+        self._session = open_session("client", connect=connect, config_file=zenoh_config)
         # a full link slows the robot down rather than losing its keyframes
         self._pub = self._session.declare_publisher(
             key(robot, "keyframe", prefix), congestion_control=zenoh().CongestionControl.BLOCK)

@@ -64,6 +64,7 @@ class ServeOptions:
         plan weighs every pair of robots; with no keyframe waiting, one after each message).
     solve_every: seconds between re-solves of the fleet frame at most while keyframes are
         waiting (the batches of attempts that finished meanwhile are solved at once).
+    zenoh_config: a Zenoh configuration file (TLS, access control; docs/live.md).
     view: also serve the live view to Foxglove (`sgloc.live.view.FleetView`) on
         ws://`view_host`:`view_port` (loopback unless told otherwise; port 0: any free port),
         updated `view_rate` times a second at most.
@@ -81,6 +82,7 @@ class ServeOptions:
     plan_every: float = 0.05
     solve_every: float = 0.5
     prefix: str = PREFIX
+    zenoh_config: Path | None = None
     view: bool = False
     view_host: str = DEFAULT_VIEW_HOST
     view_port: int = DEFAULT_VIEW_PORT
@@ -148,7 +150,7 @@ class LiveServer:
                 self.view = FleetView(o.view_host, o.view_port, o.view_rate).start()
             if not o.sync:
                 self._pool = _Workers(o.workers, o.scheduler)
-            self._zenoh = open_session("router", listen=o.listen)
+            self._zenoh = open_session("router", listen=o.listen, config_file=o.zenoh_config)
             self._sub = self._zenoh.declare_subscriber(f"{o.prefix}/*/keyframe", self._receive)
         except BaseException:
             self.stop()

@@ -9,6 +9,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -37,13 +38,14 @@ class StreamRecord:
 class _Robot:
     """A robot's client and its log, keeping the send time of each keyframe seq."""
 
-    def __init__(self, log: RobotLog, to: str, prefix: str, rec: StreamRecord) -> None:
+    def __init__(self, log: RobotLog, to: str, prefix: str, rec: StreamRecord,
+                 zenoh_config=None) -> None:
         self.log, self.rec = log, rec
         self.obs = list(log.observations())
         self.poses = log.poses
         self.sent: dict[int, float] = {}
         rec.latency_ms[log.name] = []
-        self.client = RobotClient(log.name, to, prefix, self._corrected)
+        self.client = RobotClient(log.name, to, prefix, self._corrected, zenoh_config)
 
     def _corrected(self, c) -> None:
         now = time.perf_counter()
@@ -66,18 +68,19 @@ def stream_logs(
     logs: Sequence[RobotLog], to: str, rate: float = 1.0, lockstep: bool = False,
     timeout: float = 30.0, prefix: str = PREFIX,
     progress: Callable[[int], None] | None = None, restart_timeout: float = 120.0,
-    record: StreamRecord | None = None,
+    record: StreamRecord | None = None, zenoh_config: str | Path | None = None,
 ) -> StreamRecord:
     """Play `logs` to the server at `to` (see the module); returns the `StreamRecord`
     (`record` when given: it holds what was measured even when this raises).
     rate: speed-up over the stamps (1: real time; 0: no waiting); lockstep: wait for each
     correction (`timeout` seconds per message, then resynchronising with a server that is
-    back within `restart_timeout` seconds)."""
+    back within `restart_timeout` seconds); zenoh_config: a Zenoh configuration file for
+    every robot's session (TLS, access control)."""
     check_names(logs)
     if rate < 0 or not np.isfinite(rate):
         raise SglocError(f"--rate {rate}: give a speed-up >= 0 (1: real time, 0: at once).")
     rec = StreamRecord() if record is None else record
-    robots = [_Robot(g, to, prefix, rec) for g in logs]
+    robots = [_Robot(g, to, prefix, rec, zenoh_config) for g in logs]
     try:
         for r in robots:
             r.client.sync(timeout)

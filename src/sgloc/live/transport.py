@@ -4,6 +4,7 @@ multicast scouting, nothing listening unless asked), and sgloc's key expressions
 from __future__ import annotations
 
 import re
+from pathlib import Path
 from typing import Any
 
 from sgloc.errors import SglocError
@@ -43,11 +44,13 @@ def key(robot: str, what: str, prefix: str = PREFIX) -> str:
     return f"{prefix}/{check_robot(robot)}/{what}"
 
 
-def open_session(mode: str, listen: str | None = None, connect: str | None = None) -> Any:
+def open_session(mode: str, listen: str | None = None, connect: str | None = None,
+                 config_file: str | Path | None = None) -> Any:
     """A zenoh session in `mode` ("router" for a server, "client" for a robot) listening on
-    `listen` only and connecting to `connect` only (no scouting)."""
+    `listen` only and connecting to `connect` only (no scouting); `config_file`: a Zenoh
+    configuration file (JSON5) for everything else (TLS, access control, authentication)."""
     z = zenoh()
-    conf = z.Config()
+    conf = _config(z, config_file)
     conf.insert_json5("mode", f'"{mode}"')
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("scouting/gossip/enabled", "false")
@@ -61,3 +64,18 @@ def open_session(mode: str, listen: str | None = None, connect: str | None = Non
         why = str(e).split(" at /")[0][:120]
         raise SglocError(f"cannot open a zenoh session on {where}: {why} Is the port "
                          "free (server) or the server running (robot)?") from None
+
+
+def _config(z: Any, config_file: str | Path | None) -> Any:
+    if config_file is None:
+        return z.Config()
+    path = Path(config_file)
+    if not path.is_file():
+        raise SglocError(f"--zenoh-config {path}: no such file; give a Zenoh configuration "
+                         "file (JSON5).")
+    try:
+        return z.Config.from_file(str(path))
+    except Exception as e:  # zenoh raises its own ZError
+        why = " ".join(str(e).split())[:160]
+        raise SglocError(f"--zenoh-config {path}: not a valid Zenoh configuration ({why}); "
+                         "see Zenoh's DEFAULT_CONFIG.json5 for the keys.") from None
