@@ -62,8 +62,10 @@ class ServeOptions:
     queue: messages waiting at most (all robots); robot_queue: per robot.
     plan_every: seconds between plans of attempts at most while keyframes are waiting (a
         plan weighs every pair of robots; with no keyframe waiting, one after each message).
-    solve_every: seconds between re-solves of the fleet frame at most while keyframes are
-        waiting (the batches of attempts that finished meanwhile are solved at once).
+    solve_every: seconds between re-solves of the fleet frame at most (the batches of
+        attempts that finished meanwhile are solved at once), or three
+        times the last solve's duration when longer (solves take a quarter of the session's
+        thread at most, so keyframes keep flowing as the pose graph grows).
     zenoh_config: a Zenoh configuration file (TLS, access control; docs/live.md).
     view: also serve the live view to Foxglove (`sgloc.live.view.FleetView`) on
         ws://`view_host`:`view_port` (loopback unless told otherwise; port 0: any free port),
@@ -122,6 +124,7 @@ class LiveServer:
         self._stop = threading.Event()
         self._idle = threading.Event()
         self._saved_at = self._planned_at = self._solved_at = time.monotonic()
+        self._solve_took = 0.0  # seconds the last solve took
         self._dirty = False
         self._dirty_plan = True  # something changed since the last plan found nothing
         self._n_events = len(self.session.events)
@@ -265,7 +268,8 @@ class LiveServer:
             self._save_when_due()
             if self.view is not None:
                 self.view.update(self.session)
-            if self._queue.empty() and not self._flight and not self._finishing:
+            if self._queue.empty() and not (self._flight or self._finishing
+                                            or self.session.solve_due):
                 self._idle.set()
         self._collect(wait=True)
         self._publish_changes()
@@ -358,10 +362,12 @@ class LiveServer:
             self.session.apply_attempts(batch, results, solve=False)
             self._dirty = self._dirty_plan = True
         now = time.monotonic()
-        if self.session.solve_due and (wait or self._queue.empty()
-                                       or now - self._solved_at >= self.options.solve_every):
-            self._solved_at = now  # one solve for the batches that came meanwhile
-            self.session.solve_pending()
+        # the solve's own cost widens the spacing: solves take at most a quarter of the thread
+        spacing = max(self.options.solve_every, 3.0 * self._solve_took)
+        if self.session.solve_due and (wait or now - self._solved_at >= spacing):
+            self.session.solve_pending()  # one solve for the batches that came meanwhile
+            self._solved_at = time.monotonic()
+            self._solve_took = self._solved_at - now
 
     # -- state ---------------------------------------------------------------------------------
     def _save_when_due(self) -> None:
