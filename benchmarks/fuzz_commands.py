@@ -309,3 +309,316 @@ def _fresh(work: Path, template: Path) -> Path:
         shutil.rmtree(proj)
     shutil.copytree(template, proj, symlinks=True)
     return proj
+
+
+# -- the in-process families: outputs, twice, layouts -------------------------------------------------
+@dataclass
+class Outcome:
+    """One in-process case's result."""
+
+    rc: int | None
+    stderr: str
+    exc: str
+    seconds: float
+    changed: list[str] = field(default_factory=list)  # user files changed besides the output
+    new: list[str] = field(default_factory=list)  # entries that appeared (relative names)
+
+
+def run_in(proj: Path, argv: list[str], out: str | None, timeout: float) -> Outcome:
+    """`sgloc argv` in-process in the user's folder `proj`; what it changed besides `out`."""
+    fz = _fuzz()
+    before = snapshot(proj)
+    t0 = time.perf_counter()
+    with _in(proj):
+        rc, _stdout, err, exc = fz.run_case(argv, timeout)
+    seconds = time.perf_counter() - t0
+    after = snapshot(proj)
+    new = sorted(n for n in after if n not in before or after[n] != before[n])
+    return Outcome(rc, err, exc, seconds, changes(before, after, out), new)
+
+
+def _one_error_line(stderr: str) -> bool:
+    lines = [ln for ln in stderr.splitlines() if ln.strip()]
+    if lines and lines[0].lstrip().startswith("Usage: sgloc"):
+        lines = lines[1:]
+    return len(lines) == 1 and lines[0].startswith("error: ")
+
+
+def _broken(o: Outcome) -> str:
+    """The bad outcome every family shares ("" when none)."""
+    if o.exc == "hang":
+        return "hang"
+    if o.exc or "Traceback" in o.stderr:
+        return "traceback"
+    if o.changed:
+        return "user files moved or changed"
+    if o.rc == 2 and not _one_error_line(o.stderr):
+        return "error not one line"
+    if o.rc not in (0, 1, 2):
+        return "wrong exit code"
+    return ""
+
+
+#: Output options: name -> (argv before the option, the option, "folder" | "file").
+OUTPUT_OPTIONS: dict[str, tuple[list[str], str, str]] = {
+    "localize --out": (["localize", "--example"], "--out", "folder"),
+    "localize --json": (["localize", "--example"], "--json", "file"),
+    "localize --rerun": (["localize", "--example"], "--rerun", "file"),
+    "fleet --out": (["fleet", "maps/query.json", "maps/target.json", "--workers", "0"], "--out",
+                    "folder"),
+    "replay --out": (["replay", "layout", "--quiet"], "--out", "folder"),
+    "replay --out-bag": (["replay", "layout", "--quiet", "--out", "results/fleet"], "--out-bag",
+                         "folder"),
+    "demo --out": (["demo", "--objects-only"], "--out", "file"),
+    "build-graph -o": (["build-graph", "airsim", "robot", "-q"], "-o", "file"),
+    "experiment --out": (["experiment", "table", "--dataset", "synthetic", "--trials", "1",
+                          "--workers", "1"], "--out", "folder"),
+    "serve --state": (["serve", "--seconds", "0.5", "--quiet"], "--state", "file"),
+}  # fmt: skip
+#: The extensions of sgloc's writers and readers besides matplotlib's picture formats.
+WRITER_EXTENSIONS = ["json", "npz", "npy", "pcd", "ply", "csv", "txt", "tum", "kitti", "g2o",
+                     "yaml", "md", "rrd", "mcap", "db3", "xyz", "JSON", "PNG"]
+
+
+def output_forms() -> list[tuple[str, str]]:
+    """(form, output path in the user's folder): every extension, none, an empty folder and a
+    new folder named with a trailing slash."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    exts = sorted(FigureCanvasBase.get_supported_filetypes()) + WRITER_EXTENSIONS
+    forms = [(f".{e}", f"results/out.{e}") for e in exts]
+    return forms + [("no extension", "results/out"), ("empty folder", "results/empty"),
+                    ("new folder/", "results/newdir/")]
+
+
+def classify_output(o: Outcome, out: str, kind: str, refusal_limit: float) -> str:
+    """The outcome of an output case: written where named, or refused before the work."""
+    bad = _broken(o)
+    if bad:
+        return bad
+    if o.rc == 2:
+        if o.new:
+            return "refused but something written"
+        return "refused after the work" if o.seconds > refusal_limit else "refused (one line)"
+    named = out.rstrip("/")
+    folder_given = out.endswith("/") or named == "results/empty"
+    placed = [n for n in o.new if n == named or n.startswith(named + "/")]
+    if not placed:
+        return "written elsewhere than named"
+    if kind == "file" and folder_given and named in placed and len(placed) == 1:
+        return "written elsewhere than named"  # a folder given, no named file made inside it
+    return "written"
+
+
+def run_output_family(work: Path, template: Path, timeout: float = 120.0,
+                      options: list[str] | None = None, forms: list[str] | None = None,
+                      rng: np.random.Generator | None = None, cases: int | None = None,
+                      ) -> tuple[Counter, list[tuple]]:
+    """Every output option x every output form (or `cases` of them drawn by `rng`)."""
+    all_cases = [(name, form, out) for name in options or list(OUTPUT_OPTIONS)
+                 for form, out in output_forms() if forms is None or form in forms]
+    if cases is not None and rng is not None and cases < len(all_cases):
+        all_cases = [all_cases[i] for i in sorted(rng.choice(len(all_cases), cases, False))]
+    done: dict[str, list[float]] = {}
+    results: list[tuple[str, str, Outcome, str]] = []
+    for name, form, out in all_cases:
+        argv, option, kind = OUTPUT_OPTIONS[name]
+        proj = _fresh(work, template)
+        (proj / "results" / "empty").mkdir()
+        o = run_in(proj, [*argv, option, out], out.rstrip("/"), timeout)
+        if o.rc in (0, 1) and not o.exc:
+            done.setdefault(name, []).append(o.seconds)
+        results.append((name, form, o, out))
+    counts: Counter = Counter()
+    bad: list[tuple] = []
+    for name, form, o, out in results:
+        # A refusal that took as long as half a full run came after the work.
+        limit = max(1.0, 0.5 * float(np.median(done[name]))) if name in done else float("inf")
+        outcome = classify_output(o, out, OUTPUT_OPTIONS[name][2], limit)
+        counts[outcome] += 1
+        if outcome not in ("written", "refused (one line)"):
+            bad.append((f"{name} {form}", outcome, f"{o.exc} {o.stderr.strip()[-300:]}"))
+    return counts, bad
+
+
+#: Commands run twice into their own output: name -> (argv, the output).
+TWICE: dict[str, tuple[list[str], str]] = {
+    "localize --out": (["localize", "--example", "--out", "results/a"], "results/a"),
+    "localize --json": (["localize", "--example", "--json", "results/a.json"], "results/a.json"),
+    "fleet --out": (["fleet", "maps/query.json", "maps/target.json", "--workers", "0",
+                     "--out", "results/a"], "results/a"),
+    "replay --out": (["replay", "layout", "--quiet", "--out", "results/a"], "results/a"),
+    "demo --out (default)": (["demo", "--objects-only"], "results/demo/aligned_maps.png"),
+    "experiment --out": (["experiment", "table", "--dataset", "synthetic", "--trials", "1",
+                          "--workers", "1", "--out", "results/a"], "results/a"),
+    **{f"demo --out .{e}": (["demo", "--objects-only", "--out", f"results/a.{e}"],
+                            f"results/a.{e}") for e in ("png", "pdf", "svg", "jpg")},
+    "demo --out folder/": (["demo", "--objects-only", "--out", "results/d/"], "results/d"),
+    **{f"build-graph -o .{e}": (["build-graph", "airsim", "robot", "-q", "-o", f"results/a.{e}"],
+                                f"results/a.{e}") for e in ("json", "pcd", "npz", "ply", "csv")},
+}  # fmt: skip
+FALSE_NOT_OURS = ("not written by sgloc", "sgloc did not write")
+
+
+def classify_twice(first: Outcome, second: Outcome, same: bool) -> str:
+    """The outcome of a second run into the first's output (`same`: the output holds the same
+    entries after it)."""
+    bad = _broken(first) or _broken(second)
+    if bad:
+        return bad
+    if first.rc not in (0, 1):
+        return "first run refused" if first.rc == 2 else "wrong exit code"
+    if second.rc == 2:
+        if any(s in second.stderr for s in FALSE_NOT_OURS):
+            return "false 'not written by sgloc'"
+        return "refused clearly" if not second.new else "refused but something written"
+    return "replaced" if same else "replaced, different entries"
+
+
+def run_twice_family(work: Path, template: Path, timeout: float = 120.0,
+                     names: list[str] | None = None) -> tuple[Counter, list[tuple]]:
+    """Every command twice into its own output."""
+    counts: Counter = Counter()
+    bad: list[tuple] = []
+    for name in names or list(TWICE):
+        argv, out = TWICE[name]
+        proj = _fresh(work, template)
+        first = run_in(proj, argv, out, timeout)
+        entries = _entries(proj / out)
+        second = run_in(proj, argv, out, timeout)
+        outcome = classify_twice(first, second, _entries(proj / out) == entries)
+        counts[outcome] += 1
+        if outcome not in ("replaced", "refused clearly"):
+            bad.append((name, outcome, f"{first.exc}{second.exc} {second.stderr.strip()[-300:]}"))
+    return counts, bad
+
+
+#: Inputs of one layout given to a command that reads another: (name, argv, expect), expect
+#: "fail" (must be one clear error) or "either" (a valid input of that command too).
+LAYOUTS: list[tuple[str, list[str], str]] = [
+    ("replay run folder as a map", ["localize", "layout", "maps/target.json"], "fail"),
+    ("robot folder of a run as a map", ["localize", "layout/world0", "maps/target.json"], "fail"),
+    ("keyframe table (objects.csv) as maps",
+     ["localize", "layout/world0/objects.csv", "layout/world1/objects.csv"], "fail"),
+    ("keyframe tables with --set scale=auto", ["localize", "layout/world0/objects.csv",
+                                               "layout/world1/objects.csv", "--set",
+                                               "scale=auto"], "fail"),
+    ("odometry.tum as a map", ["localize", "layout/world0/odometry.tum", "maps/target.json"],
+     "fail"),
+    ("classes.txt as a map", ["localize", "layout/classes.txt", "maps/target.json"], "fail"),
+    ("replay results folder as a map", ["localize", "made/replay", "maps/target.json"], "fail"),
+    ("replay events.csv as a map", ["localize", "made/replay/events.csv", "maps/target.json"],
+     "fail"),
+    ("replay g2o_keyframes.csv as a map",
+     ["localize", "made/replay/g2o_keyframes.csv", "maps/target.json"], "fail"),
+    ("replay summary.json as a map", ["localize", "made/replay/summary.json", "maps/target.json"],
+     "fail"),
+    ("replay fleet trajectory as a map",
+     ["localize", "made/replay/fleet/world0.tum", "maps/target.json"], "fail"),
+    ("replay's robot map as a map",
+     ["localize", "made/replay/maps/world0.json", "maps/target.json"], "either"),
+    ("fleet results folder as a map", ["localize", "made/fleet", "maps/target.json"], "fail"),
+    ("fleet.json as a map", ["localize", "made/fleet/fleet.json", "maps/target.json"], "fail"),
+    ("fleet merged.json as a map", ["localize", "made/fleet/merged.json", "maps/target.json"],
+     "either"),
+    ("fleet poses.tum as a map", ["localize", "made/fleet/poses.tum", "maps/target.json"], "fail"),
+    ("fleet links.g2o as a map", ["localize", "made/fleet/links.g2o", "maps/target.json"], "fail"),
+    ("localize result.json as a map", ["localize", "made/result.json", "maps/target.json"],
+     "fail"),
+    ("T_target_query.txt as a map",
+     ["localize", "made/localize/T_target_query.txt", "maps/target.json"], "fail"),
+    ("config.yaml as a map", ["localize", "made/localize/config.yaml", "maps/target.json"],
+     "fail"),
+    ("experiment trials.csv as a map",
+     ["localize", "made/experiment/trials.csv", "maps/target.json"], "fail"),
+    ("session file as a map", ["localize", "made/session.npz", "maps/target.json"], "fail"),
+    ("rosbag2 folder as a map", ["localize", "made/bag", "maps/target.json"], "fail"),
+    ("mcap bag as a map", ["localize", "made/run.mcap", "maps/target.json"], "fail"),
+    ("airsim robot folder as a map", ["localize", "robot", "maps/target.json"], "fail"),
+    ("a picture as a map", ["localize", "made/localize/aligned_maps.png", "maps/target.json"],
+     "fail"),
+    ("graph json to replay", ["replay", "maps/query.json", "--out", "results/r", "--quiet"],
+     "fail"),
+    ("graph table to replay", ["replay", "maps/query.csv", "--out", "results/r", "--quiet"],
+     "fail"),
+    ("folder of graphs to replay", ["replay", "maps", "--out", "results/r", "--quiet"], "fail"),
+    ("replay results folder to replay", ["replay", "made/replay", "--out", "results/r",
+                                         "--quiet"], "fail"),
+    ("fleet results folder to replay", ["replay", "made/fleet", "--out", "results/r", "--quiet"],
+     "fail"),
+    ("odometry.tum to replay", ["replay", "layout/world0/odometry.tum", "--out", "results/r",
+                                "--quiet"], "fail"),
+    ("objects.csv to replay", ["replay", "layout/world0/objects.csv", "--out", "results/r",
+                               "--quiet"], "fail"),
+    ("airsim robot folder to replay", ["replay", "robot", "--out", "results/r", "--quiet"],
+     "fail"),
+    ("session file to replay", ["replay", "made/session.npz", "--out", "results/r", "--quiet"],
+     "fail"),
+    ("one robot folder to replay", ["replay", "layout/world0", "--out", "results/r", "--quiet"],
+     "either"),
+    ("keyframe tables to fleet", ["fleet", "layout/world0/objects.csv",
+                                  "layout/world1/objects.csv", "--workers", "0", "--out",
+                                  "results/f"], "fail"),
+    ("replay run folders to fleet", ["fleet", "layout/world0", "layout/world1", "--workers", "0",
+                                     "--out", "results/f"], "fail"),
+    ("results files to fleet", ["fleet", "made/result.json", "made/fleet/fleet.json",
+                                "--workers", "0", "--out", "results/f"], "fail"),
+    ("bag to fleet", ["fleet", "made/run.mcap", "maps/target.json", "--workers", "0", "--out",
+                      "results/f"], "fail"),
+    ("replay run folder to build-graph", ["build-graph", "airsim", "layout", "-o",
+                                          "results/g.json", "-q"], "fail"),
+    ("folder of graphs to build-graph", ["build-graph", "airsim", "maps", "-o", "results/g.json",
+                                         "-q"], "fail"),
+    ("airsim robot as kitti", ["build-graph", "kitti", "robot", "-o", "results/g.json", "-q"],
+     "fail"),
+    ("airsim robot as synthia", ["build-graph", "synthia", "robot", "-o", "results/g.json", "-q"],
+     "fail"),
+    ("replay results to build-graph", ["build-graph", "airsim", "made/replay", "-o",
+                                       "results/g.json", "-q"], "fail"),
+    ("replay run folder as an experiment data set",
+     ["experiment", "table", "--dataset", "layout", "--trials", "1", "--workers", "1", "--out",
+      "results/e"], "fail"),
+    ("a graph table as trials.csv", ["experiment", "table", "--from-csv", "maps/query.csv",
+                                     "--out", "results/e"], "fail"),
+    ("replay events.csv as trials.csv", ["experiment", "table", "--from-csv",
+                                         "made/replay/events.csv", "--out", "results/e"], "fail"),
+    ("a graph as settings", ["localize", "--example", "--config", "maps/query.json"], "fail"),
+    ("result.json as settings", ["localize", "--example", "--config", "made/result.json"],
+     "fail"),
+    ("summary.json as settings", ["replay", "layout", "--config", "made/replay/summary.json",
+                                  "--out", "results/r", "--quiet"], "fail"),
+    ("a graph as a colour table", ["localize", "--example", "--colour-table", "maps/query.json"],
+     "fail"),
+    ("a graph as a class table", ["replay", "layout", "--classes", "maps/query.csv", "--out",
+                                  "results/r", "--quiet"], "fail"),
+    ("a session file to serve as state", ["serve", "--state", "made/result.json", "--seconds",
+                                          "0.5", "--quiet"], "fail"),
+    ("a graph to stream", ["stream", "maps/query.json", "--rate", "0", "--quiet"], "fail"),
+]  # fmt: skip
+
+
+def classify_layout(o: Outcome, expect: str) -> str:
+    bad = _broken(o)
+    if bad:
+        return bad
+    if o.rc == 2:
+        return "clean error, exit 2"
+    return "malformed file read as data" if expect == "fail" else "read as data"
+
+
+def run_layout_family(work: Path, template: Path, timeout: float = 120.0,
+                      names: list[str] | None = None) -> tuple[Counter, list[tuple]]:
+    """Every cross-layout input."""
+    counts: Counter = Counter()
+    bad: list[tuple] = []
+    for name, argv, expect in LAYOUTS:
+        if names is not None and name not in names:
+            continue
+        proj = _fresh(work, template)
+        out = next((argv[i + 1] for i, a in enumerate(argv[:-1]) if a in ("--out", "-o")), None)
+        o = run_in(proj, argv, out, timeout)
+        outcome = classify_layout(o, expect)
+        counts[outcome] += 1
+        if outcome not in ("clean error, exit 2", "read as data"):
+            bad.append((name, outcome, f"exit {o.rc} {o.exc} {o.stderr.strip()[-300:]}"))
+    return counts, bad
