@@ -24,10 +24,8 @@ outcome in every family.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import importlib.util
-import json
 import os
 import shutil
 import signal
@@ -36,7 +34,6 @@ import sys
 import tempfile
 import time
 from collections import Counter
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -130,7 +127,7 @@ def _entries(path: Path) -> list[str]:
     return [""] if path.exists() else []
 
 
-# -- family: signals ---------------------------------------------------------------------------------
+# -- family: signals -------------------------------------------------------------------------------
 #: name -> (argv with {out}, the output (relative to the user's folder)).
 SIGNAL_COMMANDS: dict[str, tuple[list[str], str]] = {
     "localize --out": (["localize", "--example", "--out", "{out}"], "results/run"),
@@ -165,7 +162,7 @@ def program(work: Path, how: str) -> list[str]:
 
 def child_env(work: Path) -> dict[str, str]:
     env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([str(SRC), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    env["PYTHONPATH"] = os.pathsep.join([str(SRC), *filter(None, [env.get("PYTHONPATH")])])
     env.setdefault("SGLOC_CACHE", str(work / "cache"))
     env["MPLBACKEND"] = "Agg"
     return env
@@ -311,7 +308,7 @@ def _fresh(work: Path, template: Path) -> Path:
     return proj
 
 
-# -- the in-process families: outputs, twice, layouts -------------------------------------------------
+# -- the in-process families: outputs, twice, layouts ----------------------------------------------
 @dataclass
 class Outcome:
     """One in-process case's result."""
@@ -320,7 +317,7 @@ class Outcome:
     stderr: str
     exc: str
     seconds: float
-    changed: list[str] = field(default_factory=list)  # user files changed besides the output
+    changed: list[str] = field(default_factory=list)  # the user's files changed (not the output)
     new: list[str] = field(default_factory=list)  # entries that appeared (relative names)
 
 
@@ -622,3 +619,153 @@ def run_layout_family(work: Path, template: Path, timeout: float = 120.0,
         if outcome not in ("clean error, exit 2", "read as data"):
             bad.append((name, outcome, f"exit {o.rc} {o.exc} {o.stderr.strip()[-300:]}"))
     return counts, bad
+
+
+# -- the run: every family, its tables -------------------------------------------------------------
+FAMILY_NAMES = ("signal", "outputs", "twice", "layouts")
+#: Bad outcomes counted in the summary, by the words in their names.
+SUMMARY = {"tracebacks": ("traceback",), "lost signals": ("lost signal",),
+           "user files moved or changed": ("user files moved or changed",), "hangs": ("hang",)}
+
+
+def run_command_families(trials: int = 100, seed: int = 0, timeout: float = 120.0,
+                         families: tuple[str, ...] = FAMILY_NAMES, progress: bool = False,
+                         output_cases: int | None = None) -> dict:
+    """Run the chosen families in a fresh user's folder; {"signal": {command: Counter},
+    "outputs" | "twice" | "layouts": Counter, "bad": [(family, case, outcome, detail)],
+    "seconds": {family: s}}. `trials` signalled runs per command; `output_cases` (None: all)
+    output cases drawn from every option x form."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    report: dict = {"bad": [], "seconds": {}}
+    with tempfile.TemporaryDirectory(prefix="sgloc-fuzz-commands-") as tmp:
+        work = Path(tmp)
+        template = make_template(work, seed)
+        for family in families:
+            t0 = time.perf_counter()
+            if family == "signal":
+                counts, bad = run_signal_family(work, template, trials, seed, timeout,
+                                                progress=progress)
+            elif family == "outputs":
+                counts, bad = run_output_family(work, template, timeout, cases=output_cases,
+                                                rng=np.random.default_rng([seed, 38]))
+            elif family == "twice":
+                counts, bad = run_twice_family(work, template, timeout)
+            else:
+                counts, bad = run_layout_family(work, template, timeout)
+            report[family] = counts
+            report["bad"] += [(family, *b) for b in bad]
+            report["seconds"][family] = time.perf_counter() - t0
+            if progress:
+                print(f"  {family}: {report['seconds'][family]:.0f} s", file=sys.stderr)
+    return report
+
+
+def summary_counts(report: dict) -> Counter:
+    """Tracebacks, lost signals, user files moved or changed and hangs over every family."""
+    total: Counter = Counter()
+    for family in FAMILY_NAMES:
+        counts = report.get(family)
+        if counts is None:
+            continue
+        merged = sum(counts.values(), Counter()) if family == "signal" else counts
+        for label, names in SUMMARY.items():
+            total[label] += sum(merged.get(n, 0) for n in names)
+    return total
+
+
+def signal_table(per_command: dict[str, Counter]) -> str:
+    cols = [*SIGNAL_GOOD, *SIGNAL_BAD]
+    rows = ["| command | trials | " + " | ".join(cols) + " |", "|---" * (len(cols) + 2) + "|"]
+    for name, c in per_command.items():
+        rows.append(f"| `{name}` | {sum(c.values())} | "
+                    + " | ".join(str(c.get(k, 0)) for k in cols) + " |")
+    return "\n".join(rows)
+
+
+def outcome_table(counts: Counter, head: str) -> str:
+    rows = [f"| {head} | cases |", "|---|---|"]
+    rows += [f"| {k} | {v} |" for k, v in sorted(counts.items(), key=lambda kv: -kv[1])]
+    return "\n".join(rows)
+
+
+def report_text(report: dict, command: str) -> str:
+    """The Markdown block of docs/robustness.md for a run of `command`."""
+    seconds = sum(report["seconds"].values())
+    total = summary_counts(report)
+    parts = [f"`{command}` ({seconds / 60:.0f} min):", "",
+             "Over every family: " + ", ".join(f"{v} {k}" for k, v in total.items()) + "."]
+    titles = {"outputs": ("Every output option with every extension and a folder", "outcome"),
+              "twice": ("Every command run twice into its own output", "second run"),
+              "layouts": ("Inputs of one layout given to a command that reads another",
+                          "outcome")}
+    if "signal" in report:
+        parts += ["", "A signal at a random moment of every command:", "",
+                  signal_table(report["signal"])]
+    for family, (title, head) in titles.items():
+        if family in report:
+            parts += ["", f"{title}:", "", outcome_table(report[family], head)]
+    return "\n".join(parts)
+
+
+def write_doc_block(text: str) -> Path:
+    """Put `text` between the commands-table markers of docs/robustness.md."""
+    doc = HERE.parent / "docs" / "robustness.md"
+    body = doc.read_text()
+    begin, end = "<!-- fuzz-commands:begin -->", "<!-- fuzz-commands:end -->"
+    block = f"{begin}\n{text}\n{end}"
+    if begin in body and end in body:
+        body = body[: body.index(begin)] + block + body[body.index(end) + len(end):]
+    else:
+        body = body.rstrip() + "\n\n" + block + "\n"
+    doc.write_text(body)
+    return doc
+
+
+def print_report(report: dict, command: str) -> int:
+    """Print the tables and the bad cases; 1 if any."""
+    print(report_text(report, command))
+    for family, name, outcome, detail in report["bad"][:40]:
+        print(f"BAD {family} {outcome}: {name}: {detail}")
+    return 1 if report["bad"] else 0
+
+
+def main() -> int:
+    import argparse
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_arguments(ap)
+    ap.add_argument("--update-docs", action="store_true", help="write docs/robustness.md's table")
+    args = ap.parse_args()
+    report = run_from_args(args)
+    command = " ".join(["python benchmarks/fuzz_commands.py",
+                        *[a for a in sys.argv[1:] if a != "--update-docs"]])
+    rc = print_report(report, command)
+    if args.update_docs:
+        print(f"wrote {write_doc_block(report_text(report, command))}")
+    return rc
+
+
+def add_arguments(ap, seed: bool = True) -> None:
+    """The command families' options (also benchmarks/fuzz.py's, which has its own --seed)."""
+    ap.add_argument("--signal-trials", type=int, default=100,
+                    help="signalled runs per command (family signal)")
+    ap.add_argument("--output-cases", type=int, default=None,
+                    help="output option x form cases (default: every one)")
+    ap.add_argument("--command-family", action="append", choices=FAMILY_NAMES, metavar="NAME",
+                    help="run only this command family (repeatable): " + ", ".join(FAMILY_NAMES))
+    ap.add_argument("--command-timeout", type=float, default=120.0,
+                    help="seconds before a command's run is a hang")
+    if seed:
+        ap.add_argument("--seed", type=int, default=0)
+
+
+def run_from_args(args) -> dict:
+    families = tuple(args.command_family or FAMILY_NAMES)
+    return run_command_families(args.signal_trials, args.seed, args.command_timeout, families,
+                                progress=True, output_cases=args.output_cases)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
