@@ -321,8 +321,10 @@ class Outcome:
     new: list[str] = field(default_factory=list)  # entries that appeared (relative names)
 
 
-def run_in(proj: Path, argv: list[str], out: str | None, timeout: float) -> Outcome:
-    """`sgloc argv` in-process in the user's folder `proj`; what it changed besides `out`."""
+def run_in(proj: Path, argv: list[str], out: str | None, timeout: float,
+           other: str | None = None) -> Outcome:
+    """`sgloc argv` in-process in the user's folder `proj`; what it changed besides its outputs
+    `out` and `other`."""
     fz = _fuzz()
     before = snapshot(proj)
     t0 = time.perf_counter()
@@ -331,7 +333,8 @@ def run_in(proj: Path, argv: list[str], out: str | None, timeout: float) -> Outc
     seconds = time.perf_counter() - t0
     after = snapshot(proj)
     new = sorted(n for n in after if n not in before or after[n] != before[n])
-    return Outcome(rc, err, exc, seconds, changes(before, after, out), new)
+    changed = [n for n in changes(before, after, out) if n in changes(before, after, other)]
+    return Outcome(rc, err, exc, seconds, changed, new)
 
 
 def _one_error_line(stderr: str) -> bool:
@@ -356,7 +359,8 @@ def _broken(o: Outcome) -> str:
     return ""
 
 
-#: Output options: name -> (argv before the option, the option, "folder" | "file").
+#: Output options: name -> (argv before the option, the option, "folder" | "file"); the other
+#: output a case writes besides it, if any, is OTHER_OUTPUT's.
 OUTPUT_OPTIONS: dict[str, tuple[list[str], str, str]] = {
     "localize --out": (["localize", "--example"], "--out", "folder"),
     "localize --json": (["localize", "--example"], "--json", "file"),
@@ -370,8 +374,8 @@ OUTPUT_OPTIONS: dict[str, tuple[list[str], str, str]] = {
     "build-graph -o": (["build-graph", "airsim", "robot", "-q"], "-o", "file"),
     "experiment --out": (["experiment", "table", "--dataset", "synthetic", "--trials", "1",
                           "--workers", "1"], "--out", "folder"),
-    "serve --state": (["serve", "--seconds", "0.5", "--quiet"], "--state", "file"),
 }  # fmt: skip
+OTHER_OUTPUT = {"replay --out-bag": "results/fleet"}
 #: The extensions of sgloc's writers and readers besides matplotlib's picture formats.
 WRITER_EXTENSIONS = ["json", "npz", "npy", "pcd", "ply", "csv", "txt", "tum", "kitti", "g2o",
                      "yaml", "md", "rrd", "mcap", "db3", "xyz", "JSON", "PNG"]
@@ -402,8 +406,9 @@ def classify_output(o: Outcome, out: str, kind: str, refusal_limit: float) -> st
     placed = [n for n in o.new if n == named or n.startswith(named + "/")]
     if not placed:
         return "written elsewhere than named"
-    if kind == "file" and folder_given and named in placed and len(placed) == 1:
-        return "written elsewhere than named"  # a folder given, no named file made inside it
+    if kind == "file" and folder_given and placed == [named]:  # no named file inside it
+        return ("a file at a new folder's name (trailing /)" if out.endswith("/")
+                else "written elsewhere than named")
     return "written"
 
 
@@ -422,7 +427,7 @@ def run_output_family(work: Path, template: Path, timeout: float = 120.0,
         argv, option, kind = OUTPUT_OPTIONS[name]
         proj = _fresh(work, template)
         (proj / "results" / "empty").mkdir()
-        o = run_in(proj, [*argv, option, out], out.rstrip("/"), timeout)
+        o = run_in(proj, [*argv, option, out], out.rstrip("/"), timeout, OTHER_OUTPUT.get(name))
         if o.rc in (0, 1) and not o.exc:
             done.setdefault(name, []).append(o.seconds)
         results.append((name, form, o, out))

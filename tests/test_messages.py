@@ -150,3 +150,17 @@ def test_help_paragraphs_are_not_cut_mid_sentence(capsys):
 
     info = next(i for i in app.registered_commands if i.name == "localize")
     assert all("\n" not in p for p in info.help.split("\n\n"))
+
+
+@pytest.mark.parametrize("argv", [
+    ["localize", "--example", "--json"], ["localize", "--example", "--rerun"],
+    ["build-graph", "airsim", "robot", "-o"], ["serve", "--seconds", "0.1", "--state"],
+])  # fmt: skip
+def test_a_file_option_given_a_folder_name_with_a_slash_is_refused(argv, tmp_path, capsys,
+                                                                   monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main([*argv, "new/"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines[0].startswith("Usage: sgloc") and len(lines) == 2
+    assert "new/ ends with a slash, which names a folder" in lines[1]
+    assert list(tmp_path.iterdir()) == []  # no file named `new` (the path type drops the /)
