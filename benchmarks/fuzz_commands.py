@@ -261,8 +261,32 @@ def run_signal_family(work: Path, template: Path, trials: int, seed: int = 0,
                       timeout: float = 120.0, commands: list[str] | None = None,
                       progress: bool = False) -> tuple[dict[str, Counter], list[tuple]]:
     """`trials` signalled runs of each command; (counts per command, [(command, outcome,
-    detail)] of the bad ones). A first unsignalled run per command gives its duration and its
-    complete output; signals are then sent uniformly over 0-110 % of that duration."""
+    detail)] of the bad ones). Two unsignalled runs per command come first; the second (caches
+    warm, as in the trials) gives the command's duration and its complete output. Signals are
+    then sent uniformly over 0-110 % of that duration."""
+    with _default_dispositions():
+        return _signal_family(work, template, trials, seed, timeout, commands, progress)
+
+
+@contextlib.contextmanager
+def _default_dispositions():
+    """SIGINT and SIGTERM not ignored in this process while it starts the children (a shell
+    starts a background job with SIGINT ignored, and a child inherits that until its first
+    line; a terminal's foreground command has the defaults)."""
+    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    for s, handler in previous.items():
+        if handler == signal.SIG_IGN:
+            signal.signal(s, signal.default_int_handler if s == signal.SIGINT else signal.SIG_DFL)
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+
+
+def _signal_family(work: Path, template: Path, trials: int, seed: int, timeout: float,
+                   commands: list[str] | None, progress: bool
+                   ) -> tuple[dict[str, Counter], list[tuple]]:
     rng = np.random.default_rng([seed, 37])
     env = child_env(work)
     results: dict[str, Counter] = {}
