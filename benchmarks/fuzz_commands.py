@@ -142,6 +142,9 @@ SIGNAL_COMMANDS: dict[str, tuple[list[str], str]] = {
 }  # fmt: skip
 SIGNAL_GOOD = ("interrupted, nothing written", "interrupted after the output was complete",
                "finished before the signal", "killed in Python's start-up, nothing written")
+#: Python's own start-up (before sgloc's first line) raising KeyboardInterrupt: its traceback
+#: names no file of sgloc's; reported apart (sgloc cannot handle a signal before it runs).
+SIGNAL_RESIDUAL = ("KeyboardInterrupt in Python's start-up, nothing written",)
 SIGNAL_BAD = ("lost signal", "traceback", "hang", "written though interrupted",
               "incomplete output", "wrong exit code or message", "user files moved or changed",
               "workers left running")
@@ -224,6 +227,12 @@ def _group_alive(pgid: int, wait: float = 2.0) -> bool:
         time.sleep(0.05)
 
 
+def _startup_interrupt(stderr: str) -> bool:
+    """True for Python's KeyboardInterrupt traceback from before any file of sgloc ran."""
+    lines = [ln for ln in stderr.splitlines() if ln.strip()]
+    return bool(lines) and lines[-1] == "KeyboardInterrupt" and "/sgloc/" not in stderr
+
+
 def classify_signal(run: SignalRun, signum: int, complete: bool, absent: bool,
                     changed: list[str]) -> str:
     """The outcome of one signalled run. `complete`: the output holds what a normal run writes;
@@ -237,6 +246,8 @@ def classify_signal(run: SignalRun, signum: int, complete: bool, absent: bool,
     if run.rc == -signum:  # the default handler: Python had not run sgloc's first line yet
         return "killed in Python's start-up, nothing written" if absent else \
             "written though interrupted"
+    if run.rc == 1 and absent and _startup_interrupt(run.stderr):
+        return "KeyboardInterrupt in Python's start-up, nothing written"
     if "Traceback" in run.stderr or "Exception ignored" in run.stderr:
         return "traceback"
     code = 143 if signum == signal.SIGTERM else 130
@@ -705,7 +716,7 @@ def summary_counts(report: dict) -> Counter:
 
 
 def signal_table(per_command: dict[str, Counter]) -> str:
-    cols = [*SIGNAL_GOOD, *SIGNAL_BAD]
+    cols = [*SIGNAL_GOOD, *SIGNAL_RESIDUAL, *SIGNAL_BAD]
     rows = ["| command | trials | " + " | ".join(cols) + " |", "|---" * (len(cols) + 2) + "|"]
     for name, c in per_command.items():
         rows.append(f"| `{name}` | {sum(c.values())} | "

@@ -1,6 +1,8 @@
 """Mutation fuzzing through the command line (a bounded run of benchmarks/fuzz.py): no
 traceback, crash or hang; every bad input one `error:` line with exit 2; no malformed file read
-as data; no valid file refused."""
+as data; no valid file refused. And a few cases of each command family
+(benchmarks/fuzz_commands.py): signals at random moments, every output form, a command twice
+into its own output, inputs of another layout; none moves or changes a file of the user's."""
 
 import pytest
 
@@ -131,6 +133,12 @@ def test_signal_classes_catch_lost_signals_and_leftovers(commands):
                                     True, []) == "workers left running"
     assert commands.classify_signal(run(None, "", True, False, 99.0), sigint, False, True,
                                     []) == "hang"
+    early = 'Traceback (most recent call last):\n  File "<frozen io>", line 53\nKeyboardInterrupt\n'
+    assert commands.classify_signal(run(1, early, True, False, 0.1), sigint, False, True,
+                                    []) == "KeyboardInterrupt in Python's start-up, nothing written"
+    late = early.replace("<frozen io>", "/x/src/sgloc/cli/app.py")
+    assert commands.classify_signal(run(1, late, True, False, 0.1), sigint, False, True,
+                                    []) == "traceback"
     tb = "Traceback (most recent call last):\n" + line
     assert commands.classify_signal(run(130, tb, True, False, 1.0), sigint, False, True,
                                     []) == "traceback"
