@@ -1,6 +1,6 @@
 """Mutation fuzzing of everything a user feeds the command line.
 
-    python benchmarks/fuzz.py [--cases 5000] [--seed 0] [--update-docs]
+    python benchmarks/fuzz.py [--cases 5000] [--seed 0] [--signal-trials 100] [--update-docs]
 
 Valid seed files (graphs in ascii/binary/binary_compressed PCD, JSON and NPZ from a synthetic
 two-robot scene; a tiny Airsim-layout robot folder) are mutated: truncations, byte flips, header
@@ -11,6 +11,10 @@ that may leave a valid file (a flipped digit) is "either"; one that only changes
 the allowed ranges is "valid". Bad outcomes: a traceback, a MemoryError, a hang, an error not
 printed as one line with exit 2, a must-fail file read as data, a valid file refused.
 Prints the count of every outcome class; with --update-docs writes docs/robustness.md's table.
+Then the command families of benchmarks/fuzz_commands.py run (`--command-family NAME`, or
+`--no-commands` to skip them): a signal at random moments of every command (`--signal-trials`
+per command), every output option with every extension and a folder, every command twice into
+its own output, and inputs of one layout given to a command that reads another.
 """
 
 from __future__ import annotations
@@ -1240,6 +1244,10 @@ def main() -> int:
                         f"{k}: {FAMILIES[k][2]}" for k in FAMILIES))
     ap.add_argument("--inputs", action="store_true", help="the input families alone (same as "
                     "--family inputs)")
+    commands = _commands_module()
+    commands.add_arguments(ap, seed=False)
+    ap.add_argument("--no-commands", action="store_true",
+                    help="skip the command families (signals, outputs, twice, layouts)")
     args = ap.parse_args()
     t0 = time.perf_counter()
     by_kind: Counter = Counter()
@@ -1260,7 +1268,28 @@ def main() -> int:
         print(f"BAD {outcome}: {name}: {detail}")
     if args.update_docs:
         write_docs(counts, by_kind, args.cases, args.seed, elapsed)
-    return 1 if bad else 0
+    if args.no_commands:
+        return 1 if bad else 0
+    report = commands.run_from_args(args)
+    line = " ".join(["python benchmarks/fuzz.py", *[a for a in sys.argv[1:]
+                                                    if a != "--update-docs"]])
+    rc = commands.print_report(report, line)
+    if args.update_docs:
+        print(f"wrote {commands.write_doc_block(commands.report_text(report, line))}")
+    return 1 if bad or rc else 0
+
+
+def _commands_module():
+    """benchmarks/fuzz_commands.py (the command families), loaded beside this script."""
+    import importlib.util
+
+    if "fuzz_commands" not in sys.modules:
+        path = Path(__file__).resolve().parent / "fuzz_commands.py"
+        spec = importlib.util.spec_from_file_location("fuzz_commands", path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules["fuzz_commands"] = module
+        spec.loader.exec_module(module)
+    return sys.modules["fuzz_commands"]
 
 
 def write_docs(counts: Counter, by_kind: Counter, cases: int, seed: int, elapsed: float) -> None:

@@ -100,6 +100,24 @@ def test_from_csv_refuses_trial_options_it_would_ignore(tmp_path, capsys):
     assert main(again) == 0
 
 
+@pytest.mark.parametrize("content", [
+    b"x,y,z,class\n1,2,3,4\n",  # a graph table
+    b"stamp,robot,event,detail\n1.0,a,placed,b\n",  # a replay's events.csv
+    b"seed,descriptor,rejection,ransac_threshold,localized,failed\n",  # the header alone
+    b"seed,descriptor,rejection,ransac_threshold,localized,failed\nabc,h,none,5,True,False\n",
+    b"PK\x03\x04\xb8\xff\x00",  # not text
+])  # fmt: skip
+def test_from_csv_refuses_a_file_that_is_not_trials_csv_before_any_work(content, tmp_path,
+                                                                        capsys):
+    src = tmp_path / "t.csv"
+    src.write_bytes(content)
+    out = tmp_path / "out"
+    assert main(["experiment", "table", "--from-csv", str(src), "--out", str(out)]) == 2
+    err = _err(capsys)
+    assert err.startswith(f"error: {src}") and "trials.csv" in err
+    assert not out.exists()
+
+
 def test_random_walk_localizes_the_shipped_example_with_its_defaults(airsim_graphs):
     r = localize(*airsim_graphs, descriptor="random_walk", seed=0)
     assert r.accepted, r.reason
@@ -132,3 +150,17 @@ def test_help_paragraphs_are_not_cut_mid_sentence(capsys):
 
     info = next(i for i in app.registered_commands if i.name == "localize")
     assert all("\n" not in p for p in info.help.split("\n\n"))
+
+
+@pytest.mark.parametrize("argv", [
+    ["localize", "--example", "--json"], ["localize", "--example", "--rerun"],
+    ["build-graph", "airsim", "robot", "-o"], ["serve", "--seconds", "0.1", "--state"],
+])  # fmt: skip
+def test_a_file_option_given_a_folder_name_with_a_slash_is_refused(argv, tmp_path, capsys,
+                                                                   monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main([*argv, "new/"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines[0].startswith("Usage: sgloc") and len(lines) == 2
+    assert "new/ ends with a slash, which names a folder" in lines[1]
+    assert list(tmp_path.iterdir()) == []  # no file named `new` (the path type drops the /)

@@ -264,6 +264,9 @@ def _run(argv: list[str] | None, before: int) -> int:
         )
         rc = EXIT_USER_ERROR
     except Exception as e:
+        interrupted = interrupts.in_chain(e)  # a compiled library turned it into its own error
+        if interrupted is not None:
+            return _interrupted(interrupted, before)
         if not _is_framework_exception(e):
             raise
         rc = _framework_exit(e, before)

@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
 
 from sgloc.cli.app import app
+from sgloc.cli.options import file_path
 from sgloc.cli.outputs import claim_output
 from sgloc.cli.progress import progress_bar
 from sgloc.datasets import DATASETS
@@ -21,8 +22,9 @@ Folder = Annotated[Path, typer.Argument(
     metavar="FOLDER", help="Dataset folder (or run folder with robot folders)."
 )]
 Out = Annotated[Path, typer.Option(
-    "-o", "--out", help="Graph file to write (.pcd .json .npz .ply .csv .txt); a new "
-    "path: sgloc never writes over an existing file."
+    "-o", "--out", parser=file_path, metavar="<path>",
+    help="Graph file to write (.pcd .json .npz .ply .csv .txt); a new path: sgloc never "
+    "writes over an existing file."
 )]
 Robot = Annotated[str | None, typer.Option(
     help="Robot folder (airsim) or camera (synthia: Omni_F | Omni_B)."

@@ -20,6 +20,7 @@ from sgloc.cli.options import (
     Preset,
     Seed,
     Settings,
+    file_path,
     localizer_config,
 )
 from sgloc.cli.outputs import claim_output
@@ -46,12 +47,14 @@ Format = Annotated[str | None, typer.Option(
     "--format", help=f"Print only the result to stdout as {' | '.join(FORMATS)}."
 )]
 JsonOut = Annotated[Path | None, typer.Option(
-    "--json", help="Write the full result as JSON here: result.json's fields plus "
-    "every match, candidate and the configuration (docs/formats.md)."
+    "--json", parser=file_path, metavar="<path>",
+    help="Write the full result as JSON here: result.json's fields plus every match, candidate "
+    "and the configuration (docs/formats.md)."
 )]
 Rerun = Annotated[Path | None, typer.Option(
-    "--rerun", help="Write both maps, the matches and the transform as a Rerun "
-    "recording (.rrd; needs pip install 'sgloc\\[rerun]')."
+    "--rerun", parser=file_path, metavar="<path>",
+    help="Write both maps, the matches and the transform as a Rerun recording (.rrd; needs "
+    "pip install 'sgloc\\[rerun]')."
 )]
 
 

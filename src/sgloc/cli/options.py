@@ -22,6 +22,15 @@ LABEL_HELP = "Class column of .ply/.csv/.txt graphs: a field name or a 0-based c
 COLOURS_HELP = "Colour table (lines `class r g b \\[name]`) for graphs whose classes are colours."
 CLASSES_HELP = "Class table (lines `class_id name`; names match in any case)"
 
+def file_path(raw: str) -> Path:
+    """The path of an option that writes one file: refused when it ends with a slash (a
+    folder's name, which the path type would silently drop)."""
+    if raw.endswith(("/", "\\")):
+        raise typer.BadParameter(f"{raw} ends with a slash, which names a folder; give the path "
+                                 "of the file to write (a folder plus a file name).")
+    return Path(raw)
+
+
 # The shared options as type aliases: `preset: Preset = None` declares `--preset`.
 Preset = Annotated[str | None, typer.Option("--preset", help=PRESET_HELP)]
 ConfigFile = Annotated[Path | None, typer.Option("--config", help=CONFIG_HELP, exists=False)]

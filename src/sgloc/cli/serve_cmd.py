@@ -10,7 +10,7 @@ import typer
 from rich.console import Console
 
 from sgloc.cli.app import app
-from sgloc.cli.options import ConfigFile, Preset, Settings, localizer_config
+from sgloc.cli.options import ConfigFile, Preset, Settings, file_path, localizer_config
 from sgloc.cli.replay_cmd import (
     Backend,
     City,
@@ -31,9 +31,9 @@ from sgloc.cli.replay_cmd import (
 
 Listen = Annotated[str, typer.Option(help="Zenoh endpoint to listen on (loopback by default; "
                                      "e.g. tcp/0.0.0.0:7447 for every interface).")]
-State = Annotated[Path | None, typer.Option(help="State file (.npz): saved atomically every "
-                                            "--save-every seconds and on stop, resumed from "
-                                            "when it exists.")]
+State = Annotated[Path | None, typer.Option(
+    parser=file_path, metavar="<path>", help="State file (.npz): saved atomically every "
+    "--save-every seconds and on stop, resumed from when it exists.")]
 SaveEvery = Annotated[float, typer.Option(min=0.1, help="Seconds between state saves.")]
 Sync = Annotated[bool, typer.Option("--sync", help="Attempts inline after each keyframe, as "
                                     "`sgloc replay` runs them (no worker processes).")]

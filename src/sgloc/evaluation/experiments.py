@@ -11,6 +11,7 @@ overlap (Fig. 6), matches (Fig. 7).
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 import itertools
 import time
@@ -21,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from sgloc.errors import UnknownNameError
+from sgloc.errors import DatasetError, UnknownNameError
 from sgloc.evaluation.metrics import FAILURE_M, T_P, correct_matches
 from sgloc.evaluation.pairs import make_pair_source
 from sgloc.evaluation.report import (
@@ -41,7 +42,7 @@ from sgloc.evaluation.trials import (
     run_prepare,
     run_trials,
 )
-from sgloc.io.files import naming, staged_folder
+from sgloc.io.files import check_regular_file, naming, staged_folder
 from sgloc.pipeline.config import LocalizerConfig
 from sgloc.pipeline.localizer import Localizer
 
@@ -252,7 +253,7 @@ def _run_into(
     tasks = sweep.tasks()
     t0 = time.perf_counter()
     if opt.from_csv:
-        rows = read_csv(opt.from_csv)
+        rows = read_trials(opt.from_csv, name)
     else:
         prep = prepare_tasks(tasks)  # e.g. render each synthetic world once, in parallel
         if prep:
@@ -283,6 +284,33 @@ def _run_into(
         write_config_yaml(cfg_path, exp, configs)
     files.append(cfg_path)
     return ExperimentOutput(folder, files, md)
+
+
+#: The columns every experiment's trials.csv holds that its tables and figures read.
+TRIAL_COLUMNS = ("seed", "descriptor", "rejection", "ransac_threshold", "localized", "failed")
+
+
+def read_trials(path: str | Path, name: str) -> list[dict[str, Any]]:
+    """The trial rows of an earlier run's trials.csv (for `--from-csv`); DatasetError naming the
+    file when it is not one (another table, no rows, a column missing or not a number)."""
+    what = "trials.csv of an earlier `sgloc experiment` run"
+    fix = f"give the trials.csv that `sgloc experiment {name} --out DIR` wrote in DIR"
+    check_regular_file(path, what, DatasetError)
+    try:
+        rows = read_csv(path)
+    except (UnicodeDecodeError, csv.Error) as e:
+        raise DatasetError(f"{path}: not a {what} ({e}); {fix}.") from None
+    needed = (*TRIAL_COLUMNS, "overlap") if name == "overlap" else TRIAL_COLUMNS
+    missing = [c for c in needed if c not in rows[0]] if rows else []
+    if not rows or missing:
+        held = f"no {', '.join(missing)} column" if rows else "no trial rows"
+        raise DatasetError(f"{path}: not a {what} ({held}); {fix}.")
+    for i, r in enumerate(rows, start=2):
+        numbers = (r["seed"], r["ransac_threshold"], r.get("overlap", 0))
+        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in numbers):
+            raise DatasetError(f"{path}, line {i}: seed, ransac_threshold or overlap is not a "
+                               f"number; {fix}.")
+    return rows
 
 
 def _cell_name(settings: dict[str, Any], params: dict[str, Any]) -> str:

@@ -73,7 +73,7 @@ def experiment_job(
 
     _check(name, clock, trials, from_csv)
     if from_csv is not None:
-        _no_trial_options(Path(from_csv), typed or {})
+        _no_trial_options(Path(from_csv), name, typed or {})
     opt = ExperimentOptions(
         trials=trials, first_seed=seed, threshold=threshold,
         thresholds=_floats(thresholds, THRESHOLDS), overlaps=_floats(overlaps, OVERLAPS),
@@ -112,13 +112,13 @@ def _names(text: str | None, default: Sequence[str]) -> tuple[str, ...]:
     return tuple(x.strip() for x in text.split(",") if x.strip()) if text else tuple(default)
 
 
-def _no_trial_options(from_csv: Path, typed: Mapping[str, Any]) -> None:
-    """Refuse options typed with --from-csv that it would ignore (it re-makes the tables from
-    the CSV's trials and runs none): TRIAL_OPTIONS, and --trials and --seed unless they agree
-    with the CSV."""
-    from sgloc.evaluation.report import read_csv
+def _no_trial_options(from_csv: Path, name: str, typed: Mapping[str, Any]) -> None:
+    """Refuse a file that is not an experiment's trials.csv, and options typed with --from-csv
+    that it would ignore (it re-makes the tables from the CSV's trials and runs none):
+    TRIAL_OPTIONS, and --trials and --seed unless they agree with the CSV."""
+    from sgloc.evaluation.experiments import read_trials
 
-    seeds = sorted({int(r["seed"]) for r in read_csv(str(from_csv)) if "seed" in r})
+    seeds = sorted({int(r["seed"]) for r in read_trials(from_csv, name)})
     csv = {"trials": len(seeds), "seed": seeds[0] if seeds else None}
     given = [n for n in TRIAL_OPTIONS if n in typed]
     given += [n for n in ("trials", "seed") if n in typed and typed[n] != csv[n]]

@@ -3,7 +3,8 @@
 A signal sets a flag that stays set until the program ends, then raises `Interrupted` in the
 main thread so that every cleanup runs. Python swallows an exception raised inside a finaliser
 (`__del__`) or a compiled library's callback; such a swallowed interruption is raised again a
-moment later, outside it, and writes are committed only after `check()` finds no signal (the
+moment later, outside it (a signal during an import is raised after it, as one inside a
+finaliser), and writes are committed only after `check()` finds no signal (the
 flag, or a signal held back by a signal mask), so a lost raise still ends the run with nothing
 written. Before `install()` (while the program imports its modules) a signal only sets the flag.
 """
@@ -46,12 +47,23 @@ def _in_finaliser(frame) -> bool:
     return False
 
 
+def _importing(frame) -> bool:
+    """True if `frame` runs inside an import (the import machinery is among its callers): a
+    raise there can land in a compiled module's initialisation, which turns it into an
+    ImportError and may leave the interpreter unable to finalise."""
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib._bootstrap"):
+            return True
+        frame = frame.f_back
+    return False
+
+
 def _on_signal(signum: int, frame) -> None:
     if not _STATE["signum"]:
         _STATE["signum"] = signum
     if not _STATE["raising"] or _STATE["raised"] or _STATE["held"]:
         return
-    if _in_finaliser(frame):
+    if _in_finaliser(frame) or _importing(frame):
         _again()
         return
     _STATE["raised"] = True
@@ -139,6 +151,18 @@ def ignore() -> None:
             signal.signal(signum, signal.SIG_IGN)
     except ValueError:  # not the main thread
         pass
+
+
+def in_chain(e: BaseException) -> Interrupted | None:
+    """The interruption that caused `e` (a compiled library that turned it into an ImportError
+    or SystemError), if any."""
+    seen: set[int] = set()
+    while e is not None and id(e) not in seen:
+        if isinstance(e, Interrupted):
+            return e
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return None
 
 
 def received() -> int:

@@ -1,0 +1,59 @@
+"""A signal during an import is raised after the import (a raise inside a compiled module's
+initialisation becomes an ImportError and can abort the interpreter at exit); an interruption
+that a compiled library turned into its own error (SystemError, ImportError) still ends the
+command with 130 and its one line."""
+
+from __future__ import annotations
+
+import signal
+import sys
+import time
+
+import pytest
+
+import sgloc.cli.localize_cmd
+from sgloc.cli import main
+from sgloc.runtime import interrupts
+from sgloc.runtime.interrupts import Interrupted
+
+pytestmark = pytest.mark.skipif(not hasattr(signal, "pthread_sigmask"), reason="POSIX signals")
+
+SLOW_MODULE = """import os, signal, time
+os.kill(os.getpid(), signal.SIGINT)
+end = time.monotonic() + 0.3
+while time.monotonic() < end:
+    pass
+DONE = True
+"""
+
+
+@pytest.fixture
+def installed():
+    previous = interrupts.install()
+    yield
+    interrupts.uninstall(previous)
+
+
+def test_a_signal_during_an_import_is_raised_after_it(tmp_path, installed, monkeypatch):
+    (tmp_path / "sgloc_slow_import.py").write_text(SLOW_MODULE)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    try:
+        with pytest.raises(Interrupted):
+            import sgloc_slow_import  # noqa: F401
+            end = time.monotonic() + 2.0
+            while time.monotonic() < end:  # the raise comes here, once the import is done
+                pass
+        assert sys.modules["sgloc_slow_import"].DONE  # imported whole
+    finally:
+        sys.modules.pop("sgloc_slow_import", None)
+
+
+def test_an_interruption_turned_into_a_library_error_exits_130(monkeypatch, capsys):
+    def interrupted_inside_a_compiled_call(*args, **kwargs):
+        raise SystemError("CPUDispatcher returned a result with an exception set") from (
+            Interrupted(signal.SIGINT))
+
+    monkeypatch.setattr(sgloc.cli.localize_cmd, "localize_files",
+                        interrupted_inside_a_compiled_call)
+    assert main(["localize", "--example"]) == 130
+    assert capsys.readouterr().err.strip() == "interrupted (SIGINT); nothing was written."
