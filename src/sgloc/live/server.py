@@ -62,9 +62,9 @@ class ServeOptions:
     queue: messages waiting at most (all robots); robot_queue: per robot.
     plan_every: seconds between plans of attempts at most while keyframes are waiting (a
         plan weighs every pair of robots; with no keyframe waiting, one after each message).
-    solve_every: seconds between re-solves of the fleet frame at most (the batches of
-        attempts that finished meanwhile are solved at once), or three
-        times the last solve's duration when longer (solves take a quarter of the session's
+    solve_every: seconds between re-solves of the fleet frame at most while keyframes wait
+        (the batches of attempts that finished meanwhile are solved at once); and always three
+        times the last solve's duration at least (solves take a quarter of the session's
         thread at most, so keyframes keep flowing as the pose graph grows).
     zenoh_config: a Zenoh configuration file (TLS, access control; docs/live.md).
     view: also serve the live view to Foxglove (`sgloc.live.view.FleetView`) on
@@ -362,9 +362,11 @@ class LiveServer:
             self.session.apply_attempts(batch, results, solve=False)
             self._dirty = self._dirty_plan = True
         now = time.monotonic()
-        # the solve's own cost widens the spacing: solves take at most a quarter of the thread
+        # keyframes first: while they wait, a solve comes every solve_every s, or three times
+        # its own duration when longer (solves take a quarter of the thread at most)
         spacing = max(self.options.solve_every, 3.0 * self._solve_took)
-        if self.session.solve_due and (wait or now - self._solved_at >= spacing):
+        if self.session.solve_due and (wait or self._queue.empty()
+                                       or now - self._solved_at >= spacing):
             self.session.solve_pending()  # one solve for the batches that came meanwhile
             self._solved_at = time.monotonic()
             self._solve_took = self._solved_at - now
