@@ -1,7 +1,9 @@
 """`LiveServer`: one online session hosted over Zenoh. Robots publish keyframes on
 `sgloc/<robot>/keyframe` (discovered as they appear); each gets its fleet correction on
 `sgloc/<robot>/correction` at once after each of its messages and whenever it changes; the
-session's events go to `sgloc/events`.
+session's events go to `sgloc/events`. ROS 2 robots take part without a ROS install
+(`sgloc.live.ros2`, docs/live_ros2.md): their odometry and markers in CDR on rmw_zenoh's or
+zenoh-bridge-ros2dds's keys; /tf (map -> odom), paths and the fleet map go back to ROS 2.
 
 One thread owns the session: it takes messages from one bounded queue (a robot with more than
 `robot_queue` waiting is dropped with a warning, so a flood never exhausts memory), checks
@@ -26,6 +28,7 @@ from typing import Any
 
 from sgloc.errors import SglocError
 from sgloc.live import messages as msg
+from sgloc.live import ros2
 from sgloc.live.transport import DEFAULT_ENDPOINT, PREFIX, check_endpoint, key, open_session
 from sgloc.online import OnlineConfig, OnlineSession
 from sgloc.online.batch import run_batch
@@ -36,7 +39,8 @@ log = logging.getLogger("sgloc.live")
 DROPS = {"malformed": "not a valid sgloc message", "duplicate": "a message seen already",
          "out_of_order": "older than one already taken", "late": "a stamp not after the "
          "robot's last keyframe", "rejected": "refused by the session", "flood": "the robot "
-         "had too many messages waiting", "bad_key": "not on sgloc/<robot>/keyframe"}
+         "had too many messages waiting", "bad_key": "not on sgloc/<robot>/keyframe",
+         "unpaired": "ROS 2 markers with no odometry of the robot at or before their stamp"}
 
 
 @dataclass(frozen=True)
@@ -54,6 +58,10 @@ class ServeOptions:
         plan weighs every pair of robots; with no keyframe waiting, one after each message).
     solve_every: seconds between re-solves of the fleet frame at most while keyframes are
         waiting (the batches of attempts that finished meanwhile are solved at once).
+    ros2_domain: the ROS 2 domain (ROS_DOMAIN_ID) of ROS 2 robots and outputs; "auto": 0
+        when the ROS 2 message types (rosbags) are installed, else none; None: no ROS 2.
+    odom_topic / objects_topic: ROS 2 robots' topic templates (`sgloc.io.rosbag`);
+        classes: {class name: id} for class names in their markers' namespaces.
     """
 
     listen: str = DEFAULT_ENDPOINT
@@ -68,6 +76,20 @@ class ServeOptions:
     plan_every: float = 0.05
     solve_every: float = 0.5
     prefix: str = PREFIX
+    ros2_domain: int | str | None = "auto"
+    odom_topic: str = ros2.ODOM_TOPIC
+    objects_topic: str = ros2.OBJECTS_TOPIC
+    classes: dict[str, int] | None = None
+
+    def ros2(self) -> ros2.Ros2Options | None:
+        """The ROS 2 side's options; None when off. SglocError for a bad domain."""
+        d = self.ros2_domain
+        if d is None or (d == "auto" and not ros2.available()):
+            return None
+        if d != "auto" and (isinstance(d, bool) or not isinstance(d, int) or not 0 <= d <= 232):
+            raise SglocError(f"--ros2-domain {d!r}: give a ROS 2 domain id in 0 .. 232.")
+        return ros2.Ros2Options(0 if d == "auto" else d, self.odom_topic, self.objects_topic,
+                                classes=self.classes)
 
 
 class LiveServer:
@@ -85,6 +107,7 @@ class LiveServer:
                  options: ServeOptions | None = None, root: str | None = None) -> None:
         self.options = o = options or ServeOptions()
         check_endpoint(o.listen)
+        self._ros2_options = o.ros2()
         self.session = self._session(config, online, root)
         self.counts: Counter = Counter()
         self._queue: queue.Queue = queue.Queue(o.queue)
@@ -103,7 +126,7 @@ class LiveServer:
         self._dirty = False
         self._dirty_plan = True  # something changed since the last plan found nothing
         self._n_events = len(self.session.events)
-        self._pool = self._zenoh = self._thread = None
+        self._pool = self._zenoh = self._thread = self._ros2 = None
 
     def _session(self, config, online, root) -> OnlineSession:
         o = self.options
@@ -125,6 +148,9 @@ class LiveServer:
             self._pool = _Workers(o.workers, o.scheduler)
         self._zenoh = open_session("router", listen=o.listen)
         self._sub = self._zenoh.declare_subscriber(f"{o.prefix}/*/keyframe", self._receive)
+        if self._ros2_options is not None:
+            self._ros2 = ros2.Ros2Bridge(self._zenoh, self._ros2_options)
+            self._ros2.subscribe(self._enqueue)
         self._thread = threading.Thread(target=self._loop, name="sgloc-live", daemon=True)
         self._thread.start()
         log.info("listening on %s (%s)", o.listen, "sync" if o.sync else "async")
@@ -135,6 +161,8 @@ class LiveServer:
         self._stop.set()
         if self._thread is not None:
             self._thread.join()
+        if self._ros2 is not None:
+            self._ros2.close()
         if self._zenoh is not None:
             self._zenoh.close()
         if self._pool is not None:
@@ -154,13 +182,17 @@ class LiveServer:
     # -- Zenoh's thread: take, never wait ------------------------------------------------------
     def _receive(self, sample) -> None:
         parts = str(sample.key_expr).split("/")
-        robot = parts[1] if len(parts) == 3 else ""
+        self._enqueue(parts[1] if len(parts) == 3 else "", None, sample.payload.to_bytes())
+
+    def _enqueue(self, robot: str, kind: str | None, data: bytes) -> None:
+        """One message of `robot` into the queue: kind None for sgloc's own, else the ROS 2
+        topic's ("odom", "objects")."""
         with self._lock:
             if self._waiting[robot] >= self.options.robot_queue:
                 self._drop("flood", robot, "slow down: messages dropped")
                 return
             try:
-                self._queue.put_nowait((robot, sample.payload.to_bytes()))
+                self._queue.put_nowait((robot, kind, data))
             except queue.Full:
                 self._drop("flood", robot, "the server's queue is full: messages dropped")
                 return
@@ -177,13 +209,16 @@ class LiveServer:
     def _loop(self) -> None:
         while not self._stop.is_set():
             try:
-                robot, data = self._queue.get(timeout=0.01)
+                robot, kind, data = self._queue.get(timeout=0.01)
             except queue.Empty:
                 robot = None
             if robot is not None:
                 with self._lock:
                     self._waiting[robot] -= 1
-                self._handle(robot, data)
+                if kind is None:
+                    self._handle(robot, data)
+                else:
+                    self._handle_ros2(robot, kind, data)
             self._collect()
             self._schedule()
             self._publish_changes()
@@ -191,7 +226,7 @@ class LiveServer:
             if self._queue.empty() and not self._flight and not self._finishing:
                 self._idle.set()
         self._collect(wait=True)
-        self._publish_changes()
+        self._publish_changes(final=True)
         self.save()
 
     def _handle(self, robot: str, data: bytes) -> None:
@@ -208,6 +243,27 @@ class LiveServer:
         if isinstance(m, msg.Keyframe | msg.End) and self._fresh(robot, m):
             self._take(robot, m)
         self._answer(robot, seq)
+
+    def _handle_ros2(self, robot: str, kind: str, data: bytes) -> None:
+        """One ROS 2 message of `robot`: odometry kept, markers taken as keyframes (numbered
+        on from the robot's last seq), the robot's correction sent when one was."""
+        if not robot:
+            self._drop("bad_key", robot, "a ROS 2 topic naming no robot of 1-64 letters, "
+                       "digits, '_' or '-'")
+            return
+        try:
+            frames = self._ros2.decode(robot, kind, data)
+        except msg.MessageError as e:
+            self._drop("unpaired" if isinstance(e, ros2.UnpairedError) else "malformed",
+                       robot, str(e))
+            return
+        self.counts["received"] += 1
+        for stamp, T, positions, labels in frames:
+            m = msg.Keyframe(self._seq.get(robot, 0) + 1, stamp, T, positions, labels)
+            if self._fresh(robot, m):
+                self._take(robot, m)
+        if frames:
+            self._answer(robot, self._seq.get(robot, 0))
 
     def _fresh(self, robot: str, m) -> bool:
         """Whether `m` is new: a seq after the robot's last, a keyframe stamp after its last."""
@@ -230,6 +286,8 @@ class LiveServer:
             if isinstance(m, msg.Keyframe):
                 s.add_keyframe(robot, m.stamp_ns * 1e-9, m.T_odom_sensor, m.positions, m.labels)
                 self._stamp[robot] = m.stamp_ns
+                if self._ros2 is not None:
+                    self._ros2.note(m.stamp_ns)
                 self.counts["keyframes"] += 1
             elif robot in s.robots and self.options.sync:
                 s.finish(robot, m.stamp_ns * 1e-9)
@@ -252,9 +310,12 @@ class LiveServer:
         self._zenoh.put(key(robot, "correction", self.options.prefix), msg.encode_correction(
             seq, self._stamp.get(robot, -1), s.revision, T, robot in s.finished))
 
-    def _publish_changes(self) -> None:
-        """The corrections that changed since each robot's last, and the new events."""
+    def _publish_changes(self, final: bool = False) -> None:
+        """The corrections that changed since each robot's last, the new events, the ROS 2
+        outputs when due (all of them when `final`)."""
         s = self.session
+        if self._ros2 is not None:
+            self._ros2.publish(s, self._stamp, force=final)
         events = s.events[self._n_events:]
         self._n_events = len(s.events)
         for e in events:
