@@ -21,6 +21,7 @@ caller, its topics the templates with `{robot}` filled in or plain names such as
 from __future__ import annotations
 
 import contextlib
+import functools
 import re
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
@@ -44,8 +45,14 @@ FLEET_FRAME = "fleet"
 
 
 def _rosbags() -> tuple[Any, Any, Any]:
-    """(rosbags.rosbag2, rosbags.highlevel, the ROS 2 Humble typestore), or one clear error."""
+    """(rosbags.rosbag2, rosbags.highlevel, the ROS 2 Humble typestore: built once), or one
+    clear error."""
     require("rosbags", "ros", "reading and writing ROS 2 bags")
+    return _loaded()
+
+
+@functools.cache
+def _loaded() -> tuple[Any, Any, Any]:
     from rosbags import highlevel, rosbag2
     from rosbags.typesys import Stores, get_typestore
 

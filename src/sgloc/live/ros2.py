@@ -75,7 +75,8 @@ def available() -> bool:
 
 
 def typestore() -> Any:
-    """The ROS 2 type store of `sgloc.io.rosbag`, or one error naming the extra."""
+    """The ROS 2 type store of `sgloc.io.rosbag` (built once), or one error naming the
+    extra."""
     require("rosbags", "live", "ROS 2 messages on the live server")
     from sgloc.io.rosbag import _rosbags
 
