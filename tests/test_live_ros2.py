@@ -157,7 +157,7 @@ def test_stream_as_ros2_places_the_city_and_tf_paths_map_decode(city):
         for r in ref.corrections():  # every keyframe placed, in the fleet frame
             assert len(s.trajectory(r)[1]) == len(ref.trajectory(r)[1]), r
         time.sleep(1.2)  # one more /tf, path and map after the last change
-        tokens = [str(t.key_expr) for t in z.liveliness().get("@ros2_lv/0/**")]
+        tokens = [str(t.ok.key_expr) for t in z.liveliness().get("@ros2_lv/0/**") if t.ok]
         with lock:
             tf, path, fleet_map, att = (got[k][-1] for k in ("tf", "path", "map", "attachment"))
             seqs = [int.from_bytes(a[:8], "little") for a in got["attachment"]]
