@@ -56,6 +56,17 @@ ZenohConfig = Annotated[Path | None, typer.Option(help="A Zenoh configuration fi
                                                   "(docs/live.md, \"Who may connect\").")]
 Rate = Annotated[float, typer.Option(min=0.0, help="Speed-up over the recorded stamps (1: real "
                                      "time, 0: as fast as possible).")]
+Ros2Domain = Annotated[int | None, typer.Option(min=0, max=232, help="ROS 2 domain "
+                                               "(ROS_DOMAIN_ID) of ROS 2 robots and of the /tf, "
+                                               "path and map outputs (rmw_zenoh keys; default 0 "
+                                               "when the ROS 2 message types are installed; "
+                                               "docs/live_ros2.md).")]
+NoRos2 = Annotated[bool, typer.Option("--no-ros2", help="No ROS 2 robots or outputs.")]
+Ros2Odom = Annotated[str, typer.Option(help="ROS 2 robots' odometry topic template.")]
+Ros2Objects = Annotated[str, typer.Option(help="ROS 2 robots' object (MarkerArray) topic "
+                                          "template.")]
+As = Annotated[str, typer.Option("--as", help="sgloc: sgloc's own messages; ros2: as ROS 2 "
+                                 "robots with rmw_zenoh (Odometry and MarkerArray in CDR).")]
 Lockstep = Annotated[bool, typer.Option("--lockstep", help="Wait for each keyframe's correction "
                                         "before the next (with `serve --sync`: the replay's "
                                         "fleet exactly).")]
@@ -81,15 +92,22 @@ def serve_cmd(
     view_host: ViewHost = "127.0.0.1",
     view_port: ViewPort = 8765,
     zenoh_config: ZenohConfig = None,
+    ros2_domain: Ros2Domain = None,
+    no_ros2: NoRos2 = False,
+    odom_topic: Ros2Odom = "/{robot}/odom",
+    objects_topic: Ros2Objects = "/{robot}/objects",
+    classes: Classes = None,
     quiet: Quiet = False,
 ) -> None:
     """Host one online session for robots streaming over Zenoh: keyframes on
     sgloc/<robot>/keyframe, each robot's correction (map -> odom) on sgloc/<robot>/correction,
-    events on sgloc/events (docs/live.md).
+    events on sgloc/events (docs/live.md). ROS 2 robots with rmw_zenoh publish Odometry and
+MarkerArray on /<robot>/odom and /<robot>/objects and get map -> <robot>/odom on /tf.
 
     Examples: sgloc serve --state base.npz   |   sgloc serve --preset city-objects --sync
     |   sgloc serve --listen tcp/0.0.0.0:7447 --workers 2   |   sgloc serve --view
     """
+    from sgloc.io.class_table import read_class_table
     from sgloc.live.server import ServeOptions, serve
     from sgloc.online import OnlineConfig
     from sgloc.replay.job import BACKENDS
@@ -97,9 +115,12 @@ def serve_cmd(
     if backend not in BACKENDS:
         raise typer.BadParameter(f"--backend {backend!r}: choose keyframes or robots.")
     console = Console(quiet=quiet)
-    options = ServeOptions(listen, state, save_every, sync, workers, scheduler, max_attempts,
-                           view=view, view_host=view_host, view_port=view_port,
-                           zenoh_config=zenoh_config)
+    options = ServeOptions(
+        listen, state, save_every, sync, workers, scheduler, max_attempts,
+        view=view, view_host=view_host, view_port=view_port, zenoh_config=zenoh_config,
+        ros2_domain=None if no_ros2 else ("auto" if ros2_domain is None else ros2_domain),
+        odom_topic=odom_topic, objects_topic=objects_topic,
+        classes=None if classes is None else read_class_table(classes))
     online = OnlineConfig(seed=seed, backend=backend)
     server = serve(localizer_config(preset, config, setting), online, options, seconds,
                    lambda s: console.print(_status(s)), root)
@@ -135,23 +156,30 @@ def stream_cmd(
     rate: Rate = 1.0,
     lockstep: Lockstep = False,
     zenoh_config: ZenohConfig = None,
+    as_: As = "sgloc",
+    ros2_domain: Annotated[int, typer.Option(min=0, max=232, help="ROS 2 domain with --as "
+                                             "ros2.")] = 0,
     quiet: Quiet = False,
 ) -> None:
     """Play a recorded run (as `sgloc replay` reads it) to a server, one Zenoh session per
     robot, keyframes interleaved by stamp.
 
     Examples: sgloc stream --city --robots 4 --rate 2   |   sgloc stream runs/campus --to
-    tcp/10.0.0.5:7447   |   sgloc stream --city --lockstep --rate 0
+    tcp/10.0.0.5:7447   |   sgloc stream --city --lockstep --rate 0   |   sgloc stream --city
+    --as ros2
     """
     import numpy as np
 
     from sgloc.live.stream import stream_logs
     from sgloc.replay.job import replay_job
 
+    if as_ not in ("sgloc", "ros2"):
+        raise typer.BadParameter(f"--as {as_!r}: choose sgloc or ros2.")
     job = replay_job(sources or [], robot or [], scenario_names(kitti00, city), robots=robots,
                      scans=scans, every=every, poses=poses, seed=seed, classes=classes,
                      odom_topic=odom_topic, objects_topic=objects_topic)
-    rec = stream_logs(job.logs, to, rate, lockstep, zenoh_config=zenoh_config)
+    rec = stream_logs(job.logs, to, rate, lockstep, zenoh_config=zenoh_config,
+                      ros2_domain=ros2_domain if as_ == "ros2" else None)
     lat = np.concatenate([np.asarray(v, float) for v in rec.latency_ms.values()] or [[]])
     placed = sum(c.placed for c in rec.corrections.values())
     Console(quiet=quiet).print(

@@ -21,8 +21,9 @@ caller, its topics the templates with `{robot}` filled in or plain names such as
 from __future__ import annotations
 
 import contextlib
+import functools
 import re
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -44,8 +45,14 @@ FLEET_FRAME = "fleet"
 
 
 def _rosbags() -> tuple[Any, Any, Any]:
-    """(rosbags.rosbag2, rosbags.highlevel, the ROS 2 Humble typestore), or one clear error."""
+    """(rosbags.rosbag2, rosbags.highlevel, the ROS 2 Humble typestore: built once), or one
+    clear error."""
     require("rosbags", "ros", "reading and writing ROS 2 bags")
+    return _loaded()
+
+
+@functools.cache
+def _loaded() -> tuple[Any, Any, Any]:
     from rosbags import highlevel, rosbag2
     from rosbags.typesys import Stores, get_typestore
 
@@ -149,41 +156,98 @@ def read_robot_bag(
 
 
 def _read_robot(reader, path, name, odom_conns, obj_conns, classes) -> RobotLog:
-    stamps, xyz, quat = [], [], []
-    for conn, _, raw in reader.messages(connections=odom_conns):
-        msg = reader.deserialize(raw, conn.msgtype)
-        p, q = msg.pose.pose.position, msg.pose.pose.orientation
-        stamps.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
-        xyz.append((p.x, p.y, p.z))
-        quat.append((q.x, q.y, q.z, q.w))
-    index = {s: i for i, s in enumerate(stamps)}
-    kf, pos, lab = [], [], []
-    for n, (conn, _, raw) in enumerate(reader.messages(connections=obj_conns), 1):
-        for mk in reader.deserialize(raw, conn.msgtype).markers:
-            if mk.action != 0:
-                continue
-            s = mk.header.stamp.sec * 1_000_000_000 + mk.header.stamp.nanosec
-            where = f"{path}: {conn.topic} message {n} marker {mk.id}"
-            if s not in index:
-                raise DatasetError(
-                    f"{where}: stamp {s} ns is no {ODOMETRY} stamp of robot {name!r}; stamp "
-                    "each marker with the keyframe that saw it."
-                )
-            kf.append(index[s])
-            pos.append((mk.pose.position.x, mk.pose.position.y, mk.pose.position.z))
-            lab.append(resolve_class(mk.ns, classes, where))
-    order = np.argsort(stamps, kind="stable")  # messages come by log time, not header stamp
-    rank = np.argsort(order)
+    def messages(conns):
+        return (reader.deserialize(raw, c.msgtype)
+                for c, _, raw in reader.messages(connections=conns))
+
+    return messages_to_log(name, messages(odom_conns), messages(obj_conns), classes,
+                           f"{path}: {obj_conns[0].topic}", f"{path}: robot {name!r}")
+
+
+def messages_to_log(name: str, odometry: Iterable[Any], marker_arrays: Iterable[Any],
+                    classes: dict[str, int] | None = None, where: str = "",
+                    log_where: str = "", live: bool = False) -> RobotLog:
+    """Robot `name`'s keyframes from its nav_msgs/Odometry and visualization_msgs/MarkerArray
+    messages (the layout above; `odometry` is read to its end first). From a bag (`live`
+    False) every odometry message is a keyframe and each ADD marker carries the stamp of one.
+    Live, the keyframes are the marker stamps of each MarkerArray (of its ADD markers and of
+    any other marker stamped after 0: a DELETEALL marker alone is a keyframe that saw nothing),
+    each at the pose of the robot's latest odometry at or before it. DatasetError naming
+    `where` (the object topic) and the message on any mismatch, `log_where` on a bad pose."""
+    odo = [odometry_pose(m) for m in odometry]
+    ns = np.array([o[0] for o in odo], np.int64)
+    order = np.argsort(ns, kind="stable")  # messages come by log time, not header stamp
+    ns = ns[order]
+    xyz = np.array([o[1] for o in odo], np.float64).reshape(-1, 3)[order]
+    quat = np.array([o[2] for o in odo], np.float64).reshape(-1, 4)[order]
+    frames, kf, pos, lab = [], [], [], []
+    for n, m in enumerate(marker_arrays, 1):
+        at = f"{where} message {n}"
+        s, p, c = marker_objects(m, classes, at)
+        if live:  # this message's keyframes, at the latest odometry at or before each
+            others = [t for t in (_ns(mk.header.stamp) for mk in m.markers) if t > 0]
+            key = np.unique(np.concatenate([s, np.array(others, np.int64)]))
+            k = pair_objects(ns, key, name, at, exact=False)
+            kf.append(pair_objects(key, s, name, at) + sum(len(f[0]) for f in frames))
+            frames.append((key, xyz[k], quat[k]))
+        else:
+            kf.append(pair_objects(ns, s, name, at))
+        pos.append(p)
+        lab.append(c)
+    if live:
+        ns, xyz, quat = (np.concatenate([f[i] for f in frames]) if frames else
+                         np.zeros((0,) + shape) for i, shape in enumerate([(), (3,), (4,)]))
     return make_robot_log(
-        name,
-        np.array(stamps, np.int64)[order],
-        np.array(xyz, np.float64).reshape(-1, 3)[order],
-        np.array(quat, np.float64).reshape(-1, 4)[order],
-        rank[np.array(kf, np.int64)] if kf else np.zeros(0, np.int64),
-        np.array(pos, np.float64).reshape(-1, 3),
-        np.array(lab, np.int64),
-        where=f"{path}: robot {name!r}",
+        name, ns, xyz, quat,
+        np.concatenate(kf) if kf else np.zeros(0, np.int64),
+        np.concatenate(pos) if pos else np.zeros((0, 3)),
+        np.concatenate(lab) if lab else np.zeros(0, np.int64),
+        where=log_where or f"robot {name!r}",
     )
+
+
+def odometry_pose(msg: Any) -> tuple[int, tuple[float, ...], tuple[float, ...]]:
+    """(header stamp ns, position (x, y, z), orientation (x, y, z, w)) of a nav_msgs/Odometry:
+    one keyframe's T_odom_sensor (bags and live ROS 2 robots)."""
+    p, q = msg.pose.pose.position, msg.pose.pose.orientation
+    return _ns(msg.header.stamp), (p.x, p.y, p.z), (q.x, q.y, q.z, q.w)
+
+
+def marker_objects(msg: Any, classes: dict[str, int] | None, where: str
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(stamps ns (n,), positions (n,3) sensor frame, class ids (n,)) of the ADD markers of a
+    visualization_msgs/MarkerArray (bags and live ROS 2 robots); `where` names the message in
+    errors (a class name not in `classes`)."""
+    marks = [mk for mk in msg.markers if mk.action == 0]
+    stamps = np.array([_ns(mk.header.stamp) for mk in marks], np.int64)
+    pos = np.array([(mk.pose.position.x, mk.pose.position.y, mk.pose.position.z)
+                    for mk in marks], np.float64).reshape(-1, 3)
+    lab = np.array([resolve_class(mk.ns, classes, f"{where} marker {mk.id}") for mk in marks],
+                   np.int64)
+    return stamps, pos, lab
+
+
+def pair_objects(odom_ns: np.ndarray, stamps: np.ndarray, robot: str, where: str,
+                 exact: bool = True) -> np.ndarray:
+    """The keyframe (index into the sorted odometry stamps `odom_ns`) of each object stamp:
+    the odometry at that stamp, or with `exact` False the latest one at or before it.
+    DatasetError naming `where` for an object with none."""
+    k = np.searchsorted(odom_ns, stamps, side="right") - 1
+    bad = k < 0
+    if exact:
+        bad |= odom_ns[np.maximum(k, 0)] != stamps if len(odom_ns) else True
+    if np.any(bad):
+        s = int(np.asarray(stamps)[np.argmax(bad)])
+        rule = "at" if exact else "at or before"
+        raise DatasetError(
+            f"{where}: object stamp {s} ns has no {ODOMETRY} stamp of robot {robot!r} {rule} "
+            "it; stamp each marker with the keyframe that saw it."
+        )
+    return k
+
+
+def _ns(stamp: Any) -> int:
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
 def _stamp(ts, ns: int) -> Any:
@@ -191,7 +255,8 @@ def _stamp(ts, ns: int) -> Any:
                                                    nanosec=int(ns) % 1_000_000_000)
 
 
-def _header(ts, ns: int, frame: str) -> Any:
+def ros_header(ts, ns: int, frame: str) -> Any:
+    """A std_msgs/Header of the type store `ts`: stamp `ns` nanoseconds, frame `frame`."""
     return ts.types["std_msgs/msg/Header"](stamp=_stamp(ts, ns), frame_id=frame)
 
 
@@ -203,7 +268,7 @@ def _odometry(ts, name: str, ns: int, xyz: np.ndarray, quat: np.ndarray) -> Any:
     )
     zero3 = t["geometry_msgs/msg/Vector3"](0.0, 0.0, 0.0)
     return t[ODOMETRY](
-        header=_header(ts, ns, f"{name}/odom"),
+        header=ros_header(ts, ns, f"{name}/odom"),
         child_frame_id=f"{name}/sensor",
         pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
         twist=t["geometry_msgs/msg/TwistWithCovariance"](
@@ -213,11 +278,11 @@ def _odometry(ts, name: str, ns: int, xyz: np.ndarray, quat: np.ndarray) -> Any:
     )
 
 
-def _marker(ts, name: str, ns: int, k: int, p: np.ndarray, cls: str) -> Any:
+def _marker(ts, name: str, ns: int, k: int, p: np.ndarray, cls: str, action: int = 0) -> Any:
     t = ts.types
     M = t["visualization_msgs/msg/Marker"]
     return M(
-        header=_header(ts, ns, f"{name}/sensor"), ns=cls, id=k, type=M.SPHERE, action=M.ADD,
+        header=ros_header(ts, ns, f"{name}/sensor"), ns=cls, id=k, type=M.SPHERE, action=action,
         pose=t["geometry_msgs/msg/Pose"](
             position=t["geometry_msgs/msg/Point"](*map(float, p)),
             orientation=t["geometry_msgs/msg/Quaternion"](0.0, 0.0, 0.0, 1.0),
@@ -227,12 +292,30 @@ def _marker(ts, name: str, ns: int, k: int, p: np.ndarray, cls: str) -> Any:
         lifetime=t["builtin_interfaces/msg/Duration"](sec=0, nanosec=0),
         frame_locked=False, points=[], colors=[], texture_resource="",
         texture=t["sensor_msgs/msg/CompressedImage"](
-            header=_header(ts, 0, ""), format="", data=np.zeros(0, np.uint8)
+            header=ros_header(ts, 0, ""), format="", data=np.zeros(0, np.uint8)
         ),
         uv_coordinates=[], text="", mesh_resource="",
         mesh_file=t["visualization_msgs/msg/MeshFile"](filename="", data=np.zeros(0, np.uint8)),
         mesh_use_embedded_materials=False,
     )
+
+
+def robot_messages(log: RobotLog, class_names: Sequence[str] | None = None,
+                   mark_empty: bool = False) -> Iterator[tuple[int, Any, Any | None]]:
+    """(stamp ns, nav_msgs/Odometry, visualization_msgs/MarkerArray) of each keyframe of `log`
+    in the layout above (classes as names when `class_names` is given, else integer ids). A
+    keyframe that saw nothing has no MarkerArray (None), or with `mark_empty` one holding a
+    single DELETEALL marker at its stamp (how a live ROS 2 robot says so)."""
+    _, _, ts = _rosbags()
+    for i, p, lab in log.observations():
+        ns = int(log.stamps_ns[i])
+        odom = _odometry(ts, log.name, ns, log.xyz[i], log.quat[i])
+        cls = [class_names[c] if class_names else str(int(c)) for c in lab]
+        marks = [_marker(ts, log.name, ns, k, q, c) for k, (q, c) in
+                 enumerate(zip(p, cls, strict=True))]
+        if not marks and mark_empty:
+            marks = [_marker(ts, log.name, ns, 0, np.zeros(3), "", action=3)]
+        yield ns, odom, ts.types[MARKERS](markers=marks) if marks else None
 
 
 def _open_writer(rosbag2, path: Path) -> Any:
@@ -258,16 +341,10 @@ def write_bag(
             objs = w.add_connection(
                 objects_topic.replace("{robot}", log.name), MARKERS, typestore=ts
             )
-            for i, p, lab in log.observations():
-                ns = int(log.stamps_ns[i])
-                msg = _odometry(ts, log.name, ns, log.xyz[i], log.quat[i])
-                w.write(odom, ns, ts.serialize_cdr(msg, ODOMETRY))
-                if len(p):
-                    cls = [class_names[c] if class_names else str(int(c)) for c in lab]
-                    marks = [_marker(ts, log.name, ns, k, q, c) for k, (q, c) in
-                             enumerate(zip(p, cls, strict=True))]
-                    arr = ts.types[MARKERS](markers=marks)
-                    w.write(objs, ns, ts.serialize_cdr(arr, MARKERS))
+            for ns, odometry, markers in robot_messages(log, class_names):
+                w.write(odom, ns, ts.serialize_cdr(odometry, ODOMETRY))
+                if markers is not None:
+                    w.write(objs, ns, ts.serialize_cdr(markers, MARKERS))
     return path
 
 
@@ -305,7 +382,7 @@ def _write_transforms(rosbag2, ts, path: Path, transforms, topic: str) -> None:
         for (ns, robot), T in sorted(latest.items(), key=lambda x: x[0]):
             q = Rotation.from_matrix(np.asarray(T)[:3, :3]).as_quat()
             msg = t[TRANSFORM](
-                header=_header(ts, ns, FLEET_FRAME),
+                header=ros_header(ts, ns, FLEET_FRAME),
                 child_frame_id=f"{robot}/odom",
                 transform=t["geometry_msgs/msg/Transform"](
                     translation=t["geometry_msgs/msg/Vector3"](*map(float, T[:3, 3])),

@@ -1,7 +1,9 @@
 """`LiveServer`: one online session hosted over Zenoh. Robots publish keyframes on
 `sgloc/<robot>/keyframe` (discovered as they appear); each gets its fleet correction on
 `sgloc/<robot>/correction` at once after each of its messages and whenever it changes; the
-session's events go to `sgloc/events`.
+session's events go to `sgloc/events`. ROS 2 robots take part without a ROS install
+(`sgloc.live.ros2`, docs/live_ros2.md): their odometry and markers in CDR on rmw_zenoh's or
+zenoh-bridge-ros2dds's keys; /tf (map -> odom), paths and the fleet map go back to ROS 2.
 
 Zenoh's thread checks each message (malformed, duplicated, out-of-order and late messages are
 counted, logged and dropped), answers it at once with the robot's correction as last published
@@ -28,6 +30,7 @@ from typing import Any
 
 from sgloc.errors import SglocError
 from sgloc.live import messages as msg
+from sgloc.live import ros2
 from sgloc.live.transport import (
     DEFAULT_ENDPOINT,
     PREFIX,
@@ -46,7 +49,8 @@ log = logging.getLogger("sgloc.live")
 DROPS = {"malformed": "not a valid sgloc message", "duplicate": "a message seen already",
          "out_of_order": "older than one already taken", "late": "a stamp not after the "
          "robot's last keyframe", "rejected": "refused by the session", "flood": "the robot "
-         "had too many messages waiting", "bad_key": "not on sgloc/<robot>/keyframe"}
+         "had too many messages waiting", "bad_key": "not on sgloc/<robot>/keyframe",
+         "unpaired": "ROS 2 markers with no odometry of the robot at or before their stamp"}
 
 
 @dataclass(frozen=True)
@@ -67,6 +71,10 @@ class ServeOptions:
         times the last solve's duration at least (solves take a quarter of the session's
         thread at most, so keyframes keep flowing as the pose graph grows).
     zenoh_config: a Zenoh configuration file (TLS, access control; docs/live.md).
+    ros2_domain: the ROS 2 domain (ROS_DOMAIN_ID) of ROS 2 robots and outputs; "auto": 0
+        when the ROS 2 message types (rosbags) are installed, else none; None: no ROS 2.
+    odom_topic / objects_topic: ROS 2 robots' topic templates (`sgloc.io.rosbag`);
+        classes: {class name: id} for class names in their markers' namespaces.
     view: also serve the live view to Foxglove (`sgloc.live.view.FleetView`) on
         ws://`view_host`:`view_port` (loopback unless told otherwise; port 0: any free port),
         updated `view_rate` times a second at most.
@@ -89,6 +97,20 @@ class ServeOptions:
     view_host: str = DEFAULT_VIEW_HOST
     view_port: int = DEFAULT_VIEW_PORT
     view_rate: float = 2.0
+    ros2_domain: int | str | None = "auto"
+    odom_topic: str = ros2.ODOM_TOPIC
+    objects_topic: str = ros2.OBJECTS_TOPIC
+    classes: dict[str, int] | None = None
+
+    def ros2(self) -> ros2.Ros2Options | None:
+        """The ROS 2 side's options; None when off. SglocError for a bad domain."""
+        d = self.ros2_domain
+        if d is None or (d == "auto" and not ros2.available()):
+            return None
+        if d != "auto" and (isinstance(d, bool) or not isinstance(d, int) or not 0 <= d <= 232):
+            raise SglocError(f"--ros2-domain {d!r}: give a ROS 2 domain id in 0 .. 232.")
+        return ros2.Ros2Options(0 if d == "auto" else d, self.odom_topic, self.objects_topic,
+                                classes=self.classes)
 
 
 class LiveServer:
@@ -106,6 +128,7 @@ class LiveServer:
                  options: ServeOptions | None = None, root: str | None = None) -> None:
         self.options = o = options or ServeOptions()
         check_endpoint(o.listen)
+        self._ros2_options = o.ros2()
         self.session = self._session(config, online, root)
         self.counts: Counter = Counter()
         self._queue: queue.Queue = queue.Queue(o.queue)
@@ -128,7 +151,7 @@ class LiveServer:
         self._dirty = False
         self._dirty_plan = True  # something changed since the last plan found nothing
         self._n_events = len(self.session.events)
-        self._pool = self._zenoh = self._thread = None
+        self._pool = self._zenoh = self._thread = self._ros2 = None
         self.view: FleetView | None = None
 
     def _session(self, config, online, root) -> OnlineSession:
@@ -155,6 +178,9 @@ class LiveServer:
                 self._pool = _Workers(o.workers, o.scheduler)
             self._zenoh = open_session("router", listen=o.listen, config_file=o.zenoh_config)
             self._sub = self._zenoh.declare_subscriber(f"{o.prefix}/*/keyframe", self._receive)
+            if self._ros2_options is not None:
+                self._ros2 = ros2.Ros2Bridge(self._zenoh, self._ros2_options)
+                self._ros2.subscribe(self._receive_ros2)
         except BaseException:
             self.stop()
             raise
@@ -168,6 +194,8 @@ class LiveServer:
         self._stop.set()
         if self._thread is not None:
             self._thread.join()
+        if self._ros2 is not None:
+            self._ros2.close()
         if self._zenoh is not None:
             self._zenoh.close()
         if self._pool is not None:
@@ -206,6 +234,31 @@ class LiveServer:
                 self._waiting[robot] += 1
             if _named(robot) and not (self.options.sync and queued):  # sync: once taken
                 self._answer(robot)  # at once: the correction as it stands now
+
+    def _receive_ros2(self, robot: str, kind: str, data: bytes) -> None:
+        """One ROS 2 message of `robot` (Zenoh's thread): odometry kept, markers made
+        keyframes (numbered on from the robot's last seq) and queued. A ROS 2 robot's answer
+        is /tf (`sgloc.live.ros2`)."""
+        with self._lock:
+            if not robot:
+                self._drop("bad_key", robot, "a ROS 2 topic naming no robot of 1-64 letters, "
+                           "digits, '_' or '-'")
+                return
+            if self._waiting[robot] >= self.options.robot_queue or self._queue.full():
+                self._drop("flood", robot, "slow down: messages dropped")
+                return
+            try:
+                frames = self._ros2.decode(robot, kind, data)
+            except msg.MessageError as e:
+                self._drop("unpaired" if isinstance(e, ros2.UnpairedError) else "malformed",
+                           robot, str(e))
+                return
+            self.counts["received"] += 1
+            for stamp, T, positions, labels in frames:
+                m = msg.Keyframe(self._seq.get(robot, 0) + 1, stamp, T, positions, labels)
+                if self._fresh(robot, m) and not self._queue.full():
+                    self._queue.put_nowait((robot, m))
+                    self._waiting[robot] += 1
 
     def _admit(self, robot: str, data: bytes):
         """The decoded message when it is valid and new (else None, counted and logged)."""
@@ -272,7 +325,7 @@ class LiveServer:
                                             or self.session.solve_due):
                 self._idle.set()
         self._collect(wait=True)
-        self._publish_changes()
+        self._publish_changes(final=True)
         if self.view is not None:
             self.view.update(self.session, force=True)
         self.save()
@@ -286,6 +339,8 @@ class LiveServer:
                 with self._lock:
                     self.counts["keyframes"] += 1
                     self._held[robot] = m.stamp_ns
+                if self._ros2 is not None:
+                    self._ros2.note(m.stamp_ns)
             elif isinstance(m, msg.Hello):
                 pass
             elif robot in s.robots and self.options.sync:
@@ -301,10 +356,13 @@ class LiveServer:
         if self.options.sync:
             self._publish_changes(robot)
 
-    def _publish_changes(self, asked: str | None = None) -> None:
+    def _publish_changes(self, asked: str | None = None, final: bool = False) -> None:
         """The new events; the corrections that changed since last published (and `asked`'s
-        in any case, answering its latest message)."""
+        in any case, answering its latest message); the ROS 2 outputs when due (all of them
+        when `final`)."""
         s = self.session
+        if self._ros2 is not None:
+            self._ros2.publish(s, self._held, force=final)
         events = s.events[self._n_events:]
         self._n_events = len(s.events)
         for e in events:

@@ -39,13 +39,19 @@ class _Robot:
     """A robot's client and its log, keeping the send time of each keyframe seq."""
 
     def __init__(self, log: RobotLog, to: str, prefix: str, rec: StreamRecord,
-                 zenoh_config=None) -> None:
+                 zenoh_config=None, ros2_domain: int | None = None) -> None:
         self.log, self.rec = log, rec
         self.obs = list(log.observations())
         self.poses = log.poses
         self.sent: dict[int, float] = {}
         rec.latency_ms[log.name] = []
-        self.client = RobotClient(log.name, to, prefix, self._corrected, zenoh_config)
+        if ros2_domain is None:
+            self.client = RobotClient(log.name, to, prefix, self._corrected, zenoh_config)
+        else:
+            from sgloc.live.ros2 import Ros2Client
+
+            self.client = Ros2Client(log, to, ros2_domain, on_correction=self._corrected,
+                                     zenoh_config=zenoh_config)
 
     def _corrected(self, c) -> None:
         now = time.perf_counter()
@@ -58,7 +64,10 @@ class _Robot:
     def send(self, k: int) -> int:
         _, pos, lab = self.obs[k]
         t = time.perf_counter()
-        seq = self.client.send_keyframe(int(self.log.stamps_ns[k]), self.poses[k], pos, lab)
+        if isinstance(self.client, RobotClient):
+            seq = self.client.send_keyframe(int(self.log.stamps_ns[k]), self.poses[k], pos, lab)
+        else:
+            seq = self.client.send(k)
         self.sent[seq] = t
         self.rec.sent += 1
         return seq
@@ -69,18 +78,23 @@ def stream_logs(
     timeout: float = 30.0, prefix: str = PREFIX,
     progress: Callable[[int], None] | None = None, restart_timeout: float = 120.0,
     record: StreamRecord | None = None, zenoh_config: str | Path | None = None,
+    ros2_domain: int | None = None,
 ) -> StreamRecord:
     """Play `logs` to the server at `to` (see the module); returns the `StreamRecord`
     (`record` when given: it holds what was measured even when this raises).
     rate: speed-up over the stamps (1: real time; 0: no waiting); lockstep: wait for each
     correction (`timeout` seconds per message, then resynchronising with a server that is
     back within `restart_timeout` seconds); zenoh_config: a Zenoh configuration file for
-    every robot's session (TLS, access control)."""
+    every robot's session (TLS, access control); ros2_domain: play each robot as a ROS 2 robot
+    on that domain (`sgloc.live.ros2.Ros2Client`) instead of with sgloc's own messages."""
     check_names(logs)
     if rate < 0 or not np.isfinite(rate):
         raise SglocError(f"--rate {rate}: give a speed-up >= 0 (1: real time, 0: at once).")
+    if lockstep and ros2_domain is not None:
+        raise SglocError("--lockstep needs sgloc's own messages (a ROS 2 robot does not wait "
+                         "for answers): drop --lockstep or --as ros2.")
     rec = StreamRecord() if record is None else record
-    robots = [_Robot(g, to, prefix, rec, zenoh_config) for g in logs]
+    robots = [_Robot(g, to, prefix, rec, zenoh_config, ros2_domain) for g in logs]
     try:
         for r in robots:
             r.client.sync(timeout)
