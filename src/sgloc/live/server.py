@@ -176,6 +176,8 @@ class LiveServer:
                 self.view = FleetView(o.view_host, o.view_port, o.view_rate).start()
             if not o.sync:
                 self._pool = _Workers(o.workers, o.scheduler)
+            if self._ros2_options is not None:
+                ros2.typestore()  # built before robots can connect: it takes a while
             self._zenoh = open_session("router", listen=o.listen, config_file=o.zenoh_config)
             self._sub = self._zenoh.declare_subscriber(f"{o.prefix}/*/keyframe", self._receive)
             if self._ros2_options is not None:
