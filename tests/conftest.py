@@ -135,3 +135,20 @@ def path(request):
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(scope="session")
+def live_city():
+    """The city cut into 4 robots, its preset, and the replay's session on it (the live
+    tests' reference: read it, never change it)."""
+    from sgloc.evaluation.replay_scenarios import city_scenario
+    from sgloc.online import OnlineConfig, OnlineSession
+    from sgloc.pipeline.presets import localizer_preset
+    from sgloc.replay.stream import replay_logs
+
+    logs = city_scenario(4, 0).logs
+    config = localizer_preset("city-objects")
+    ref = OnlineSession(config, OnlineConfig())
+    replay_logs(logs, ref)
+    assert len(ref.corrections()) == 4  # every robot placed: a fleet worth comparing
+    return logs, config, ref

@@ -19,32 +19,19 @@ import pytest
 pytest.importorskip("zenoh")
 
 from sgloc.errors import SglocError  # noqa: E402
-from sgloc.evaluation.replay_scenarios import city_scenario  # noqa: E402
 from sgloc.live import messages as msg  # noqa: E402
 from sgloc.live.client import RobotClient  # noqa: E402
 from sgloc.live.server import LiveServer, ServeOptions  # noqa: E402
 from sgloc.live.stream import stream_logs  # noqa: E402
 from sgloc.live.transport import DEFAULT_ENDPOINT  # noqa: E402
 from sgloc.online import OnlineConfig, OnlineSession  # noqa: E402
-from sgloc.pipeline.presets import localizer_preset  # noqa: E402
-from sgloc.replay.stream import keyframe_order, replay_logs  # noqa: E402
+from sgloc.replay.stream import keyframe_order  # noqa: E402
 
 
 def _port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-@pytest.fixture(scope="module")
-def city():
-    """The city cut into 4 robots, its preset, and the replay's session on it."""
-    logs = city_scenario(4, 0).logs
-    config = localizer_preset("city-objects")
-    ref = OnlineSession(config, OnlineConfig())
-    replay_logs(logs, ref)
-    assert len(ref.corrections()) == 4  # every robot placed: a fleet worth comparing
-    return logs, config, ref
 
 
 def _served(endpoint: str, robots) -> dict[str, np.ndarray]:
@@ -65,8 +52,8 @@ def _assert_same_fleet(got: dict, ref: OnlineSession, tol: float) -> None:
         assert np.abs(got[r] - exp[r]).max() <= tol, r
 
 
-def test_lockstep_sync_gives_the_replays_fleet_to_1e9(city):
-    logs, config, ref = city
+def test_lockstep_sync_gives_the_replays_fleet_to_1e9(live_city):
+    logs, config, ref = live_city
     ep = f"tcp/127.0.0.1:{_port()}"
     with LiveServer(config, OnlineConfig(), ServeOptions(listen=ep, sync=True)) as srv:
         rec = stream_logs(logs, ep, rate=0, lockstep=True, timeout=30)
@@ -78,8 +65,8 @@ def test_lockstep_sync_gives_the_replays_fleet_to_1e9(city):
         (lk.robot_a, lk.robot_b, lk.keyframe_a, lk.keyframe_b, lk.active) for lk in ref.links]
 
 
-def test_asynchronous_mode_places_the_same_robots_within_a_tenth_of_a_metre(city):
-    logs, config, ref = city
+def test_asynchronous_mode_places_the_same_robots_within_a_tenth_of_a_metre(live_city):
+    logs, config, ref = live_city
     ep = f"tcp/127.0.0.1:{_port()}"
     with LiveServer(config, OnlineConfig(), ServeOptions(listen=ep, workers=1),
                     root=ref.root) as srv:  # the first to arrive is not fixed in time
@@ -97,8 +84,8 @@ def test_asynchronous_mode_places_the_same_robots_within_a_tenth_of_a_metre(city
             assert np.abs(served[r] - s.T_fleet_robot(r)).max() <= 1e-12
 
 
-def test_a_robot_that_reconnects_keeps_its_place(city):
-    logs, config, ref = city
+def test_a_robot_that_reconnects_keeps_its_place(live_city):
+    logs, config, ref = live_city
     ep = f"tcp/127.0.0.1:{_port()}"
     order = keyframe_order(logs)
     obs = [list(g.observations()) for g in logs]
@@ -135,8 +122,8 @@ def _serve_process(ep: str, state) -> subprocess.Popen:
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def test_a_server_killed_and_restarted_from_its_state_ends_with_the_same_links(city, tmp_path):
-    logs, _, ref = city
+def test_a_server_killed_and_restarted_from_its_state_ends_with_the_same_links(live_city, tmp_path):
+    logs, _, ref = live_city
     ep, state = f"tcp/127.0.0.1:{_port()}", tmp_path / "base.npz"
     proc = _serve_process(ep, state)
     done: list = []
@@ -179,8 +166,8 @@ def test_a_server_killed_and_restarted_from_its_state_ends_with_the_same_links(c
     _assert_same_fleet(got.corrections(), ref, 1e-9)
 
 
-def test_bad_messages_are_dropped_and_counted_and_floods_bounded(city, caplog):
-    logs, config, _ = city
+def test_bad_messages_are_dropped_and_counted_and_floods_bounded(live_city, caplog):
+    logs, config, _ = live_city
     g = logs[0]
     obs = list(g.observations())
     ep = f"tcp/127.0.0.1:{_port()}"
@@ -242,8 +229,8 @@ def _listening() -> set[tuple[str, str, int]]:
     return out
 
 
-def test_by_default_nothing_listens_beyond_loopback(city):
-    _, config, _ = city
+def test_by_default_nothing_listens_beyond_loopback(live_city):
+    _, config, _ = live_city
     assert DEFAULT_ENDPOINT.startswith("tcp/127.0.0.1:")
     assert ServeOptions().listen == DEFAULT_ENDPOINT
     before = _listening()

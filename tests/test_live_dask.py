@@ -12,13 +12,10 @@ import pytest
 pytest.importorskip("zenoh")
 distributed = pytest.importorskip("distributed")
 
-from sgloc.evaluation.replay_scenarios import city_scenario  # noqa: E402
 from sgloc.live.client import RobotClient  # noqa: E402
 from sgloc.live.server import LiveServer, ServeOptions  # noqa: E402
 from sgloc.live.stream import stream_logs  # noqa: E402
-from sgloc.online import OnlineConfig, OnlineSession  # noqa: E402
-from sgloc.pipeline.presets import localizer_preset  # noqa: E402
-from sgloc.replay.stream import replay_logs  # noqa: E402
+from sgloc.online import OnlineConfig  # noqa: E402
 
 
 def _port() -> int:
@@ -27,12 +24,8 @@ def _port() -> int:
         return s.getsockname()[1]
 
 
-def test_attempts_on_a_dask_cluster_place_the_replays_robots():
-    logs = city_scenario(4, 0).logs
-    config = localizer_preset("city-objects")
-    ref = OnlineSession(config, OnlineConfig())
-    replay_logs(logs, ref)
-    assert len(ref.corrections()) == 4
+def test_attempts_on_a_dask_cluster_place_the_replays_robots(live_city):
+    logs, config, ref = live_city
     ep = f"tcp/127.0.0.1:{_port()}"
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
                                   host="127.0.0.1", dashboard_address=None) as cluster:

@@ -25,8 +25,6 @@ from sgloc.live.server import LiveServer, ServeOptions  # noqa: E402
 from sgloc.live.stream import stream_logs  # noqa: E402
 from sgloc.live.transport import open_session  # noqa: E402
 from sgloc.online import OnlineConfig, OnlineSession  # noqa: E402
-from sgloc.pipeline.presets import localizer_preset  # noqa: E402
-from sgloc.replay.stream import replay_logs  # noqa: E402
 
 TS = ros2.typestore()
 
@@ -51,19 +49,8 @@ def _wait(cond, timeout: float = 20.0) -> None:
         time.sleep(0.02)
 
 
-@pytest.fixture(scope="module")
-def city():
-    """The city cut into 4 robots, its preset, and the replay's session on it."""
-    logs = city_scenario(4, 0).logs
-    config = localizer_preset("city-objects")
-    ref = OnlineSession(config, OnlineConfig())
-    replay_logs(logs, ref)
-    assert len(ref.corrections()) == 4
-    return logs, config, ref
-
-
-def test_cdr_on_rmw_zenoh_and_bridge_keys_gives_the_bag_readers_keyframes(city, tmp_path):
-    logs, config, _ = city
+def test_cdr_on_rmw_zenoh_and_bridge_keys_gives_the_bag_readers_keyframes(live_city, tmp_path):
+    logs, config, _ = live_city
     cut = [_cut(logs[0], 12), _cut(logs[1], 12)]
     bag = {g.name: g for g in read_bag(write_bag(tmp_path / "bag", cut))}
     ep = f"tcp/127.0.0.1:{_port()}"
@@ -98,8 +85,8 @@ def test_cdr_on_rmw_zenoh_and_bridge_keys_gives_the_bag_readers_keyframes(city, 
         assert srv.counts["received"] == 48 and srv.counts["malformed"] == 0
 
 
-def test_bad_cdr_payloads_are_counted_and_dropped(city, caplog):
-    logs, config, _ = city
+def test_bad_cdr_payloads_are_counted_and_dropped(live_city, caplog):
+    logs, config, _ = live_city
     g = _cut(logs[0], 3)
     msgs = list(robot_messages(g))
     odom = bytes(TS.serialize_cdr(msgs[0][1], ODOMETRY))
@@ -126,8 +113,8 @@ def test_bad_cdr_payloads_are_counted_and_dropped(city, caplog):
     assert not [r for r in caplog.records if r.exc_info or r.levelname == "ERROR"]
 
 
-def test_stream_as_ros2_places_the_city_and_tf_paths_map_decode(city):
-    logs, config, ref = city
+def test_stream_as_ros2_places_the_city_and_tf_paths_map_decode(live_city):
+    logs, config, ref = live_city
     ep = f"tcp/127.0.0.1:{_port()}"
     got: dict[str, list] = {"tf": [], "path": [], "map": [], "attachment": []}
     lock = threading.Lock()

@@ -51,6 +51,12 @@ def _rosbags() -> tuple[Any, Any, Any]:
     return _loaded()
 
 
+def ros2_typestore() -> Any:
+    """The ROS 2 Humble type store bags and live messages are read and written with (built
+    once), or one clear error."""
+    return _rosbags()[2]
+
+
 @functools.cache
 def _loaded() -> tuple[Any, Any, Any]:
     from rosbags import highlevel, rosbag2

@@ -96,15 +96,10 @@ class RobotClient:
                         ) -> msg.Correction:
         """The latest correction, once one answering `seq` (or later) came (None: any);
         SglocError after `timeout` seconds."""
-        end = time.monotonic() + timeout
-        with self._changed:
-            while self.correction is None or (seq is not None and self.correction.seq < seq):
-                left = end - time.monotonic()
-                if left <= 0:
-                    raise SglocError(f"robot {self.robot!r}: no correction from the server "
-                                     f"within {timeout:g} s; is `sgloc serve` running?")
-                self._changed.wait(left)
-            return self.correction
+        return wait_for_correction(
+            self._changed, lambda: self.correction, seq, timeout,
+            f"robot {self.robot!r}: no correction from the server within {timeout:g} s; is "
+            "`sgloc serve` running?")
 
     def close(self) -> None:
         """Close the session (the server keeps the robot's place)."""
@@ -115,3 +110,17 @@ class RobotClient:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def wait_for_correction(changed: threading.Condition, latest: Callable[[], msg.Correction | None],
+                        seq: int | None, timeout: float, missing: str) -> msg.Correction:
+    """`latest()` once it is a correction of seq `seq` or later (None: any), waiting on
+    `changed` (notified when it changes); SglocError(`missing`) after `timeout` seconds."""
+    end = time.monotonic() + timeout
+    with changed:
+        while (c := latest()) is None or (seq is not None and c.seq < seq):
+            left = end - time.monotonic()
+            if left <= 0:
+                raise SglocError(missing)
+            changed.wait(left)
+        return c

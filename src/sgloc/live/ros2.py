@@ -38,6 +38,7 @@ from sgloc.io.rosbag import (
     ros_header,
     topic_regex,
 )
+from sgloc.live.client import wait_for_correction
 from sgloc.live.messages import MessageError
 from sgloc.live.transport import check_robot, zenoh
 from sgloc.optional import require
@@ -78,9 +79,9 @@ def typestore() -> Any:
     """The ROS 2 type store of `sgloc.io.rosbag` (built once), or one error naming the
     extra."""
     require("rosbags", "live", "ROS 2 messages on the live server")
-    from sgloc.io.rosbag import _rosbags
+    from sgloc.io.rosbag import ros2_typestore
 
-    return _rosbags()[2]
+    return ros2_typestore()
 
 
 def dds_type(msgtype: str) -> str:
@@ -481,16 +482,10 @@ class Ros2Client:
     def wait_correction(self, seq: int | None = None, timeout: float = 5.0) -> Any:
         """The latest correction once the server holds keyframe `seq` (None: any);
         SglocError after `timeout` seconds."""
-        end = time.monotonic() + timeout
-        with self._changed:
-            while self.correction is None or (seq is not None and self.correction.seq < seq):
-                left = end - time.monotonic()
-                if left <= 0:
-                    raise SglocError(f"robot {self.robot!r}: the server's ROS 2 path did not "
-                                     f"show its keyframes within {timeout:g} s; is `sgloc "
-                                     "serve` running with ROS 2 on this domain?")
-                self._changed.wait(left)
-            return self.correction
+        return wait_for_correction(
+            self._changed, lambda: self.correction, seq, timeout,
+            f"robot {self.robot!r}: the server's ROS 2 path did not show its keyframes within "
+            f"{timeout:g} s; is `sgloc serve` running with ROS 2 on this domain?")
 
     def sync(self, timeout: float = 10.0) -> None:
         """Nothing to say first: a ROS 2 robot just publishes."""

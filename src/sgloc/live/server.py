@@ -35,7 +35,7 @@ from sgloc.live.transport import (
     DEFAULT_ENDPOINT,
     PREFIX,
     check_endpoint,
-    check_robot,
+    is_robot_name,
     key,
     open_session,
 )
@@ -222,20 +222,29 @@ class LiveServer:
         robot = parts[1] if len(parts) == 3 else ""
         data = sample.payload.to_bytes()
         with self._lock:
-            if self._waiting[robot] >= self.options.robot_queue:
-                self._drop("flood", robot, "slow down: messages dropped")
-                return
-            if self._queue.full():  # only this thread puts: the check holds
-                self._drop("flood", robot, "the server's queue is full: messages dropped")
+            if self._flooded(robot):
                 return
             m = self._admit(robot, data)
             # sync: a hello waits its turn too, answered once what came before it is taken
             queued = isinstance(m, msg.Keyframe | msg.End) or (m is not None and self.options.sync)
             if queued:
-                self._queue.put_nowait((robot, m))
-                self._waiting[robot] += 1
-            if _named(robot) and not (self.options.sync and queued):  # sync: once taken
+                self._put(robot, m)
+            if is_robot_name(robot) and not (self.options.sync and queued):  # sync: once taken
                 self._answer(robot)  # at once: the correction as it stands now
+
+    def _flooded(self, robot: str) -> bool:
+        """Whether `robot`'s next message is dropped for a flood (counted); lock held."""
+        if self._waiting[robot] >= self.options.robot_queue:
+            self._drop("flood", robot, "slow down: messages dropped")
+            return True
+        if self._queue.full():  # only Zenoh's thread puts: the check holds
+            self._drop("flood", robot, "the server's queue is full: messages dropped")
+            return True
+        return False
+
+    def _put(self, robot: str, m) -> None:
+        self._queue.put_nowait((robot, m))
+        self._waiting[robot] += 1
 
     def _receive_ros2(self, robot: str, kind: str, data: bytes) -> None:
         """One ROS 2 message of `robot` (Zenoh's thread): odometry kept, markers made
@@ -246,8 +255,7 @@ class LiveServer:
                 self._drop("bad_key", robot, "a ROS 2 topic naming no robot of 1-64 letters, "
                            "digits, '_' or '-'")
                 return
-            if self._waiting[robot] >= self.options.robot_queue or self._queue.full():
-                self._drop("flood", robot, "slow down: messages dropped")
+            if self._flooded(robot):
                 return
             try:
                 frames = self._ros2.decode(robot, kind, data)
@@ -258,9 +266,8 @@ class LiveServer:
             self.counts["received"] += 1
             for stamp, T, positions, labels in frames:
                 m = msg.Keyframe(self._seq.get(robot, 0) + 1, stamp, T, positions, labels)
-                if self._fresh(robot, m) and not self._queue.full():
-                    self._queue.put_nowait((robot, m))
-                    self._waiting[robot] += 1
+                if not self._flooded(robot) and self._fresh(robot, m):
+                    self._put(robot, m)
 
     def _admit(self, robot: str, data: bytes):
         """The decoded message when it is valid and new (else None, counted and logged)."""
@@ -451,14 +458,6 @@ class LiveServer:
             tmp.unlink(missing_ok=True)
         self._dirty = False
         return path
-
-
-def _named(robot: str) -> bool:
-    try:
-        check_robot(robot)
-    except SglocError:
-        return False
-    return True
 
 
 class _Workers:

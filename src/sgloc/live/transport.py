@@ -32,9 +32,14 @@ def check_endpoint(endpoint: str, option: str = "--listen") -> str:
     return endpoint
 
 
+def is_robot_name(robot: object) -> bool:
+    """Whether `robot` is usable in a key expression: 1-64 of A-Z a-z 0-9 _ -."""
+    return isinstance(robot, str) and _ROBOT.match(robot) is not None
+
+
 def check_robot(robot: str) -> str:
-    """A robot name usable in a key expression: 1-64 of A-Z a-z 0-9 _ -."""
-    if not isinstance(robot, str) or not _ROBOT.match(robot):
+    """`robot` when it is a robot name (`is_robot_name`); SglocError otherwise."""
+    if not is_robot_name(robot):
         raise SglocError(f"robot name {robot!r}: use 1-64 letters, digits, '_' or '-'.")
     return robot
 
