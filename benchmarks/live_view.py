@@ -83,7 +83,8 @@ def main() -> None:
         print(rows[-1], flush=True)
     text = ("# Live view: cost per update\n\nRegenerate with `python benchmarks/live_view.py` "
             "(what is measured: that script's docstring). Medians of "
-            f"{args.repeat} updates, on one computer (x86_64, 2 cores).\n\n" + "\n".join(rows) + "\n")
+            f"{args.repeat} updates, on one computer (x86_64, 2 cores).\n\n"
+            + "\n".join(rows) + "\n")
     DOC.write_text(text)
     print("\n".join(rows[:2]))
     print(f"wrote {DOC}")
