@@ -7,7 +7,9 @@ traceback); 130 interrupted (Ctrl-C, SIGINT); 143 terminated (SIGTERM).
 
 from __future__ import annotations
 
+import contextlib
 import gc
+import os
 import signal
 import sys
 from importlib.metadata import PackageNotFoundError, version
@@ -209,8 +211,18 @@ def _exit(rc: int) -> None:
     """Leave the `sgloc` program with exit code `rc`; a signal from now on is ignored (the run
     has ended: its outcome is `rc`, its outputs complete). The objects alive now are frozen first:
     the interpreter's last collections at exit then skip them (~0.25 s saved; the process ends,
-    so nothing is left uncollected for long; exit handlers run as usual)."""
+    so nothing is left uncollected for long; exit handlers run as usual, except after an
+    interruption)."""
     interrupts.ignore()  # a signal now comes after the run's end (its outputs are complete)
+    if rc in (EXIT_INTERRUPTED, EXIT_TERMINATED):
+        # An interrupted run has printed its line and written nothing: the interpreter's
+        # finalisation is skipped, since a signal that landed inside a compiled module's start
+        # can leave that module unable to finalise (a crash at exit after the right message).
+        # Worker processes end on their own once this process is gone (sgloc.runtime.workers).
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(Exception):
+                stream.flush()
+        os._exit(rc)
     gc.freeze()
     sys.exit(rc)
 
