@@ -6,10 +6,12 @@ session's events go to `sgloc/events`. ROS 2 robots take part without a ROS inst
 zenoh-bridge-ros2dds's keys; /tf (map -> odom), paths and the fleet map go back to ROS 2.
 
 Zenoh's thread checks each message (malformed, duplicated, out-of-order and late messages are
-counted, logged and dropped), answers it at once with the robot's correction as last published
-(never waiting on the session), and queues it: one bounded queue (a robot with more than
-`robot_queue` waiting is dropped with a warning, so a flood never exhausts memory). One thread
-owns the session: it takes the queued keyframes, publishes the corrections that change, and
+counted, logged and dropped) and queues it; it is answered at once with the robot's correction
+as last published, never waiting on the session: in the asynchronous mode by the front, a
+process of its own holding the Zenoh router (`sgloc.live.front`; this process is its client),
+so that a long solve holding this process's interpreter holds no answer back. The queue is
+bounded (a robot with more than `robot_queue` waiting is dropped with a warning, so a flood
+never exhausts memory). One thread owns the session: it takes the queued keyframes, publishes the corrections that change, and
 plans attempts that run off that thread on worker processes or a Dask
 cluster (`plan_attempts` / `run_batch` / `apply_attempts`), or inline with `sync` (exactly as
 `sgloc replay`). The state is saved atomically on a schedule and on stop, and a server started
