@@ -11,10 +11,10 @@ as last published, never waiting on the session: in the asynchronous mode by the
 process of its own holding the Zenoh router (`sgloc.live.front`; this process is its client),
 so that a long solve holding this process's interpreter holds no answer back. The queue is
 bounded (a robot with more than `robot_queue` waiting is dropped with a warning, so a flood
-never exhausts memory). One thread owns the session: it takes the queued keyframes, publishes the corrections that change, and
-plans attempts that run off that thread on worker processes or a Dask
-cluster (`plan_attempts` / `run_batch` / `apply_attempts`), or inline with `sync` (exactly as
-`sgloc replay`). The state is saved atomically on a schedule and on stop, and a server started
+never exhausts memory). One thread owns the session: it takes the queued keyframes, publishes
+the corrections that change, and plans attempts that run off that thread on worker processes or
+a Dask cluster (`plan_attempts` / `run_batch` / `apply_attempts`), or inline with `sync`
+(exactly as `sgloc replay`). The state is saved atomically on a schedule and on stop, and a server started
 on an existing state file resumes from it."""
 
 from __future__ import annotations
