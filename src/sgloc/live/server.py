@@ -14,8 +14,8 @@ bounded (a robot with more than `robot_queue` waiting is dropped with a warning,
 never exhausts memory). One thread owns the session: it takes the queued keyframes, publishes
 the corrections that change, and plans attempts that run off that thread on worker processes or
 a Dask cluster (`plan_attempts` / `run_batch` / `apply_attempts`), or inline with `sync`
-(exactly as `sgloc replay`). The state is saved atomically on a schedule and on stop, and a server started
-on an existing state file resumes from it."""
+(exactly as `sgloc replay`). The state is saved atomically on a schedule and on stop, and a
+server started on an existing state file resumes from it."""
 
 from __future__ import annotations
 
