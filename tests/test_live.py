@@ -91,6 +91,41 @@ def test_asynchronous_mode_places_the_same_robots_within_a_tenth_of_a_metre(live
         pytest.xfail(f"not met: {worst} within {gap[worst]:.3f} m of the replay (goal 0.1 m)")
 
 
+ROBOT = """
+import sys, time
+import numpy as np
+from sgloc.live.client import RobotClient
+with RobotClient("alpha", sys.argv[1]) as robot:
+    robot.sync(timeout=20)
+    print("ready", flush=True)
+    sys.stdin.readline()
+    time.sleep(0.3)  # sent while the server's process is held
+    t = time.perf_counter()
+    seq = robot.send_keyframe(10**9, np.eye(4), np.arange(9.0).reshape(3, 3), np.arange(3))
+    robot.wait_correction(seq, timeout=30)
+    print(time.perf_counter() - t, flush=True)
+"""
+
+
+def test_a_keyframe_is_answered_while_the_servers_process_is_held():
+    """The answers come from a process of their own: a robot's keyframe is answered while the
+    server's process holds the interpreter (as a long pose-graph solve does)."""
+    ep = f"tcp/127.0.0.1:{_port()}"
+    with LiveServer(options=ServeOptions(listen=ep, workers=1)):
+        robot = subprocess.Popen([sys.executable, "-c", ROBOT, ep], stdin=subprocess.PIPE,
+                                 stdout=subprocess.PIPE, text=True)
+        assert robot.stdout.readline().strip() == "ready"
+        values = np.random.default_rng(0).random(6_000_000).tolist()
+        robot.stdin.write("go\n")
+        robot.stdin.flush()
+        t = time.perf_counter()
+        values.sort()  # holds the interpreter: no other thread of this process runs meanwhile
+        held = time.perf_counter() - t
+        out, _ = robot.communicate(timeout=60)
+    assert held >= 1.0, f"the hold took {held:.2f} s only: too short to show anything"
+    assert float(out) < 0.5 * held, (float(out), held)
+
+
 def test_a_robot_that_reconnects_keeps_its_place(live_city):
     logs, config, ref = live_city
     ep = f"tcp/127.0.0.1:{_port()}"

@@ -6,14 +6,16 @@ session's events go to `sgloc/events`. ROS 2 robots take part without a ROS inst
 zenoh-bridge-ros2dds's keys; /tf (map -> odom), paths and the fleet map go back to ROS 2.
 
 Zenoh's thread checks each message (malformed, duplicated, out-of-order and late messages are
-counted, logged and dropped), answers it at once with the robot's correction as last published
-(never waiting on the session), and queues it: one bounded queue (a robot with more than
-`robot_queue` waiting is dropped with a warning, so a flood never exhausts memory). One thread
-owns the session: it takes the queued keyframes, publishes the corrections that change, and
-plans attempts that run off that thread on worker processes or a Dask
-cluster (`plan_attempts` / `run_batch` / `apply_attempts`), or inline with `sync` (exactly as
-`sgloc replay`). The state is saved atomically on a schedule and on stop, and a server started
-on an existing state file resumes from it."""
+counted, logged and dropped) and queues it; it is answered at once with the robot's correction
+as last published, never waiting on the session: in the asynchronous mode by the front, a
+process of its own holding the Zenoh router (`sgloc.live.front`; this process is its client),
+so that a long solve holding this process's interpreter holds no answer back. The queue is
+bounded (a robot with more than `robot_queue` waiting is dropped with a warning, so a flood
+never exhausts memory). One thread owns the session: it takes the queued keyframes, publishes
+the corrections that change, and plans attempts that run off that thread on worker processes or
+a Dask cluster (`plan_attempts` / `run_batch` / `apply_attempts`), or inline with `sync`
+(exactly as `sgloc replay`). The state is saved atomically on a schedule and on stop, and a
+server started on an existing state file resumes from it."""
 
 from __future__ import annotations
 
@@ -31,6 +33,7 @@ from typing import Any
 from sgloc.errors import SglocError
 from sgloc.live import messages as msg
 from sgloc.live import ros2
+from sgloc.live.front import Front, published_key
 from sgloc.live.transport import (
     DEFAULT_ENDPOINT,
     PREFIX,
@@ -151,7 +154,7 @@ class LiveServer:
         self._dirty = False
         self._dirty_plan = True  # something changed since the last plan found nothing
         self._n_events = len(self.session.events)
-        self._pool = self._zenoh = self._thread = self._ros2 = None
+        self._pool = self._zenoh = self._thread = self._ros2 = self._front = None
         self.view: FleetView | None = None
 
     def _session(self, config, online, root) -> OnlineSession:
@@ -178,7 +181,13 @@ class LiveServer:
                 self._pool = _Workers(o.workers, o.scheduler)
             if self._ros2_options is not None:
                 ros2.typestore()  # built before robots can connect: it takes a while
-            self._zenoh = open_session("router", listen=o.listen, config_file=o.zenoh_config)
+            if o.sync:
+                self._zenoh = open_session("router", listen=o.listen,
+                                           config_file=o.zenoh_config)
+            else:  # answers from a process of their own (`sgloc.live.front`)
+                self._front = Front(o.listen, o.prefix, o.zenoh_config)
+                self._zenoh = open_session("client", connect=self._front.start(),
+                                           config_file=o.zenoh_config)
             self._sub = self._zenoh.declare_subscriber(f"{o.prefix}/*/keyframe", self._receive)
             if self._ros2_options is not None:
                 self._ros2 = ros2.Ros2Bridge(self._zenoh, self._ros2_options)
@@ -186,6 +195,9 @@ class LiveServer:
         except BaseException:
             self.stop()
             raise
+        if self._front is not None:  # the front answers with these from now on
+            for robot in self.session.robots:
+                self._answer(robot)
         self._thread = threading.Thread(target=self._loop, name="sgloc-live", daemon=True)
         self._thread.start()
         log.info("listening on %s (%s)", o.listen, "sync" if o.sync else "async")
@@ -200,6 +212,8 @@ class LiveServer:
             self._ros2.close()
         if self._zenoh is not None:
             self._zenoh.close()
+        if self._front is not None:
+            self._front.stop()
         if self._pool is not None:
             self._pool.close()
         if self.view is not None:
@@ -229,7 +243,8 @@ class LiveServer:
             queued = isinstance(m, msg.Keyframe | msg.End) or (m is not None and self.options.sync)
             if queued:
                 self._put(robot, m)
-            if is_robot_name(robot) and not (self.options.sync and queued):  # sync: once taken
+            if self._front is None and is_robot_name(robot) and not (
+                    self.options.sync and queued):  # sync: once taken; async: by the front
                 self._answer(robot)  # at once: the correction as it stands now
 
     def _flooded(self, robot: str) -> bool:
@@ -307,10 +322,12 @@ class LiveServer:
         return True
 
     def _answer(self, robot: str) -> None:
-        """Send `robot` its correction as last published (answering its latest message);
-        called with the lock held."""
+        """Send `robot` its correction as last published (answering its latest message; to
+        the front, which answers from it); called with the lock held."""
         T, finished = self._current.get(robot, (None, False))
-        self._zenoh.put(key(robot, "correction", self.options.prefix), msg.encode_correction(
+        prefix = self.options.prefix
+        self._zenoh.put(key(robot, "correction", prefix) if self._front is None
+                        else published_key(prefix, robot), msg.encode_correction(
             self._seq.get(robot, 0), self._held.get(robot, -1), self._revision, T, finished))
 
     # -- the session's thread ------------------------------------------------------------------
@@ -348,6 +365,8 @@ class LiveServer:
                 with self._lock:
                     self.counts["keyframes"] += 1
                     self._held[robot] = m.stamp_ns
+                    if self._front is not None:  # the keyframe held, for the front's answers
+                        self._answer(robot)
                 if self._ros2 is not None:
                     self._ros2.note(m.stamp_ns)
             elif isinstance(m, msg.Hello):

@@ -49,23 +49,26 @@ def key(robot: str, what: str, prefix: str = PREFIX) -> str:
     return f"{prefix}/{check_robot(robot)}/{what}"
 
 
-def open_session(mode: str, listen: str | None = None, connect: str | None = None,
+def open_session(mode: str, listen: str | list[str] | None = None, connect: str | None = None,
                  config_file: str | Path | None = None) -> Any:
     """A zenoh session in `mode` ("router" for a server, "client" for a robot) listening on
-    `listen` only and connecting to `connect` only (no scouting); `config_file`: a Zenoh
-    configuration file (JSON5) for everything else (TLS, access control, authentication)."""
+    `listen` only (one endpoint or several) and connecting to `connect` only (no scouting);
+    `config_file`: a Zenoh configuration file (JSON5) for everything else (TLS, access
+    control, authentication)."""
     z = zenoh()
     conf = _config(z, config_file)
     conf.insert_json5("mode", f'"{mode}"')
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("scouting/gossip/enabled", "false")
-    conf.insert_json5("listen/endpoints", f'["{check_endpoint(listen)}"]' if listen else "[]")
+    listen = [listen] if isinstance(listen, str) else list(listen or [])
+    conf.insert_json5("listen/endpoints",
+                      "[" + ", ".join(f'"{check_endpoint(e)}"' for e in listen) + "]")
     if connect:
         conf.insert_json5("connect/endpoints", f'["{check_endpoint(connect, "--to")}"]')
     try:
         return z.open(conf)
     except Exception as e:  # zenoh raises its own ZError
-        where = listen or connect
+        where = listen[0] if listen else connect
         why = str(e).split(" at /")[0][:120]
         raise SglocError(f"cannot open a zenoh session on {where}: {why} Is the port "
                          "free (server) or the server running (robot)?") from None
