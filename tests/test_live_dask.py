@@ -1,6 +1,7 @@
 """Attempts of the live server on a Dask cluster (`--scheduler`): a real LocalCluster on
 loopback and real Zenoh sessions; the robots the replay places are placed, and every
-trajectory should land within a tenth of a metre of the replay's (not met yet: marked xfail)."""
+trajectory should land within a tenth of a metre of the replay's (not met on every run: marked
+xfail)."""
 
 from __future__ import annotations
 
@@ -51,8 +52,8 @@ def test_attempts_on_a_dask_cluster_place_the_replays_robots(on_dask):
         assert got.placed and np.array_equal(got.T_fleet_odom, s.T_fleet_robot(r))
 
 
-@pytest.mark.xfail(reason="not met yet: with attempts on Dask one robot's trajectory lands "
-                          "0.13-0.19 m from the replay's (goal 0.1 m)", strict=False)
+@pytest.mark.xfail(reason="not met on every run: with attempts on Dask one robot's trajectory "
+                          "lands up to 0.13-0.19 m from the replay's (goal 0.1 m)", strict=False)
 def test_attempts_on_a_dask_cluster_land_within_a_tenth_of_a_metre_of_the_replay(on_dask):
     ref, s, _ = on_dask
     for r in ref.corrections():

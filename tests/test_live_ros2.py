@@ -195,3 +195,27 @@ def test_one_subscription_per_naming_covers_both_topics():
     assert topics.parse("0/alpha/odom/std_msgs::msg::dds_::String_/x") == ("alpha", "odom",
                                                                           False)
     assert topics.parse("0/tf/tf2_msgs::msg::dds_::TFMessage_/x") is None
+
+
+@pytest.mark.parametrize("sync", [True, False])
+def test_ros2_outputs_are_built_only_for_a_subscriber(sync):
+    """No ROS 2 subscriber: the server's /tf, path and map publishers match nothing (its own
+    ROS 2 input subscriptions do not count), so no output message is built; one subscriber to
+    /tf: that publisher matches."""
+    from sgloc.live.client import RobotClient
+
+    ep = f"tcp/127.0.0.1:{_port()}"
+    with LiveServer(options=ServeOptions(listen=ep, sync=sync, workers=1)) as srv:
+        with RobotClient("alpha", ep) as robot:
+            robot.sync()
+            robot.wait_correction(robot.send_keyframe(
+                10**9, np.eye(4), np.arange(9.0).reshape(3, 3), np.arange(3)))
+            _wait(lambda: len(srv._ros2.node._pubs) == 3)
+            time.sleep(0.5)
+            assert not any(p.matched() for p in srv._ros2.node._pubs.values())
+            z = open_session("client", connect=ep)
+            sub = z.declare_subscriber("0/tf/**", lambda s: None)
+            tf = srv._ros2.node.publisher(ros2.TF_TOPIC, ros2.TF)
+            _wait(tf.matched)
+            sub.undeclare()
+            z.close()

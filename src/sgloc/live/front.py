@@ -11,11 +11,14 @@ changed one on to the robot on `<prefix>/<robot>/correction`."""
 
 from __future__ import annotations
 
-import multiprocessing as mp
+import contextlib
 import os
 import signal
 import socket
+import subprocess
+import sys
 import threading
+from pathlib import Path
 
 import numpy as np
 
@@ -43,64 +46,76 @@ def free_loopback_endpoint() -> str:
 
 class Front:
     """The front process (`start`, `stop`): a router listening on `listen` (and on `internal`,
-    the loopback endpoint the server connects to), answering on `prefix`'s keys."""
+    the loopback endpoint the server connects to), answering on `prefix`'s keys. It is a
+    program of its own (`python -m sgloc.live.front`), so a script that starts a server needs
+    no main-module guard; it ends when its standard input closes (the server stopped or died)."""
 
     def __init__(self, listen: str, prefix: str, config_file=None) -> None:
         self.listen, self.prefix, self.config_file = listen, prefix, config_file
         self.internal = free_loopback_endpoint()
-        self._proc = None
+        self._proc: subprocess.Popen | None = None
 
     def start(self) -> str:
         """Start the process; return the endpoint the server connects to. SglocError when its
         router cannot listen (the port in use)."""
-        ctx = mp.get_context("spawn")
-        self._stop, ready = ctx.Event(), ctx.Queue()
-        self._proc = ctx.Process(target=_run, name="sgloc-front", daemon=True, args=(
-            self.listen, self.internal, self.prefix, self.config_file, os.getpid(), ready,
-            self._stop))
-        self._proc.start()
-        try:
-            status, why = ready.get(timeout=START_TIMEOUT_S)
-        except Exception:  # queue.Empty: the process died or hangs
-            status, why = "error", f"the front process did not start within {START_TIMEOUT_S:g} s"
-        if status != "ready":
+        args = [sys.executable, "-m", "sgloc.live.front", self.listen, self.internal,
+                self.prefix] + ([str(self.config_file)] if self.config_file else [])
+        env = dict(os.environ)  # the same sgloc as this process's
+        env["PYTHONPATH"] = os.pathsep.join(
+            [str(Path(__file__).resolve().parents[2]), *filter(None, [env.get("PYTHONPATH")])])
+        self._proc = subprocess.Popen(args, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                      env=env, text=True)
+        line = _read_line(self._proc.stdout, START_TIMEOUT_S)
+        if line != "ready":
             self.stop()
-            raise SglocError(why)
+            raise SglocError(line.removeprefix("error: ") or "the server's front process did "
+                             f"not start within {START_TIMEOUT_S:g} s")
         return self.internal
 
     def stop(self) -> None:
         """End the process (its router closes)."""
-        if self._proc is None:
+        proc, self._proc = self._proc, None
+        if proc is None:
             return
-        self._stop.set()
-        self._proc.join(10)
-        if self._proc.is_alive():
-            self._proc.kill()
-            self._proc.join(5)
-        self._proc = None
+        with contextlib.suppress(OSError):
+            proc.stdin.close()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+        proc.stdout.close()
 
 
-def _run(listen, internal, prefix, config_file, parent, ready, stop) -> None:
-    """The front process: route, answer, pass corrections on, until `stop` or the server
-    process is gone."""
-    from sgloc.runtime.workers import watch_parent
+def _read_line(stream, timeout: float) -> str:
+    """The first line of `stream` (stripped), or "" when none came within `timeout` s."""
+    got: list[str] = []
+    reader = threading.Thread(target=lambda: got.append(stream.readline()), daemon=True)
+    reader.start()
+    reader.join(timeout)
+    return got[0].strip() if got else ""
 
+
+def main(argv: list[str]) -> int:
+    """The front process: route, answer, pass corrections on, until standard input closes.
+    argv: LISTEN INTERNAL PREFIX [ZENOH_CONFIG]."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the server handles Ctrl-C and stops this
-    watch_parent(parent)
+    listen, internal, prefix, *config = argv
     try:
-        zenoh = open_session("router", listen=[listen, internal], config_file=config_file)
+        zenoh = open_session("router", listen=[listen, internal],
+                             config_file=config[0] if config else None)
     except SglocError as e:
-        ready.put(("error", str(e)))
-        return
+        print(f"error: {e}", flush=True)
+        return 2
     answers = _Answers(zenoh, prefix)
     subs = [zenoh.declare_subscriber(f"{prefix}/*/keyframe", answers.on_message),
             zenoh.declare_subscriber(published_key(prefix, "*"), answers.on_published)]
-    ready.put(("ready", None))
-    while not stop.wait(0.2):
-        pass
+    print("ready", flush=True)
+    sys.stdin.read()  # until the server closes it (or is gone)
     for s in subs:
         s.undeclare()
     zenoh.close()
+    return 0
 
 
 class _Answers:
@@ -150,3 +165,7 @@ class _Answers:
             msg.encode_correction(self._seq.get(robot, 0), c.held_ns, c.revision,
                                   c.T_fleet_odom if c.placed else None, c.finished)
         self._zenoh.put(key(robot, "correction", self._prefix), payload)
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

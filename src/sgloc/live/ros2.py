@@ -148,8 +148,9 @@ class _Publisher:
     def __init__(self, session: Any, key: str, msgtype: str) -> None:
         self.key, self.msgtype, self.seq = key, msgtype, 0
         self.gid = os.urandom(16)
-        self.pub = session.declare_publisher(
-            key, congestion_control=zenoh().CongestionControl.BLOCK)
+        z = zenoh()  # not for the server's own ROS 2 subscriptions (they would always match)
+        self.pub = session.declare_publisher(key, congestion_control=z.CongestionControl.BLOCK,
+                                             allowed_destination=z.Locality.REMOTE)
 
     def matched(self) -> bool:
         """Whether any subscriber listens (messages are built only for someone)."""

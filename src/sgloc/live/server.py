@@ -48,6 +48,8 @@ from sgloc.online.batch import run_batch
 from sgloc.pipeline.config import LocalizerConfig
 
 log = logging.getLogger("sgloc.live")
+#: Added to the attempt workers' niceness: a robot's keyframes come before attempts.
+WORKER_NICENESS = 10
 #: Counted drops and what they mean (`LiveServer.counts`).
 DROPS = {"malformed": "not a valid sgloc message", "duplicate": "a message seen already",
          "out_of_order": "older than one already taken", "late": "a stamp not after the "
@@ -498,7 +500,8 @@ class _Workers:
 
             self._client = None
             self._stack = ExitStack()
-            self._pool = self._stack.enter_context(process_pool(self.size))
+            # attempts yield the processor to the keyframes' intake and the answers
+            self._pool = self._stack.enter_context(process_pool(self.size, WORKER_NICENESS))
 
     def submit(self, batch, config):
         if self._client is not None:

@@ -32,19 +32,25 @@ def watch_parent(parent: int) -> None:
     threading.Thread(target=_watch, args=(parent,), daemon=True).start()
 
 
-def _start_watching() -> None:
+def _start_watching(niceness: int = 0) -> None:
     """Pool initializer: a daemon thread that ends this worker once its parent is gone; the
-    signal handlers a forked worker inherited from the main process reset."""
+    signal handlers a forked worker inherited from the main process reset; `niceness` added to
+    the worker's (lower priority: the main process first)."""
+    if niceness:
+        with contextlib.suppress(OSError):
+            os.nice(niceness)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     watch_parent(os.getppid())
 
 
 @contextlib.contextmanager
-def process_pool(workers: int) -> Iterator[ProcessPoolExecutor]:
+def process_pool(workers: int, niceness: int = 0) -> Iterator[ProcessPoolExecutor]:
     """A ProcessPoolExecutor of `workers` processes that exit when their parent does; when the
-    block ends by an exception (Ctrl-C, SIGTERM, an error) its workers are ended at once."""
-    pool = ProcessPoolExecutor(max_workers=workers, initializer=_start_watching)
+    block ends by an exception (Ctrl-C, SIGTERM, an error) its workers are ended at once.
+    niceness: added to the workers' (background work that must not slow the main process)."""
+    pool = ProcessPoolExecutor(max_workers=workers, initializer=_start_watching,
+                               initargs=(int(niceness),))
     try:
         yield pool
     except BaseException:
