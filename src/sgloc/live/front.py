@@ -112,6 +112,7 @@ def main(argv: list[str]) -> int:
             zenoh.declare_subscriber(published_key(prefix, "*"), answers.on_published)]
     print("ready", flush=True)
     sys.stdin.read()  # until the server closes it (or is gone)
+    answers.close()
     for s in subs:
         s.undeclare()
     zenoh.close()
@@ -127,6 +128,12 @@ class _Answers:
         self._lock = threading.Lock()
         self._seq: dict[str, int] = {}
         self._last: dict[str, msg.Correction] = {}
+        self._closed = False
+
+    def close(self) -> None:
+        """Send nothing more (the session is closing; callbacks may still come)."""
+        with self._lock:
+            self._closed = True
 
     def on_message(self, sample) -> None:
         parts = str(sample.key_expr).split("/")
@@ -160,6 +167,8 @@ class _Answers:
                 self._send(robot)
 
     def _send(self, robot: str) -> None:
+        if self._closed:
+            return
         c = self._last.get(robot)
         payload = msg.encode_correction(self._seq.get(robot, 0), -1, 0) if c is None else \
             msg.encode_correction(self._seq.get(robot, 0), c.held_ns, c.revision,
