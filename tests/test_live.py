@@ -126,6 +126,25 @@ def test_a_keyframe_is_answered_while_the_servers_process_is_held():
     assert float(out) < 0.5 * held, (float(out), held)
 
 
+def test_an_asynchronous_server_resumed_from_a_state_serves_its_corrections(live_city, tmp_path):
+    """Resumed in the asynchronous mode (answers from the front process), a robot that says
+    hello gets its place as the state holds it."""
+    _, _, ref = live_city
+    state = tmp_path / "base.npz"
+    ref.save(state)
+    ep = f"tcp/127.0.0.1:{_port()}"
+    with LiveServer(options=ServeOptions(listen=ep, state=state, workers=1)) as srv:
+        for r, T in ref.corrections().items():
+            with RobotClient(r, ep) as c:
+                c.sync()
+                deadline = time.monotonic() + 10
+                while not (c.correction.placed and np.array_equal(c.correction.T_fleet_odom, T)):
+                    assert time.monotonic() < deadline, r
+                    c.hello()
+                    time.sleep(0.05)
+        assert srv.session.corrections().keys() == ref.corrections().keys()
+
+
 def test_a_robot_that_reconnects_keeps_its_place(live_city):
     logs, config, ref = live_city
     ep = f"tcp/127.0.0.1:{_port()}"

@@ -248,6 +248,8 @@ class LiveServer:
             if self._front is None and is_robot_name(robot) and not (
                     self.options.sync and queued):  # sync: once taken; async: by the front
                 self._answer(robot)  # at once: the correction as it stands now
+            elif self._front is not None and isinstance(m, msg.Hello):
+                self._answer(robot)  # the front's copy refreshed (a robot back after a restart)
 
     def _flooded(self, robot: str) -> bool:
         """Whether `robot`'s next message is dropped for a flood (counted); lock held."""
