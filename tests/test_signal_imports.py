@@ -57,3 +57,32 @@ def test_an_interruption_turned_into_a_library_error_exits_130(monkeypatch, caps
                         interrupted_inside_a_compiled_call)
     assert main(["localize", "--example"]) == 130
     assert capsys.readouterr().err.strip() == "interrupted (SIGINT); nothing was written."
+
+
+def test_a_finalisers_error_is_printed_before_a_signal_and_not_after():
+    """After a signal, the error of a finaliser (an object the signal left half-built in a
+    compiled library) is not printed: the run is being abandoned with its one line."""
+    code = """
+import os, signal, time
+from sgloc.runtime import interrupts
+class Half:
+    def __del__(self):
+        raise AttributeError("half-built " + self.name)
+def drop(name):
+    h = Half(); h.name = name; del h
+interrupts.install()
+drop("before")
+try:
+    os.kill(os.getpid(), signal.SIGINT)
+    time.sleep(5)
+except interrupts.Interrupted:
+    pass
+drop("after")
+print("received", interrupts.received())
+"""
+    import subprocess
+    import sys
+
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert "received 2" in p.stdout, p.stderr
+    assert "half-built before" in p.stderr and "half-built after" not in p.stderr, p.stderr

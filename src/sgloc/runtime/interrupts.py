@@ -91,10 +91,14 @@ def _again(delay: float = 0.005) -> None:
 
 def _on_unraisable(unraisable) -> None:
     """An interruption raised where Python cannot propagate it (a finaliser, a compiled
-    callback): not printed, raised again shortly; anything else as before."""
+    callback): not printed, raised again shortly. After a signal, a finaliser's error is not
+    printed either: it is the cleanup of an object the signal left half-built (a compiled
+    library's), in a run that is being abandoned. Anything else as before."""
     if isinstance(unraisable.exc_value, (Interrupted, KeyboardInterrupt)):
         _STATE["raised"] = False
         _again()
+        return
+    if _STATE["signum"]:
         return
     previous = _STATE["unraisable"] or sys.__unraisablehook__
     previous(unraisable)
