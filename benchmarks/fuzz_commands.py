@@ -670,7 +670,8 @@ SUMMARY = {"tracebacks": ("traceback",), "lost signals": ("lost signal",),
 
 def run_command_families(trials: int = 100, seed: int = 0, timeout: float = 120.0,
                          families: tuple[str, ...] = FAMILY_NAMES, progress: bool = False,
-                         output_cases: int | None = None) -> dict:
+                         output_cases: int | None = None,
+                         signal_commands: list[str] | None = None) -> dict:
     """Run the chosen families in a fresh user's folder; {"signal": {command: Counter},
     "outputs" | "twice" | "layouts": Counter, "bad": [(family, case, outcome, detail)],
     "seconds": {family: s}}. `trials` signalled runs per command; `output_cases` (None: all)
@@ -686,7 +687,7 @@ def run_command_families(trials: int = 100, seed: int = 0, timeout: float = 120.
             t0 = time.perf_counter()
             if family == "signal":
                 counts, bad = run_signal_family(work, template, trials, seed, timeout,
-                                                progress=progress)
+                                                signal_commands, progress=progress)
             elif family == "outputs":
                 counts, bad = run_output_family(work, template, timeout, cases=output_cases,
                                                 rng=np.random.default_rng([seed, 38]))
@@ -795,6 +796,9 @@ def add_arguments(ap, seed: bool = True) -> None:
                     help="output option x form cases (default: every one)")
     ap.add_argument("--command-family", action="append", choices=FAMILY_NAMES, metavar="NAME",
                     help="run only this command family (repeatable): " + ", ".join(FAMILY_NAMES))
+    ap.add_argument("--signal-command", action="append", choices=list(SIGNAL_COMMANDS),
+                    metavar="NAME", help="family signal: only this command (repeatable): "
+                    + ", ".join(SIGNAL_COMMANDS))
     ap.add_argument("--command-timeout", type=float, default=120.0,
                     help="seconds before a command's run is a hang")
     if seed:
@@ -804,7 +808,8 @@ def add_arguments(ap, seed: bool = True) -> None:
 def run_from_args(args) -> dict:
     families = tuple(args.command_family or FAMILY_NAMES)
     return run_command_families(args.signal_trials, args.seed, args.command_timeout, families,
-                                progress=True, output_cases=args.output_cases)
+                                progress=True, output_cases=args.output_cases,
+                                signal_commands=args.signal_command)
 
 
 if __name__ == "__main__":
