@@ -21,14 +21,13 @@ import json
 import re
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from sgloc.cli import main
 from sgloc.evaluation.fleet_scenes import world_fleet
-from sgloc.evaluation.replay_scenarios import world_scenario
+from sgloc.evaluation.replay_scenarios import lost_robot, world_scenario
+from sgloc.io.files import MANIFEST
 from sgloc.io.g2o import read_g2o
-from sgloc.io.keyframes import make_robot_log
 from sgloc.io.plain_layout import write_plain_layout
 from sgloc.maps.graph import SemanticGraph
 from sgloc.online import records
@@ -37,7 +36,6 @@ from sgloc.replay import outputs
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 REPLAY_DOC, FLEET_DOC = DOCS / "replay.md", DOCS / "fleet_outputs.md"
-MANIFEST = ".sgloc-results.json"  # every results folder's manifest: docs/formats.md
 #: Every kind of row events.csv can hold: the session's event kinds, then the unplaced robots.
 EVENT_KINDS = {records.ROBOT_JOINED, records.LINK_ACCEPTED, records.LINK_REVOKED,
                records.LINK_HELD, outputs.NOT_PLACED}
@@ -160,23 +158,12 @@ def csv_headers(text: str) -> dict[str, str]:
 
 
 # -- the default runs ---------------------------------------------------------------------------
-def _lost_robot():
-    """A robot in another world: it never passes the acceptance test, so it is never placed."""
-    rng = np.random.default_rng(5)
-    n = 12
-    xyz = np.column_stack([np.arange(n) * 3.0, np.zeros(n), np.zeros(n)])
-    world, classes = rng.uniform(-40, 40, (40, 3)), rng.integers(0, 8, 40)
-    return make_robot_log("lost", 250_000_001 + 700_000_000 * np.arange(n), xyz,
-                          np.tile([0, 0, 0, 1.0], (n, 1)), np.repeat(np.arange(n), len(world)),
-                          np.concatenate([world - p for p in xyz]), np.tile(classes, n))
-
-
 @pytest.fixture(scope="module")
 def replay(tmp_path_factory):
     """`sgloc replay` with its defaults on the small two-robot world and a robot it cannot
     place: (out folder, summary, logs)."""
     d = tmp_path_factory.mktemp("docs_replay")
-    logs = [*world_scenario().logs, _lost_robot()]
+    logs = [*world_scenario().logs, lost_robot()]
     write_plain_layout(d / "run", logs)
     with contextlib.redirect_stdout(io.StringIO()):
         assert main(["replay", str(d / "run"), "--out", str(d / "out")]) == 0

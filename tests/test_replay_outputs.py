@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from sgloc.cli import main
-from sgloc.evaluation.replay_scenarios import world_scenario
+from sgloc.evaluation.replay_scenarios import lost_robot, world_scenario
 from sgloc.geometry import apply, invert
 from sgloc.io.g2o import read_g2o
 from sgloc.io.keyframes import format_stamp, make_robot_log
@@ -35,15 +35,7 @@ def _logs():
     zulu = dataclasses.replace(w.logs[0], name="zulu", stamps_ns=w.logs[0].stamps_ns + OFFSET_NS)
     alpha = dataclasses.replace(w.logs[1], name="alpha",
                                 stamps_ns=w.logs[1].stamps_ns + OFFSET_NS + 3_000_000_001)
-    rng = np.random.default_rng(5)
-    n = 12
-    stamps = OFFSET_NS + 250_000_001 + 700_000_000 * np.arange(n)
-    xyz = np.column_stack([np.arange(n) * 3.0, np.zeros(n), np.zeros(n)])
-    world, classes = rng.uniform(-40, 40, (40, 3)), rng.integers(0, 8, 40)  # seen every time
-    kf = np.repeat(np.arange(n), len(world))
-    lost = make_robot_log("lost", stamps, xyz, np.tile([0, 0, 0, 1.0], (n, 1)), kf,
-                          np.concatenate([world - p for p in xyz]), np.tile(classes, n))
-    return [zulu, alpha, lost]
+    return [zulu, alpha, lost_robot(OFFSET_NS)]
 
 
 @pytest.fixture(scope="module")

@@ -198,6 +198,19 @@ def world_scenario(
 
 
 @REPLAY_SCENARIOS.register("kitti00")
+def lost_robot(offset_ns: int = 0) -> RobotLog:
+    """`lost`: 12 keyframes, 3 m apart along x, each seeing the same 40 objects of a random world
+    of its own (8 classes), stamps from `offset_ns` + 0.25 s every 0.7 s: a robot no other
+    shares objects with, so it is never placed."""
+    rng = np.random.default_rng(5)
+    n = 12
+    xyz = np.column_stack([np.arange(n) * 3.0, np.zeros(n), np.zeros(n)])
+    world, classes = rng.uniform(-40, 40, (40, 3)), rng.integers(0, 8, 40)  # seen every time
+    return make_robot_log("lost", offset_ns + 250_000_001 + 700_000_000 * np.arange(n), xyz,
+                          np.tile([0, 0, 0, 1.0], (n, 1)), np.repeat(np.arange(n), len(world)),
+                          np.concatenate([world - p for p in xyz]), np.tile(classes, n))
+
+
 def kitti00(robots: int = 4, scans: str = "0-2999", every: int = 1,
             poses: str = "raw") -> ReplayInput:
     """KITTI 00 (data `kitti00`) scans `first-last` cut into `robots` consecutive segments,
