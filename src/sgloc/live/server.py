@@ -245,11 +245,11 @@ class LiveServer:
             queued = isinstance(m, msg.Keyframe | msg.End) or (m is not None and self.options.sync)
             if queued:
                 self._put(robot, m)
-            if self._front is None and is_robot_name(robot) and not (
-                    self.options.sync and queued):  # sync: once taken; async: by the front
+            if self._front is not None:  # asynchronous: the front answers
+                if isinstance(m, msg.Hello):  # its copy refreshed (a robot back after a restart)
+                    self._answer(robot)
+            elif is_robot_name(robot) and not queued:  # sync: a queued message once taken
                 self._answer(robot)  # at once: the correction as it stands now
-            elif self._front is not None and isinstance(m, msg.Hello):
-                self._answer(robot)  # the front's copy refreshed (a robot back after a restart)
 
     def _flooded(self, robot: str) -> bool:
         """Whether `robot`'s next message is dropped for a flood (counted); lock held."""

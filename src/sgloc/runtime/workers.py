@@ -26,12 +26,6 @@ def _watch(parent: int) -> None:
     os._exit(1)  # no cleanup to wait for: the results have nowhere to go
 
 
-def watch_parent(parent: int) -> None:
-    """End this process at once when `parent` (its parent process's PID) is gone: a daemon
-    thread watching it."""
-    threading.Thread(target=_watch, args=(parent,), daemon=True).start()
-
-
 def _start_watching(niceness: int = 0) -> None:
     """Pool initializer: a daemon thread that ends this worker once its parent is gone; the
     signal handlers a forked worker inherited from the main process reset; `niceness` added to
@@ -41,7 +35,7 @@ def _start_watching(niceness: int = 0) -> None:
             os.nice(niceness)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    watch_parent(os.getppid())
+    threading.Thread(target=_watch, args=(os.getppid(),), daemon=True).start()
 
 
 @contextlib.contextmanager
