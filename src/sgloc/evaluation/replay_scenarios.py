@@ -197,7 +197,6 @@ def world_scenario(
     return Scenario(logs, gt, None, f"object world {seed}: {len(stretches)} robots")
 
 
-@REPLAY_SCENARIOS.register("kitti00")
 def lost_robot(offset_ns: int = 0) -> RobotLog:
     """`lost`: 12 keyframes, 3 m apart along x, each seeing the same 40 objects of a random world
     of its own (8 classes), stamps from `offset_ns` + 0.25 s every 0.7 s: a robot no other
@@ -211,6 +210,7 @@ def lost_robot(offset_ns: int = 0) -> RobotLog:
                           np.concatenate([world - p for p in xyz]), np.tile(classes, n))
 
 
+@REPLAY_SCENARIOS.register("kitti00")
 def kitti00(robots: int = 4, scans: str = "0-2999", every: int = 1,
             poses: str = "raw") -> ReplayInput:
     """KITTI 00 (data `kitti00`) scans `first-last` cut into `robots` consecutive segments,
