@@ -86,3 +86,43 @@ print("received", interrupts.received())
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert "received 2" in p.stdout, p.stderr
     assert "half-built before" in p.stderr and "half-built after" not in p.stderr, p.stderr
+
+
+def test_a_signal_during_a_kernel_compile_is_raised_after_it(tmp_path):
+    """A signal that arrives while numba compiles (or loads from its cache) one of sgloc's
+    kernels is raised as the compile ends, not inside numba's or LLVM's code (whose objects,
+    left half-built, can crash the interpreter when freed)."""
+    (tmp_path / "sgloc_signal_kernel.py").write_text(
+        "from sgloc.kernels.dispatch import kernel\n\n"
+        "@kernel\ndef twice(x):\n    return 2.0 * x\n")
+    code = """
+import os, signal, sys, traceback
+from numba.core import event
+from sgloc.runtime import interrupts
+import sgloc_signal_kernel
+
+class SignalOnCompile(event.Listener):
+    def on_start(self, ev):
+        os.kill(os.getpid(), signal.SIGINT)
+        for _ in range(100000):  # bytecodes for the handler to run on
+            pass
+    def on_end(self, ev):
+        pass
+
+interrupts.install()
+event.register("numba:compile", SignalOnCompile())
+try:
+    sgloc_signal_kernel.twice(1.5)
+    print("not raised")
+except interrupts.Interrupted as e:
+    files = [f.filename for f in traceback.extract_tb(e.__traceback__)]
+    print("compiled", len(sgloc_signal_kernel.twice.overloads))
+    print("raised after" if files[-1].endswith("interrupts.py") else "raised in " + files[-1])
+"""
+    import subprocess
+
+    env = {**__import__("os").environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"),
+           "PYTHONPATH": f"{tmp_path}:{__import__('os').environ.get('PYTHONPATH', '')}"}
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=120, env=env)
+    assert "raised after" in p.stdout and "compiled 1" in p.stdout, p.stdout + p.stderr

@@ -10,6 +10,10 @@ the large kernels), a cache entry of its own, and a load of its own in a fresh p
 `writes`, stay writable) and integers without their literal value; a call with a writable
 array or a literal runs that one (the same machine code: an array's flags only matter to
 typing). The generated arithmetic is the same (read-only only forbids stores), so are the bits.
+
+A compile, or a load from the cache, runs with SIGINT / SIGTERM held (`sgloc.runtime.interrupts`):
+a signal raised inside numba's or LLVM's code would leave their objects half-built, and
+freeing those can crash the interpreter; the signal is raised as the compile ends.
 """
 
 from __future__ import annotations
@@ -19,6 +23,8 @@ from collections.abc import Callable
 
 from numba import njit, types
 from numba.core import sigutils
+
+from sgloc.runtime import interrupts
 
 
 def _plain(t, written: bool):
@@ -46,7 +52,8 @@ def kernel(func: Callable | None = None, *, writes: tuple[str, ...] = ()):
         def compile_plain(sig):
             args, _ = sigutils.normalize_signature(sig)
             plain = tuple(_plain(a, w) for a, w in zip(args, written, strict=True))
-            entry = compile_exact(plain)
+            with interrupts.held():
+                entry = compile_exact(plain)
             if plain != tuple(args) and hasattr(dispatcher, "_insert"):
                 # Calls from Python with these types run the same machine code (an array's
                 # flags only matter to typing): entered in numba's dispatch table, they are
