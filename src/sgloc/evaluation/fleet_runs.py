@@ -68,6 +68,8 @@ def score_fleet(scenario: Any, session: Any, record: Any, level: float,
         **attempt_figures(scenario, session),
         **revocation_figures(session),
         **bend_figures(scenario, est, names),
+        "odometry_fitted": [[e.stamp, e.detail] for e in session.events
+                            if e.kind == "odometry_fitted"],
     }
     out["oracle"] = oracle_figures(scenario, session.root, level) if oracle else None
     return out
