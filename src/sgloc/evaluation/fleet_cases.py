@@ -19,7 +19,8 @@ class Case:
     `robots`, every `every` scan a keyframe, truth = `truth` poses ("refined" or "raw") and
     odometry = the truth drifting at `level`, or KITTI's raw poses (`odometry="raw"`);
     localizer: the localizer preset (default "city-objects" for a city, else
-    "kitti-objects")."""
+    "kitti-objects"); detections: "all" (the run's own) or "sparse" (a one-class detector's
+    view of them, `replay_scenarios.sparse`, seeded with `seed`)."""
 
     key: str
     group: str
@@ -37,6 +38,7 @@ class Case:
     odometry: str = "drift"
     part: str = ""
     localizer: str = ""
+    detections: str = "all"
 
     @property
     def preset(self) -> str:
@@ -60,6 +62,11 @@ def case_scenario(case: Case) -> Any:
                                f"{base.note}; odometry: KITTI's raw poses", base.logs)
     else:
         raise SglocError(f"case {case.key}: unknown kind {case.kind!r}; use 'city' or 'kitti'.")
+    if case.detections == "sparse":
+        base = sc.sparse(base, case.seed)
+    elif case.detections != "all":
+        raise SglocError(f"case {case.key}: detections {case.detections!r}; use 'all' or "
+                         "'sparse'.")
     return sc.drifted(base, case.level, case.seed) if case.level > 0 else base
 
 

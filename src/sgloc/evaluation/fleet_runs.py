@@ -68,6 +68,7 @@ def score_fleet(scenario: Any, session: Any, record: Any, level: float,
         **attempt_figures(scenario, session),
         **revocation_figures(session),
         **bend_figures(scenario, est, names),
+        **loop_figures(scenario, session),
         "odometry_fitted": [[e.stamp, e.detail] for e in session.events
                             if e.kind == "odometry_fitted"],
     }
@@ -88,6 +89,28 @@ def bend_figures(scenario: Any, est: list, names: list[str]) -> dict:
                      "median": float(np.median(values)) if values else None,
                      "robots": bends},
             "outside": [names[k] for k in out]}
+
+
+def loop_figures(scenario: Any, session: Any, near: float = 10.0, before: float = 200.0
+                 ) -> dict:
+    """Per robot, the loop closures in its fleet frame at the end (active links within the
+    robot, keyframe back-end) and its revisits: keyframes the truth puts within `near` m of
+    one of its own keyframes at least `before` m earlier along its path."""
+    from scipy.spatial import cKDTree
+
+    gt = scenario.gt_poses()
+    loops = {g.name: 0 for g in scenario.logs}
+    for lk in session.links:
+        if lk.active and lk.robot_a == lk.robot_b:
+            loops[lk.robot_a] += 1
+    revisits = {}
+    for name, X in gt.items():
+        P = X[:, :3, 3]
+        along = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))]
+        pairs = cKDTree(P).query_pairs(near, output_type="ndarray")
+        far = np.abs(along[pairs[:, 1]] - along[pairs[:, 0]]) >= before
+        revisits[name] = int(len(np.unique(pairs[far].max(axis=1)))) if len(pairs) else 0
+    return {"loops": loops, "revisits": revisits}
 
 
 def join_figures(scenario: Any, session: Any, record: Any) -> dict:

@@ -56,6 +56,22 @@ def drifted(scenario: Scenario, level: float, seed: int) -> Scenario:
                     f"{scenario.note}, odometry drift level {level:g} (seed {seed})", true)
 
 
+def sparse(scenario: Scenario, seed: int, label: int = 0) -> Scenario:
+    """`scenario` as a sparse one-class detector sees it (`sgloc.sim.detector`, defaults:
+    about 3 sightings per keyframe within 40 m, depth noise 1.5 % of range), class `label`
+    only (KITTI's 0: vehicles); robot k seeded with [seed, k]. Exact odometry only (drift
+    it afterwards)."""
+    from sgloc.sim.detector import sparse_detections
+
+    if scenario.truth is not None:
+        raise SglocError("sparse detections: thin the exact scenario, then drift it.")
+    logs = [sparse_detections(g, label, np.random.default_rng([seed, k]))
+            for k, g in enumerate(scenario.logs)]
+    names = scenario.class_names
+    return Scenario(logs, scenario.T_gt_odom, names, f"{scenario.note}, sparse detections of "
+                    f"class {names[label] if names else label}")
+
+
 def segments(first: int, last: int, n: int) -> list[tuple[int, int]]:
     """`n` consecutive, non-overlapping (first, last) index ranges covering first..last."""
     if n < 1 or last - first + 1 < 2 * n:
