@@ -69,8 +69,6 @@ def score_fleet(scenario: Any, session: Any, record: Any, level: float,
         **revocation_figures(session),
         **bend_figures(scenario, est, names),
         **loop_figures(scenario, session),
-        "odometry_fitted": [[e.stamp, e.detail] for e in session.events
-                            if e.kind == "odometry_fitted"],
     }
     out["oracle"] = oracle_figures(scenario, session.root, level) if oracle else None
     return out

@@ -57,10 +57,6 @@ class OdometryNoise:
         robot). The rotation sigma applies to roll and pitch as well as heading. Defaults: a
         good LiDAR odometry (0.5 % scale error, a heading error of 0.002 deg per metre and
         0.002 deg per sqrt(metre)) with about twice that as margin.
-    fit: the pose graph's odometry factors take the drift terms' variances times the factor
-        (a power of two, 1/256 to 4) that the loops of the links in the graph fit best, the
-        values above as its prior (`sgloc.online.odometry_fit`); the checks of the links keep
-        the values above.
     """
 
     translation_per_metre: float = setting(0.01, check=real(0.0, 1.0))
@@ -73,7 +69,6 @@ class OdometryNoise:
     )
     rotation_floor: float = setting(0.005, check=real(0.0, 180.0, low_open=True, unit="degrees"))
     correlation_length: float = setting(100.0, check=real(0.0, MAX_COORDINATE, unit="m"))
-    fit: bool = setting(False, check=flag())
 
     def __post_init__(self) -> None:
         validate_settings(self, "OdometryNoise")
@@ -244,14 +239,13 @@ class OnlineConfig:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> OnlineConfig:
         """The settings `to_dict` gave. Settings saved before `backend`, `view_correction`,
-        `join_tests`, `link_checks`, `OdometryNoise.correlation_length` and `.fit` existed
-        keep the behaviour they were saved with (robots, off, off, off, 0, off), so that a
-        resumed session continues as it would."""
+        `join_tests`, `link_checks` and `OdometryNoise.correlation_length` existed keep the
+        behaviour they were saved with (robots, off, off, off, 0), so that a resumed session
+        continues as it would."""
         data = dict(data)
         data.setdefault("backend", "robots")
         if isinstance(data.get("odometry"), dict):
-            data["odometry"] = OdometryNoise(**{"correlation_length": 0.0, "fit": False,
-                                                **data["odometry"]})
+            data["odometry"] = OdometryNoise(**{"correlation_length": 0.0, **data["odometry"]})
         data.setdefault("view_correction", False)
         data.setdefault("join_tests", False)
         data.setdefault("link_checks", False)

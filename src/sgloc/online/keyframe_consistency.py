@@ -83,12 +83,6 @@ def loop_chi2(Z: np.ndarray, C: np.ndarray) -> np.ndarray:
     """(m,) squared Mahalanobis distances of m loops of n relative poses each, Z (m,n,4,4)
     composed in order (Z_0 Z_1 ... ~ identity), C (m,n,6,6) their covariances (right
     perturbation): Log(loop) under sum_k Ad(inv(Z_k+1 ... Z_n-1)) C_k Ad(...)^T."""
-    e, S = loop_residual(Z, C)
-    return np.einsum("mi,mi->m", e, np.linalg.solve(S, e[..., None])[..., 0])
-
-
-def loop_residual(Z: np.ndarray, C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(e (m,6): Log of each loop, S (m,6,6): its covariance) of the loops of `loop_chi2`."""
     n = Z.shape[1]
     loop, suffix, S = Z[:, 0], Z[:, n - 1], C[:, n - 1].copy()
     for k in range(1, n):
@@ -97,7 +91,9 @@ def loop_residual(Z: np.ndarray, C: np.ndarray) -> tuple[np.ndarray, np.ndarray]
         A = lie.adjoint(lie.between(suffix, np.eye(4)))
         S += A @ C[:, k] @ np.swapaxes(A, -1, -2)
         suffix = Z[:, k] @ suffix
-    return lie.se3_log(loop), 0.5 * (S + np.swapaxes(S, -1, -2))
+    e = lie.se3_log(loop)
+    S = 0.5 * (S + np.swapaxes(S, -1, -2))
+    return np.einsum("mi,mi->m", e, np.linalg.solve(S, e[..., None])[..., 0])
 
 
 def _inverse(Z: np.ndarray, C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -106,7 +102,7 @@ def _inverse(Z: np.ndarray, C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return lie.between(Z, np.eye(4)), A @ C @ np.swapaxes(A, -1, -2)
 
 
-def link_ends(links: Sequence[Link], ids: Sequence[int], chains: Chains):
+def _ends(links: Sequence[Link], ids: Sequence[int], chains: Chains):
     """Per link id (a, ka, b, kb, Z, C), oriented so that a <= b (Z: kb's pose in ka's)."""
     a = np.array([chains.index[links[i].robot_a] for i in ids], np.int64)
     b = np.array([chains.index[links[i].robot_b] for i in ids], np.int64)
@@ -126,27 +122,13 @@ def pair_chi2(a: int, ka_i, kb_i, Z_i, C_i, b: int, ka_j, kb_j, Z_j, C_j, chains
               ) -> np.ndarray:
     """(m,) the PCM loop statistic of m pairs of links i, j between robots a and b (each its
     keyframes, kb's pose in ka's and its covariance, batched)."""
-    e, S = pair_loop(a, ka_i, kb_i, Z_i, C_i, b, ka_j, kb_j, Z_j, C_j, chains)
-    return np.einsum("mi,mi->m", e, np.linalg.solve(S, e[..., None])[..., 0])
-
-
-def pair_loop(a: int, ka_i, kb_i, Z_i, C_i, b: int, ka_j, kb_j, Z_j, C_j, chains: Chains
-              ) -> tuple[np.ndarray, np.ndarray]:
-    """(e, S) (`loop_residual`) of the loops of `pair_chi2`."""
     O_b, C_ob = chains.stretch(b, kb_i, kb_j)
     O_a, C_oa = chains.stretch(a, ka_i, ka_j)
     Zj_inv, Cj_inv = _inverse(Z_j, C_j)
     Oa_inv, Coa_inv = _inverse(O_a, C_oa)
     Z = np.stack([Z_i, O_b, Zj_inv, Oa_inv], axis=1)
     C = np.stack([C_i, C_ob, Cj_inv, Coa_inv], axis=1)
-    return loop_residual(Z, C)
-
-
-def closure_loop(robots, k0, k1, Z, C, chains: Chains) -> tuple[np.ndarray, np.ndarray]:
-    """(e, S) (`loop_residual`) of loop closures within robots `robots` (m,): keyframe k1's
-    pose Z (m,4,4) in keyframe k0's, covariance C, against the robot's odometry k0 -> k1."""
-    Oi, Coi = _inverse(*_stretches(chains, robots, k0, k1))
-    return loop_residual(np.stack([Z, Oi], 1), np.stack([C, Coi], 1))
+    return loop_chi2(Z, C)
 
 
 def max_clique(consistent: np.ndarray, weight: np.ndarray) -> np.ndarray:
@@ -183,12 +165,12 @@ def consistent_sets(links: Sequence[Link], ids: Sequence[int], chains: Chains,
     ids = sorted(ids)
     if not ids:
         return [], {}
-    a, ka, b, kb, Z, C = link_ends(links, ids, chains)
+    a, ka, b, kb, Z, C = _ends(links, ids, chains)
     held: dict[int, str] = {}
     loops = np.flatnonzero(a == b)
     if len(loops):
-        e, S = closure_loop(a[loops], ka[loops], kb[loops], Z[loops], C[loops], chains)
-        chi = np.einsum("mi,mi->m", e, np.linalg.solve(S, e[..., None])[..., 0])
+        Oi, Coi = _inverse(*_stretches(chains, a[loops], ka[loops], kb[loops]))
+        chi = loop_chi2(np.stack([Z[loops], Oi], 1), np.stack([C[loops], Coi], 1))
         for k, x in zip(loops, chi, strict=True):
             if not x <= threshold:
                 held[ids[k]] = (f"held: the loop closure disagrees with its robot's odometry "

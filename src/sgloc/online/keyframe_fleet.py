@@ -22,7 +22,6 @@ from sgloc.online.keyframe_graph import KeyframeGraph, keyframe_link
 from sgloc.online.keyframe_links import select_links
 from sgloc.online.keyframe_views import view_corrected, view_offset
 from sgloc.online.link_selection import loop_error, loop_tolerance
-from sgloc.online.odometry_fit import scaled, variance_factor
 from sgloc.online.records import Attempt, Link
 from sgloc.online.refine import refit_link
 from sgloc.online.robot_map import RobotMap
@@ -145,8 +144,6 @@ class KeyframeBackend:
     def __init__(self, online: OnlineConfig, root: int = 0) -> None:
         self.online = online
         self.graph = KeyframeGraph(online.odometry, online.solver, root)
-        # the variance factor on the odometry's drift terms the graph holds (OdometryNoise.fit)
-        self.noise_factor = 1.0
         self.links: list[Link] = []
         self.fid: dict[int, int] = {}  # link id -> factor id while in the graph
         # (i, j) robot indices (i <= j; i == j: loop closures) -> metres each had travelled
@@ -301,8 +298,6 @@ class KeyframeBackend:
 
         checked = check_links(self.links, candidates, chains, select,
                               lambda ids: self._move(ids, index), enabled=o.link_checks)
-        if o.odometry.fit:
-            self.fit_noise(variance_factor(self.links, checked.taken, chains))
         taken = set(checked.taken)
         left = sorted(before - taken)
         for lid in left:
@@ -343,14 +338,6 @@ class KeyframeBackend:
                                                     lk.T_a_b, lk.covariance)
         self.graph.solve()
         return self.graph
-
-    def fit_noise(self, factor: float) -> None:
-        """Give the graph's odometry factors the drift variances times `factor` (solved again
-        when it changed)."""
-        if factor != self.noise_factor:
-            self.noise_factor = factor
-            self.graph.set_noise(scaled(self.online.odometry, factor))
-            self.graph.solve()
 
     def drop_colocated(self) -> None:
         """Remove the co-location factors from the graph (derived again when next due)."""
@@ -403,15 +390,13 @@ class KeyframeBackend:
         meta["colocated"] = list(self.colocated)
         meta["colocated_at"] = self.colocated_at
         meta["held"] = sorted(self.held)
-        meta["noise_factor"] = self.noise_factor
         return meta, arrays
 
     @classmethod
     def from_state(cls, online: OnlineConfig, meta: dict, arrays: dict) -> KeyframeBackend:
         """The back-end `state` described, its graph holding the saved solution."""
         f = cls(online)
-        f.noise_factor = float(meta.get("noise_factor", 1.0))
-        f.graph = KeyframeGraph.from_state(scaled(online.odometry, f.noise_factor), meta, arrays)
+        f.graph = KeyframeGraph.from_state(online.odometry, meta, arrays)
         f.links = [Link.from_dict(d) for d in meta["links"]]
         f.fid = {int(lid): int(fid) for lid, fid in meta["fid"]}
         f.travel_last = {(int(i), int(j)): (float(a), float(b))

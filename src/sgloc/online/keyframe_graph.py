@@ -8,7 +8,7 @@ keyframes placed through that link; a link whose removal disconnects robots rebu
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -138,17 +138,6 @@ class KeyframeGraph:
         if f is None or f.kind not in (LINK, COLOCATION):
             raise SglocError(f"no link factor {fid} in the graph.")
         del self._factors[int(fid)]
-
-    def set_noise(self, noise: OdometryNoise) -> None:
-        """Take `noise` as the odometry's noise model: every odometry factor's covariance
-        anew (the solver restarts at `solve`)."""
-        self.noise = noise
-        fids = [fid for fid, f in self._factors.items() if f.kind == ODOMETRY]
-        if fids:
-            cov = noise.covariance(np.stack([self._factors[fid].T_a_b for fid in fids]))
-            for fid, C in zip(fids, cov, strict=True):
-                self._factors[fid] = replace(self._factors[fid], covariance=C)
-        self._reset()
 
     def set_root(self, robot: int) -> None:
         """Make `robot`'s odometry frame the fleet frame (the solver restarts at `solve`)."""

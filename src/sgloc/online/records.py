@@ -12,7 +12,6 @@ ROBOT_JOINED, LINK_ACCEPTED, LINK_REVOKED = "robot_joined", "link_accepted", "li
 #: A link the checks against the odometry keep out of the pose graph before it ever entered
 #: (keyframe back-end; `keyframe_consistency`).
 LINK_HELD = "link_held"
-ODOMETRY_FITTED = "odometry_fitted"
 
 
 @dataclass
@@ -83,8 +82,8 @@ class Link:
 @dataclass(frozen=True)
 class Event:
     """Something that changed the fleet: kind in {"robot_joined", "link_accepted",
-    "link_revoked", "link_held", "odometry_fitted"}, the robots concerned, a sentence of
-    detail; stamp = the keyframe's."""
+    "link_revoked", "link_held"}, the robots concerned, a sentence of detail; stamp = the
+    keyframe's."""
 
     stamp: float
     kind: str

@@ -32,7 +32,6 @@ from sgloc.online.records import (
     LINK_ACCEPTED,
     LINK_HELD,
     LINK_REVOKED,
-    ODOMETRY_FITTED,
     ROBOT_JOINED,
     Attempt,
     Event,
@@ -769,14 +768,8 @@ class OnlineSession:
         if self._kf.graph.root != root:
             self._kf.graph.set_root(root)
         maps = [self._maps[r] for r in names]
-        factor = self._kf.noise_factor
         entered, left = self._kf.update(maps, names, self._max_join_nfa())
         held = self._kf.newly_held
-        if self._kf.noise_factor != factor:
-            placed = tuple(names[r] for r in self._kf.graph.placed)
-            self._emit(emit, stamp, ODOMETRY_FITTED, placed,
-                       f"the odometry's drift variances times {self._kf.noise_factor:g} in the "
-                       f"pose graph (was {factor:g}), as the loops of its links show")
         if self.online.refine_fleet and self._kf.colocation_due(
                 maps, self.online.refine_fleet_growth):
             self._kf.colocate(maps, self.config.motion,
