@@ -107,7 +107,7 @@ def loop_figures(scenario: Any, session: Any, near: float = 10.0, before: float 
         along = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(P, axis=0), axis=1))]
         pairs = cKDTree(P).query_pairs(near, output_type="ndarray")
         far = np.abs(along[pairs[:, 1]] - along[pairs[:, 0]]) >= before
-        revisits[name] = int(len(np.unique(pairs[far].max(axis=1)))) if len(pairs) else 0
+        revisits[name] = len(np.unique(pairs[far].max(axis=1)))
     return {"loops": loops, "revisits": revisits}
 
 
