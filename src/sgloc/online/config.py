@@ -172,6 +172,14 @@ class OnlineConfig:
         (a link whose solution bends a robot's odometry beyond its noise leaves);
         `sgloc.online.keyframe_consistency`. A link that fails is held (event "link_held")
         or revoked.
+    link_agreement: backend "keyframes": a link whose maps disagree where it puts them side
+        by side is held (event "link_held"): of the query objects around the link (each
+        robot's objects seen within submap_length metres of travel of its end) that the link
+        puts next to a target object, fewer than this fraction land on an object of their
+        class (at least the localizer's `min_covered` of them; the localizer's radii). A link
+        at another copy of a repeating layout (a street grid a block away) lands only what the
+        layout repeats (`sgloc.online.keyframe_agreement`). None (the default): the
+        localizer's `min_agreement`; 0: off.
     seed: attempt k of the pair (i, j) (robot indices, i < j) uses the seed [seed, i, j]
         (k = 0) or [seed, i, j, k].
     fuse_radius: metres; in the merged fleet map (`sgloc replay`'s merged.json), same-class
@@ -209,6 +217,7 @@ class OnlineConfig:
     view_correction: bool = setting(True, check=flag())
     join_tests: bool = setting(True, check=flag())
     link_checks: bool = setting(True, check=flag())
+    link_agreement: float | None = setting(None, check=real(0.0, 1.0, none_ok=True))
     fuse_radius: float = setting(2.0, check=real(0.0, MAX_COORDINATE, unit="m"))
 
     def __post_init__(self) -> None:
@@ -239,8 +248,8 @@ class OnlineConfig:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> OnlineConfig:
         """The settings `to_dict` gave. Settings saved before `backend`, `view_correction`,
-        `join_tests`, `link_checks` and `OdometryNoise.correlation_length` existed keep the
-        behaviour they were saved with (robots, off, off, off, 0), so that a resumed session
+        `join_tests`, `link_checks`, `link_agreement` and `OdometryNoise.correlation_length`
+        existed keep the behaviour they were saved with (robots, off, off, off, off, 0), so that a resumed session
         continues as it would."""
         data = dict(data)
         data.setdefault("backend", "robots")
@@ -249,4 +258,5 @@ class OnlineConfig:
         data.setdefault("view_correction", False)
         data.setdefault("join_tests", False)
         data.setdefault("link_checks", False)
+        data.setdefault("link_agreement", 0.0)
         return cls(**data)

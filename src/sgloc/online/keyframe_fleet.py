@@ -16,6 +16,7 @@ from sgloc.errors import SglocError
 from sgloc.estimation import MotionModel
 from sgloc.maps.graph import SemanticGraph
 from sgloc.online.config import OnlineConfig
+from sgloc.online.keyframe_agreement import disagreement_reason, disagrees, overlap
 from sgloc.online.keyframe_colocation import colocation_factors
 from sgloc.online.keyframe_consistency import Chains, check_links
 from sgloc.online.keyframe_graph import KeyframeGraph, keyframe_link
@@ -158,14 +159,19 @@ class KeyframeBackend:
         self.newly_held: list[int] = []  # those the last `update` newly held
 
     def link(self, maps: list[RobotMap], names: list[str], task: Query, result: Attempt,
-             stamp: float, motion: MotionModel, radius: float) -> Link:
+             stamp: float, motion: MotionModel, radius: float,
+             radii: tuple[float, float]) -> Link:
         """The keyframe link of an accepted attempt (`link_of`), its alignment refitted on
-        the co-located objects (`refit`) when `OnlineConfig.refine_links` is on; motion: the
-        localizer's motion model, radius: the pairing radius (metres)."""
+        the co-located objects (`refit`) when `OnlineConfig.refine_links` is on, its overlap
+        measured (`keyframe_agreement.overlap`); motion: the localizer's motion model, radius:
+        the pairing radius, radii: the (land, cover) radii of the overlap (metres)."""
         o = self.online
         r = (refit(task, result, motion, radius, o.loop_translation, o.loop_rotation,
                    maps if o.view_correction else None) if o.refine_links else None)
-        return link_of(maps, names, task, result, stamp, r)
+        lk = link_of(maps, names, task, result, stamp, r)
+        lk.landed, lk.covered = overlap(maps[task.target], maps[task.query], lk,
+                                        o.submap_length, radii)
+        return lk
 
     def due_by_travel(self, travelled: list[float], sizes: list[int], min_objects: int,
                       robot: int | None) -> list[tuple[int, int]]:
@@ -277,10 +283,12 @@ class KeyframeBackend:
         self.travel_last[(i, j)] = (travelled[i], travelled[j])
         self.query_last[(target, query)] = travelled[query]
 
-    def update(self, maps: list[RobotMap], names: list[str], max_nfa: float | None = None
-               ) -> tuple[list[int], list[int]]:
-        """Check and select the links (`keyframe_consistency.check_links` around
-        `keyframe_links.select_links`, max_nfa its), move the graph to the selection (links
+    def update(self, maps: list[RobotMap], names: list[str], max_nfa: float | None = None,
+               agreement: tuple[float, int] = (0.0, 1)) -> tuple[list[int], list[int]]:
+        """Check and select the links (those whose maps disagree held first,
+        `keyframe_agreement.disagrees` with agreement = (threshold, min_covered); then
+        `keyframe_consistency.check_links` around `keyframe_links.select_links`, max_nfa
+        its), move the graph to the selection (links
         leave it by factor id), solve, reanchor the placed robots' maps. Returns (link ids
         that entered, link ids that left, now revoked); `newly_held` then lists the link ids
         the checks newly hold out that were never in the graph."""
@@ -291,6 +299,9 @@ class KeyframeBackend:
         chains = Chains(index, odom, travelled, o.odometry)
         before = set(self.fid)
         candidates = [i for i, lk in enumerate(self.links) if not lk.revoked]
+        apart = {i: disagreement_reason(self.links[i], agreement[0]) for i in candidates
+                 if disagrees(self.links[i], *agreement)}
+        candidates = [i for i in candidates if i not in apart]
 
         def select(ids: list[int]) -> tuple[list[int], dict[int, str]]:
             return select_links(self.links, ids, index, odom, travelled, o.odometry,
@@ -298,6 +309,7 @@ class KeyframeBackend:
 
         checked = check_links(self.links, candidates, chains, select,
                               lambda ids: self._move(ids, index), enabled=o.link_checks)
+        checked.held.update(apart)
         taken = set(checked.taken)
         left = sorted(before - taken)
         for lid in left:

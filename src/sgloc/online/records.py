@@ -43,6 +43,10 @@ class Link:
         active links) up to and including the one that gave the link: how many chances a
         false alignment had (back-end "keyframes", `keyframe_links.select_links`; 1 for a
         link added from elsewhere or saved before this was counted).
+    landed, covered: back-end "keyframes", the link's overlap as measured when it was made
+        (`keyframe_agreement.overlap`): of the query objects around the link that it puts next
+        to a target object (covered), those that land on one of their class (0, 0: not
+        measured).
     """
 
     robot_a: str
@@ -60,6 +64,8 @@ class Link:
     keyframe_b: int | None = None
     revoked: bool = False
     tests: int = 1
+    landed: int = 0
+    covered: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -69,6 +75,7 @@ class Link:
             "n_matches": self.n_matches, "agreed": self.agreed,
             "refined_pairs": self.refined_pairs, "keyframe_a": self.keyframe_a,
             "keyframe_b": self.keyframe_b, "revoked": self.revoked, "tests": self.tests,
+            "landed": self.landed, "covered": self.covered,
         }
 
     @classmethod

@@ -514,7 +514,7 @@ class OnlineSession:
                                 (qu.query, qu.target)) else query_from(maps, qu.target,
                                                                        qu.query, qu.first)
                 lk = self._kf.link(maps, names, now, r, stamp, self.config.motion,
-                                   self.config.ransac.threshold)
+                                   self.config.ransac.threshold, self._agreement_radii())
                 ga, gb = sorted((group[qu.target], group[qu.query]))
                 pair = (min(qu.target, qu.query), max(qu.target, qu.query))
                 if ga != gb and tests is None:
@@ -757,6 +757,17 @@ class OnlineSession:
                            "the fleet frame's root" if r == root else "placed in the fleet frame")
         self._T = T_new
 
+    def _agreement_radii(self) -> tuple[float, float]:
+        """(land, cover) metres of the links' overlap: the localizer's agreement radii."""
+        acc = self.config.acceptance
+        return acc.repetition_radii(acc.radius or self.config.ransac.threshold)
+
+    def _link_agreement(self) -> tuple[float, int]:
+        """(threshold, min_covered) of the links' map-agreement hold
+        (`OnlineConfig.link_agreement`; None: the localizer's `min_agreement`)."""
+        acc, own = self.config.acceptance, self.online.link_agreement
+        return (acc.min_agreement if own is None else own), acc.min_covered
+
     def _kf_refresh(self, stamp: float, emit: bool) -> None:
         """Backend "keyframes": re-select the links, update and solve the keyframe graph,
         reanchor the maps, emit what changed."""
@@ -768,7 +779,8 @@ class OnlineSession:
         if self._kf.graph.root != root:
             self._kf.graph.set_root(root)
         maps = [self._maps[r] for r in names]
-        entered, left = self._kf.update(maps, names, self._max_join_nfa())
+        entered, left = self._kf.update(maps, names, self._max_join_nfa(),
+                                        self._link_agreement())
         held = self._kf.newly_held
         if self.online.refine_fleet and self._kf.colocation_due(
                 maps, self.online.refine_fleet_growth):
