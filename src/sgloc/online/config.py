@@ -249,8 +249,8 @@ class OnlineConfig:
     def from_dict(cls, data: dict[str, Any]) -> OnlineConfig:
         """The settings `to_dict` gave. Settings saved before `backend`, `view_correction`,
         `join_tests`, `link_checks`, `link_agreement` and `OdometryNoise.correlation_length`
-        existed keep the behaviour they were saved with (robots, off, off, off, off, 0), so that a resumed session
-        continues as it would."""
+        existed keep the behaviour they were saved with (robots, off, off, off, off, 0), so
+        that a resumed session continues as it would."""
         data = dict(data)
         data.setdefault("backend", "robots")
         if isinstance(data.get("odometry"), dict):
