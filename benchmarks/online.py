@@ -396,7 +396,8 @@ def main(argv: list[str] | None = None) -> int:
                          "--seeds instead (table: docs/online_city_seeds.md)")
     ap.add_argument("--part", default="development",
                     help="--city-levels: what the seeds are (e.g. development, held out)")
-    ap.add_argument("--preset", default="city", help="--city-levels: the localizer preset")
+    ap.add_argument("--preset", default="city-objects",
+                    help="--city-levels: the localizer preset (the city replay's own)")
     ap.add_argument("--workers", type=int, default=1,
                     help="--city-levels: runs at once (each in its own process)")
     args = ap.parse_args(argv)
