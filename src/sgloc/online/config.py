@@ -82,6 +82,14 @@ class OdometryNoise:
                      + np.radians(self.rotation_per_sqrt_metre) ** 2 * d)
         return st, sr
 
+    def scaled(self, scale: float) -> OdometryNoise:
+        """The model with its drift variances (the per-metre and per-sqrt-metre terms) times
+        `scale` > 0; the floors kept."""
+        r = float(np.sqrt(scale))
+        return replace(self, translation_per_metre=min(self.translation_per_metre * r, 1.0),
+                       rotation_per_metre=self.rotation_per_metre * r,
+                       rotation_per_sqrt_metre=self.rotation_per_sqrt_metre * r)
+
     def covariance(self, T_steps: np.ndarray) -> np.ndarray:
         """(..., 6, 6) covariances of the odometry steps T_steps (..., 4, 4) (T_k_k+1) as
         independent factors of a pose graph, their length d = the norm of each step's
@@ -180,6 +188,11 @@ class OnlineConfig:
         at another copy of a repeating layout (a street grid a block away) lands only what the
         layout repeats (`sgloc.online.keyframe_agreement`). None (the default): the
         localizer's `min_agreement`; 0: off.
+    odometry_scale: backend "keyframes": the pose graph's odometry factors take the drift the
+        links show: the variances of `odometry` times a scale in [0.01, 1] fitted to the
+        heading errors of the loops the links close (`sgloc.online.keyframe_noise`), so that
+        exact odometry is held nearly rigid and drifting odometry bends as much as it drifts;
+        the consistency checks keep `odometry` as given. False: `odometry` as given.
     seed: attempt k of the pair (i, j) (robot indices, i < j) uses the seed [seed, i, j]
         (k = 0) or [seed, i, j, k].
     fuse_radius: metres; in the merged fleet map (`sgloc replay`'s merged.json), same-class
@@ -218,6 +231,7 @@ class OnlineConfig:
     join_tests: bool = setting(True, check=flag())
     link_checks: bool = setting(True, check=flag())
     link_agreement: float | None = setting(None, check=real(0.0, 1.0, none_ok=True))
+    odometry_scale: bool = setting(True, check=flag())
     fuse_radius: float = setting(2.0, check=real(0.0, MAX_COORDINATE, unit="m"))
 
     def __post_init__(self) -> None:
@@ -248,8 +262,9 @@ class OnlineConfig:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> OnlineConfig:
         """The settings `to_dict` gave. Settings saved before `backend`, `view_correction`,
-        `join_tests`, `link_checks`, `link_agreement` and `OdometryNoise.correlation_length`
-        existed keep the behaviour they were saved with (robots, off, off, off, off, 0), so
+        `join_tests`, `link_checks`, `link_agreement`, `odometry_scale` and
+        `OdometryNoise.correlation_length` existed keep the behaviour they were saved with
+        (robots, off, off, off, off, off, 0), so
         that a resumed session continues as it would."""
         data = dict(data)
         data.setdefault("backend", "robots")
@@ -259,4 +274,5 @@ class OnlineConfig:
         data.setdefault("join_tests", False)
         data.setdefault("link_checks", False)
         data.setdefault("link_agreement", 0.0)
+        data.setdefault("odometry_scale", False)
         return cls(**data)

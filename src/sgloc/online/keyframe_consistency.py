@@ -102,7 +102,7 @@ def _inverse(Z: np.ndarray, C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return lie.between(Z, np.eye(4)), A @ C @ np.swapaxes(A, -1, -2)
 
 
-def _ends(links: Sequence[Link], ids: Sequence[int], chains: Chains):
+def link_ends(links: Sequence[Link], ids: Sequence[int], chains: Chains):
     """Per link id (a, ka, b, kb, Z, C), oriented so that a <= b (Z: kb's pose in ka's)."""
     a = np.array([chains.index[links[i].robot_a] for i in ids], np.int64)
     b = np.array([chains.index[links[i].robot_b] for i in ids], np.int64)
@@ -165,7 +165,7 @@ def consistent_sets(links: Sequence[Link], ids: Sequence[int], chains: Chains,
     ids = sorted(ids)
     if not ids:
         return [], {}
-    a, ka, b, kb, Z, C = _ends(links, ids, chains)
+    a, ka, b, kb, Z, C = link_ends(links, ids, chains)
     held: dict[int, str] = {}
     loops = np.flatnonzero(a == b)
     if len(loops):

@@ -21,6 +21,7 @@ from sgloc.online.keyframe_colocation import colocation_factors
 from sgloc.online.keyframe_consistency import Chains, check_links
 from sgloc.online.keyframe_graph import KeyframeGraph, keyframe_link
 from sgloc.online.keyframe_links import select_links
+from sgloc.online.keyframe_noise import fit_scale, heading_loops
 from sgloc.online.keyframe_views import view_corrected, view_offset
 from sgloc.online.link_selection import loop_error, loop_tolerance
 from sgloc.online.records import Attempt, Link
@@ -138,6 +139,11 @@ def link_of(maps: list[RobotMap], names: list[str], task: Query, result: Attempt
                 keyframe_a=ka, keyframe_b=kb)
 
 
+#: The odometry factors are re-scaled when the fitted scale moves by more than this factor
+#: (each change restarts the solver).
+RESCALE_STEP = 1.5
+
+
 class KeyframeBackend:
     """The keyframe back-end's state for an `OnlineSession`: the keyframe pose graph, its links
     and what each robot pair was last tried at."""
@@ -157,6 +163,7 @@ class KeyframeBackend:
         self.colocated_at: tuple[list[int], int] | None = None
         self.held: set[int] = set()  # link ids the checks hold out (never in the graph)
         self.newly_held: list[int] = []  # those the last `update` newly held
+        self.odometry_scale = 1.0  # the odometry factors' variance scale (`keyframe_noise`)
 
     def link(self, maps: list[RobotMap], names: list[str], task: Query, result: Attempt,
              stamp: float, motion: MotionModel, radius: float,
@@ -307,6 +314,8 @@ class KeyframeBackend:
             return select_links(self.links, ids, index, odom, travelled, o.odometry,
                                 o.loop_translation, o.loop_rotation, max_nfa)
 
+        if o.odometry_scale:
+            self.rescale(chains)
         checked = check_links(self.links, candidates, chains, select,
                               lambda ids: self._move(ids, index), enabled=o.link_checks)
         checked.held.update(apart)
@@ -333,6 +342,15 @@ class KeyframeBackend:
         self.newly_held = held
         self.reanchor(maps)
         return entered, left
+
+    def rescale(self, chains: Chains) -> None:
+        """Fit the odometry's variance scale to the loops of the links in the graph
+        (`keyframe_noise`) and give the graph's odometry factors the scaled model when the
+        scale moved by more than RESCALE_STEP times since it was last set."""
+        s = fit_scale(*heading_loops(self.links, sorted(self.fid), chains))
+        if abs(np.log(s / self.odometry_scale)) > np.log(RESCALE_STEP):
+            self.odometry_scale = s
+            self.graph.set_noise(self.online.odometry.scaled(s))
 
     def _move(self, ids: list[int], index: dict[str, int]) -> KeyframeGraph:
         """The graph holding exactly the links `ids` (co-location factors dropped when a link
@@ -402,6 +420,7 @@ class KeyframeBackend:
         meta["colocated"] = list(self.colocated)
         meta["colocated_at"] = self.colocated_at
         meta["held"] = sorted(self.held)
+        meta["odometry_scale"] = self.odometry_scale
         return meta, arrays
 
     @classmethod
@@ -418,4 +437,6 @@ class KeyframeBackend:
         at = meta.get("colocated_at")
         f.colocated_at = None if at is None else ([int(r) for r in at[0]], int(at[1]))
         f.held = {int(x) for x in meta.get("held", [])}
+        f.odometry_scale = float(meta.get("odometry_scale", 1.0))
+        f.graph.noise = online.odometry.scaled(f.odometry_scale)  # the saved factors keep theirs
         return f

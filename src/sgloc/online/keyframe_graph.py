@@ -139,6 +139,16 @@ class KeyframeGraph:
             raise SglocError(f"no link factor {fid} in the graph.")
         del self._factors[int(fid)]
 
+    def set_noise(self, noise: OdometryNoise) -> None:
+        """Use `noise` for every odometry factor, those in the graph included (the solver
+        restarts at `solve`)."""
+        self.noise = noise
+        for fid, f in self._factors.items():
+            if f.kind == ODOMETRY:
+                self._factors[fid] = GraphFactor(f.kind, f.robot_a, f.k_a, f.robot_b, f.k_b,
+                                                 f.T_a_b, noise.covariance(f.T_a_b))
+        self._reset()
+
     def set_root(self, robot: int) -> None:
         """Make `robot`'s odometry frame the fleet frame (the solver restarts at `solve`)."""
         self.root = int(robot)
