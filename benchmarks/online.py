@@ -595,7 +595,8 @@ def city_page(results: dict) -> str:
     return (
         "# Online fleet localization: the 12x12-block city over seeds\n\n"
         "Regenerate with `python benchmarks/online.py --city-levels --seeds 0 1 2 --part "
-        "development --workers 2` (`--preset` the localizer preset, default `city`; `--set` "
+        "development --workers 2` (`--preset` the localizer preset, default `city-objects`, "
+        "the city replay's own; `--set` "
         "as for the fleet groups). Each run: the synthetic city of that seed, 12x12 blocks, two "
         "2,000 m routes cut into 10 robots, replayed through the keyframe back-end at drift "
         "level 0 (exact odometry), 1 and 2 (see the drift levels on the "
