@@ -88,7 +88,9 @@ P(Poisson(lambda) >= k - 2), lambda = sum over query objects of 1 - exp(-N_i (1.
 = same-class targets within `verify_density_radius` = 15 m of where the object lands. The
 rival is the better of the best distinct alignment of the query and the best other place of the
 target where the constellation it landed on fits again (a map built of copies has such places);
-at least 2 of the co-located pairs must be distinctive best matches (as above), and the
+at least 2 of the co-located pairs must be distinctive best matches (as above; not when
+both maps hold one class, whose descriptors see distances alone: there the ratio test seldom
+passes for right pairs and wrong ones alike, and chance and the rivals decide), and the
 confidence must reach 1 - (1 - min_confidence) / 10: on 300 extra one-scan KITTI negatives of
 the tuning scans (docs/hard_cases.md, `scan_negatives`) the best NFA was 10^-3.5 where chance
 expects about 10^-2.5, so the model is held a decade stricter. Without the distinctive pair,

@@ -224,3 +224,37 @@ def test_accept_takes_the_verified_alignment_through_the_callers_refit(rng):
     six = accept(query, target, dq, dt, np.zeros((5, 2), np.int64), None, None, empty, "x",
                  **(kw | {"motion": ANY_RIGID}))  # fmt: skip
     assert not six.accepted and six.verification is None and six.reason == "x"
+
+
+def _no_distinctive_match(query, target, partner, rng):
+    """Descriptors where each query object's most similar target is a wrong one of its class
+    and its partner comes second: the right pairs are candidates but none is a best match."""
+    dt = rng.normal(size=(len(target), 32))
+    dq = np.empty((len(query), 32))
+    for i, j in enumerate(partner):
+        same = np.flatnonzero((target.labels == target.labels[j]) & (np.arange(len(target)) != j))
+        dq[i] = dt[rng.choice(same)] + 0.6 * dt[j]
+    return dq, dt
+
+
+def test_one_class_maps_are_decided_by_their_geometry_without_a_distinctive_pair(rng):
+    one = _scattered_map(rng, n=300)
+    one = SemanticGraph(one.positions, np.zeros(len(one), np.int64))
+    two = SemanticGraph(one.positions, np.arange(len(one)) % 2)
+    T = _yaw(-40.0, [20.0, 35.0, 0.5])
+    centre = np.array([150.0, 150.0])
+    for target in (one, two):
+        query, partner = _query_of(target, centre, 28.0, T, rng)
+        assert 10 <= len(query) < 30
+        dq, dt = _no_distinctive_match(query, target, partner, rng)
+        v = verify_small_query(query, target, dq, dt, AcceptanceConfig())
+        assert v.details["distinct_support"] == 0
+        assert len(v.matches) >= len(query) - 1  # the geometry fits either way
+        if target is one:  # one class: the chance model and the rivals decide
+            assert v.details["classes"] == 1
+            assert v.accepted, v.reason
+            c = np.append(query.positions.mean(axis=0), 1.0)  # where the query is
+            assert np.linalg.norm((v.transform @ c - T @ c)[:3]) < 0.5
+        else:  # two classes: a place without a distinctive pair is not recognisable
+            assert v.details["classes"] == 2
+            assert not v.accepted and "distinctive" in v.reason

@@ -27,11 +27,13 @@ cheap to check instead, as relocalization systems do:
    (`chance.confidence`, as the test's), accepted when >= 1 - (1 - min_confidence) / OPTIMISM,
    when at least MIN_DISTINCT_SUPPORT co-located pairs are distinctive best matches (the
    acceptance test's evidence for the query's size, `select_evidence`: a place without one
-   distinctive pair is not recognisable), and when the co-located objects extend along their
-   first xy axis as there (spread gate). Roadside rows are lines, where an area density
-   underestimates the chance: on one-scan queries against maps they never saw the model is
-   optimistic by about a decade (the best of 283 such pairs reached NFA 10^-3.5,
-   docs/acceptance.md), hence OPTIMISM.
+   distinctive pair is not recognisable; maps of ONE class are not held to this: their
+   descriptors tell objects apart by distances alone, a ratio test seldom passes for the
+   right pairs and the wrong alike, and the chance model and the rivals carry the decision),
+   and when the co-located objects extend along their first xy axis as there (spread gate).
+   Roadside rows are lines, where an area density underestimates the chance: on one-scan
+   queries against maps they never saw the model is optimistic by about a decade (the best
+   of 283 such pairs reached NFA 10^-3.5, docs/acceptance.md), hence OPTIMISM.
 """
 
 from __future__ import annotations
@@ -56,7 +58,7 @@ REFIT_ROUNDS = 3
 #: Distinct hypotheses refitted in the search for the runner-up (the best scored first).
 RUNNER_UPS = 4
 #: Co-located pairs that must be distinctive best matches: the minimal sample (a pair) that the
-#: whole geometry then extends.
+#: whole geometry then extends. Maps of one class are not held to it (`_decide`).
 MIN_DISTINCT_SUPPORT = 2
 #: The chance model is optimistic by about this factor on real roadside objects (the best of 283
 #: one-scan queries against maps they never saw reached NFA 10^-3.5, chance expects ~10^-2.5):
@@ -327,7 +329,9 @@ def verify_small_query(
                          min_similarity, n_tests)  # fmt: skip
     support = _distinct_support(query, target, desc_q, desc_t, fit.matches, cfg, min_similarity,
                                 prepared)  # fmt: skip
-    details = {"candidates": len(cand), **evidence, "distinct_support": support}
+    classes = len(np.union1d(query.labels, target.labels))
+    details = {"candidates": len(cand), **evidence, "distinct_support": support,
+               "classes": classes}
     return _decide(query, fit, details, cfg)
 
 
@@ -385,7 +389,7 @@ def _decide(query: SemanticGraph, fit: _Fit, details: dict, cfg: AcceptanceConfi
             f"(spread {spread:.1f} m < {min_spread:g} m = 2 x min_spread); too little of the "
             "map agrees (a smaller scene needs a smaller min_spread: --set min_spread=1)"
         )
-    elif support < MIN_DISTINCT_SUPPORT:
+    elif support < MIN_DISTINCT_SUPPORT and details.get("classes", 2) > 1:
         reason = (
             f"{n_fit} of the query's {len(query)} objects fit the map, but only {support} "
             f"of them are distinctive best matches (< {MIN_DISTINCT_SUPPORT}): a place without "

@@ -160,6 +160,15 @@ class OnlineConfig:
     odometry: the odometry's noise model (OdometryNoise), for backend "keyframes".
     submap_length: metres; backend "keyframes": an attempt matches the objects the query
         robot saw over its last submap_length metres of travel (its local submap).
+    join_submaps: backend "keyframes": between two robots not yet joined, every other attempt
+        of the pair (the second, fourth, ...) matches the objects the query robot saw last,
+        within its local submap and fewer than the localizer's `small_query` (so that the
+        whole geometry is verified against the other map), instead of its whole map. A
+        sparse map (a one-class detector's few objects per keyframe) fits another map only
+        where the two overlap, and its whole map is mostly elsewhere: its candidates there
+        are too few for a fit, while the overlapping stretch alone fits. A map whose last
+        keyframe alone holds more objects is matched whole. False: joins always match the
+        whole map.
     loop_closures: backend "keyframes": also match each robot's local submap against its own
         older map (objects last seen before the submap's stretch), intra-robot loop closures.
     view_correction: backend "keyframes": the link refits and co-location factors use the
@@ -226,6 +235,7 @@ class OnlineConfig:
     submap_length: float = setting(
         100.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m")
     )
+    join_submaps: bool = setting(True, check=flag())
     loop_closures: bool = setting(True, check=flag())
     view_correction: bool = setting(True, check=flag())
     join_tests: bool = setting(True, check=flag())
@@ -262,9 +272,9 @@ class OnlineConfig:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> OnlineConfig:
         """The settings `to_dict` gave. Settings saved before `backend`, `view_correction`,
-        `join_tests`, `link_checks`, `link_agreement`, `odometry_scale` and
+        `join_tests`, `link_checks`, `link_agreement`, `odometry_scale`, `join_submaps` and
         `OdometryNoise.correlation_length` existed keep the behaviour they were saved with
-        (robots, off, off, off, off, off, 0), so
+        (robots, off, off, off, off, off, off, 0), so
         that a resumed session continues as it would."""
         data = dict(data)
         data.setdefault("backend", "robots")
@@ -275,4 +285,5 @@ class OnlineConfig:
         data.setdefault("link_checks", False)
         data.setdefault("link_agreement", 0.0)
         data.setdefault("odometry_scale", False)
+        data.setdefault("join_submaps", False)
         return cls(**data)

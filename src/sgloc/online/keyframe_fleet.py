@@ -44,15 +44,28 @@ class Query:
     target_objects: np.ndarray | None = None  # likewise over the target's (None: all)
 
 
-def recent_start(m: RobotMap, length: float) -> int:
-    """The first keyframe of `m`'s last `length` metres of travel."""
+def recent_start(m: RobotMap, length: float, max_objects: int | None = None) -> int:
+    """The first keyframe of `m`'s last `length` metres of travel; with `max_objects`, later
+    when that stretch holds more confirmed objects: the first keyframe from which at most
+    `max_objects` of them were seen (those seen last)."""
     d = m.travelled()
-    return int(np.searchsorted(d, d[-1] - length, side="left"))
+    first = int(np.searchsorted(d, d[-1] - length, side="left"))
+    if max_objects is None:
+        return first
+    k, _, o = m.sightings()
+    last = np.full(len(m.builder.counts), -1, np.int64)
+    np.maximum.at(last, o, k)
+    last = np.sort(last[m.builder.counts >= m.min_observations])[::-1]
+    if len(last) > max_objects:
+        first = max(first, int(last[max_objects]) + 1)
+    return first
 
 
-def make_query(maps: list[RobotMap], target: int, query: int, length: float) -> Query:
-    """The attempt of `query`'s recent submap (last `length` metres) in `target`'s map."""
-    return query_from(maps, target, query, recent_start(maps[query], length))
+def make_query(maps: list[RobotMap], target: int, query: int, length: float,
+               max_objects: int | None = None) -> Query:
+    """The attempt of `query`'s recent submap (last `length` metres, at most `max_objects`
+    objects: `recent_start`) in `target`'s map."""
+    return query_from(maps, target, query, recent_start(maps[query], length, max_objects))
 
 
 def query_from(maps: list[RobotMap], target: int, query: int, first: int) -> Query:

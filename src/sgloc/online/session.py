@@ -466,11 +466,16 @@ class OnlineSession:
         batch.tried = pairs if budget is None else pairs[:budget]
         batch.travelled = travelled
         batch.pairs = sorted({(min(t, q), max(t, q)) for t, q in batch.tried})
+        planned: Counter = Counter()  # this batch's attempts of a pair, planned so far
         for t, q in batch.tried:
-            # a join is decided on the query robot's whole map, as with back-end "robots":
-            # a short submap of a repeating layout can fit another copy of it
-            length = o.submap_length if group[t] == group[q] else math.inf
-            qu = make_query(maps, t, q, length)
+            key = (min(t, q), max(t, q))
+            length, cap = self._kf_length(group[t] == group[q], self._tries.get(key, 0)
+                                          + planned[key])
+            planned[key] += 1
+            qu = make_query(maps, t, q, length, cap)
+            if cap is not None and len(qu.query_graph.positions) < o.min_objects:
+                # a dense map: its last keyframe alone sees more than a small query holds
+                qu = make_query(maps, t, q, math.inf)
             if min(len(qu.query_graph.positions), len(qu.target_graph.positions)) >= \
                     o.min_objects:
                 batch.queries.append(qu)
@@ -484,6 +489,24 @@ class OnlineSession:
                 self._target(qu.target, uses[qu.target])
             batch.tasks.append((qu.query_graph, target, self._seed(*key, tries[key])))
             tries[key] += 1
+
+    def _kf_length(self, joined: bool, tries: int) -> tuple[float, int | None]:
+        """(metres of the query robot's travel, at most this many objects or None) an attempt
+        matches (`make_query`): a submap between robots already joined; between robots not
+        yet joined the whole map (inf), as with back-end "robots" (a short submap of a
+        repeating layout can fit another copy of it), and with `join_submaps` on every other
+        try (`tries`: the pair's attempts before this one) the submap, cut to the objects seen
+        last below the localizer's `small_query`, so that its whole geometry is verified
+        against the map (`sgloc.acceptance.verification`): a sparse map fits another only
+        where they overlap, and there its few objects give too few candidates for a fit. (A
+        dense map, whose last keyframe alone sees more, is matched whole: `_kf_plan`.)"""
+        o = self.online
+        if joined:
+            return o.submap_length, None
+        if o.join_submaps and tries % 2 == 1:
+            small = int(self.config.acceptance.evidence.small_query)
+            return o.submap_length, (small - 1 if small > o.min_objects else None)
+        return math.inf, None
 
     def _kf_apply(self, batch: AttemptBatch, results: list[Attempt]) -> bool:
         """Backend "keyframes": note the batch's tries; keep the accepted attempts as keyframe
