@@ -41,6 +41,8 @@ def test_replay_job_checks_the_input_before_reading_it():
         replay_job(scenarios=["city"], poses="refined")
     with pytest.raises(SglocError, match="--scans 'x': give first-last"):
         replay_job(scenarios=["kitti00"], scans="x")
+    with pytest.raises(SglocError, match="--scans '5-2': the last scan comes before the first"):
+        replay_job(scenarios=["kitti00"], scans="5-2")
     with pytest.raises(SglocError, match="--robot 'bad': give NAME=PATH"):
         replay_job(named=["bad"])
 
