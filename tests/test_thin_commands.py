@@ -41,8 +41,32 @@ def test_replay_job_checks_the_input_before_reading_it():
         replay_job(scenarios=["city"], poses="refined")
     with pytest.raises(SglocError, match="--scans 'x': give first-last"):
         replay_job(scenarios=["kitti00"], scans="x")
+    with pytest.raises(SglocError, match="--scans '5-2': the last scan comes before the first"):
+        replay_job(scenarios=["kitti00"], scans="5-2")
     with pytest.raises(SglocError, match="--robot 'bad': give NAME=PATH"):
         replay_job(named=["bad"])
+
+
+@pytest.mark.parametrize("option, value", [("--class-table", "missing.txt"),
+                                           ("--odom-topic", "/odom"),
+                                           ("--objects-topic", "/objects")])
+def test_an_option_only_recorded_inputs_take_is_refused_with_a_scenario(tmp_path, capsys,
+                                                                       monkeypatch, option,
+                                                                       value):
+    """A cut data set brings its own classes and has no topics: --class-table (even a file
+    that does not exist), --odom-topic and --objects-topic are refused, not ignored."""
+    import sgloc.evaluation.replay_scenarios  # noqa: F401  (adds kitti00 and city)
+    from sgloc.cli import main
+    from sgloc.replay.job import replay_job
+
+    name = option.lstrip("-").replace("-", "_").replace("class_table", "classes")
+    with pytest.raises(SglocError, match=f"{option}: only for recorded inputs"):
+        replay_job(scenarios=["city"], **{name: value})
+    monkeypatch.chdir(tmp_path)
+    assert main(["replay", "--city", "--robots", "2", "--out", "r", option, value]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {option}: only for recorded"), err
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_experiment_job_parses_the_options_and_reads_settings_after_its_checks(tmp_path):

@@ -236,6 +236,9 @@ def kitti00(robots: int = 4, scans: str = "0-2999", every: int = 1,
         first, last = (int(v) for v in scans.split("-"))
     except ValueError:
         raise SglocError(f"--scans {scans!r}: give first-last, e.g. 0-2999.") from None
+    if last < first:
+        raise SglocError(f"--scans {scans!r}: the last scan comes before the first; give "
+                         "first-last, e.g. 0-2999.")
     return ReplayInput(kitti_scenario(robots, first, last, every, poses).logs, "kitti-objects")
 
 

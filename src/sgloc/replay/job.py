@@ -114,6 +114,13 @@ def replay_job(
                          "poses).")
     if backend not in BACKENDS:
         raise SglocError(f"--backend {backend!r}: choose keyframes or robots.")
+    if scenarios:
+        for option, value in (("--class-table", classes), ("--odom-topic", odom_topic),
+                              ("--objects-topic", objects_topic)):
+            if value is not None:
+                raise SglocError(f"{option}: only for recorded inputs (a layout folder or "
+                                 f"bags); --{scenarios[0]} brings its own classes and no "
+                                 "topics.")
     if poses == "refined":
         require("gtsam", "gtsam", "--poses refined (the refined KITTI trajectory)")
     if scenarios:
