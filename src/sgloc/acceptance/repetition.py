@@ -174,7 +174,7 @@ def _within_box(pos: np.ndarray, anchors: np.ndarray, margin: float) -> np.ndarr
                           & (xy[:, 1] <= hi[1]))  # fmt: skip
 
 
-def _landing(
+def landing(
     moved: np.ndarray, labels: np.ndarray, land: ChanceModel, cover: ChanceModel
 ) -> tuple[np.ndarray, np.ndarray]:
     """(landed, covered) (n,) bool of points `moved` (n,3) with classes `labels`: a same-class
@@ -203,7 +203,7 @@ def self_landing(
         return zero, zero, 0
     every = (graph.positions[idx][None] + d[:, None, :]).reshape(-1, 3)
     lab = np.tile(graph.labels[idx], len(d))
-    lands, near = _landing(every, lab, land, cover)
+    lands, near = landing(every, lab, land, cover)
     return (np.bincount(lab[lands & near], minlength=n_classes)[:n_classes],
             np.bincount(lab[near], minlength=n_classes)[:n_classes], len(d))  # fmt: skip
 
@@ -286,7 +286,7 @@ def check_repetition(
     cover = ChanceModel(target, cover_r, n_classes)
     min_shift, max_shift, count = shifts
     d = self_similar_shifts(target, anchors, land_r, min_shift, max_shift, count)
-    landed, covered = _landing(moved, query.labels, land, cover)
+    landed, covered = landing(moved, query.labels, land, cover)
     out = Repetition(int((landed & covered).sum()), int(covered.sum()), radii,
                      shifts_tried=len(d))  # fmt: skip
     if layout > 0:

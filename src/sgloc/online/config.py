@@ -274,8 +274,8 @@ class OnlineConfig:
         """The settings `to_dict` gave. Settings saved before `backend`, `view_correction`,
         `join_tests`, `link_checks`, `link_agreement`, `odometry_scale`, `join_submaps` and
         `OdometryNoise.correlation_length` existed keep the behaviour they were saved with
-        (robots, off, off, off, off, off, off, 0), so
-        that a resumed session continues as it would."""
+        (robots, off, off, off, off, off, off, 0), so that a resumed session continues as
+        it would."""
         data = dict(data)
         data.setdefault("backend", "robots")
         if isinstance(data.get("odometry"), dict):

@@ -19,54 +19,45 @@ landed is below the threshold over at least `min_covered` covered objects."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from sgloc import lie
+from sgloc.acceptance.chance import ChanceModel
+from sgloc.acceptance.repetition import landing
 from sgloc.online.records import Link
 from sgloc.online.robot_map import RobotMap
 
 
 def window_objects(m: RobotMap, keyframe: int, window: float) -> np.ndarray:
-    """(n,) bool over `m`'s association objects: confirmed and sighted from a keyframe within
-    `window` metres of travel of `keyframe`."""
+    """(n,) bool over `m`'s association objects: sighted from a keyframe within `window`
+    metres of travel of `keyframe`."""
     d = m.travelled()
     lo = int(np.searchsorted(d, d[keyframe] - window, side="left"))
     hi = int(np.searchsorted(d, d[keyframe] + window, side="right"))
-    k, _, o = m.sightings()
-    seen = np.zeros(len(m.builder.counts), bool)
-    seen[o[(k >= lo) & (k < hi)]] = True
-    return seen & (m.builder.counts >= m.min_observations)
+    return m.seen_between(lo, hi)
 
 
 def overlap(target: RobotMap, query: RobotMap, link: Link, window: float,
             radii: tuple[float, float]) -> tuple[int, int]:
     """(landed, covered) query objects of the link's overlap (module docstring): the query's
-    objects around link.keyframe_b moved by the link into the target's odometry frame, against
-    the target's objects around link.keyframe_a (for a loop closure, target == query, the
-    objects around keyframe_b are left out of the target's). radii = (land, cover) metres."""
+    confirmed objects around link.keyframe_b moved by the link into the target's odometry
+    frame, against the target's around link.keyframe_a (for a loop closure, target == query,
+    the objects around keyframe_b are left out of the target's); `repetition.landing` at
+    radii = (land, cover) metres."""
     ka, kb = int(link.keyframe_a), int(link.keyframe_b)
     sel_q = window_objects(query, kb, window)
     sel_t = window_objects(target, ka, window)
     if target is query:
         sel_t &= ~sel_q
-    if not sel_q.any() or not sel_t.any():
+    q, t = query.subgraph(sel_q), target.subgraph(sel_t)
+    if len(q) == 0 or len(t) == 0:
         return 0, 0
     # p_target = A_t[ka] @ T_kk @ inv(A_q[kb]) @ p_query (each map's current keyframe poses)
     T = target.anchors()[ka] @ link.T_a_b @ lie.between(query.anchors()[kb], np.eye(4))
-    b = query.builder
-    moved = b.positions[sel_q] @ T[:3, :3].T + T[:3, 3]
-    labels = b.labels[sel_q]
-    pos_t, lab_t = target.builder.positions[sel_t], target.builder.labels[sel_t]
-    land, cover = radii
-    d_any, _ = cKDTree(pos_t).query(moved, distance_upper_bound=cover)
-    covered = np.isfinite(d_any)
-    landed = np.zeros(len(moved), bool)
-    for c in np.unique(labels[covered]):
-        mine, theirs = covered & (labels == c), lab_t == c
-        if theirs.any():
-            d, _ = cKDTree(pos_t[theirs]).query(moved[mine], distance_upper_bound=land)
-            landed[mine] = np.isfinite(d)
-    return int(landed.sum()), int(covered.sum())
+    moved = q.positions @ T[:3, :3].T + T[:3, 3]
+    n_classes = max(q.n_classes, t.n_classes)
+    land, cover = (ChanceModel(t, r, n_classes) for r in radii)
+    landed, covered = landing(moved, q.labels, land, cover)
+    return int((landed & covered).sum()), int(covered.sum())
 
 
 def disagrees(link: Link, threshold: float, min_covered: int) -> bool:

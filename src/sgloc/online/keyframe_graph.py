@@ -8,6 +8,7 @@ keyframes placed through that link; a link whose removal disconnects robots rebu
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -143,10 +144,11 @@ class KeyframeGraph:
         """Use `noise` for every odometry factor, those in the graph included (the solver
         restarts at `solve`)."""
         self.noise = noise
-        for fid, f in self._factors.items():
-            if f.kind == ODOMETRY:
-                self._factors[fid] = GraphFactor(f.kind, f.robot_a, f.k_a, f.robot_b, f.k_b,
-                                                 f.T_a_b, noise.covariance(f.T_a_b))
+        odo = [fid for fid, f in self._factors.items() if f.kind == ODOMETRY]
+        if odo:  # one batched covariance for every step
+            C = noise.covariance(np.stack([self._factors[fid].T_a_b for fid in odo]))
+            for fid, c in zip(odo, C, strict=True):
+                self._factors[fid] = dataclasses.replace(self._factors[fid], covariance=c)
         self._reset()
 
     def set_root(self, robot: int) -> None:

@@ -189,9 +189,14 @@ class RobotMap:
     def seen_since(self, first: int) -> np.ndarray:
         """(n,) bool over the association's objects: sighted by keyframe `first` or a later
         one."""
+        return self.seen_between(first, len(self.poses))
+
+    def seen_between(self, first: int, stop: int) -> np.ndarray:
+        """(n,) bool over the association's objects: sighted by a keyframe k with first <= k <
+        stop."""
         k, _, o = self.sightings()
         seen = np.zeros(len(self.builder.counts), bool)
-        seen[o[k >= first]] = True
+        seen[o[(k >= first) & (k < stop)]] = True
         return seen
 
     def subgraph(self, objects: np.ndarray) -> SemanticGraph:
