@@ -1038,9 +1038,9 @@ def _meta_edit(raw_path: Path, out: Path, rng: np.random.Generator) -> tuple[str
         meta["robots"] = [meta["robots"][0]] * len(meta["robots"])
     elif what == "robots not names":
         meta["robots"] = list(range(len(meta["robots"])))
-    elif what == "link robot index" and meta["links"]:
+    elif what == "link robot index" and meta.get("links"):
         meta["links"][0][1] = 9
-    elif what == "link scaled" and meta["links"]:
+    elif what == "link scaled" and meta.get("links"):
         meta["links"][0][2]["T_a_b"][0][0] = 2.0
     elif what == "stamps backwards":
         arrays["map0_stamps"] = arrays["map0_stamps"][::-1].copy()
@@ -1048,8 +1048,8 @@ def _meta_edit(raw_path: Path, out: Path, rng: np.random.Generator) -> tuple[str
         arrays["map1_poses"] = arrays["map1_poses"] * 3.0
     elif what == "placed out of range":
         meta["placed"] = [0, 7]
-    elif what == "no links key":
-        meta.pop("links")
+    elif what == "no links key":  # the back-end's links: "links" ("robots"), "keyframes"
+        meta.pop("links" if "links" in meta else "keyframes")
     elif what == "format":
         meta["format"] = "sgloc-online-session-99"
     elif what == "counts zero":

@@ -452,7 +452,7 @@ def main_fleet(args: argparse.Namespace, groups: set[str]) -> int:
     """Run the chosen fleet groups, store their results and rewrite the page's fleet part."""
     import fnmatch
 
-    from sgloc.online.solve import gtsam_available
+    from sgloc.online.robots.solve import gtsam_available
 
     truth = "refined" if gtsam_available() else "raw"
     cases = fleet_cases(groups, args.levels, args.seeds, args.drift_seeds, truth)

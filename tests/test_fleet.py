@@ -13,9 +13,9 @@ from sgloc.evaluation.fleet_scenes import fleet_errors, kitti_fleet, world_fleet
 from sgloc.geometry import invert, make_transform
 from sgloc.maps.graph import SemanticGraph
 from sgloc.online.fleet import localize_fleet
-from sgloc.online.link_selection import Edge
 from sgloc.online.merge import merge_graphs
-from sgloc.online.posegraph import fleet_frame
+from sgloc.online.robots.link_selection import Edge
+from sgloc.online.robots.posegraph import fleet_frame
 
 
 def _check_placed(res, scene, max_m=3.0, max_deg=3.0):

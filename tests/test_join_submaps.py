@@ -4,7 +4,7 @@ recent submap cut below the localizer's small-query size on every other try."""
 import numpy as np
 
 from sgloc.online import OnlineConfig, OnlineSession
-from sgloc.online.keyframe_fleet import recent_start
+from sgloc.online.keyframes.state import recent_start
 from sgloc.online.robot_map import RobotMap
 
 

@@ -7,8 +7,8 @@ import pytest
 from sgloc import lie
 from sgloc.errors import SglocError
 from sgloc.online.config import OdometryNoise
-from sgloc.online.keyframe_graph import KeyframeGraph, keyframe_link, odometry_link
-from sgloc.online.keyframe_solve import gtsam_available
+from sgloc.online.keyframes.graph import KeyframeGraph, keyframe_link, odometry_link
+from sgloc.online.keyframes.solve import gtsam_available
 
 needs_gtsam = pytest.mark.skipif(not gtsam_available(), reason="gtsam not installed")
 
@@ -141,7 +141,7 @@ def test_odometry_noise_grows_with_distance_and_a_link_moves_to_keyframes():
 
 
 def test_without_gtsam_the_sparse_solver_is_used(monkeypatch):
-    import sgloc.online.keyframe_solve as ks
+    import sgloc.online.keyframes.solve as ks
 
     monkeypatch.setattr(ks, "gtsam_available", lambda: False)
     assert isinstance(ks.make_solver("auto", 0, np.eye(4)), ks.SparseSolver)

@@ -6,8 +6,8 @@ import pytest
 
 from sgloc import lie
 from sgloc.online import Link, OdometryNoise, OnlineConfig, OnlineSession
-from sgloc.online.keyframe_fleet import KeyframeBackend
-from sgloc.online.keyframe_solve import gtsam_available
+from sgloc.online.keyframes.solve import gtsam_available
+from sgloc.online.keyframes.state import KeyframeState
 from sgloc.online.robot_map import RobotMap
 from sgloc.sim.object_world import make_object_world
 
@@ -35,7 +35,7 @@ def _link(world, maps, a, ka, b, kb, n, stamp, cov=None):
 
 
 def _fleet(maps):
-    f = KeyframeBackend(OnlineConfig(backend="keyframes", solver="scipy"))
+    f = KeyframeState(OnlineConfig(backend="keyframes", solver="scipy"))
     for r, m in enumerate(maps):
         for T in m.poses:
             f.graph.add_keyframe(r, T)
@@ -347,14 +347,14 @@ def test_co_location_factors_hold_robots_together_all_along_where_they_met():
     """Where two drifting robots share a whole stretch, the accepted links hold them where
     attempts aligned them; the co-location factors (refine_fleet, on by default) hold them all
     along it, to its end (metres apart: same place in the truth)."""
-    from sgloc.online.keyframe_graph import COLOCATION
+    from sgloc.online.keyframes.graph import COLOCATION
 
     errors = {}
     for refine in (False, True):
         s, truth = _together(refine)
         Xa, Xb = s.trajectory("a")[1], s.trajectory("b")[1]
         errors[refine] = np.linalg.norm(Xb[:, :3, 3] - Xa[:, :3, 3], axis=1).max()
-        kinds = [f.kind for f in s._kf.graph.factors().values()]
+        kinds = [f.kind for f in s._backend.kf.graph.factors().values()]
         assert (COLOCATION in kinds) == refine
     assert errors[True] < 0.25 and errors[True] < 0.5 * errors[False]
 

@@ -6,8 +6,8 @@ import pytest
 
 from sgloc import lie
 from sgloc.online import OdometryNoise, OnlineConfig
-from sgloc.online.keyframe_colocation import colocation_factors
-from sgloc.online.keyframe_views import view_corrected, view_offset
+from sgloc.online.keyframes.colocation import colocation_factors
+from sgloc.online.keyframes.views import view_corrected, view_offset
 from sgloc.online.robot_map import RobotMap
 from sgloc.pipeline.config import LocalizerConfig
 

@@ -10,7 +10,7 @@ from sgloc.evaluation.fleet_cases import Case, case_scenario
 from sgloc.evaluation.fleet_runs import score_fleet
 from sgloc.geometry import invert
 from sgloc.online import Link, OnlineConfig, OnlineSession
-from sgloc.online.keyframe_agreement import disagrees, overlap
+from sgloc.online.keyframes.agreement import disagrees, overlap
 from sgloc.online.robot_map import RobotMap
 from sgloc.pipeline.presets import localizer_preset
 from sgloc.replay import replay_logs
@@ -66,11 +66,11 @@ def test_a_link_at_a_copy_of_the_layout_lands_only_what_repeats():
 def test_the_default_follows_the_localizers_agreement_and_old_sessions_keep_theirs():
     assert OnlineConfig().link_agreement is None
     s = OnlineSession(localizer_preset("city-objects"), OnlineConfig())
-    assert s._link_agreement() == (0.75, 10)
+    assert s._backend.link_agreement() == (0.75, 10)
     s = OnlineSession(localizer_preset("kitti-objects"), OnlineConfig())
-    assert s._link_agreement()[0] == 0.0
+    assert s._backend.link_agreement()[0] == 0.0
     s = OnlineSession(localizer_preset("kitti-objects"), OnlineConfig(link_agreement=0.5))
-    assert s._link_agreement()[0] == 0.5
+    assert s._backend.link_agreement()[0] == 0.5
     saved = OnlineConfig().to_dict()
     del saved["link_agreement"]
     assert OnlineConfig.from_dict(saved).link_agreement == 0.0

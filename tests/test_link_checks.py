@@ -7,15 +7,15 @@ import numpy as np
 from sgloc import lie
 from sgloc.online import Link, OnlineConfig, OnlineSession
 from sgloc.online.config import OdometryNoise
-from sgloc.online.keyframe_consistency import (
+from sgloc.online.keyframes.consistency import (
     Chains,
     bend_chi2,
     consistent_sets,
     max_clique,
     stretch_covariance,
 )
-from sgloc.online.keyframe_fleet import KeyframeBackend
-from sgloc.online.keyframe_links import select_links
+from sgloc.online.keyframes.links import select_links
+from sgloc.online.keyframes.state import KeyframeState
 from sgloc.online.records import LINK_HELD
 from sgloc.online.robot_map import RobotMap
 
@@ -55,7 +55,7 @@ def _link(world, maps, a, ka, b, kb, n, stamp, off=None, cov=COV):
 
 
 def _fleet(maps, noise=None):
-    f = KeyframeBackend(OnlineConfig(backend="keyframes", solver="scipy",
+    f = KeyframeState(OnlineConfig(backend="keyframes", solver="scipy",
                                    odometry=noise or OdometryNoise()))
     for r, m in enumerate(maps):
         for T in m.poses:

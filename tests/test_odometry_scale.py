@@ -8,9 +8,9 @@ import numpy as np
 from sgloc import lie
 from sgloc.online import OnlineConfig
 from sgloc.online.config import OdometryNoise
-from sgloc.online.keyframe_fleet import KeyframeBackend
-from sgloc.online.keyframe_graph import ODOMETRY, KeyframeGraph
-from sgloc.online.keyframe_noise import MIN_LOOPS, MIN_SCALE, fit_scale
+from sgloc.online.keyframes.graph import ODOMETRY, KeyframeGraph
+from sgloc.online.keyframes.noise import MIN_LOOPS, MIN_SCALE, fit_scale
+from sgloc.online.keyframes.state import KeyframeState
 
 
 def _loops(true_scale, n=200, seed=0):
@@ -50,11 +50,11 @@ def test_the_scaled_model_keeps_its_floors_and_the_graph_follows():
 
 
 def test_a_saved_backend_keeps_its_scale():
-    b = KeyframeBackend(OnlineConfig(solver="scipy"))
+    b = KeyframeState(OnlineConfig(solver="scipy"))
     b.graph.add_keyframe(0, np.eye(4))
     b.odometry_scale = 0.1
     meta, arrays = b.state()
-    again = KeyframeBackend.from_state(b.online, meta, arrays)
+    again = KeyframeState.from_state(b.online, meta, arrays)
     assert again.odometry_scale == 0.1
     assert again.graph.noise == b.online.odometry.scaled(0.1)
     saved = OnlineConfig().to_dict()

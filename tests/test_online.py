@@ -12,9 +12,10 @@ from sgloc.evaluation.fleet_scenes import fleet_errors, world_fleet
 from sgloc.geometry import apply, invert, make_transform, random_rigid_transform
 from sgloc.io.g2o import read_g2o
 from sgloc.online import Event, Link, OnlineConfig, OnlineSession
-from sgloc.online.link_selection import Edge, invert_with_covariance
+from sgloc.online.loops import invert_with_covariance
+from sgloc.online.robots.link_selection import Edge
+from sgloc.online.robots.solve import solve_pose_graph
 from sgloc.online.schedule import due_pairs
-from sgloc.online.solve import solve_pose_graph
 
 ROBOTS = {"backend": "robots"}
 

@@ -96,8 +96,8 @@ def test_a_session_refits_its_link_as_the_maps_grow_and_that_is_more_precise():
 
 def test_chain_covariance_matches_the_spread_of_composed_noisy_links():
     from sgloc.lie import se3_exp, se3_log
-    from sgloc.online.link_selection import Edge
-    from sgloc.online.precision import chain_covariance
+    from sgloc.online.robots.link_selection import Edge
+    from sgloc.online.robots.precision import chain_covariance
 
     rng = np.random.default_rng(5)
     T01, T21 = _yaw(30, [40.0, 5.0, 0.0]), _yaw(-50, [10.0, -30.0, 1.0])  # the second one 2 -> 1

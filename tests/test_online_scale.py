@@ -11,16 +11,15 @@ import pytest
 
 from sgloc.geometry import invert, make_transform
 from sgloc.online import OnlineConfig, OnlineSession
-from sgloc.online import session as session_module
-from sgloc.online.link_selection import (
+from sgloc.online.loops import loop_error, loop_tolerance
+from sgloc.online.records import Attempt
+from sgloc.online.robots import backend as robots_backend
+from sgloc.online.robots.link_selection import (
     Edge,
-    loop_error,
-    loop_tolerance,
     select_consistent,
     spanning_forest,
     tree_poses,
 )
-from sgloc.online.records import Attempt
 from sgloc.online.schedule import PairSizes, due_pairs
 
 
@@ -148,13 +147,13 @@ def test_select_consistent_equals_the_plain_loops():
 @pytest.fixture
 def counted(monkeypatch):
     calls = []
-    real = session_module.refine_fleet
+    real = robots_backend.refine_fleet
 
     def counting(*args, **kwargs):
         calls.append(len(args[0]))
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(session_module, "refine_fleet", counting)
+    monkeypatch.setattr(robots_backend, "refine_fleet", counting)
     return calls
 
 
@@ -200,11 +199,11 @@ def test_joint_refinement_with_growth_zero_runs_at_every_change(counted):
 # -- re-acceptance needs new evidence ----------------------------------------------------------
 def _attempt(s, T, matches, stamp):
     """Store an accepted attempt of the pair (a, b) with `matches` inliers and re-solve."""
-    sizes = [s._maps[r].n_confirmed for r in s.robots]
+    sizes = [s._state.maps[r].n_confirmed for r in s.robots]
     r = Attempt("", "", 0.0, True, T, confidence=1.0, n_matches=matches, reason="", seconds=0.0,
                 sizes=(0, 0), covariance=np.eye(6) * 1e-4)  # as a worker returns it
     n = len(s.events)
-    s._record(0, 1, sizes, r, stamp)
+    s._backend.record(0, 1, sizes, r, stamp)
     s._refresh(stamp)
     return [e.kind for e in s.events[n:]]
 
@@ -228,7 +227,7 @@ def test_a_revoked_link_comes_back_only_with_more_matches():
     assert _attempt(s, one, 40, 5.0) == ["link_accepted", "robot_joined"]
     np.testing.assert_allclose(s.T_fleet_robot("b"), one, atol=1e-9)
     # A bigger revoked link raises the margin to 10 % of its matches.
-    s._revoked[(0, 1)] = 200
+    s._backend.revoked[(0, 1)] = 200
     s.links[0].active = False
     assert _attempt(s, one, 219, 6.0) == [] and "220 matches" in s.links[0].reason
 

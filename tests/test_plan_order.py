@@ -1,4 +1,4 @@
-"""The keyframe back-end's attempt planning (`KeyframeBackend.due_by_travel`, `directions`,
+"""The keyframe back-end's attempt planning (`KeyframeState.due_by_travel`, `directions`,
 `ordered`, vectorised) against plain-Python references of the same rules, on random states."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from sgloc.online import OnlineConfig
-from sgloc.online.keyframe_fleet import KeyframeBackend
+from sgloc.online.keyframes.state import KeyframeState
 
 
 def _moved(f, t, q, trav, never=np.inf):
@@ -66,7 +66,7 @@ def _ordered_ref(f, attempts, trav, group):
 def test_planning_matches_its_plain_reference(seed):
     rng = np.random.default_rng(seed)
     n = int(rng.integers(1, 14))
-    f = KeyframeBackend(OnlineConfig(submap_length=float(rng.choice([20.0, 60.0]))))
+    f = KeyframeState(OnlineConfig(submap_length=float(rng.choice([20.0, 60.0]))))
     trav = list(np.round(rng.uniform(0, 300, n), int(rng.integers(0, 3))))
     for i in range(n):
         for j in range(i, n):

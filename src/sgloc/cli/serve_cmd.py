@@ -110,10 +110,10 @@ MarkerArray on /<robot>/odom and /<robot>/objects and get map -> <robot>/odom on
     from sgloc.io.class_table import read_class_table
     from sgloc.live.server import ServeOptions, serve
     from sgloc.online import OnlineConfig
-    from sgloc.replay.job import BACKENDS
+    from sgloc.online.backend import BACKENDS
 
     if backend not in BACKENDS:
-        raise typer.BadParameter(f"--backend {backend!r}: choose keyframes or robots.")
+        raise typer.BadParameter(f"--backend {backend!r}: choose {' or '.join(BACKENDS)}.")
     console = Console(quiet=quiet)
     options = ServeOptions(
         listen, state, save_every, sync, workers, scheduler, max_attempts,

@@ -46,7 +46,7 @@ def oracle_fleet(
     oracle pose graph, or None for a robot the closures do not connect to the root; None when
     gtsam is not installed. odometry[r]: (k,4,4) drifting T_odom_sensor; gt[r]: (k,4,4) true
     poses in the ground-truth frame; level: the drift level the odometry's noise model uses."""
-    from sgloc.online.solve import gtsam_available
+    from sgloc.online.robots.solve import gtsam_available
 
     if not gtsam_available():
         return None

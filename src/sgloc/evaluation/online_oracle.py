@@ -127,8 +127,8 @@ def oracle_refit(
 def link_of_odometry_frames(session, lk) -> tuple[np.ndarray, np.ndarray]:
     """(T_a_b, covariance) of the session's link `lk` between its robots' odometry frames: as
     it is for the back-end "robots"; a keyframe link through its two keyframes' odometry
-    poses (`keyframe_graph.odometry_link`)."""
-    from sgloc.online.keyframe_graph import odometry_link
+    poses (`keyframes.graph.odometry_link`)."""
+    from sgloc.online.keyframes.graph import odometry_link
 
     if lk.keyframe_a is None:
         return lk.T_a_b, lk.covariance
@@ -142,8 +142,8 @@ def oracle_link_frames(session, T_gt_odom: dict[str, np.ndarray]) -> dict[str, n
     without 3 true pairs is left out): the best the same links could give. Keyframe links
     (back-end "keyframes") enter as links of the two odometry frames, loop closures not: one
     rigid frame per robot."""
-    from sgloc.online.link_selection import Edge
-    from sgloc.online.posegraph import fleet_frame
+    from sgloc.online.robots.link_selection import Edge
+    from sgloc.online.robots.posegraph import fleet_frame
 
     names, o, cfg = session.robots, session.online, session.config
     edges, covs = [], []

@@ -113,8 +113,8 @@ def link_rows(scenario: Any, session: Any) -> list[dict]:
     centroid (metres: how far a rotation error of the link is carried)."""
     from sgloc.evaluation.online_oracle import link_of_odometry_frames, oracle_refit
     from sgloc.geometry import invert
-    from sgloc.online.precision import predicted_error
     from sgloc.online.refine import co_located
+    from sgloc.online.robots.precision import predicted_error
 
     cfg, out = session.config, []
     for lk in session.links:

@@ -24,24 +24,17 @@ class AttemptBatch:
         applied); (i, i): a loop closure.
     stamp: the events' stamp (seconds). sizes: confirmed objects per robot at planning.
     versions: each robot's map version at planning (`RobotMap.version`).
-    Back-end "robots": `targets` (i, j) per task (robot j in robot i's map) and `refit`, the
-    (budget, growth_ratio, growth_objects, robot) of the link refits that follow.
-    Back-end "keyframes": `queries` (`keyframe_fleet.Query`) per task, `tried` every (target,
-    query) the budget took, `travelled` metres per robot.
+    notes: what the back-end must note when the results are in (its own picklable record,
+        e.g. which robot pair each task is).
     finishing: the robot name whose `finish` this batch is (None: a scheduling step).
     """
 
     stamp: float
-    backend: str
     tasks: list[tuple] = field(default_factory=list)
     pairs: list[tuple[int, int]] = field(default_factory=list)
     sizes: list[int] = field(default_factory=list)
     versions: list[int] = field(default_factory=list)
-    targets: list[tuple[int, int]] = field(default_factory=list)
-    refit: tuple | None = None
-    queries: list[Any] = field(default_factory=list)
-    tried: list[tuple[int, int]] = field(default_factory=list)
-    travelled: list[float] = field(default_factory=list)
+    notes: Any = None
     finishing: str | None = None
 
     def __len__(self) -> int:

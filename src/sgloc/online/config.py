@@ -11,10 +11,12 @@ import numpy as np
 
 from sgloc.errors import UnknownNameError
 from sgloc.maps.graph import DEFAULT_EDGE_RADIUS
+from sgloc.online.backend import BACKENDS
 from sgloc.validation import (
     MAX_COORDINATE,
     MAX_ITERATIONS,
     MAX_VERTICES,
+    check_choice,
     choice,
     flag,
     group,
@@ -137,7 +139,7 @@ class OnlineConfig:
         (Huber) and in the localizer's dof (4: yaw and translation); skipped when it would move
         a robot by more than loop_translation / loop_rotation. With backend "keyframes" the
         same pairs, cut into windows of a quarter submap of travel, become co-location factors
-        between the keyframes that saw them (`sgloc.online.keyframe_colocation`): the graph is
+        between the keyframes that saw them (`sgloc.online.keyframes.colocation`): the graph is
         held all along where two robots met, not only where an attempt aligned them.
     refine_fleet_growth: the joint refinement (or the co-location factors) reruns when the
         placed robots' confirmed objects have grown by this fraction since its last run, or a
@@ -174,20 +176,20 @@ class OnlineConfig:
     view_correction: backend "keyframes": the link refits and co-location factors use the
         objects corrected for the viewpoint offset measured on the maps (a sighting is the
         near side of an object, closer to the sensor than its centre;
-        `sgloc.online.keyframe_views`), so that two robots that saw the same objects from
+        `sgloc.online.keyframes.views`), so that two robots that saw the same objects from
         opposite sides are not pulled apart along the way they looked.
     join_tests: backend "keyframes": a link that would join two groups of robots by itself
         must keep its acceptance evidence when counted against every attempt made between the
         two groups (its NFA, 1 / confidence - 1, times those attempts, within the NFA the
         localizer accepts at, 1 / min_confidence - 1); a weaker link waits until other links
-        join the groups and is then taken as a loop closure (`keyframe_links`). Many robots
+        join the groups and is then taken as a loop closure (`keyframes.links`). Many robots
         make thousands of attempts between groups that do not overlap, and the rare chance
         alignment among them would otherwise place a whole group.
     link_checks: backend "keyframes": every link is checked against the robots' odometry
         under `odometry` before it enters the pose graph (pairwise consistency of each robot
         pair's links, loop closures against their robot's own odometry) and after each solve
         (a link whose solution bends a robot's odometry beyond its noise leaves);
-        `sgloc.online.keyframe_consistency`. A link that fails is held (event "link_held")
+        `sgloc.online.keyframes.consistency`. A link that fails is held (event "link_held")
         or revoked.
     link_agreement: backend "keyframes": a link whose maps disagree where it puts them side
         by side is held (event "link_held"): of the query objects around the link (each
@@ -195,11 +197,11 @@ class OnlineConfig:
         puts next to a target object, fewer than this fraction land on an object of their
         class (at least the localizer's `min_covered` of them; the localizer's radii). A link
         at another copy of a repeating layout (a street grid a block away) lands only what the
-        layout repeats (`sgloc.online.keyframe_agreement`). None (the default): the
+        layout repeats (`sgloc.online.keyframes.agreement`). None (the default): the
         localizer's `min_agreement`; 0: off.
     odometry_scale: backend "keyframes": the pose graph's odometry factors take the drift the
         links show: the variances of `odometry` times a scale in [0.01, 1] fitted to the
-        heading errors of the loops the links close (`sgloc.online.keyframe_noise`), so that
+        heading errors of the loops the links close (`sgloc.online.keyframes.noise`), so that
         exact odometry is held nearly rigid and drifting odometry bends as much as it drifts;
         the consistency checks keep `odometry` as given. False: `odometry` as given.
     seed: attempt k of the pair (i, j) (robot indices, i < j) uses the seed [seed, i, j]
@@ -230,7 +232,8 @@ class OnlineConfig:
     join_sigmas: float | None = setting(None, check=real(0.0, low_open=True, none_ok=True))
     solver: str = setting("auto", check=choice("auto", "gtsam", "scipy", what="the solver"))
     seed: int = setting(0, check=integer(0))
-    backend: str = setting("keyframes", check=choice("keyframes", "robots", what="the back-end"))
+    backend: str = setting("keyframes", check=lambda name, value: check_choice(
+        name, value, BACKENDS, "the back-end"))
     odometry: OdometryNoise = setting(default_factory=OdometryNoise, check=group(OdometryNoise))
     submap_length: float = setting(
         100.0, check=real(0.0, MAX_COORDINATE, low_open=True, unit="m")

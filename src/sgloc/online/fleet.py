@@ -5,14 +5,14 @@ is added as one keyframe at the identity, then every pair is localized once (in 
 processes, or an existing Dask cluster).
 
 1. Only pairs that pass the acceptance test (`sgloc.acceptance`) become links.
-2. Loop check (`sgloc.online.link_selection`): links that close a loop must compose to the
+2. Loop check (`sgloc.online.robots.link_selection`): links that close a loop must compose to the
    identity within `loop_translation` metres (at the centroid of the robot's objects) and
    `loop_rotation` degrees per link (a loop of k links: sqrt(k) times that); the link in the
    most disagreeing loops is dropped until every loop agrees.
 3. The robots connected to the root by the remaining links are placed: along the
    maximum-confidence spanning tree, then by a pose graph over every kept link weighted by its
-   covariance (`sgloc.online.posegraph`). The root (the fleet frame) is `root` when given, else
-   the best-connected robot of the largest placed group.
+   covariance (`sgloc.online.robots.posegraph`). The root (the fleet frame) is `root` when
+   given, else the best-connected robot of the largest placed group.
 4. Optionally the placed robots are refined together on every object pair their maps
    co-locate (`sgloc.online.joint`); the placed robots' objects are merged into one graph,
    fusing same-class objects closer than `fuse_radius` m.
@@ -33,9 +33,9 @@ from sgloc.errors import SglocError
 from sgloc.io.names import unique_names
 from sgloc.maps.graph import SemanticGraph
 from sgloc.online import OnlineConfig, OnlineSession
-from sgloc.online.link_selection import Edge, spanning_forest
 from sgloc.online.merge import merge_graphs
 from sgloc.online.records import Attempt
+from sgloc.online.robots.link_selection import Edge, spanning_forest
 from sgloc.pipeline.config import LocalizerConfig
 from sgloc.validation import (
     MAX_COORDINATE,

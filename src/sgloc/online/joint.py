@@ -18,7 +18,7 @@ from sgloc.geometry import apply, invert
 from sgloc.kernels import one_blas_thread
 from sgloc.lie import skew, so3_exp
 from sgloc.maps.spatial import mutual_nearest_pairs
-from sgloc.online.link_selection import loop_error
+from sgloc.online.loops import loop_error
 
 #: A robot pair takes part from this many co-located object pairs (3 fix a rigid motion).
 MIN_PAIRS = 3

@@ -10,7 +10,7 @@ import numpy as np
 #: Event kinds.
 ROBOT_JOINED, LINK_ACCEPTED, LINK_REVOKED = "robot_joined", "link_accepted", "link_revoked"
 #: A link the checks against the odometry keep out of the pose graph before it ever entered
-#: (keyframe back-end; `keyframe_consistency`).
+#: (keyframe back-end; `keyframes.consistency`).
 LINK_HELD = "link_held"
 
 
@@ -41,10 +41,10 @@ class Link:
         attempt of the pair, new evidence, makes a new link).
     tests: the localization attempts made between the two robots' groups (robots joined by
         active links) up to and including the one that gave the link: how many chances a
-        false alignment had (back-end "keyframes", `keyframe_links.select_links`; 1 for a
+        false alignment had (back-end "keyframes", `keyframes.links.select_links`; 1 for a
         link added from elsewhere or saved before this was counted).
     landed, covered: back-end "keyframes", the link's overlap as measured when it was made
-        (`keyframe_agreement.overlap`): of the query objects around the link that it puts next
+        (`keyframes.agreement.overlap`): of the query objects around the link that it puts next
         to a target object (covered), those that land on one of their class (0, 0: not
         measured).
     """

@@ -137,7 +137,7 @@ class RobotMap:
         return self._views
 
     def derived(self, key: str, compute: Callable[[], Any]) -> Any:
-        """`compute()` (a value derived from `views`, e.g. `sgloc.online.keyframe_views`'s),
+        """`compute()` (a value derived from `views`, e.g. `sgloc.online.keyframes.views`'s),
         kept under `key` until a keyframe is added or moved."""
         if key not in self._derived:
             self._derived[key] = compute()

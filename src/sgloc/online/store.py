@@ -110,7 +110,7 @@ def check_state(meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
                            arrays[f"map{k}_labels"])
     for key, width in (("last", 2), ("tries", 1), ("refined", 2)):
         _pairs(meta, key, n, width)
-    for row in meta["links"]:
+    for row in meta.get("links", []):
         _pairs({"links": [row[:2]]}, "links", n, 0, ordered=True)
         d = row[2]
         if (d["robot_a"], d["robot_b"]) != (robots[row[0]], robots[row[1]]):

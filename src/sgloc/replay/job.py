@@ -17,8 +17,6 @@ from sgloc.optional import require
 from sgloc.pipeline.config import LocalizerConfig
 from sgloc.replay.scenarios import REPLAY_SCENARIOS, ReplayInput
 
-BACKENDS = ("keyframes", "robots")
-
 
 @dataclass(frozen=True)
 class ReplayJob:
@@ -100,8 +98,7 @@ def replay_job(
     for name, option in (("seed", "--seed"), ("backend", "--backend")):
         if name in online:
             raise SglocError(f"--set online.{name}: give {option} instead.")
-    if backend not in BACKENDS:
-        raise SglocError(f"--backend {backend!r}: choose keyframes or robots.")
+    check_backend(backend)
     ReplayJob([], backend=backend, seed=seed, online=online).online_config()  # checked now
     if bool(sources or named) + len(scenarios) != 1:
         raise SglocError("give exactly one input: a layout folder or bag (or one bag per robot), "
@@ -112,8 +109,7 @@ def replay_job(
     if poses != "raw" and list(scenarios) != ["kitti00"]:
         raise SglocError(f"--poses {poses}: only for --kitti00 (other inputs bring their own "
                          "poses).")
-    if backend not in BACKENDS:
-        raise SglocError(f"--backend {backend!r}: choose keyframes or robots.")
+    check_backend(backend)
     if scenarios:
         for option, value in (("--class-table", classes), ("--odom-topic", odom_topic),
                               ("--objects-topic", objects_topic)):
@@ -158,3 +154,11 @@ def _recorded(sources, named, classes, odom_topic, objects_topic) -> list[RobotL
                              "alpha=runs/alpha.mcap.")
         pairs.append((name.strip(), Path(path.strip())))
     return read_robot_sources(pairs, classes, odom_topic, objects_topic)
+
+
+def check_backend(backend: str) -> None:
+    """SglocError naming the back-ends when `backend` (`--backend`) is none of them."""
+    from sgloc.online.backend import BACKENDS  # the session's machinery, on first use
+
+    if backend not in BACKENDS:
+        raise SglocError(f"--backend {backend!r}: choose {' or '.join(BACKENDS)}.")

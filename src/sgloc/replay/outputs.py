@@ -107,7 +107,7 @@ def replay_summary(
     """The summary.json content (robots in the order of `logs`, which is also their vertex
     ids in links.g2o with backend "robots"); `merged_objects`: the objects of merged.json."""
     robots = {}
-    keyframes = session.online.backend == "keyframes"  # then a g2o vertex per keyframe
+    keyframes = session.keyframe_vertices  # then a g2o vertex per keyframe
     for k, g in enumerate(logs):
         j = record.joined_ns.get(g.name)
         T = session.T_fleet_robot(g.name) if g.name in session.robots else None
@@ -263,7 +263,7 @@ def _write_all(tmp: Path, logs: Sequence[RobotLog], session: Any, record: Replay
         session.write_g2o(tmp / LINKS)
     else:
         write_links_g2o(tmp / LINKS, session, [g.name for g in logs])
-    if session.online.backend == "keyframes":
+    if session.keyframe_vertices:
         write_keyframe_table(tmp / KEYFRAMES, session, logs)
     (tmp / SUMMARY).write_text(json.dumps(summary, indent=2) + "\n")
     plot_timeline(logs, session.events, tmp / "timeline.png")

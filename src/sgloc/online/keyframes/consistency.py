@@ -29,7 +29,7 @@ import numpy as np
 
 from sgloc import lie
 from sgloc.online.config import OdometryNoise
-from sgloc.online.keyframe_links import evidence_order
+from sgloc.online.keyframes.links import evidence_order
 from sgloc.online.records import Link
 
 #: The chi-square 99 % quantile with 6 degrees of freedom: a 6-dof pose error within it is
@@ -208,7 +208,7 @@ def _anchors(graph, placed: list[int]) -> dict[int, np.ndarray]:
     """Per placed robot, the sorted keyframes where link or co-location factors hold it, with
     its first and last keyframe; at most `ANCHORS` of them evenly chosen besides the
     neighbours of each (see `bend_chi2`)."""
-    from sgloc.online.keyframe_graph import ODOMETRY
+    from sgloc.online.keyframes.graph import ODOMETRY
 
     ends: dict[int, set[int]] = {r: set() for r in placed}
     for f in graph.factors().values():
@@ -272,7 +272,7 @@ def bent_link(graph, links: Sequence[Link], taken: Sequence[int], chains: Chains
     """(link id, why) of the link to take out when the solved `graph` bends a robot's
     odometry beyond `threshold` (`bend_chi2`): of the taken links with an end on a bent
     robot, those that absorb the bend (whitened residual within `STRAIN` of the largest),
-    the one with the least evidence (`keyframe_links.evidence_order`): where one loop alone
+    the one with the least evidence (`keyframes.links.evidence_order`): where one loop alone
     disagrees, every link on it absorbs a like share and only the evidence tells them apart;
     where more loops hold the robot, a false link's residual stands out alone. None when no
     robot is bent."""

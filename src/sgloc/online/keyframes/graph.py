@@ -2,7 +2,7 @@
 an odometry factor between each robot's consecutive keyframes (`OdometryNoise`), link factors
 between keyframes of two robots (or two keyframes of one robot: a loop closure), the root
 robot's first keyframe fixed at its odometry pose (the fleet frame is the root's odometry
-frame). Solved incrementally (`sgloc.online.keyframe_solve`): only the robots connected to the
+frame). Solved incrementally (`sgloc.online.keyframes.solve`): only the robots connected to the
 root by links are in the solver; a robot enters it when a link first connects it, its
 keyframes placed through that link; a link whose removal disconnects robots rebuilds it."""
 
@@ -16,9 +16,9 @@ import numpy as np
 from sgloc import lie
 from sgloc.errors import SglocError
 from sgloc.online.config import OdometryNoise
-from sgloc.online.keyframe_solve import Factor, make_solver
+from sgloc.online.keyframes.solve import Factor, make_solver
 
-#: Factor kinds: odometry, accepted links, co-location factors (`keyframe_colocation`; they
+#: Factor kinds: odometry, accepted links, co-location factors (`keyframes.colocation`; they
 #: never connect robots: only links place a robot).
 ODOMETRY, LINK, COLOCATION = "odometry", "link", "colocation"
 

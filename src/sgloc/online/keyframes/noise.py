@@ -22,7 +22,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from sgloc import lie
-from sgloc.online.keyframe_consistency import Chains, link_ends
+from sgloc.online.keyframes.consistency import Chains, link_ends
 from sgloc.online.records import Link
 
 #: The odometry's variance scale stays within [MIN_SCALE, 1] of the model as given.

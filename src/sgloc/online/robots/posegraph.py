@@ -9,14 +9,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sgloc.online.link_selection import (
+from sgloc.online.robots.link_selection import (
     Edge,
     LoopMemo,
     select_consistent,
     spanning_forest,
     tree_poses,
 )
-from sgloc.online.solve import solve_pose_graph
+from sgloc.online.robots.solve import solve_pose_graph
 
 
 @dataclass

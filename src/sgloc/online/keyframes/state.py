@@ -1,7 +1,7 @@
 """The online session's keyframe back-end (`OnlineConfig.backend = "keyframes"`): attempts
 match a robot's recent local submap against another robot's map (or its own older map: a loop
 closure); an accepted attempt becomes a link between two keyframes; the links the evidence
-supports (`keyframe_links.select_links`) enter the keyframe pose graph (`keyframe_graph`) with
+supports (`keyframes.links.select_links`) enter the keyframe pose graph (`keyframes.graph`) with
 every robot's odometry; the robots' maps follow their corrected keyframes (`RobotMap.reanchor`).
 """
 
@@ -16,14 +16,14 @@ from sgloc.errors import SglocError
 from sgloc.estimation import MotionModel
 from sgloc.maps.graph import SemanticGraph
 from sgloc.online.config import OnlineConfig
-from sgloc.online.keyframe_agreement import disagreement_reason, disagrees, overlap
-from sgloc.online.keyframe_colocation import colocation_factors
-from sgloc.online.keyframe_consistency import Chains, check_links
-from sgloc.online.keyframe_graph import KeyframeGraph, keyframe_link
-from sgloc.online.keyframe_links import select_links
-from sgloc.online.keyframe_noise import fit_scale, heading_loops
-from sgloc.online.keyframe_views import view_corrected, view_offset
-from sgloc.online.link_selection import loop_error, loop_tolerance
+from sgloc.online.keyframes.agreement import disagreement_reason, disagrees, overlap
+from sgloc.online.keyframes.colocation import colocation_factors
+from sgloc.online.keyframes.consistency import Chains, check_links
+from sgloc.online.keyframes.graph import KeyframeGraph, keyframe_link
+from sgloc.online.keyframes.links import select_links
+from sgloc.online.keyframes.noise import fit_scale, heading_loops
+from sgloc.online.keyframes.views import view_corrected, view_offset
+from sgloc.online.loops import loop_error, loop_tolerance
 from sgloc.online.records import Attempt, Link
 from sgloc.online.refine import refit_link
 from sgloc.online.robot_map import RobotMap
@@ -81,7 +81,7 @@ def query_from(maps: list[RobotMap], target: int, query: int, first: int) -> Que
 def query_positions(maps: list[RobotMap], task: Query, offset: float
                     ) -> tuple[np.ndarray, np.ndarray]:
     """(query submap positions, target map positions) of `task`, in the order of its graphs,
-    corrected for the viewpoint offset `offset` (metres; `keyframe_views.view_corrected`)."""
+    corrected for the viewpoint offset `offset` (metres; `keyframes.views.view_corrected`)."""
     out = []
     for r, sel, g in ((task.query, task.query_objects, task.query_graph),
                       (task.target, task.target_objects, task.target_graph)):
@@ -105,7 +105,7 @@ def refit(task: Query, result: Attempt, motion: MotionModel, radius: float, tol_
     attempt's matches or moves the query submap by more than the loop tolerance (as a loop
     of 2) from the attempt's alignment. With `maps` (the session's robot maps), the objects
     are corrected for the viewpoint offset measured on the two robots' maps
-    (`keyframe_views`)."""
+    (`keyframes.views`)."""
     q, t = task.query_graph, task.target_graph
     T = np.asarray(result.transform, np.float64)
     pq, pt = q.positions, t.positions
@@ -157,7 +157,7 @@ def link_of(maps: list[RobotMap], names: list[str], task: Query, result: Attempt
 RESCALE_STEP = 1.5
 
 
-class KeyframeBackend:
+class KeyframeState:
     """The keyframe back-end's state for an `OnlineSession`: the keyframe pose graph, its links
     and what each robot pair was last tried at."""
 
@@ -176,14 +176,14 @@ class KeyframeBackend:
         self.colocated_at: tuple[list[int], int] | None = None
         self.held: set[int] = set()  # link ids the checks hold out (never in the graph)
         self.newly_held: list[int] = []  # those the last `update` newly held
-        self.odometry_scale = 1.0  # the odometry factors' variance scale (`keyframe_noise`)
+        self.odometry_scale = 1.0  # the odometry factors' variance scale (`keyframes.noise`)
 
     def link(self, maps: list[RobotMap], names: list[str], task: Query, result: Attempt,
              stamp: float, motion: MotionModel, radius: float,
              radii: tuple[float, float]) -> Link:
         """The keyframe link of an accepted attempt (`link_of`), its alignment refitted on
         the co-located objects (`refit`) when `OnlineConfig.refine_links` is on, its overlap
-        measured (`keyframe_agreement.overlap`); motion: the localizer's motion model, radius:
+        measured (`keyframes.agreement.overlap`); motion: the localizer's motion model, radius:
         the pairing radius, radii: the (land, cover) radii of the overlap (metres)."""
         o = self.online
         r = (refit(task, result, motion, radius, o.loop_translation, o.loop_rotation,
@@ -306,8 +306,8 @@ class KeyframeBackend:
     def update(self, maps: list[RobotMap], names: list[str], max_nfa: float | None = None,
                agreement: tuple[float, int] = (0.0, 1)) -> tuple[list[int], list[int]]:
         """Check and select the links (those whose maps disagree held first,
-        `keyframe_agreement.disagrees` with agreement = (threshold, min_covered); then
-        `keyframe_consistency.check_links` around `keyframe_links.select_links`, max_nfa
+        `keyframes.agreement.disagrees` with agreement = (threshold, min_covered); then
+        `keyframes.consistency.check_links` around `keyframes.links.select_links`, max_nfa
         its), move the graph to the selection (links
         leave it by factor id), solve, reanchor the placed robots' maps. Returns (link ids
         that entered, link ids that left, now revoked); `newly_held` then lists the link ids
@@ -358,7 +358,7 @@ class KeyframeBackend:
 
     def rescale(self, chains: Chains) -> None:
         """Fit the odometry's variance scale to the loops of the links in the graph
-        (`keyframe_noise`) and give the graph's odometry factors the scaled model when the
+        (`keyframes.noise`) and give the graph's odometry factors the scaled model when the
         scale moved by more than RESCALE_STEP times since it was last set."""
         s = fit_scale(*heading_loops(self.links, sorted(self.fid), chains))
         if abs(np.log(s / self.odometry_scale)) > np.log(RESCALE_STEP):
@@ -399,7 +399,7 @@ class KeyframeBackend:
                                                 and total - before >= growth * before)
 
     def colocate(self, maps: list[RobotMap], motion: MotionModel, radius: float) -> None:
-        """Derive the co-location factors (`keyframe_colocation`) of the placed robots again
+        """Derive the co-location factors (`keyframes.colocation`) of the placed robots again
         from the current solution, solve and reanchor. motion: the localizer's motion model;
         radius: the pairing radius (metres)."""
         g = self.graph
@@ -437,7 +437,7 @@ class KeyframeBackend:
         return meta, arrays
 
     @classmethod
-    def from_state(cls, online: OnlineConfig, meta: dict, arrays: dict) -> KeyframeBackend:
+    def from_state(cls, online: OnlineConfig, meta: dict, arrays: dict) -> KeyframeState:
         """The back-end `state` described, its graph holding the saved solution."""
         f = cls(online)
         f.graph = KeyframeGraph.from_state(online.odometry, meta, arrays)

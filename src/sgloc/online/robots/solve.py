@@ -10,7 +10,7 @@ import numpy as np
 from sgloc.errors import SglocError
 from sgloc.geometry import invert, regularized_covariance
 from sgloc.lie import product_exp, product_log
-from sgloc.online.link_selection import Edge
+from sgloc.online.robots.link_selection import Edge
 
 
 def gtsam_available() -> bool:

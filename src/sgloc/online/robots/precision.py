@@ -10,7 +10,8 @@ import numpy as np
 from sgloc.estimation.covariance import point_covariance
 from sgloc.geometry import invert
 from sgloc.lie import adjoint
-from sgloc.online.link_selection import Edge, invert_with_covariance
+from sgloc.online.loops import invert_with_covariance
+from sgloc.online.robots.link_selection import Edge
 
 
 def chain_covariance(

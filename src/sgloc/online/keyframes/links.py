@@ -27,7 +27,7 @@ import numpy as np
 from sgloc import lie
 from sgloc.geometry import rotation_angle_deg
 from sgloc.online.config import OdometryNoise
-from sgloc.online.link_selection import loop_tolerance
+from sgloc.online.loops import loop_tolerance
 from sgloc.online.records import Link
 
 

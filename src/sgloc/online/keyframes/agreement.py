@@ -4,7 +4,7 @@ An attempt aligns the query robot's recent submap with the target's map. On a re
 (a street grid: the same curb lines, poles and crossings every block) the submap can fit a copy
 of its place a block or two away as well as the place itself, and a link at the copy is rigid
 and agrees with the other links made there, so neither the pairwise consistency nor the bend
-check (`keyframe_consistency`) sees it until a third robot closes a cycle. What the copy does
+check (`keyframes.consistency`) sees it until a third robot closes a cycle. What the copy does
 not repeat shows it: the objects around the link (each robot's objects seen within
 `window` metres of travel of its end of the link, longer than the attempt's submap), put side
 by side by the link, land on an object of their class where the maps overlap when the link is

@@ -22,8 +22,8 @@ import numpy as np
 
 from sgloc import lie
 from sgloc.estimation import MotionModel
-from sgloc.online.keyframe_graph import COLOCATION, GraphFactor
-from sgloc.online.keyframe_views import view_corrected, view_offset
+from sgloc.online.keyframes.graph import COLOCATION, GraphFactor
+from sgloc.online.keyframes.views import view_corrected, view_offset
 from sgloc.online.refine import co_located, refit_link
 from sgloc.online.robot_map import RobotMap
 
@@ -36,7 +36,7 @@ def object_keyframes(m: RobotMap, offset: float = 0.0
     """(positions (n,3) in the robot's odometry frame, labels (n,), keyframe (n,)) of `m`'s
     confirmed objects; an object's keyframe is the middle one of those that saw it (the
     rounded mean index). offset: metres, the viewpoint offset the positions are corrected for
-    (`keyframe_views.view_corrected`; 0: the map's own positions)."""
+    (`keyframes.views.view_corrected`; 0: the map's own positions)."""
     b = m.builder
     k, _, o = m.sightings()
     n = len(b.counts)
@@ -114,7 +114,7 @@ def colocation_factors(
     robot index -> (4,4) its odometry frame in the fleet frame), pairs in index order; robots
     whose objects lie apart are skipped at once. With `view_correction` the objects are
     corrected for the viewpoint offset measured on the placed robots' maps
-    (`keyframe_views`), so robots that saw the same objects from opposite sides are not
+    (`keyframes.views`), so robots that saw the same objects from opposite sides are not
     pulled apart along the way they looked."""
     placed = sorted(T_fleet_odom)
     offset = view_offset([maps[r] for r in placed]) if view_correction else 0.0

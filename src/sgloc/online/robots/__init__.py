@@ -1,0 +1,1 @@
+"""Back-end "robots" of the online session (`backend.RobotsBackend`): one rigid frame per robot."""
