@@ -43,6 +43,41 @@ def test_save_load_round_trip(tmp_path, rng, suffix):
     np.testing.assert_array_equal(h.labels, g.labels)
 
 
+def test_load_and_save_work_from_the_graph_module_alone(tmp_path):
+    """A program that imports only `sgloc.maps.graph` reads and writes graph files: the
+    formats (`sgloc.io`) register themselves with the maps; maps import no file format."""
+    import subprocess
+    import sys
+
+    path = tmp_path / "g.json"
+    path.write_text(json.dumps({"positions": [[0, 0, 0], [3, 4, 0]], "labels": [2, 5]}))
+    code = (
+        "import json, sys; from sgloc.maps.graph import SemanticGraph; "
+        "before = 'sgloc.io.graph_files' in sys.modules; "
+        f"g = SemanticGraph.load({str(path)!r}); "
+        f"h = SemanticGraph.load(g.save({str(tmp_path / 'h.npz')!r})); "
+        "from sgloc.io.graph_files import read_graph; from sgloc.maps.files import GRAPH_FILES; "
+        "print(json.dumps([before, g.name, g.labels.tolist(), h.positions.tolist(), "
+        "GRAPH_FILES.reader is read_graph]))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert json.loads(out.stdout) == [False, "g.json", [2, 5], [[0, 0, 0], [3, 4, 0]], True]
+
+
+def test_no_registered_graph_file_functions_is_a_clear_error(tmp_path, monkeypatch):
+    from sgloc.errors import SglocError
+    from sgloc.maps.files import GRAPH_FILES
+
+    g = SemanticGraph([[0, 0, 0]], [1])
+    monkeypatch.setattr(GRAPH_FILES, "reader", None)
+    monkeypatch.setattr(GRAPH_FILES, "writer", None)
+    with pytest.raises(SglocError, match="no graph-file reader is registered"):
+        SemanticGraph.load(tmp_path / "g.json")
+    with pytest.raises(SglocError, match="no graph-file writer is registered"):
+        g.save(tmp_path / "g.json")
+    assert not (tmp_path / "g.json").exists()
+
+
 def test_airsim_pcd_reads_guo_colours(airsim_graphs):
     c1, c2 = airsim_graphs
     assert (len(c1), len(c2)) == (318, 328)

@@ -61,11 +61,7 @@ LAYERS: dict[str, int] = {
 
 
 #: Imports that break the layering today, each with the change that removes it. Keep empty.
-KNOWN: dict[tuple[str, str], str] = {
-    ("sgloc.maps.graph", "sgloc.io.graph_files"): (
-        "SemanticGraph.load / .save read and write through the graph-file readers; removing "
-        "it moves them to sgloc.io (e.g. io.load_graph / io.save_graph), a public API change"),
-}
+KNOWN: dict[tuple[str, str], str] = {}
 
 
 def _module_name(path: Path, root: Path) -> str:

@@ -176,6 +176,25 @@ def test_a_robot_that_reconnects_keeps_its_place(live_city):
     _assert_same_fleet(served, ref, 1e-9)
 
 
+def test_a_hello_before_any_keyframe_leaves_the_server_answering_and_no_state(live_city,
+                                                                              tmp_path):
+    """Robots say hello before their first keyframe; the state saves that come due meanwhile
+    write nothing (no keyframe: nothing to resume) and the server keeps answering."""
+    _, config, _ = live_city
+    ep, state = f"tcp/127.0.0.1:{_port()}", tmp_path / "base.npz"
+    opts = ServeOptions(listen=ep, sync=True, state=state, save_every=0.1)
+    with LiveServer(config, OnlineConfig(), opts), RobotClient("alpha", ep) as c:
+        c.sync()
+        time.sleep(0.5)  # saves come due (every 0.1 s) with only the hello taken
+        assert not c.sync(timeout=30).placed
+    assert not state.exists()
+
+
+#: Seconds one step of the restart test may wait for what it needs: a loaded machine is slow,
+#: not wrong.
+PATIENCE = 300.0
+
+
 def _serve_process(ep: str, state) -> subprocess.Popen:
     return subprocess.Popen(
         [sys.executable, "-m", "sgloc", "serve", "--sync", "--preset", "city-objects",
@@ -183,42 +202,73 @@ def _serve_process(ep: str, state) -> subprocess.Popen:
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
+def _wait_until(condition, what: str, proc: subprocess.Popen) -> None:
+    """Poll `condition()` until it holds; fail naming `what` after PATIENCE seconds, or at once
+    when the server process ended (with its error output)."""
+    end = time.monotonic() + PATIENCE
+    while not condition():
+        if proc.poll() is not None:
+            pytest.fail(f"the server ended (exit {proc.returncode}) before {what}: "
+                        f"{proc.stderr.read()}")
+        if time.monotonic() > end:
+            pytest.fail(f"{what}: not within {PATIENCE:g} s")
+        time.sleep(0.1)
+
+
+def _answers(ep: str) -> bool:
+    """Whether a server at `ep` answers a robot's hello."""
+    try:
+        with RobotClient("probe", ep) as c:
+            c.sync(timeout=1.0)
+    except SglocError:
+        return False
+    return True
+
+
+def _keyframes_saved(state) -> int:
+    """Keyframes the state file holds (0 before it is first written; it is replaced whole)."""
+    if not state.exists():
+        return 0
+    s = OnlineSession.load(state)
+    return sum(len(s.keyframes(r)[0]) for r in s.robots)
+
+
 def test_a_server_killed_and_restarted_from_its_state_ends_with_the_same_links(live_city, tmp_path):
+    """The server is killed once its state file holds half the run, restarted from it, and
+    the lockstep stream resynchronises: the same links and fleet as the replay. Each step
+    waits for what it needs (an answer, the state file's content, the stream's end)."""
     logs, _, ref = live_city
     ep, state = f"tcp/127.0.0.1:{_port()}", tmp_path / "base.npz"
+    total = sum(len(g) for g in logs)
     proc = _serve_process(ep, state)
     done: list = []
-    sent = [0]
 
     def play():
         try:
-            done.append(stream_logs(logs, ep, rate=0, lockstep=True, timeout=2.0,
-                                    progress=lambda n: sent.__setitem__(0, sent[0] + n)))
+            done.append(stream_logs(logs, ep, rate=0, lockstep=True, timeout=5.0,
+                                    restart_timeout=PATIENCE))
         except BaseException as e:  # noqa: BLE001 - reported below
             done.append(e)
 
-    t = threading.Thread(target=play)
-    deadline = time.monotonic() + 60
-    while True:  # the stream starts once the server answers
-        try:
-            RobotClient("probe", ep).close()
-            break
-        except SglocError:
-            assert time.monotonic() < deadline and proc.poll() is None
-            time.sleep(0.2)
-    t.start()
-    total = sum(len(g) for g in logs)
-    while sent[0] < total // 2 or not state.exists():
-        assert t.is_alive() and time.monotonic() < deadline
-        time.sleep(0.05)
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    proc = _serve_process(ep, state)
-    t.join(120)
-    assert done and not isinstance(done[0], BaseException), done
-    assert done[0].resyncs >= 1
-    proc.send_signal(signal.SIGTERM)
-    _, err = proc.communicate(timeout=60)
+    try:  # the server is ended whatever fails
+        t = threading.Thread(target=play, daemon=True)
+        _wait_until(lambda: _answers(ep), "the server answering a hello", proc)
+        t.start()
+        _wait_until(lambda: _keyframes_saved(state) >= total // 2 or not t.is_alive(),
+                    f"the state file holding {total // 2} of the {total} keyframes", proc)
+        assert t.is_alive(), f"the stream ended before the server was killed: {done}"
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        proc = _serve_process(ep, state)  # resumes from the state file's half run
+        _wait_until(lambda: not t.is_alive(), "the stream's end after the restart", proc)
+        assert done and not isinstance(done[0], BaseException), done
+        assert done[0].resyncs >= 1
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=PATIENCE)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
     assert "Traceback" not in err
     got = OnlineSession.load(state)
     assert [(lk.robot_a, lk.robot_b, lk.keyframe_a, lk.keyframe_b, lk.active)

@@ -9,6 +9,8 @@ reg = register(src, dst, rejection="neighbor", noise_bound=2.5)  # matched point
 reg.transform  # T_dst_src (4x4) or None when reg.success is False
 """
 
+from sgloc.maps.files import GRAPH_FILES as _GRAPH_FILES  # loads no numeric library
+
 TYPE_CHECKING = False  # typing is not imported: `import sgloc` stays light
 
 __version__ = "0.1.0"
@@ -53,6 +55,26 @@ if TYPE_CHECKING:
     from sgloc.pipeline.localizer import LocalizationResult, Localizer, NotLocalizedError, localize
     from sgloc.pipeline.prepared import PreparedMap, prepare
     from sgloc.pipeline.registration import RegistrationResult, register
+
+
+def _read_graph(path):
+    """`sgloc.io.graph_files.read_graph`, imported on first use (it then registers itself)."""
+    from sgloc.io.graph_files import read_graph
+
+    return read_graph(path)
+
+
+def _write_graph(path, positions, labels, edge_radius=None):
+    """`sgloc.io.graph_files.write_graph`, imported on first use (it then registers itself)."""
+    from sgloc.io.graph_files import write_graph
+
+    return write_graph(path, positions, labels, edge_radius=edge_radius)
+
+
+#: `SemanticGraph.load` / `.save` read and write through the file formats of `sgloc.io`: this
+#: package runs before any of its modules, so the formats are registered whichever is imported
+#: first, and `import sgloc` still loads no numeric library.
+_GRAPH_FILES.register(_read_graph, _write_graph)
 
 
 def __getattr__(name: str):

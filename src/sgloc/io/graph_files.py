@@ -5,6 +5,8 @@ spark-dsg scene graph), `.npz` (arrays `positions` (n,3) and `labels` (n,)), `.s
 Readers are strict: only regular files of bounded size are opened, labels must be integers,
 numbers finite, shapes exact; anything else is a GraphFileError naming the file and the fix.
 A reader for another format registers itself in READERS (suffix -> function path -> arrays).
+Importing this module makes `read_graph` / `write_graph` what `SemanticGraph.load` / `.save`
+call (`sgloc.maps.files.GRAPH_FILES`).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import numpy as np
 
 from sgloc.errors import GraphFileError, SglocError
 from sgloc.io.files import MAX_GRAPH_FILE_BYTES, check_regular_file, read_regular_file
+from sgloc.maps.files import GRAPH_FILES
 from sgloc.validation import check_graph_arrays
 
 #: Deepest JSON nesting read ({"positions": [[x, y, z]]} is 3 deep).
@@ -280,3 +283,6 @@ def write_graph(
     else:
         np.savez_compressed(path, positions=np.asarray(positions), labels=np.asarray(labels))
     return path
+
+
+GRAPH_FILES.register(read_graph, write_graph)

@@ -467,10 +467,11 @@ class LiveServer:
             self.save()
 
     def save(self) -> Path | None:
-        """Write the state file atomically (a temporary file beside it, then renamed)."""
+        """Write the state file atomically (a temporary file beside it, then renamed); nothing
+        while no keyframe came (a robot's hello alone leaves nothing to resume from)."""
         self._saved_at = time.monotonic()
         path = self.options.state
-        if path is None or not self._dirty:
+        if path is None or not self._dirty or not self.session.robots:
             return None
         path = Path(path)
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.npz")

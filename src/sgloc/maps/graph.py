@@ -9,6 +9,7 @@ import numpy as np
 from scipy import sparse
 
 from sgloc.errors import InvalidGraphError, SglocError
+from sgloc.maps.files import GRAPH_FILES
 from sgloc.validation import check_graph_arrays, check_real
 
 DEFAULT_EDGE_RADIUS = 20.0
@@ -157,14 +158,10 @@ class SemanticGraph:
     def load(cls, path: str | Path, edge_radius: float = DEFAULT_EDGE_RADIUS) -> SemanticGraph:
         """Read a graph from `.pcd` (Guo's packed-rgb Airsim classes), `.json`, `.npz`, `.ply`,
         `.csv` or `.txt` (docs/formats.md)."""
-        from sgloc.io.graph_files import read_graph
-
-        positions, labels = read_graph(path)
+        positions, labels = GRAPH_FILES.read(path)
         return cls(positions, labels, edge_radius, name=Path(path).name)
 
     def save(self, path: str | Path) -> Path:
         """Write the graph as `.pcd`, `.json`, `.npz`, `.ply`, `.csv` or `.txt` (chosen by the
         suffix; `load` reads each back)."""
-        from sgloc.io.graph_files import write_graph
-
-        return write_graph(path, self.positions, self.labels, edge_radius=self.edge_radius)
+        return GRAPH_FILES.write(path, self.positions, self.labels, edge_radius=self.edge_radius)
