@@ -122,3 +122,12 @@ def test_no_module_branches_on_a_back_end_name(module):
     assert not compared, f"{module}: compares with a back-end's name at lines {compared}"
     assert module.startswith("replay/outputs") or not reads, \
         f"{module}: reads the back-end's name at lines {reads}"
+
+
+@pytest.mark.parametrize("backend", ["keyframes", "robots"])
+def test_a_session_without_keyframes_saves_and_resumes(backend, tmp_path):
+    s = OnlineSession(online=OnlineConfig(backend=backend))
+    back = OnlineSession.load(s.save(tmp_path / "empty.npz"))
+    assert back.robots == [] and back.corrections() == {} and back.links == []
+    back.add_keyframe("a", 0.0, np.eye(4), np.zeros((0, 3)), np.zeros(0, np.int64))
+    assert back.corrections().keys() == {"a"}

@@ -209,7 +209,8 @@ class KeyframeGraph:
                 "robots": robots, "in": self._in, "sent": sorted(self._sent),
                 "kinds": [x.kind for x in f]}
         arrays = {
-            "kg_odom": np.concatenate([self.keyframes(r) for r in robots]).reshape(-1, 4, 4),
+            "kg_odom": np.concatenate([self.keyframes(r) for r in robots]).reshape(-1, 4, 4)
+            if robots else np.zeros((0, 4, 4)),
             "kg_count": np.array([len(self._odom[r]) for r in robots], np.int64),
             "kg_keys": np.concatenate([self._keys[r] for r in robots]).astype(np.int64)
             if robots else np.zeros(0, np.int64),
