@@ -105,7 +105,9 @@ class OnlineSession:
         as it stands now; None while the robot is unplaced."""
         if self.T_fleet_robot(robot) is None:
             return None
-        return self.keyframes(robot)[0], self._backend.trajectory(self._state.index(robot))
+        k = self._state.index(robot)
+        stamps = np.array(self._state.maps[robot].stamps, np.float64)
+        return stamps, self._backend.trajectory(k)
 
     @property
     def keyframe_vertices(self) -> bool:

@@ -212,7 +212,8 @@ class KeyframeBackend:
 
     def add_link(self, i, j, T_i_j, covariance, confidence, stamp) -> None:
         """The link between the two robots' latest keyframes."""
-        a, b = self.s.map_list()[i], self.s.map_list()[j]
+        maps = self.s.map_list()
+        a, b = maps[i], maps[j]
         ka, kb = a.keyframes - 1, b.keyframes - 1
         T, cov = keyframe_link(a.anchors()[ka], T_i_j, covariance, b.anchors()[kb])
         names = self.s.robots
