@@ -49,6 +49,14 @@ def _wait(cond, timeout: float = 20.0) -> None:
         time.sleep(0.02)
 
 
+def _matched_publishers(z, keys) -> dict:
+    """A publisher per key, each returned once the server's subscription matches it, so that
+    nothing is put before the server can receive it."""
+    pubs = {key: z.declare_publisher(key) for key in keys}
+    _wait(lambda: all(p.matching_status.matching for p in pubs.values()))
+    return pubs
+
+
 def test_cdr_on_rmw_zenoh_and_bridge_keys_gives_the_bag_readers_keyframes(live_city, tmp_path):
     logs, config, _ = live_city
     cut = [_cut(logs[0], 12), _cut(logs[1], 12)]
@@ -61,11 +69,11 @@ def test_cdr_on_rmw_zenoh_and_bridge_keys_gives_the_bag_readers_keyframes(live_c
         cut[1].name: (f"{cut[1].name}/odom", f"{cut[1].name}/objects")}
     with LiveServer(config, OnlineConfig(), ServeOptions(listen=ep, sync=True)) as srv:
         z = open_session("client", connect=ep)
-        time.sleep(0.5)  # the server's subscriptions reach the new session
+        pubs = _matched_publishers(z, [k for pair in keys.values() for k in pair])
         for g in cut:
             for _, odom, markers in robot_messages(g, mark_empty=True):
-                z.put(keys[g.name][0], bytes(TS.serialize_cdr(odom, ODOMETRY)))
-                z.put(keys[g.name][1], bytes(TS.serialize_cdr(markers, MARKERS)))
+                pubs[keys[g.name][0]].put(bytes(TS.serialize_cdr(odom, ODOMETRY)))
+                pubs[keys[g.name][1]].put(bytes(TS.serialize_cdr(markers, MARKERS)))
         _wait(lambda: srv.counts["keyframes"] == 24)
         z.close()
         s = srv.session
@@ -96,15 +104,16 @@ def test_bad_cdr_payloads_are_counted_and_dropped(live_city, caplog):
     ep = f"tcp/127.0.0.1:{_port()}"
     with LiveServer(config, OnlineConfig(), ServeOptions(listen=ep, sync=True)) as srv:
         z = open_session("client", connect=ep)
-        time.sleep(0.5)
+        wrong_type = f"0/{g.name}/odom/visualization_msgs::msg::dds_::MarkerArray_/h"
+        bad_name = "0/bad.name/objects/visualization_msgs::msg::dds_::MarkerArray_/h"
+        pubs = _matched_publishers(z, [ok, mk, wrong_type, bad_name])
         bad = [(ok, b""), (ok, b"\x00\x01\x00\x00garbage"), (ok, odom[:-9]),
-               (mk, marks[0][: len(marks[0]) // 2]),
-               (f"0/{g.name}/odom/visualization_msgs::msg::dds_::MarkerArray_/h", marks[0])]
+               (mk, marks[0][: len(marks[0]) // 2]), (wrong_type, marks[0])]
         for key, payload in [*bad, (mk, marks[0])]:  # markers before any odometry: unpaired
-            z.put(key, payload)
-        z.put("0/bad.name/objects/visualization_msgs::msg::dds_::MarkerArray_/h", marks[0])
-        z.put(ok, odom)
-        z.put(mk, marks[0])
+            pubs[key].put(payload)
+        pubs[bad_name].put(marks[0])
+        pubs[ok].put(odom)
+        pubs[mk].put(marks[0])
         _wait(lambda: srv.counts["keyframes"] == 1)
         z.close()
         counts = dict(srv.counts)
