@@ -168,9 +168,9 @@ class OnlineConfig:
         whole geometry is verified against the other map), instead of its whole map. A
         sparse map (a one-class detector's few objects per keyframe) fits another map only
         where the two overlap, and its whole map is mostly elsewhere: its candidates there
-        are too few for a fit, while the overlapping stretch alone fits. A map whose last
-        keyframe alone holds more objects is matched whole. False: joins always match the
-        whole map.
+        are too few for a fit, while the overlapping stretch alone fits. A map whose
+        keyframes over the submap each saw more objects than that (the median keyframe) is
+        matched whole. False: joins always match the whole map.
     loop_closures: backend "keyframes": also match each robot's local submap against its own
         older map (objects last seen before the submap's stretch), intra-robot loop closures.
     view_correction: backend "keyframes": the link refits and co-location factors use the

@@ -15,8 +15,16 @@ import numpy as np
 from sgloc.online.backend import BACKENDS, SessionState
 from sgloc.online.batch import AttemptBatch
 from sgloc.online.keyframes.graph import keyframe_link, write_keyframe_g2o
-from sgloc.online.keyframes.state import KeyframeState, Query, make_query, query_from
+from sgloc.online.keyframes.state import (
+    KeyframeState,
+    Query,
+    make_query,
+    query_from,
+    recent_start,
+    seen_per_keyframe,
+)
 from sgloc.online.records import LINK_ACCEPTED, LINK_HELD, LINK_REVOKED, ROBOT_JOINED, Attempt, Link
+from sgloc.online.robot_map import RobotMap
 
 
 @dataclass
@@ -99,9 +107,10 @@ class KeyframeBackend:
             length, cap = self._length(group[t] == group[q], self.s.tries.get(key, 0)
                                        + planned[key])
             planned[key] += 1
+            if cap is not None and _dense(maps[q], length, cap):
+                length, cap = math.inf, None
             qu = make_query(maps, t, q, length, cap)
             if cap is not None and len(qu.query_graph.positions) < o.min_objects:
-                # a dense map: its last keyframe alone sees more than a small query holds
                 qu = make_query(maps, t, q, math.inf)
             if min(len(qu.query_graph.positions), len(qu.target_graph.positions)) >= \
                     o.min_objects:
@@ -147,7 +156,7 @@ class KeyframeBackend:
         last below the localizer's `small_query`, so that its whole geometry is verified
         against the map (`sgloc.acceptance.verification`): a sparse map fits another only
         where they overlap, and there its few objects give too few candidates for a fit. (A
-        dense map, whose last keyframe alone sees more, is matched whole: `_queries`.)"""
+        dense map, whose keyframes typically each see more, is matched whole: `_queries`.)"""
         o = self.s.online
         if joined:
             return o.submap_length, None
@@ -310,3 +319,11 @@ class KeyframeBackend:
         """The keyframe pose graph of the placed robots: a vertex per keyframe
         (`keyframe_ids` names them), an edge per odometry and active link factor."""
         return write_keyframe_g2o(self.kf.graph, path)[0]
+
+
+def _dense(m: RobotMap, length: float, cap: int) -> bool:
+    """Whether `m`'s keyframes over its last `length` metres typically (the median) each saw
+    more than `cap` confirmed objects: no stretch of such a map is a small query, and a few of
+    its keyframes that saw less (a gap in the view) are not a place to join on."""
+    seen = seen_per_keyframe(m, recent_start(m, length))
+    return bool(len(seen)) and float(np.median(seen)) > cap

@@ -61,6 +61,16 @@ def recent_start(m: RobotMap, length: float, max_objects: int | None = None) -> 
     return first
 
 
+def seen_per_keyframe(m: RobotMap, first: int) -> np.ndarray:
+    """(n,) how many confirmed objects each keyframe of `m` from `first` on saw (n: the
+    keyframes from `first` to the last)."""
+    k, _, o = m.sightings()
+    n_objects = len(m.builder.counts)
+    keep = (k >= first) & (m.builder.counts >= m.min_observations)[o]
+    seen = np.unique(k[keep] * n_objects + o[keep])  # each (keyframe, object) once
+    return np.bincount(seen // n_objects - first, minlength=max(m.keyframes - first, 0))
+
+
 def make_query(maps: list[RobotMap], target: int, query: int, length: float,
                max_objects: int | None = None) -> Query:
     """The attempt of `query`'s recent submap (last `length` metres, at most `max_objects`
