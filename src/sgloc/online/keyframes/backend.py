@@ -111,6 +111,7 @@ class KeyframeBackend:
                 length, cap = math.inf, None
             qu = make_query(maps, t, q, length, cap)
             if cap is not None and len(qu.query_graph.positions) < o.min_objects:
+                # too little left after the cut: its last keyframe alone saw more
                 qu = make_query(maps, t, q, math.inf)
             if min(len(qu.query_graph.positions), len(qu.target_graph.positions)) >= \
                     o.min_objects:
